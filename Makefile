@@ -1,0 +1,35 @@
+# Every target creates/updates .venv as needed (stamp file tracks pyproject.toml).
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+OUT ?= runs
+
+.PHONY: demo test reproduce benchmark lint venv clean
+
+$(STAMP): pyproject.toml
+	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e ".[dev]"
+	@touch $(STAMP)
+
+venv: $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/bench run scenarios/table2_kinematic_identification.yaml --out $(OUT)/demo
+
+test: $(STAMP)
+	$(BIN)/ruff check bench tests tools
+	$(BIN)/python -m pytest
+
+reproduce: $(STAMP)
+	$(BIN)/bench run scenarios/table2_kinematic_identification.yaml --out $(OUT)/table2 --set monte_carlo.seeds=500
+
+benchmark: $(STAMP)
+	$(BIN)/python tools/benchmark.py --out $(OUT)/benchmark.json
+
+lint: $(STAMP)
+	$(BIN)/ruff check bench tests tools
+
+clean:
+	rm -rf $(VENV) $(OUT)
