@@ -20,7 +20,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check bench tests tools
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -q
 
 reproduce: $(STAMP)
 	$(BIN)/bench run scenarios/table2_kinematic_identification.yaml --out $(OUT)/table2 --set monte_carlo.seeds=500

@@ -23,7 +23,7 @@ FORMS = ("exact", "linear")
 
 
 def dh_transform(theta, d, a, alpha):
-    """Standard DH link transform ``A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha)`` (Eq. 7-8), shape ``theta.shape + (4, 4)``."""
+    """Standard DH link transform ``A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha)`` (Eq. 7-8), ``theta.shape + (4, 4)``."""
     theta = np.asarray(theta, dtype=float)
     ct, st = np.cos(theta), np.sin(theta)
     ca, sa = np.cos(alpha), np.sin(alpha)

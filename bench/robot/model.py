@@ -58,7 +58,7 @@ class Robot:
         """Number of generalized errors, ``6 (n + 1)`` (42 for the TA-40)."""
         return 6 * (self.n + 1)
 
-    def with_ee_point(self, p_ee) -> "Robot":
+    def with_ee_point(self, p_ee) -> Robot:
         """Copy with another measured point (m, in frame n)."""
         return Robot(self.name, self.joint_names, self.a, self.d, self.alpha, self.theta_offset, self.q_min,
                      self.q_max, np.asarray(p_ee, dtype=float).reshape(3))
