@@ -1,0 +1,90 @@
+import numpy as np
+import pytest
+
+from bench.robot.identifiability import closed_form_reduction
+from bench.robot.identification import identify_iterative, identify_linear
+from bench.robot.jacobian import identification_jacobian
+from bench.robot.kinematics import ee_position
+from tests.conftest import random_errors
+
+
+@pytest.fixture(scope="module")
+def red(ta40):
+    return closed_form_reduction(ta40)
+
+
+def _truth(rng):
+    eps = random_errors(rng)
+    eps[36:] = 0.0  # as in Table 2: no errors in frame 6 (makes the 25-parameter exact model exact)
+    return eps
+
+
+def test_linear_noise_free_is_exact(ta40, red, rng):
+    eps = _truth(rng)
+    q = ta40.random_configurations(rng, 100)
+    pts = ee_position(ta40, q) + identification_jacobian(ta40, q) @ eps  # Eq. 12
+    res = identify_linear(ta40, q, pts, red)
+    assert res.success
+    assert np.abs(res.eps_dot - red.reduce(eps)).max() < 1e-12
+    assert res.residual_rms < 1e-12
+
+
+def test_iterative_exact_noise_free_reproduces_heldout(ta40, red, rng):
+    eps = _truth(rng)
+    q, qh = ta40.random_configurations(rng, 100), ta40.random_configurations(rng, 500)
+    res = identify_iterative(ta40, q, ee_position(ta40, q, eps), red, sigma=5e-5)
+    assert res.success and res.iterations < 20
+    err = np.linalg.norm(ee_position(ta40, qh, res.eps) - ee_position(ta40, qh, eps), axis=-1)
+    assert err.max() < 1e-9  # m, i.e. 1e-6 mm
+    # first-order agreement with the linear reduction (second-order terms ~ eps^2 * reach)
+    assert np.abs(res.eps_dot - red.reduce(eps))[:].max() < 5e-4
+
+
+def test_covariance_matches_monte_carlo(ta40, red, rng):
+    """Normalised estimation errors e^T C^-1 e over 40 noise draws: chi-square with 40 * 25 dof."""
+    eps = _truth(rng)
+    sigma = 5e-5
+    q = ta40.random_configurations(rng, 100)
+    p = ee_position(ta40, q, eps)
+    ref = identify_iterative(ta40, q, p, red, sigma=sigma)
+    total, n = 0.0, 40
+    for _ in range(n):
+        r = identify_iterative(ta40, q, p + rng.normal(scale=sigma, size=p.shape), red, sigma=sigma, eps0=ref.eps)
+        e = r.eps_dot - ref.eps_dot
+        total += e @ np.linalg.solve(r.covariance, e)
+    dof = n * len(red.kept)
+    assert abs(total - dof) < 4 * np.sqrt(2 * dof)  # 4 sigma of the chi-square distribution
+
+
+def test_weights_follow_sigma(ta40, red, rng):
+    q = ta40.random_configurations(rng, 50)
+    p = ee_position(ta40, q)
+    a = identify_linear(ta40, q, p, red, sigma=1e-4)
+    b = identify_linear(ta40, q, p, red, sigma=2e-4)
+    assert np.allclose(b.covariance, 4 * a.covariance)
+
+
+def test_too_few_poses_is_a_result_not_an_exception(ta40, red, rng):
+    q = ta40.random_configurations(rng, 5)
+    for f in (identify_linear, identify_iterative):
+        res = f(ta40, q, ee_position(ta40, q), red)
+        assert not res.success and "poses" in res.message
+
+
+def test_rank_deficient_poses(ta40, red):
+    q = np.tile(np.deg2rad([10, 30, 60, 0, 20, 0]), (20, 1))  # one pose repeated
+    for f in (identify_linear, identify_iterative):
+        res = f(ta40, q, ee_position(ta40, q), red)
+        assert not res.success and "rank deficient" in res.message
+
+
+def test_bad_measurements(ta40, red, rng):
+    q = ta40.random_configurations(rng, 20)
+    p = ee_position(ta40, q)
+    p[3, 1] = np.nan
+    with pytest.raises(ValueError, match="points"):
+        identify_linear(ta40, q, p, red)
+    with pytest.raises(ValueError, match="sigma"):
+        identify_linear(ta40, q, ee_position(ta40, q), red, sigma=-1.0)
+    with pytest.raises(ValueError, match="shape"):
+        identify_linear(ta40, q, ee_position(ta40, q)[:-1], red)
