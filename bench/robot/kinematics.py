@@ -35,6 +35,12 @@ def dh_transform(theta, d, a, alpha):
     return A
 
 
+def joint_transforms(robot: Robot, q) -> list:
+    """The DH matrices ``A_1 .. A_n`` at readings ``q (..., n)``, one contiguous ``(..., 4, 4)`` array per joint."""
+    return [dh_transform(q[..., i] + robot.theta_offset[i], robot.d[i], robot.a[i], robot.alpha[i])
+            for i in range(robot.n)]
+
+
 def error_matrix(e6, form="exact"):
     """Generalized-error matrix ``E_i`` of one frame from ``e6 = (x, y, z, s, r, p)`` (Eq. 9 or its exact form)."""
     x, y, z, s, r, p = np.asarray(e6, dtype=float)
@@ -96,12 +102,13 @@ def link_frames(robot: Robot, q, eps=None, form="exact"):
     """
     q = robot.check_q(q)
     eps = _check_eps(robot, eps).reshape(robot.n + 1, 6)
-    A = dh_transform(q + robot.theta_offset, robot.d, robot.a, robot.alpha)  # (..., n, 4, 4)
     out = np.empty(q.shape[:-1] + (robot.n + 1, 4, 4))
     T = np.broadcast_to(error_matrix(eps[0], form), q.shape[:-1] + (4, 4))
     out[..., 0, :, :] = T
-    for i in range(robot.n):
-        T = T @ A[..., i, :, :] @ error_matrix(eps[i + 1], form)
+    for i, A in enumerate(joint_transforms(robot, q)):
+        T = T @ A
+        if np.any(eps[i + 1]):
+            T = T @ error_matrix(eps[i + 1], form)
         out[..., i + 1, :, :] = T
     return out
 

@@ -79,6 +79,14 @@ class Robot:
         return q
 
 
+def random_errors(rng: np.random.Generator, n_frames: int = 7, trans: float = 2e-3, rot: float = np.pi / 180):
+    """Generalized errors uniform in +-``trans`` (m) and +-``rot`` (rad), as in the thesis's section 4.6 simulation."""
+    e = np.empty((n_frames, 6))
+    e[:, :3] = rng.uniform(-trans, trans, size=(n_frames, 3))
+    e[:, 3:] = rng.uniform(-rot, rot, size=(n_frames, 3))
+    return e.ravel()
+
+
 def error_names(n_frames: int = 7) -> list[str]:
     """Names of the generalized errors in vector order: ``x0, y0, z0, s0, r0, p0, x1, ... p6``."""
     return [f"{k}{i}" for i in range(n_frames) for k in PARAM_KINDS]

@@ -3,8 +3,7 @@ import pytest
 
 from bench.robot.identifiability import closed_form_reduction, numeric_identifiability
 from bench.robot.jacobian import identification_jacobian
-from bench.robot.model import robot_from_dict
-from tests.conftest import random_errors
+from bench.robot.model import random_errors, robot_from_dict
 
 THESIS_KEPT = ["x0", "y0", "s0", "p0", "x1", "y1", "s1", "p1", "x2", "y2", "s2", "p2", "x3", "y3", "s3", "p3",
                "x4", "y4", "s4", "p4", "x5", "p5", "x6", "y6", "z6"]

@@ -5,7 +5,7 @@ from bench.robot.identifiability import closed_form_reduction
 from bench.robot.identification import identify_iterative, identify_linear
 from bench.robot.jacobian import identification_jacobian
 from bench.robot.kinematics import ee_position
-from tests.conftest import random_errors
+from bench.robot.model import random_errors
 
 
 @pytest.fixture(scope="module")

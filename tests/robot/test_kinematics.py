@@ -5,8 +5,7 @@ from bench.errors import ConfigError
 from bench.geometry.transforms import vee
 from bench.robot.jacobian import identification_jacobian
 from bench.robot.kinematics import ee_position, error_matrix, forward_kinematics, link_frames
-from bench.robot.model import error_names, robot_from_dict
-from tests.conftest import random_errors
+from bench.robot.model import error_names, random_errors, robot_from_dict
 
 
 def _fd_jacobian(robot, q, eps, form, h=1e-7):

@@ -3,8 +3,8 @@ import numpy as np
 from bench.geometry.transforms import rot_x, rot_y, rot_z
 from bench.robot.identifiability import closed_form_reduction
 from bench.robot.kinematics import link_frames
+from bench.robot.model import random_errors
 from bench.robot.orientation import link5_frame, orientation_analysis, yxz_angles
-from tests.conftest import random_errors
 
 
 def test_yxz_angles_round_trip(rng):
