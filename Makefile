@@ -4,6 +4,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= runs
+# Headless rendering through Mesa's EGL (Debian: libegl1 libgl1-mesa-dri).
+export MUJOCO_GL ?= egl
 
 .PHONY: demo test reproduce benchmark lint venv clean
 
