@@ -1,0 +1,391 @@
+"""The dataset: the seam between the bench and the pipeline (``shared/design.md``).
+
+A dataset is a folder that a real robot campaign or the simulator writes::
+
+    manifest.yaml   format, kind of campaign, units, the views (name, image file, role, notes)
+    images/         lossless PNG views named in the manifest
+    joints.csv      view, q1_deg ... q6_deg        (joint *readings*, robot campaigns)
+    table.csv       view, x_mm, z_mm, rot_deg      (x-y table readings, table campaigns)
+    tracker.csv     point, x_mm, y_mm, z_mm, q1_deg ... q6_deg   (kinematic campaigns)
+    camera.yaml     nominal (or calibrated) camera: OpenCV FileStorage keys + model name
+    robot.yaml      nominal DH + joint limits (``models/ta40.yaml`` format)
+    truth/          simulated datasets only; never read here (the evaluator's business)
+
+This module reads the public part (:func:`load_dataset`) and writes any part atomically (:class:`DatasetWriter`:
+everything goes to a temporary sibling folder that is renamed into place only when complete, so an interrupted or
+failed write leaves no half-written dataset). Units in files are mm and degrees (unit in every column name); what
+:func:`load_dataset` returns is SI (m, rad). Every malformed file or field is a one-line :class:`ConfigError`
+naming the file and the field.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import shutil
+import tempfile
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from bench.errors import ConfigError
+
+FORMAT = "insitu-bench-dataset/1"
+KINDS = ("in_situ", "camera_calibration", "xy_table", "kinematic")
+JOINT_COLUMNS = tuple(f"q{i}_deg" for i in range(1, 7))
+TABLE_COLUMNS = ("x_mm", "z_mm", "rot_deg")
+TRACKER_COLUMNS = ("x_mm", "y_mm", "z_mm")
+_MANIFEST_KEYS = {"format", "kind", "units", "name", "notes", "views", "camera", "robot", "created_by"}
+_VIEW_KEYS = {"name", "image", "role", "notes"}
+
+
+@dataclass(frozen=True)
+class View:
+    """One image of the campaign: its file, role, and the readings taken with it (SI)."""
+
+    name: str
+    image_path: Path
+    role: str = ""
+    notes: str = ""
+    q: np.ndarray | None = None  # joint readings (rad), (6,)
+    table: np.ndarray | None = None  # x-y table readings (m, m, rad): x, z, rotation about y
+
+    def image(self, expected_size=None) -> np.ndarray:
+        """The image as ``uint8 (H, W, 3)`` RGB (or ``(H, W)`` grey); one-line error if missing or unreadable.
+
+        ``expected_size`` = ``(width, height)`` checks the image against the camera file.
+        """
+        import cv2
+
+        if not self.image_path.is_file():
+            raise ConfigError(self.image_path, "<file>", f"image of view {self.name!r} not found")
+        img = cv2.imread(str(self.image_path), cv2.IMREAD_UNCHANGED)
+        if img is None or img.size == 0:
+            raise ConfigError(self.image_path, "<file>", f"image of view {self.name!r} is empty or not readable")
+        if img.dtype != np.uint8:
+            raise ConfigError(self.image_path, "<file>", f"expected an 8-bit image, got {img.dtype}")
+        if img.ndim == 3:
+            img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2RGB)
+        if expected_size is not None and (img.shape[1], img.shape[0]) != tuple(expected_size):
+            raise ConfigError(self.image_path, "<size>", f"image is {img.shape[1]}x{img.shape[0]}, the camera file "
+                                                         f"says {expected_size[0]}x{expected_size[1]}")
+        return img
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """The public part of a dataset folder (see the module docstring); SI units."""
+
+    root: Path
+    name: str
+    kind: str
+    views: tuple
+    camera_path: Path | None
+    robot_path: Path | None
+    tracker: dict | None = None  # {"point": names, "p": (N, 3) m, "q": (N, 6) rad}
+    notes: str = ""
+    extra: dict = field(default_factory=dict)
+
+    def view(self, name: str) -> View:
+        """The view called ``name``; one-line error naming the manifest if there is none."""
+        for v in self.views:
+            if v.name == name:
+                return v
+        raise ConfigError(self.root / "manifest.yaml", "views", f"no view named {name!r}")
+
+    def camera(self):
+        """The camera file as a :class:`bench.camera.model.CameraModel`."""
+        from bench.camera.io import read_camera_yaml
+
+        if self.camera_path is None:
+            raise ConfigError(self.root / "manifest.yaml", "camera", "this dataset has no camera file")
+        return read_camera_yaml(self.camera_path)
+
+    def robot(self):
+        """The robot file as a :class:`bench.robot.model.Robot` (nominal DH and limits)."""
+        from bench.robot.model import load_robot
+
+        if self.robot_path is None:
+            raise ConfigError(self.root / "manifest.yaml", "robot", "this dataset has no robot file")
+        return load_robot(self.robot_path)
+
+    def joint_readings(self, names=None) -> np.ndarray:
+        """Joint readings (rad) of the named views (default all), shape (k, 6)."""
+        views = self.views if names is None else [self.view(n) for n in names]
+        missing = [v.name for v in views if v.q is None]
+        if missing:
+            raise ConfigError(self.root / "joints.csv", missing[0], "no joint readings for this view")
+        return np.stack([v.q for v in views])
+
+
+# ------------------------------------------------------------------------------------------------ reading
+
+
+def _read_csv(path: Path, key: str, columns) -> dict:
+    """Rows of a CSV with a key column and numeric ``columns``: ``{key_value: ndarray(len(columns))}`` (file units)."""
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise ConfigError(path, "<file>", "not a text CSV file") from None
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise ConfigError(path, "<file>", "empty")
+    reader = csv.DictReader(lines)
+    header = reader.fieldnames or []
+    for col in (key, *columns):
+        if col not in header:
+            unitless = col.rsplit("_", 1)[0]
+            hint = " (give the unit in the column name)" if unitless in header else ""
+            raise ConfigError(path, col, f"missing column{hint}; header is {', '.join(header)}")
+    out = {}
+    for i, row in enumerate(reader, start=2):
+        name = (row.get(key) or "").strip()
+        if not name:
+            raise ConfigError(path, f"line {i}", f"empty {key!r}")
+        if name in out:
+            raise ConfigError(path, f"line {i}", f"duplicate {key} {name!r}")
+        vals = []
+        for col in columns:
+            raw = row.get(col)
+            try:
+                v = float(raw)
+            except (TypeError, ValueError):
+                raise ConfigError(path, f"line {i} ({name}).{col}", f"not a number: {raw!r}") from None
+            if not np.isfinite(v):
+                raise ConfigError(path, f"line {i} ({name}).{col}", "NaN or inf")
+            vals.append(v)
+        out[name] = np.array(vals)
+    return out
+
+
+def _check_degrees(path: Path, rows: dict, columns) -> None:
+    """Reject angles that cannot be degrees; warn when every reading looks like radians in a ``*_deg`` column."""
+    angles = np.array([r[: len(columns)] for r in rows.values()])
+    if angles.size and np.abs(angles).max() > 720:
+        raise ConfigError(path, columns[0], f"|angle| {np.abs(angles).max():.1f} > 720 deg: not degrees")
+    if angles.size >= 18 and np.abs(angles).max() <= np.pi + 1e-6 and np.abs(angles).max() > 0.5:
+        warnings.warn(f"{path}: every angle lies within +-pi although the columns are *_deg: "
+                      "were radians written where degrees belong?", stacklevel=3)
+
+
+def load_dataset(root) -> Dataset:
+    """Read a dataset folder (the public part only; ``truth/`` is never opened).
+
+    Parameters
+    ----------
+    root : path-like
+        The dataset folder (the one holding ``manifest.yaml``).
+
+    Returns
+    -------
+    Dataset
+        Views with their joint or table readings in SI units (rad, m).
+    """
+    root = Path(root)
+    mpath = root / "manifest.yaml"
+    if not root.is_dir():
+        raise ConfigError(root, "<folder>", "dataset folder not found")
+    if not mpath.is_file():
+        raise ConfigError(mpath, "<file>", "not found: not a dataset folder")
+    try:
+        man = yaml.safe_load(mpath.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise ConfigError(mpath, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(man, dict):
+        raise ConfigError(mpath, "<top>", "expected a mapping")
+    unknown = set(man) - _MANIFEST_KEYS
+    if unknown:
+        raise ConfigError(mpath, sorted(unknown)[0], f"unknown key (allowed: {', '.join(sorted(_MANIFEST_KEYS))})")
+    if man.get("format") != FORMAT:
+        raise ConfigError(mpath, "format", f"expected {FORMAT!r}, got {man.get('format')!r}")
+    kind = man.get("kind")
+    if kind not in KINDS:
+        raise ConfigError(mpath, "kind", f"expected one of {KINDS}, got {kind!r}")
+    units = man.get("units", {"length": "mm", "angle": "deg"})
+    if units != {"length": "mm", "angle": "deg"}:
+        raise ConfigError(mpath, "units", f"must be {{length: mm, angle: deg}}, got {units!r}")
+    views_raw = man.get("views") or []
+    if not isinstance(views_raw, list):
+        raise ConfigError(mpath, "views", "expected a list")
+
+    joints = _read_csv(root / "joints.csv", "view", JOINT_COLUMNS) if (root / "joints.csv").is_file() else {}
+    if joints:
+        _check_degrees(root / "joints.csv", joints, JOINT_COLUMNS)
+    table = _read_csv(root / "table.csv", "view", TABLE_COLUMNS) if (root / "table.csv").is_file() else {}
+
+    views, seen = [], set()
+    for i, v in enumerate(views_raw):
+        where = f"views[{i}]"
+        if not isinstance(v, dict):
+            raise ConfigError(mpath, where, "expected a mapping")
+        bad = set(v) - _VIEW_KEYS
+        if bad:
+            raise ConfigError(mpath, f"{where}.{sorted(bad)[0]}", "unknown key")
+        name = v.get("name")
+        if not isinstance(name, str) or not name:
+            raise ConfigError(mpath, f"{where}.name", "missing")
+        if name in seen:
+            raise ConfigError(mpath, f"{where}.name", f"duplicate view {name!r}")
+        seen.add(name)
+        image = v.get("image")
+        if not isinstance(image, str) or not image:
+            raise ConfigError(mpath, f"{where}.image", "missing")
+        q = np.deg2rad(joints[name]) if name in joints else None
+        t = table.get(name)
+        if t is not None:
+            t = np.array([t[0] * 1e-3, t[1] * 1e-3, np.deg2rad(t[2])])
+        views.append(View(name, root / image, str(v.get("role", "")), str(v.get("notes", "")), q, t))
+    for src, rows in (("joints.csv", joints), ("table.csv", table)):
+        orphan = sorted(set(rows) - seen)
+        if orphan:
+            raise ConfigError(root / src, orphan[0], "readings for a view that the manifest does not list")
+
+    tracker = None
+    if (root / "tracker.csv").is_file():
+        rows = _read_csv(root / "tracker.csv", "point", TRACKER_COLUMNS + JOINT_COLUMNS)
+        arr = np.array(list(rows.values()))
+        _check_degrees(root / "tracker.csv", {k: r[3:] for k, r in rows.items()}, JOINT_COLUMNS)
+        tracker = {"point": list(rows), "p": arr[:, :3] * 1e-3, "q": np.deg2rad(arr[:, 3:])}
+
+    def _opt_path(key):
+        value = man.get(key)
+        if value is None:
+            return None
+        p = root / str(value)
+        if not p.is_file():
+            raise ConfigError(mpath, key, f"file {value!r} not found in the dataset")
+        return p
+
+    return Dataset(root, str(man.get("name", root.name)), kind, tuple(views), _opt_path("camera"),
+                   _opt_path("robot"), tracker, str(man.get("notes", "")))
+
+
+# ------------------------------------------------------------------------------------------------ writing
+
+
+def _csv_text(header, rows) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    for r in rows:
+        w.writerow([x if isinstance(x, str) else repr(float(x)) for x in r])
+    return buf.getvalue()
+
+
+class DatasetWriter:
+    """Write a dataset atomically: into a temporary sibling folder, renamed to ``root`` on success.
+
+    Use as a context manager::
+
+        with DatasetWriter(out, kind="in_situ", name="demo") as w:
+            w.add_view("ref", rgb, q=q_read, role="reference")
+            w.write_text("camera.yaml", text)
+        # out/ now exists, complete; on an exception nothing is left behind
+
+    ``overwrite=True`` replaces an existing dataset only once the new one is complete.
+    """
+
+    def __init__(self, root, kind: str, name: str | None = None, notes: str = "", created_by: str = "",
+                 overwrite: bool = False):
+        if kind not in KINDS:
+            raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
+        self.root = Path(root)
+        if self.root.exists() and not overwrite:
+            raise ConfigError(self.root, "<folder>", "already exists (pass --overwrite to replace it)")
+        self.kind, self.name, self.notes, self.created_by = kind, name or self.root.name, notes, created_by
+        self.overwrite = overwrite
+        self.tmp: Path | None = None
+        self._views: list[dict] = []
+        self._joints: list = []
+        self._table: list = []
+        self.camera_file: str | None = None
+        self.robot_file: str | None = None
+
+    def __enter__(self) -> DatasetWriter:
+        self.root.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = Path(tempfile.mkdtemp(dir=self.root.parent, prefix=f".{self.root.name}.", suffix=".tmp"))
+        (self.tmp / "images").mkdir()
+        return self
+
+    def path(self, relative: str) -> Path:
+        """Absolute path inside the temporary folder (for files written by other code); parents created."""
+        p = self.tmp / relative
+        p.parent.mkdir(parents=True, exist_ok=True)
+        return p
+
+    def write_text(self, relative: str, text: str) -> None:
+        """Write a text file inside the dataset (e.g. ``camera.yaml``, ``truth/truth.yaml``)."""
+        self.path(relative).write_text(text)
+
+    def add_view(self, name: str, image: np.ndarray, q=None, table=None, role: str = "", notes: str = "") -> None:
+        """Add a view: ``image`` uint8 RGB (H, W, 3) or grey (H, W), saved as PNG; readings in SI.
+
+        ``q`` joint readings (rad, (6,)); ``table`` x-y table readings ``(x m, z m, rotation rad)``.
+        """
+        import cv2
+
+        if any(v["name"] == name for v in self._views):
+            raise ValueError(f"view {name!r}: added twice")
+        image = np.asarray(image)
+        if image.dtype != np.uint8 or image.ndim not in (2, 3):
+            raise ValueError(f"view {name!r}: image must be uint8 (H, W[, 3]), got {image.dtype} {image.shape}")
+        rel = f"images/{name}.png"
+        bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
+        if not cv2.imwrite(str(self.tmp / rel), bgr):
+            raise OSError(f"could not write {self.tmp / rel}")
+        entry = {"name": name, "image": rel}
+        if role:
+            entry["role"] = role
+        if notes:
+            entry["notes"] = notes
+        self._views.append(entry)
+        if q is not None:
+            q = np.asarray(q, dtype=float).reshape(6)
+            self._joints.append([name, *np.rad2deg(q)])
+        if table is not None:
+            x, z, rot = np.asarray(table, dtype=float).reshape(3)
+            self._table.append([name, x * 1e3, z * 1e3, np.rad2deg(rot)])
+
+    def write_tracker(self, points, p_tracker, q) -> None:
+        """Tracker points (m, in the tracker frame) with the joint readings (rad) they were taken at."""
+        p_tracker, q = np.asarray(p_tracker, float), np.asarray(q, float)
+        rows = [[n, *(p * 1e3), *np.rad2deg(qq)] for n, p, qq in zip(points, p_tracker, q, strict=True)]
+        self.write_text("tracker.csv", _csv_text(["point", *TRACKER_COLUMNS, *JOINT_COLUMNS], rows))
+
+    def _finish(self) -> None:
+        if self._joints:
+            self.write_text("joints.csv", _csv_text(["view", *JOINT_COLUMNS], self._joints))
+        if self._table:
+            self.write_text("table.csv", _csv_text(["view", *TABLE_COLUMNS], self._table))
+        man = {"format": FORMAT, "kind": self.kind, "name": self.name, "units": {"length": "mm", "angle": "deg"}}
+        if self.created_by:
+            man["created_by"] = self.created_by
+        if self.notes:
+            man["notes"] = self.notes
+        for key, rel in (("camera", "camera.yaml"), ("robot", "robot.yaml")):
+            if (self.tmp / rel).is_file():
+                man[key] = rel
+        man["views"] = self._views
+        self.write_text("manifest.yaml", yaml.safe_dump(man, sort_keys=False))
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is not None:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+            return False
+        try:
+            self._finish()
+            if self.root.exists():
+                old = self.root.with_name(f".{self.root.name}.old-{os.getpid()}")
+                os.replace(self.root, old)
+                os.replace(self.tmp, self.root)
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                os.replace(self.tmp, self.root)
+        except BaseException:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+            raise
+        return False
