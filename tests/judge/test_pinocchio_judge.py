@@ -7,6 +7,7 @@ model, checked against a Pinocchio-simulated truth).
 """
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -33,8 +34,6 @@ SIGMA = 0.05e-3  # tracker noise per axis (m)
 
 
 def _table2_eps():
-    from pathlib import Path
-
     path = Path(__file__).resolve().parents[2] / TABLE2
     return from_thesis_units(np.array(load_error_table(path)["full"]))
 
