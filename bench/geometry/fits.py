@@ -145,7 +145,7 @@ def fit_plane(points, method="normalized", name="points") -> Plane:
         normal, d = v[:3] / norm, v[3] / norm  # Eq. 30, 31
     elif method == "normalized":
         C_a = np.hstack([(p - c) / scale, np.ones((len(p), 1))])  # Eq. 28 on centred, scaled points
-        v = np.linalg.svd(C_a, full_matrices=False)[2][-1]  # = smallest eigenvector of C_a^T C_a (Eq. 29)
+        v = np.linalg.svd(C_a)[2][-1]  # smallest eigenvector of C_a^T C_a (Eq. 29); full V also for N = 3 < 4
         norm = np.linalg.norm(v[:3])
         normal = v[:3] / norm  # Eq. 30
         d = scale * v[3] / norm - normal @ c  # Eq. 31, mapped back: n.(x - c)/s + d' = 0

@@ -41,6 +41,15 @@ def test_plane_noise_free_exact_far_from_origin():
         assert np.abs(plane.signed_distance(pts)).max() <= 1e-12
 
 
+@pytest.mark.parametrize("method", ["normalized", "thesis"])
+def test_plane_through_exactly_three_points(method):
+    rng = np.random.default_rng(20)
+    pts = rng.normal(size=(3, 3)) + 2.0
+    plane = fit_plane(pts, method)
+    assert np.abs(plane.signed_distance(pts)).max() <= 1e-12
+    assert np.abs(plane.normal @ (pts[1] - pts[0])) <= 1e-12
+
+
 def test_thesis_and_normalized_agree_on_well_conditioned_data():
     rng = np.random.default_rng(12)
     for _ in range(20):
