@@ -1,0 +1,452 @@
+"""Kinematic multi-view triangulation and base localisation (thesis section 3.9, Eq. 162-166).
+
+The camera rides on link 5; the (calibrated) arm kinematics and the camera mount give every view's pose in the base
+frame, ``T_base_cam = T_base_link5(q) T_link5_cam`` (Eq. 188). Two steps:
+
+1. :func:`build_map` - the survey. A reference view and surrounding views taken without moving the base. Each
+   reference keypoint is matched in every surrounding view (ratio test, orientation filter of Eq. 106) and
+   triangulated against it by the mid-point method; matches whose rays pass farther apart than ``gap_max_m`` (thesis:
+   5 mm) are dropped. The estimates of one keypoint, ``1p_i,j = 1gamma_i,j K^-1 p_i`` (Eq. 162-163, on the
+   reference ray), are kept if they have a neighbour within ``neighbour_m`` (``d_n``) and averaged; the alternative
+   estimate on the other rays, ``1p*_i`` (Eq. 164), must agree within ``cross_check_m``; keypoints seen in fewer than
+   ``min_views`` views are dropped. The result is the map ``1p`` in the reference camera frame, plus the reference
+   descriptors, and its pose in the survey base frame (the *site* frame, ``world`` below).
+2. :func:`locate` - after the base has moved: two new views ``a, b`` (relative pose from the kinematics) are matched
+   with the map and with each other, triangulated into ``2p`` in camera-a coordinates (Eq. 165-166), aligned to
+   ``1p`` by RANSAC + absolute orientation + error-ratio elimination (section 3.8), which gives ``T_ref_a``; the base
+   follows through link 5: ``T_world_base = T_world_ref T_ref_a (T_base_a)^-1``.
+   :func:`locate_pnp` is the single-view alternative (PnP with RANSAC + LM refinement against ``1p``).
+
+Frames: ``world`` = the base frame at survey time (the site frame in which the map is kept); ``ref`` = the reference
+camera (OpenCV optical frame); ``a``, ``b`` = the camera at the two locate views. Image coordinates enter already
+*normalized and undistorted* (``x_n``), so this module is independent of the camera model.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from bench.geometry.transforms import invert, transform_points
+from bench.vision.features import (
+    ORIENTATION_TOL_DEG,
+    RATIO,
+    Features,
+    Matches,
+    match_descriptors,
+    orientation_filter,
+)
+from bench.vision.ransac import ransac_absolute_orientation
+from bench.vision.triangulation import triangulate_midpoint
+
+
+@dataclass(frozen=True)
+class ViewObservation:
+    """One view as the pipeline sees it.
+
+    Attributes
+    ----------
+    name : str
+    features : Features
+        Keypoints detected in the image as taken.
+    x_n : ndarray (N, 2)
+        The keypoints' normalized undistorted coordinates (the camera model's job).
+    T_base_cam : ndarray (4, 4)
+        Camera pose from the joint readings through the calibrated kinematics and mount.
+    """
+
+    name: str
+    features: Features
+    x_n: np.ndarray
+    T_base_cam: np.ndarray
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """Parameters of :func:`build_map` (thesis values where it gives them)."""
+
+    ratio: float = RATIO
+    orientation_tol_deg: float = ORIENTATION_TOL_DEG
+    gap_max_m: float = 0.005  # closest-approach filter (section 5.2.2: 5 mm)
+    neighbour_m: float = 0.01  # d_n of section 3.9
+    cross_check_m: float = 0.005  # |1p - 1p*| (Eq. 163 vs Eq. 164)
+    min_views: int = 2  # keep keypoints matched in at least this many surrounding views
+
+
+@dataclass
+class KeypointMap:
+    """The map ``1p``: reference keypoints with their 3D positions in the reference camera frame.
+
+    Attributes
+    ----------
+    p_ref : ndarray (M, 3)
+        Positions (m) in the reference camera frame (Eq. 162).
+    p_ref_star : ndarray (M, 3)
+        The alternative estimates on the surrounding rays (Eq. 164).
+    features : Features
+        The reference keypoints (descriptors, orientations) of the M map points.
+    n_views : ndarray (M,)
+        Surrounding views that contributed to each point.
+    spread_m : ndarray (M,)
+        RMS distance of the contributing estimates from their mean.
+    T_world_ref : ndarray (4, 4)
+        Pose of the reference camera in the site frame (the survey base frame).
+    stats : dict
+        Counts after each filter.
+    """
+
+    p_ref: np.ndarray
+    p_ref_star: np.ndarray
+    features: Features
+    n_views: np.ndarray
+    spread_m: np.ndarray
+    T_world_ref: np.ndarray
+    stats: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.p_ref)
+
+
+def _matches(f1: Features, f2: Features, cfg: MapConfig) -> Matches:
+    m = match_descriptors(f1, f2, cfg.ratio)
+    kept, _ = orientation_filter(f1, f2, m, cfg.orientation_tol_deg)
+    return kept
+
+
+def build_map(reference: ViewObservation, surrounding: list, config: MapConfig | None = None) -> KeypointMap:
+    """Triangulate the reference keypoints against the surrounding views (section 3.9, Eq. 162-164).
+
+    Parameters
+    ----------
+    reference : ViewObservation
+    surrounding : list of ViewObservation
+        Views around the reference, base not moved.
+    config : MapConfig, optional
+
+    Returns
+    -------
+    KeypointMap
+        Possibly empty (``len == 0``) when nothing survives the filters; ``stats`` says where points were lost.
+    """
+    cfg = config or MapConfig()
+    if not surrounding:
+        raise ValueError("surrounding: at least one surrounding view is needed to triangulate")
+    n = len(reference.features)
+    T_world_ref = np.asarray(reference.T_base_cam, dtype=float)
+    est = [[] for _ in range(n)]  # per reference keypoint: (p on the reference ray, p on the other ray)
+    stats = {"reference_keypoints": n, "matches": 0, "after_gap_filter": 0}
+    for view in surrounding:
+        m = _matches(reference.features, view.features, cfg)
+        stats["matches"] += len(m)
+        if len(m) == 0:
+            continue
+        T_ref_j = invert(T_world_ref) @ np.asarray(view.T_base_cam, dtype=float)
+        tri = triangulate_midpoint(np.eye(4), reference.x_n[m.i1], T_ref_j, view.x_n[m.i2])
+        ok = tri.valid & (tri.gap <= cfg.gap_max_m)
+        stats["after_gap_filter"] += int(ok.sum())
+        for i, p1, p2 in zip(m.i1[ok], tri.p1[ok], tri.p2[ok], strict=True):
+            est[i].append((p1, p2))  # Eq. 163 (on the reference ray) and Eq. 164 (on ray j)
+
+    keep, P, Pstar, nv, spread = [], [], [], [], []
+    for i, e in enumerate(est):
+        if len(e) < cfg.min_views:
+            continue
+        p = np.array([a for a, _ in e])
+        ps = np.array([b for _, b in e])
+        d = np.linalg.norm(p[:, None] - p[None], axis=-1)
+        np.fill_diagonal(d, np.inf)
+        good = d.min(axis=1) <= cfg.neighbour_m if len(p) > 1 else np.ones(1, bool)  # neighbour filter d_n
+        if good.sum() < cfg.min_views:
+            continue
+        mean, mean_star = p[good].mean(axis=0), ps[good].mean(axis=0)  # Eq. 162, Eq. 164
+        if np.linalg.norm(mean - mean_star) > cfg.cross_check_m:
+            continue
+        keep.append(i)
+        P.append(mean)
+        Pstar.append(mean_star)
+        nv.append(int(good.sum()))
+        spread.append(float(np.sqrt(np.mean(np.sum((p[good] - mean) ** 2, axis=1)))))
+    stats["map_points"] = len(keep)
+    idx = np.array(keep, dtype=int)
+    return KeypointMap(np.array(P).reshape(-1, 3), np.array(Pstar).reshape(-1, 3), reference.features.subset(idx),
+                       np.array(nv, dtype=int), np.array(spread), T_world_ref, stats)
+
+
+@dataclass
+class LocateResult:
+    """Outcome of :func:`locate` / :func:`locate_pnp`; never raised for too few matches or no consensus.
+
+    Attributes
+    ----------
+    success : bool
+    message : str
+    T_world_base : ndarray (4, 4)
+        The base pose in the site frame (NaN on failure).
+    T_ref_cam : ndarray (4, 4)
+        Pose of locate view a (the camera) in the reference camera frame.
+    covariance : ndarray (6, 6)
+        First-order covariance of the base pose (rotation vector rad in the world frame, then translation m).
+    condition : float
+        Condition number of the final alignment (large = ill-conditioned; reported, and warned in ``message``).
+    n_matches, n_inliers : int
+    timings_s : dict
+    """
+
+    success: bool
+    message: str
+    T_world_base: np.ndarray
+    T_ref_cam: np.ndarray
+    covariance: np.ndarray
+    condition: float
+    n_matches: int
+    n_inliers: int
+    timings_s: dict = field(default_factory=dict)
+    inliers: np.ndarray | None = None
+    p1: np.ndarray | None = None  # matched map points (ref frame) used in the alignment
+    p2: np.ndarray | None = None  # their 2p estimates (camera-a frame)
+
+
+def _failure(msg, n_matches=0, timings=None):
+    nan = np.full((4, 4), np.nan)
+    return LocateResult(False, msg, nan, nan, np.full((6, 6), np.nan), np.nan, n_matches, 0, timings or {})
+
+
+def _base_covariance(cov_ref_a, T_world_ref, T_ref_a, T_base_a):
+    """Propagate the covariance of ``T_ref_a`` (left rotation vector in the ref frame, then t) to ``T_world_base``.
+
+    ``T_world_base = T_world_ref T_ref_a T_a_base``: a left perturbation ``exp(dphi) R, t + dt`` of ``T_ref_a``
+    becomes, in the world frame, ``dphi_w = R_wr dphi`` and ``dt_w = R_wr (dt + dphi x (p - t_ref_a))`` for the base
+    origin ``p`` expressed in the ref frame.
+    """
+    R_wr = T_world_ref[:3, :3]
+    p = (T_ref_a @ invert(T_base_a))[:3, 3]
+    d = p - T_ref_a[:3, 3]
+    J = np.zeros((6, 6))
+    J[:3, :3] = R_wr
+    J[3:, :3] = -R_wr @ np.array([[0, -d[2], d[1]], [d[2], 0, -d[0]], [-d[1], d[0], 0]])
+    J[3:, 3:] = R_wr
+    return J @ cov_ref_a @ J.T
+
+
+def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, config: MapConfig | None = None,
+           method: str = "svd", d_r: float = 0.020, iterations: int = 100, adaptive: bool = False,
+           r_lim: float | None = 0.1, rng=None, max_condition: float = 1e6, refine: bool = True) -> LocateResult:
+    """Base pose from two new views (Eq. 165-166 + section 3.8 + link 5).
+
+    Parameters
+    ----------
+    kmap : KeypointMap
+    view_a, view_b : ViewObservation
+        The two views after the base moved; ``T_base_cam`` from the kinematics in the *new* base frame.
+    method : {"svd", "horn", "rodrigues"}
+        Absolute-orientation estimator (LMS [21], Horn, or the thesis's quaternion method).
+    d_r, iterations, adaptive, r_lim : RANSAC distance (m), iterations, adaptive count, error-ratio limit (thesis:
+        20 mm, 100, fixed, 0.1).
+    rng : numpy.random.Generator or int, optional
+    refine : bool
+        After the thesis's alignment, minimise the reprojection error of the inlier map points in both views over
+        the 6 pose parameters (:func:`refine_pose`); the reported covariance is that of this final least-squares
+        problem. Without it, the alignment's own first-order covariance is reported.
+
+    Returns
+    -------
+    LocateResult
+    """
+    cfg = config or MapConfig()
+    t0 = time.perf_counter()
+    timings = {}
+    if len(kmap) < 3:
+        return _failure(f"the map has {len(kmap)} points; at least 3 are needed")
+    m_a = _matches(kmap.features, view_a.features, cfg)  # map <-> a
+    m_ab = _matches(view_a.features, view_b.features, cfg)  # a <-> b
+    timings["match_s"] = time.perf_counter() - t0
+    b_of_a = np.full(len(view_a.features), -1)
+    b_of_a[m_ab.i1] = m_ab.i2
+    sel = b_of_a[m_a.i2] >= 0
+    i_map, i_a = m_a.i1[sel], m_a.i2[sel]
+    i_b = b_of_a[i_a]
+    if len(i_map) < 3:
+        return _failure(f"only {len(i_map)} keypoints matched in the map and both views (need >= 3)", len(i_map),
+                        timings)
+    T_a_b = invert(np.asarray(view_a.T_base_cam, float)) @ np.asarray(view_b.T_base_cam, float)
+    baseline = float(np.linalg.norm(T_a_b[:3, 3]))
+    if baseline < 1e-4:
+        return _failure(f"the two views are {baseline * 1e3:.3f} mm apart: no baseline to triangulate", len(i_map),
+                        timings)
+    tri = triangulate_midpoint(np.eye(4), view_a.x_n[i_a], T_a_b, view_b.x_n[i_b])  # Eq. 165 (a's ray) / 166
+    ok = tri.valid & (tri.gap <= cfg.gap_max_m)
+    p1, p2 = kmap.p_ref[i_map[ok]], tri.p1[ok]
+    timings["triangulate_s"] = time.perf_counter() - t0 - timings["match_s"]
+    if len(p1) < 3:
+        return _failure(f"only {len(p1)} of {len(i_map)} matches triangulate within {cfg.gap_max_m * 1e3:g} mm",
+                        len(i_map), timings)
+    res = ransac_absolute_orientation(p1, p2, d_r=d_r, iterations=iterations, adaptive=adaptive, method=method,
+                                      r_lim=r_lim, rng=rng, max_condition=max_condition)
+    timings["align_s"] = time.perf_counter() - t0 - timings["match_s"] - timings["triangulate_s"]
+    if not res.success:
+        timings["total_s"] = time.perf_counter() - t0
+        out = _failure(f"alignment failed: {res.message}", len(p1), timings)
+        out.p1, out.p2 = p1, p2
+        return out
+    T_ref_a = res.T
+    T_base_a = np.asarray(view_a.T_base_cam, float)
+    orient = res.orientation
+    cov_ref_a, cond = orient.covariance, float(orient.condition)
+    msg = f"{int(res.inliers.sum())} of {len(p1)} 3D matches kept, rms {res.rms * 1e3:.2f} mm"
+    if refine:
+        sel_ok = np.flatnonzero(ok)[res.inliers]
+        rp = refine_pose(kmap.p_ref[i_map[sel_ok]], view_a.x_n[i_a[sel_ok]], view_b.x_n[i_b[sel_ok]], T_a_b, T_ref_a)
+        if rp.success:
+            T_ref_a, cov_ref_a, cond = rp.T_ref_a, rp.covariance, rp.condition
+            msg += f"; refined on reprojection: rms {rp.rms:.3g} (normalized), {rp.iterations} iterations"
+        else:
+            msg += f"; refinement skipped ({rp.message})"
+        timings["refine_s"] = time.perf_counter() - t0 - sum(timings.values())
+    timings["total_s"] = time.perf_counter() - t0
+    T_world_base = kmap.T_world_ref @ T_ref_a @ invert(T_base_a)
+    cov = _base_covariance(cov_ref_a, kmap.T_world_ref, T_ref_a, T_base_a)
+    if cond > 1e4:
+        msg += f"; WARNING ill-conditioned point spread (condition {cond:.3g})"
+    return LocateResult(True, msg, T_world_base, T_ref_a, cov, cond, len(p1), int(res.inliers.sum()), timings,
+                        res.inliers, p1, p2)
+
+
+@dataclass(frozen=True)
+class RefineResult:
+    """Outcome of :func:`refine_pose`."""
+
+    success: bool
+    message: str
+    T_ref_a: np.ndarray
+    covariance: np.ndarray  # (6, 6): left rotation vector (rad) then translation (m) of T_ref_a, ref frame
+    rms: float  # normalized units
+    condition: float
+    iterations: int
+
+
+def _proj_jac(X):
+    """Normalized projection of camera-frame points ``X (N, 3)`` and its Jacobian ``(N, 2, 3)``."""
+    z = X[:, 2:3]
+    x = X[:, :2] / z
+    J = np.zeros((len(X), 2, 3))
+    J[:, 0, 0] = J[:, 1, 1] = 1.0 / z[:, 0]
+    J[:, :, 2] = -x / z
+    return x, J
+
+
+def refine_pose(p_ref, x_a, x_b, T_a_b, T_ref_a0, iterations: int = 20) -> RefineResult:
+    """Minimise the reprojection error of map points in two views over the pose ``T_ref_a`` (Gauss-Newton).
+
+    Estimated: ``T_ref_a`` (6 parameters, a left perturbation of ``T_a_ref``). Fixed: the map points ``p_ref (N, 3)``
+    and the relative pose ``T_a_b`` of the two views (arm kinematics). Residuals: ``x_a - pi(T_a_ref p)`` and
+    ``x_b - pi(T_b_a T_a_ref p)`` in normalized coordinates. Covariance ``s^2 (J^T J)^-1`` with ``s^2`` from the
+    residuals, mapped to a left rotation vector and translation of ``T_ref_a`` in the reference frame.
+    """
+    p_ref, x_a, x_b = (np.asarray(v, dtype=float) for v in (p_ref, x_a, x_b))
+    n = len(p_ref)
+    if n < 3:
+        return RefineResult(False, f"{n} points (need >= 3)", T_ref_a0, np.full((6, 6), np.nan), np.nan, np.inf, 0)
+    T_b_a = invert(np.asarray(T_a_b, float))
+    T_a_ref = invert(np.asarray(T_ref_a0, float))
+    it = 0
+    for it in range(1, iterations + 1):
+        Xa = transform_points(T_a_ref, p_ref)
+        Xb = transform_points(T_b_a, Xa)
+        if np.any(Xa[:, 2] <= 0) or np.any(Xb[:, 2] <= 0):
+            return RefineResult(False, "points behind a camera", T_ref_a0, np.full((6, 6), np.nan), np.nan, np.inf,
+                                it)
+        ua, Ja = _proj_jac(Xa)
+        ub, Jb = _proj_jac(Xb)
+        skew = np.zeros((n, 3, 3))
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -Xa[:, 2], Xa[:, 1], -Xa[:, 0]
+        skew -= np.swapaxes(skew, 1, 2)
+        dX = np.concatenate([-skew, np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)  # d Xa / d(w, v)
+        J = np.concatenate([Ja @ dX, Jb @ (T_b_a[:3, :3] @ dX)], axis=0).reshape(-1, 6)
+        r = np.concatenate([x_a - ua, x_b - ub], axis=0).ravel()
+        N = J.T @ J
+        delta = np.linalg.solve(N, J.T @ r)
+        w, v = delta[:3], delta[3:]
+        theta = np.linalg.norm(w)
+        K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+        R = np.eye(3) + (np.sin(theta) / theta * K + (1 - np.cos(theta)) / theta**2 * K @ K if theta > 1e-12 else K)
+        D = np.eye(4)
+        D[:3, :3], D[:3, 3] = R, v
+        T_a_ref = D @ T_a_ref
+        if np.abs(delta).max() < 1e-13:
+            break
+    Xa = transform_points(T_a_ref, p_ref)
+    r = np.concatenate([x_a - _proj_jac(Xa)[0], x_b - _proj_jac(transform_points(T_b_a, Xa))[0]]).ravel()
+    s2 = float(r @ r) / max(len(r) - 6, 1)
+    cov_a = s2 * np.linalg.inv(N)  # left perturbation of T_a_ref, in frame a
+    # T_ref_a = T_a_ref^-1: a left perturbation (w, v) of T_a_ref is, for T_ref_a, the left perturbation
+    # w_ref = -R_ref_a w, v_ref = -R_ref_a v + [w_ref]x t_ref_a ... built as a Jacobian:
+    T_ref_a = invert(T_a_ref)
+    R, t = T_ref_a[:3, :3], T_ref_a[:3, 3]
+    M = np.zeros((6, 6))
+    M[:3, :3] = -R
+    M[3:, 3:] = -R
+    M[3:, :3] = -np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ R
+    return RefineResult(True, "ok", T_ref_a, M @ cov_a @ M.T, float(np.sqrt(np.mean(r**2))), float(np.linalg.cond(N)),
+                        it)
+
+
+def locate_pnp(kmap: KeypointMap, view_a: ViewObservation, config: MapConfig | None = None,
+               reprojection_px: float = 2.0, focal_px: float = 1000.0, rng_seed: int = 0) -> LocateResult:
+    """Single-view alternative: PnP against ``1p`` with RANSAC, then LM refinement on the inliers.
+
+    ``focal_px`` converts the pixel threshold to normalized units (the coordinates are already undistorted and
+    normalized, so PnP runs with ``K = I``).
+    """
+    cfg = config or MapConfig()
+    t0 = time.perf_counter()
+    m = _matches(kmap.features, view_a.features, cfg)
+    if len(m) < 4:
+        return _failure(f"only {len(m)} map matches (PnP needs >= 4)", len(m))
+    obj = kmap.p_ref[m.i1].astype(np.float64)
+    img = view_a.x_n[m.i2].astype(np.float64)
+    cv2.setRNGSeed(rng_seed)
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(obj, img, np.eye(3), None, reprojectionError=reprojection_px / focal_px,
+                                             iterationsCount=1000, confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
+    if not ok or inl is None or len(inl) < 4:
+        return _failure("PnP RANSAC found no consensus", len(m), {"total_s": time.perf_counter() - t0})
+    inl = inl.ravel()
+    rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], np.eye(3), None, rvec, tvec)
+    R, _ = cv2.Rodrigues(rvec)
+    T_a_ref = np.eye(4)
+    T_a_ref[:3, :3], T_a_ref[:3, 3] = R, tvec.ravel()
+    T_ref_a = invert(T_a_ref)
+    T_base_a = np.asarray(view_a.T_base_cam, float)
+    T_world_base = kmap.T_world_ref @ T_ref_a @ invert(T_base_a)
+    # covariance: Gauss-Newton normal matrix of the reprojection residuals at the optimum, in (rvec, tvec) of T_a_ref,
+    # carried to T_world_base by a numerical Jacobian of the (small) pose change (left rotation vector, translation)
+    proj, J = cv2.projectPoints(obj[inl], rvec, tvec, np.eye(3), None)[:2]
+    r = (img[inl] - proj.reshape(-1, 2)).ravel()
+    Jp = J[:, :6]
+    s2 = float(r @ r) / max(len(r) - 6, 1)
+    N = Jp.T @ Jp
+    cond = float(np.linalg.cond(N))
+    cov_rt = s2 * np.linalg.pinv(N)
+
+    def world_base(x):
+        Ra, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
+        Ta = np.eye(4)
+        Ta[:3, :3], Ta[:3, 3] = Ra, x[3:]
+        return kmap.T_world_ref @ invert(Ta) @ invert(T_base_a)
+
+    x0 = np.concatenate([rvec.ravel(), tvec.ravel()])
+    Jw = np.zeros((6, 6))
+    for k in range(6):
+        h = np.zeros(6)
+        h[k] = 1e-7
+        Tp, Tm = world_base(x0 + h), world_base(x0 - h)
+        dR, _ = cv2.Rodrigues(Tp[:3, :3] @ Tm[:3, :3].T)
+        Jw[:3, k] = dR.ravel() / 2e-7
+        Jw[3:, k] = (Tp[:3, 3] - Tm[:3, 3]) / 2e-7
+    cov = Jw @ cov_rt @ Jw.T
+    err = np.linalg.norm((img[inl] - proj.reshape(-1, 2)), axis=1)
+    msg = f"PnP: {len(inl)} of {len(m)} matches kept, rms {np.sqrt(np.mean(err**2)) * focal_px:.2f} px"
+    return LocateResult(True, msg, T_world_base, T_ref_a, cov, cond, len(m), len(inl),
+                        {"total_s": time.perf_counter() - t0}, None, obj[inl], transform_points(T_a_ref, obj[inl]))

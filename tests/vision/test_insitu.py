@@ -1,0 +1,124 @@
+"""Section 3.9 on synthetic observations: arm kinematics + projected points, no rendering."""
+
+import numpy as np
+import pytest
+
+from bench.geometry.transforms import homogeneous, invert, rot_z, rotation_angle, transform_points
+from bench.robot.model import random_errors
+from bench.sim.views import camera_frames, look_at_configuration, surrounding_eyes
+from bench.vision.features import Features
+from bench.vision.insitu import MapConfig, ViewObservation, build_map, locate, locate_pnp
+
+DEG = np.pi / 180
+T_LINK5_CAM = homogeneous(np.eye(3), [0.1, 0.0, 0.2])
+Q_REF = np.array([30, 40, 60, 10, 80, 0]) * DEG
+
+
+def _scene(rng, T_world_ref, n=250):
+    """Points 0.9-1.3 m in front of the reference camera (a panel with relief), world frame."""
+    p_ref = np.column_stack([rng.uniform(-0.4, 0.4, n), rng.uniform(-0.3, 0.3, n), rng.uniform(0.9, 1.3, n)])
+    desc = rng.normal(size=(n, 128)).astype(np.float32)
+    return transform_points(T_world_ref, p_ref), desc
+
+
+def _observe(name, p_world, desc, T_world_cam, T_base_cam_reading, rng, sigma=0.0, outliers=0.0):
+    pc = transform_points(invert(T_world_cam), p_world)
+    x = pc[:, :2] / pc[:, 2:3] + rng.normal(0.0, sigma, (len(pc), 2))
+    d = desc + rng.normal(0.0, 0.02, desc.shape).astype(np.float32)
+    bad = rng.random(len(pc)) < outliers  # wrong positions for some keypoints (false matches downstream)
+    x[bad] = rng.uniform(-0.3, 0.3, (bad.sum(), 2))
+    keep = rng.permutation(len(pc))  # detection order differs between views
+    f = Features(x[keep] * 1000, np.zeros(len(pc)), np.ones(len(pc)), np.ones(len(pc)), d[keep])
+    return ViewObservation(name, f, x[keep], T_base_cam_reading)
+
+
+def _campaign(ta40, rng, eps, sigma=0.0, outliers=0.0, base_motion=None):
+    T_world_base1 = np.eye(4)  # the survey base frame is the site frame
+    T_ref = camera_frames(ta40, Q_REF, T_LINK5_CAM, eps)
+    target = T_ref[:3, 3] + 1.1 * T_ref[:3, 2]
+    p_world, desc = _scene(rng, T_world_base1 @ T_ref)
+    views = [_observe("ref", p_world, desc, T_ref, T_ref, rng, sigma, outliers)]
+    for k, eye in enumerate(surrounding_eyes(T_ref, [[0.12, 0], [-0.12, 0], [0, 0.12], [0, -0.12], [0.09, 0.09]])):
+        sol = look_at_configuration(ta40, eye, target, T_LINK5_CAM, eps=eps, q_seed=Q_REF)
+        assert sol.success
+        T = camera_frames(ta40, sol.q, T_LINK5_CAM, eps)
+        views.append(_observe(f"s{k}", p_world, desc, T, T, rng, sigma, outliers))
+    # the base moves (the ROV re-parks); two new views a, b aimed at the same target
+    T_world_base2 = T_world_base1 @ (base_motion if base_motion is not None else homogeneous(rot_z(4 * DEG),
+                                                                                           [0.08, -0.05, 0.02]))
+    target_b2 = transform_points(invert(T_world_base2), target)
+    loc = []
+    for k, off in enumerate([[0.0, 0.0], [0.15, 0.0]]):
+        eye = surrounding_eyes(T_ref, [off])[0]
+        sol = look_at_configuration(ta40, eye, target_b2, T_LINK5_CAM, eps=eps, q_seed=Q_REF)
+        assert sol.success
+        T_b2_cam = camera_frames(ta40, sol.q, T_LINK5_CAM, eps)
+        loc.append(_observe(f"loc{k}", p_world, desc, T_world_base2 @ T_b2_cam, T_b2_cam, rng, sigma, outliers))
+    return views, loc, p_world, T_world_base2
+
+
+def test_noise_free_map_and_base_are_exact(ta40):
+    rng = np.random.default_rng(41)
+    eps = random_errors(rng)
+    views, loc, p_world, T_true = _campaign(ta40, rng, eps)
+    kmap = build_map(views[0], views[1:], MapConfig(min_views=3))
+    assert len(kmap) == len(p_world) and kmap.n_views.min() == 5
+    p_map_world = transform_points(kmap.T_world_ref, kmap.p_ref)
+    assert np.abs(np.sort(p_map_world, axis=0) - np.sort(p_world, axis=0)).max() <= 1e-9
+    for method in ("svd", "horn", "rodrigues"):
+        res = locate(kmap, loc[0], loc[1], method=method, rng=1)
+        assert res.success, res.message
+        assert np.abs(res.T_world_base - T_true).max() <= 1e-9
+    pnp = locate_pnp(kmap, loc[0])
+    assert pnp.success and np.abs(pnp.T_world_base - T_true).max() <= 1e-8
+
+
+def test_noisy_outliers_base_within_its_covariance(ta40):
+    rng = np.random.default_rng(42)
+    eps = random_errors(rng)
+    sigma = 0.3 / 1000  # 0.3 px at f = 1000 px
+    views, loc, p_world, T_true = _campaign(ta40, rng, eps, sigma=sigma, outliers=0.1)
+    kmap = build_map(views[0], views[1:])
+    assert len(kmap) > 100 and kmap.stats["after_gap_filter"] < kmap.stats["matches"]  # outliers filtered out
+    for refine in (False, True):  # the thesis's alignment alone, then refined on the reprojection error
+        res = locate(kmap, loc[0], loc[1], rng=2, refine=refine)
+        assert res.success, res.message
+        dpos = res.T_world_base[:3, 3] - T_true[:3, 3]
+        drot = rotation_angle(res.T_world_base[:3, :3] @ T_true[:3, :3].T)
+        std = np.sqrt(np.diag(res.covariance))
+        assert np.linalg.norm(dpos) < 4 * np.linalg.norm(std[3:]) and np.linalg.norm(dpos) < 5e-3
+        assert drot < 4 * np.linalg.norm(std[:3])
+    assert "refined" in res.message and np.linalg.norm(std[3:]) < 1e-3
+    pnp = locate_pnp(kmap, loc[0])
+    assert pnp.success and np.linalg.norm(pnp.T_world_base[:3, 3] - T_true[:3, 3]) < 5e-3
+
+
+def test_failures_are_results(ta40):
+    rng = np.random.default_rng(43)
+    views, loc, _, _ = _campaign(ta40, rng, None)
+    kmap = build_map(views[0], views[1:])
+    res = locate(kmap, loc[0], loc[0])  # the same view twice: no baseline
+    assert not res.success and "baseline" in res.message
+    empty = build_map(views[0], views[1:], MapConfig(gap_max_m=-1.0))
+    assert len(empty) == 0 and not locate(empty, loc[0], loc[1]).success
+    other = _observe("x", np.array([[0.0, 0.0, 5.0]] * 3), rng.normal(size=(3, 128)).astype(np.float32),
+                     np.eye(4), np.eye(4), rng)
+    res = locate(kmap, other, loc[1])
+    assert not res.success and "matched" in res.message
+    with pytest.raises(ValueError, match="surrounding"):
+        build_map(views[0], [])
+
+
+def test_refine_pose_converges_quadratically_from_a_perturbed_start():
+    from bench.vision.insitu import refine_pose
+
+    rng = np.random.default_rng(44)
+    p_ref = np.column_stack([rng.uniform(-0.4, 0.4, 60), rng.uniform(-0.3, 0.3, 60), rng.uniform(0.9, 1.3, 60)])
+    T_ref_a = homogeneous(rot_z(3 * DEG), [0.05, -0.02, 0.01])
+    T_a_b = homogeneous(rot_z(-2 * DEG), [0.15, 0.0, 0.0])
+    Xa = transform_points(invert(T_ref_a), p_ref)
+    Xb = transform_points(invert(T_a_b), Xa)
+    start = homogeneous(rot_z(4 * DEG), [0.07, -0.01, 0.03])
+    rp = refine_pose(p_ref, Xa[:, :2] / Xa[:, 2:], Xb[:, :2] / Xb[:, 2:], T_a_b, start)
+    assert rp.success and np.abs(rp.T_ref_a - T_ref_a).max() <= 1e-12 and rp.iterations <= 6  # Gauss-Newton, exact J
+    assert not refine_pose(p_ref[:2], Xa[:2, :2], Xb[:2, :2], T_a_b, start).success
