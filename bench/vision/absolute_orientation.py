@@ -42,9 +42,12 @@ equation was checked numerically (``tests/vision/test_absolute_orientation.py``)
 
 Not a misprint, but a limit of the method: ``x_q = tan(theta / 2) k`` is infinite at ``theta = pi``, where
 ``Q(zeta + rho)`` is singular (``zeta + rho = (I + R) zeta``). Shuster's sequential-rotation remedy is applied: the
-system is also solved with ``2p`` pre-rotated by pi about x, y and z (``R = R' R0``), and the candidate with the
-smallest ``|x_q'|`` (the smallest residual rotation) is kept. For ``theta <= 90 deg`` the un-rotated candidate always
-wins, so there the method is exactly the printed one.
+system is also solved with ``2p`` pre-rotated by pi about x, y and z (``R = R' R0``); among the candidates whose
+normal matrix is within a factor 10 of the best-conditioned one, the one with the smallest ``|x_q'|`` (smallest
+residual rotation) is kept. Below 90 deg the un-rotated candidate has the smallest ``|x_q|`` and its ``I + R`` factor
+is the best conditioned, so there the method is the printed one (checked in the tests); the filter on the condition
+number matters near pi, where the un-rotated system is nearly singular and can return a small but meaningless
+``x_q``.
 
 Weights ``w_i`` (relative inverse variances of the points) enter Eq. 125, the SVD/Horn cross-covariance and, for the
 Rodrigues method, each difference equation with ``w_i w_(i+1) / (w_i + w_(i+1))`` (inverse of the variance of a
@@ -226,23 +229,27 @@ def _difference_system(p1, p2, w, R0):
 
 
 def _rotation_rodrigues(p1, p2, w, return_parts=False):
-    """The thesis's method (Eq. 148-156) with pre-rotation candidates; ``R (..., 3, 3)`` (NaN where degenerate)."""
-    batch = p1.shape[:-2]
-    best_x = np.full(batch + (3,), np.nan)
-    best_n = np.full(batch, np.inf)
-    best_k = np.zeros(batch, dtype=int)
-    for k, R0 in enumerate(_PRE_ROTATIONS):
+    """The thesis's method (Eq. 148-156) with pre-rotation candidates; ``R (..., 3, 3)`` (NaN where degenerate).
+
+    Candidate selection: a candidate is usable when its normal matrix is within a factor 10 of the best-conditioned
+    candidate's condition number (an ill-conditioned system - the un-rotated one near ``theta = pi`` - can return a
+    small but meaningless ``x_q``); among the usable ones the smallest ``|x_q'|`` (smallest residual rotation) wins.
+    """
+    xs, conds = [], []
+    for R0 in _PRE_ROTATIONS:
         M, r, _, _ = _difference_system(p1, p2, w, R0)
-        ok = _condition(M) < 1e12
+        cond = _condition(M)
+        ok = cond < 1e12
         Ms = np.where(ok[..., None, None], M, np.eye(3))
-        x = np.linalg.solve(Ms, r[..., None])[..., 0]  # Eq. 152
-        n = np.where(ok, np.linalg.norm(x, axis=-1), np.inf)
-        better = n < best_n
-        best_x = np.where(better[..., None], x, best_x)
-        best_n = np.where(better, n, best_n)
-        best_k = np.where(better, k, best_k)
-    valid = np.isfinite(best_n)
-    x = np.where(valid[..., None], best_x, 0.0)
+        xs.append(np.linalg.solve(Ms, r[..., None])[..., 0])  # Eq. 152
+        conds.append(np.where(ok, cond, np.inf))
+    xs, conds = np.stack(xs), np.stack(conds)  # (4, ..., 3), (4, ...)
+    usable = conds <= 10.0 * conds.min(axis=0)
+    norms = np.where(usable, np.linalg.norm(xs, axis=-1), np.inf)
+    best_k = np.argmin(norms, axis=0)
+    valid = np.isfinite(np.min(norms, axis=0))
+    x = np.take_along_axis(xs, best_k[None, ..., None], axis=0)[0]
+    x = np.where(valid[..., None], x, 0.0)
     Rp = quaternion_to_matrix(rodrigues_to_quaternion(x))  # Eq. 155-156, 133, 136
     R = Rp @ _PRE_ROTATIONS[best_k]
     R = np.where(valid[..., None, None], R, np.nan)
@@ -388,11 +395,10 @@ def predicted_covariance(p1, p2, R, sigma, weights=None, method="svd"):
         Hinv = np.linalg.inv(_inertia(c, w))
         G = -np.einsum("ij,njk->nik", Hinv, w[:, None, None] * np.swapaxes(skew(c), -1, -2))  # -H^-1 w_j [c_j]x^T
     else:
-        # the candidate the estimator picks: smallest residual rotation
-        cands = [R @ R0.T for R0 in _PRE_ROTATIONS]
-        traces = [np.trace(Rc) for Rc in cands]  # larger trace = smaller angle
-        k = int(np.argmax(traces))
-        Rp = cands[k]  # residual rotation after the pre-rotation, R = Rp R0
+        # the candidate the estimator picks on these points, linearised at R
+        _, _, k = _rotation_rodrigues(p1, p2, w, return_parts=True)
+        k = int(k)
+        Rp = R @ _PRE_ROTATIONS[k].T  # residual rotation after the pre-rotation, R = Rp R0
         x = np.array([Rp[2, 1] - Rp[1, 2], Rp[0, 2] - Rp[2, 0], Rp[1, 0] - Rp[0, 1]]) / (1.0 + np.trace(Rp))
         M, _, a, wd = _difference_system(p1, p2, w, _PRE_ROTATIONS[k])
         ImX = np.eye(3) - skew(x)
