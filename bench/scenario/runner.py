@@ -9,9 +9,9 @@ from bench.scenario.schema import apply_overrides, load_yaml, validate
 
 
 def _kinds():
-    from bench.scenario import kinematic_identification
+    from bench.scenario import kinematic_identification, tracker_base_frame
 
-    return {"kinematic_identification": kinematic_identification}
+    return {"kinematic_identification": kinematic_identification, "tracker_base_frame": tracker_base_frame}
 
 
 def load_scenario(path, seed=None, overrides=()) -> dict:
