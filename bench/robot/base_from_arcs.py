@@ -172,7 +172,7 @@ def _check_robot(robot):
     return robot
 
 
-def _oriented_axis(points, q, circle: Circle3D, name, max_slope_error):
+def _oriented_axis(points, q, circle: Circle3D, max_slope_error):
     """Normal of ``circle`` signed by the rotation sense (Eq. 32-35 frame); returns (direction, slope)."""
     R_p = plane_rotation(circle.normal)
     local = (points - circle.center) @ R_p
@@ -288,7 +288,7 @@ def base_frame_from_arcs(arc1_tracker, arc2_tracker, q1_during_arc2, q1_arc1, q2
             circle = fit_circle_3d(pts, name)  # Eq. 28-45
         except ValueError as exc:
             return BaseFrameResult(False, str(exc), **spans)
-        direction, slope = _oriented_axis(pts, q, circle, name, max_slope_error)
+        direction, slope = _oriented_axis(pts, q, circle, max_slope_error)
         if direction is None:
             return BaseFrameResult(False, f"{name}: angles on the fitted circle do not follow {qname} (slope "
                                           f"{slope:.3g}, expected +-1): arc too short or too noisy", **spans)
