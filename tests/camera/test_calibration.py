@@ -1,0 +1,241 @@
+"""Camera calibration (thesis §3.3, Eq. 67-76, 196): exactness, Jacobian, Monte Carlo, OpenCV, real webcam data."""
+
+import glob
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from scipy import stats
+
+from bench.camera import calibration as cal
+from bench.camera import dlt
+from bench.camera.plots import plot_residual_vectors
+from bench.geometry.quaternion import rotation_vector_to_matrix
+from bench.geometry.transforms import homogeneous, rot_x, rot_y, rot_z
+
+SIZE = (640, 480)
+WEBCAM = Path("/work/shared/data/real_webcam_chessboard")
+
+
+def board_points(n=8, pitch=0.03):
+    g = np.arange(n) * pitch
+    a, b = np.meshgrid(g, g)
+    return np.column_stack([a.ravel(), b.ravel(), np.zeros(a.size)])
+
+
+def rig_points(n=6, pitch=0.03):
+    """Two perpendicular planes, as the thesis's rig (Figure 19)."""
+    g = (np.arange(n) + 1) * pitch
+    a, b = np.meshgrid(g, g)
+    a, b = a.ravel(), b.ravel()
+    return np.vstack([np.column_stack([a, np.zeros_like(a), b]), np.column_stack([np.zeros_like(a), a, b])])
+
+
+def project_cv(K, dist, T, X):
+    """Reference projection by OpenCV (independent of our model code); OpenCV ignores ``K[0, 1]``, added here."""
+    rvec = cv2.Rodrigues(T[:3, :3])[0]
+    uv = cv2.projectPoints(X, rvec, T[:3, 3], K, dist)[0].reshape(-1, 2)
+    y_d = (uv[:, 1] - K[1, 2]) / K[1, 1]
+    uv[:, 0] += K[0, 1] * y_d
+    return uv
+
+
+def random_views(rng, K, dist, X, n_views, distance=0.6, tilt=0.35, margin=15):
+    """Views of ``X`` fully inside the image (rejection sampling): lists of object points, pixels, poses."""
+    Xs, uvs, Ts = [], [], []
+    while len(Xs) < n_views:
+        R = rot_x(np.pi + rng.normal(0, tilt)) @ rot_y(rng.normal(0, tilt)) @ rot_z(rng.uniform(-np.pi, np.pi))
+        T = homogeneous(R, -R @ X.mean(axis=0) + [rng.normal(0, 0.02), rng.normal(0, 0.02),
+                                                   distance + rng.normal(0, 0.05)])
+        uv = project_cv(K, dist, T, X)
+        if uv.min() < margin or uv[:, 0].max() > SIZE[0] - margin or uv[:, 1].max() > SIZE[1] - margin:
+            continue
+        Xs.append(X.copy())
+        uvs.append(uv)
+        Ts.append(T)
+    return Xs, uvs, np.array(Ts)
+
+
+TRUE_K = np.array([[702.5, 0.0, 327.25], [0.0, 698.75, 236.5], [0.0, 0.0, 1.0]])
+TRUE_DIST = np.array([-0.21, 0.085, 6e-4, -4e-4, 0.0])
+
+
+def test_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(21)
+    K = TRUE_K.copy()
+    K[0, 1] = 1.5
+    dist = np.array([-0.2, 0.1, 1e-3, -2e-3, 0.02])
+    Xs, uvs, Ts = random_views(rng, K, dist, rig_points(), 2)
+    for model, k3 in [("heikkila", True), ("heikkila", False), ("radial", True), ("pinhole", False)]:
+        problem = cal._Problem(Xs, [uv + rng.normal(0, 0.3, uv.shape) for uv in uvs], model, k3, fit_skew=True)
+        names = cal.distortion_names(model, k3)
+        d = np.array([dict(zip(["k1", "k2", "p1", "p2", "k3"], dist, strict=True))[n] for n in names])
+        Tp = Ts @ homogeneous(rotation_vector_to_matrix(rng.normal(0, 0.01, (2, 3))), rng.normal(0, 1e-3, (2, 3)))
+        s = cal._State(K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1], d, Tp[:, :3, :3], Tp[:, :3, 3])
+        _, J = problem.residuals(s, jacobian=True)
+        J_fd = np.empty_like(J)
+        for j in range(problem.n_params):
+            h = 1e-6 * (abs(problem.intrinsic_vector(s)[j]) + 1.0) if j < problem.n_intr else 1e-7
+            e = np.zeros(problem.n_params)
+            e[j] = h
+            plus, minus = problem.residuals(problem.apply_step(s, e)), problem.residuals(problem.apply_step(s, -e))
+            J_fd[:, j] = (plus - minus) / (2 * h)
+        scale = np.abs(J).max(axis=0) + 1e-12
+        assert np.max(np.abs(J - J_fd) / scale) < 1e-6, model
+
+
+def test_model_projection_matches_opencv():
+    # our forward model (bench.camera.model's distortion + pose + K) against cv2.projectPoints
+    rng = np.random.default_rng(22)
+    Xs, uvs, Ts = random_views(rng, TRUE_K, TRUE_DIST, board_points(), 3)
+    problem = cal._Problem(Xs, uvs, "heikkila", True, fit_skew=False)
+    s = cal._State(*TRUE_K[[0, 1, 0, 1], [0, 1, 2, 2]], 0.0, TRUE_DIST.copy(), Ts[:, :3, :3], Ts[:, :3, 3])
+    assert np.abs(problem.residuals(s)).max() < 1e-9
+
+
+@pytest.mark.parametrize("model,k3,fit_skew,target", [
+    ("heikkila", False, False, "board"),
+    ("heikkila", True, True, "board"),
+    ("radial", False, False, "board"),
+    ("pinhole", False, True, "rig"),
+    ("heikkila", False, True, "rig"),
+])
+def test_noise_free_calibration_recovers_truth(model, k3, fit_skew, target):
+    rng = np.random.default_rng(23)
+    K = TRUE_K.copy()
+    if fit_skew:
+        K[0, 1] = -2.0
+    dist = TRUE_DIST.copy()
+    if model != "heikkila":
+        dist[2:4] = 0.0
+    if model == "pinhole":
+        dist[:] = 0.0
+    if k3:
+        dist[4] = 0.03
+    X = board_points() if target == "board" else rig_points()
+    Xs, uvs, Ts = random_views(rng, K, dist, X, 6 if target == "board" else 2)
+    r = cal.calibrate_camera(Xs, uvs, SIZE, model, k3=k3, fit_skew=fit_skew)
+    assert r.success, r.message
+    assert np.abs(r.K - K).max() / K[0, 0] < 1e-8
+    assert np.abs(r.dist - dist).max() < 1e-8
+    assert np.abs(r.T_cam_target - Ts).max() < 1e-8
+    assert r.rms_px < 1e-8 and r.per_view_rms_px.shape == (len(Xs),)
+    assert r.parameter_names[:4] == ["fx", "fy", "cx", "cy"]
+
+
+def test_monte_carlo_errors_match_reported_standard_errors():
+    """sigma = 0.2 px: the intrinsic errors, normalised by the reported covariance, are chi-square distributed."""
+    rng = np.random.default_rng(24)
+    Xs, uvs, _ = random_views(rng, TRUE_K, TRUE_DIST, board_points(7), 5)
+    truth = np.concatenate([TRUE_K[[0, 1, 0, 1], [0, 1, 2, 2]], TRUE_DIST[:4]])
+    draws, maha, z = 30, [], []
+    for _ in range(draws):
+        noisy = [uv + rng.normal(0, 0.2, uv.shape) for uv in uvs]
+        r = cal.calibrate_camera(Xs, noisy, SIZE, "heikkila")
+        assert r.success, r.message
+        e = r.parameters - truth
+        maha.append(e @ np.linalg.solve(r.covariance, e))
+        z.append(e / r.std)
+        assert r.sigma_px == pytest.approx(0.2, rel=0.15)
+    p = len(truth)
+    total = float(np.sum(maha))  # ~ chi2(p * draws) if the covariance is right
+    lo, hi = stats.chi2.ppf([0.001, 0.999], p * draws)
+    assert lo < total < hi, (total, lo, hi)
+    # per parameter: mean of z^2 ~ chi2(draws) / draws
+    lo1, hi1 = stats.chi2.ppf([0.0005, 0.9995], draws) / draws
+    zz = np.mean(np.square(z), axis=0)
+    assert np.all((zz > lo1) & (zz < hi1)), zz
+
+
+def test_same_optimum_as_opencv_on_synthetic_data():
+    rng = np.random.default_rng(25)
+    Xs, uvs, _ = random_views(rng, TRUE_K, TRUE_DIST, board_points(), 8)
+    # detections as float32, like findChessboardCornersSB returns them (OpenCV only takes float32)
+    noisy = [(uv + rng.normal(0, 0.2, uv.shape)).astype(np.float32).astype(float) for uv in uvs]
+    for model in ("heikkila", "radial", "pinhole"):
+        ours = cal.calibrate_camera(Xs, noisy, SIZE, model)
+        ref = cal.opencv_reference(Xs, noisy, SIZE, model)
+        assert ours.success and ref.success, (ours.message, ref.message)
+        assert abs(ours.rms_px - ref.rms_px) < 1e-6, model
+        assert ours.rms_px <= ref.rms_px + 1e-9
+        assert np.abs(ours.K - ref.K).max() < 1e-3, model
+        assert np.abs(ours.dist - ref.dist).max() < 1e-5, model
+
+
+def test_degenerate_inputs_fail_clearly():
+    rng = np.random.default_rng(26)
+    Xs, uvs, _ = random_views(rng, TRUE_K, TRUE_DIST, board_points(), 3)
+    line = np.column_stack([np.arange(10.0) * 0.01, np.zeros(10), np.zeros(10)])
+    r = cal.calibrate_camera([line] + Xs[1:], [uvs[0][:10]] + uvs[1:], SIZE)
+    assert not r.success and "collinear" in r.message and "object_points[0]" in r.message
+    r = cal.calibrate_camera(Xs[:1], uvs[:1], SIZE)
+    assert not r.success and "planar target" in r.message
+    bad = uvs[1].copy()
+    bad[5, 0] = np.nan
+    with pytest.raises(ValueError, match=r"image_points\[1\]: contains NaN"):
+        cal.calibrate_camera(Xs, [uvs[0], bad, uvs[2]], SIZE)
+    with pytest.raises(ValueError, match="model"):
+        cal.calibrate_camera(Xs, uvs, SIZE, "fisheye")
+    with pytest.raises(ValueError, match="image_size"):
+        cal.calibrate_camera(Xs, uvs, (640,))
+    with pytest.raises(ValueError, match="views"):
+        cal.calibrate_camera(Xs, uvs[:2], SIZE)
+
+
+def test_table3_per_view_pinhole_on_the_rig():
+    rng = np.random.default_rng(27)
+    K = TRUE_K.copy()
+    K[0, 1] = -1.0
+    Xs, uvs, _ = random_views(rng, K, np.zeros(5), rig_points(), 3)
+    rows = cal.per_view_pinhole(Xs + [board_points()], uvs + [uvs[0][: len(board_points())]])
+    alpha, beta, theta, u0, v0 = dlt.thesis_parameters(K)
+    for row in rows[:3]:
+        assert row["alpha_px"] == pytest.approx(alpha, rel=1e-9) and row["beta_px"] == pytest.approx(beta, rel=1e-9)
+        assert row["theta_deg"] == pytest.approx(np.degrees(theta), rel=1e-9) and row["chi_px"] < 1e-9
+    assert np.isnan(rows[3]["alpha_px"]) and "plane" in rows[3]["note"]
+
+
+def detect_webcam_views():
+    """7x7 inner corners, unit squares; OpenCV's SB detector (corner extraction itself is another module's)."""
+    files = sorted(glob.glob(str(WEBCAM / "*.jpg")))
+    obj = np.zeros((49, 3))
+    obj[:, :2] = np.mgrid[0:7, 0:7].T.reshape(-1, 2)
+    Xs, uvs = [], []
+    for f in files:
+        ok, c = cv2.findChessboardCornersSB(cv2.imread(f, cv2.IMREAD_GRAYSCALE), (7, 7), flags=cv2.CALIB_CB_ACCURACY)
+        assert ok, f
+        Xs.append(obj.copy())
+        uvs.append(c.reshape(-1, 2).astype(float))
+    return files, Xs, uvs
+
+
+@pytest.mark.skipif(not WEBCAM.is_dir(), reason="real webcam images not present")
+def test_real_webcam_calibration_no_worse_than_opencv(tmp_path):
+    files, Xs, uvs = detect_webcam_views()
+    assert len(files) == 19
+    t0 = time.perf_counter()
+    ours = cal.calibrate_camera(Xs, uvs, SIZE, "heikkila")
+    elapsed = time.perf_counter() - t0
+    ref = cal.opencv_reference(Xs, uvs, SIZE, "heikkila")
+    assert ours.success, ours.message
+    assert ours.rms_px < 0.6  # measured 0.5570 px (JPEG webcam, hand-held board)
+    assert ours.rms_px <= ref.rms_px + 1e-6
+    assert np.abs(ours.K - ref.K).max() < 1e-3 and np.abs(ours.dist - ref.dist).max() < 1e-6
+    assert np.all(ours.std[:4] < 10.0)  # focal lengths and principal point to a few px
+    assert elapsed < 5.0
+    # the symmetric board: a relabelling of a view by any symmetry of the square grid (rotation or reflection) is
+    # absorbed by that view's pose (a reflection of a planar grid is a 180-degree turn about an in-plane axis)
+    rng = np.random.default_rng(28)
+    relabelled = []
+    for uv in uvs:
+        grid = uv.reshape(7, 7, 2)
+        grid = np.rot90(grid, k=int(rng.integers(4)))
+        relabelled.append((grid.transpose(1, 0, 2) if rng.integers(2) else grid).reshape(-1, 2))
+    again = cal.calibrate_camera(Xs, relabelled, SIZE, "heikkila")
+    assert again.success and abs(again.rms_px - ours.rms_px) < 1e-9
+    assert np.abs(again.K - ours.K).max() < 1e-6
+    png = plot_residual_vectors(tmp_path / "residuals.png", uvs[0], ours.residuals_px[0],
+                                image=cv2.imread(files[0]), rms_px=ours.per_view_rms_px[0])
+    assert png.stat().st_size > 10_000
