@@ -254,8 +254,11 @@ def check_views(object_points, image_points, image_size):
         raise ValueError(f"image_points: {len(image_points)} views for {len(object_points)} object-point views")
     Xs, uvs = [], []
     for i, (X, uv) in enumerate(zip(object_points, image_points, strict=True)):
-        X = np.asarray(X, dtype=float).reshape(-1, 3) if np.size(X) % 3 == 0 else np.asarray(X, dtype=float)
-        uv = np.asarray(uv, dtype=float).reshape(-1, 2) if np.size(uv) % 2 == 0 else np.asarray(uv, dtype=float)
+        X, uv = np.asarray(X, dtype=float), np.asarray(uv, dtype=float)
+        if X.ndim == 3 and X.shape[1] == 1:  # OpenCV's (N, 1, 3) / (N, 1, 2) layouts
+            X = X[:, 0]
+        if uv.ndim == 3 and uv.shape[1] == 1:
+            uv = uv[:, 0]
         X, uv = dlt.check_correspondences(X, uv, f"object_points[{i}]", f"image_points[{i}]", min_points=4)
         Xs.append(X)
         uvs.append(uv)

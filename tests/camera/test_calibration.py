@@ -182,6 +182,10 @@ def test_degenerate_inputs_fail_clearly():
         cal.calibrate_camera(Xs, uvs, (640,))
     with pytest.raises(ValueError, match="views"):
         cal.calibrate_camera(Xs, uvs[:2], SIZE)
+    with pytest.raises(ValueError, match=r"object_points\[0\]: expected shape \(N, 3\)"):
+        cal.calibrate_camera([X[:, :2] for X in Xs], uvs, SIZE)
+    # OpenCV's (N, 1, 2) layout is accepted
+    assert cal.calibrate_camera(Xs, [uv[:, None, :] for uv in uvs], SIZE, "pinhole").success
 
 
 def test_table3_per_view_pinhole_on_the_rig():
