@@ -1,0 +1,150 @@
+"""Chessboard targets: the two-plane calibration rig of thesis section 5.2 (Figure 41) and planar boards.
+
+Section 5.2: "a 2D calibration rig with two perpendicular planes with 7 x 7 squares in chess pattern. The chess
+boards had dimensions 197mm x 197mm." The thesis gives no square size; 197 mm / 7 = 28.142857 mm is taken, the
+pattern filling the stated board dimension (then each board has 6 x 6 inner corners, 72 in all, which is the
+thesis's "72 coordinates were extracted from the rig", section 5.2.1). A white margin (20 mm by default, an
+assumption: the figure is not available) surrounds each pattern, because corner detectors need a quiet border.
+
+Rendering decision: **one box geom per square** (black or white) plus white border strips, all with their printed
+face exactly in the board plane, over a backing box. A square's edges are then true geometry, rasterised with
+MuJoCo's multisampling: no texture resampling, mipmap blur or texel-centre convention stands between the model and
+the image, and the corner positions are exact (float) by construction. There are no coplanar overlapping faces
+(no z-fighting): squares and strips tile the plane and the backing lies behind it.
+
+Board frame (OpenCV's object convention): origin at the pattern's outer top-left corner, x along the columns, y
+along the rows (down the board), z into the board; the printed face is the plane z = 0 and faces -z. Inner corner
+(i, j) (row i, column j, from 0) is at ``((j + 1) s, (i + 1) s, 0)``; corners are listed **row-major**
+(``index = i * (cols - 1) + j``), like ``cv2.calibrateCamera`` object points. The top-left square is black.
+
+Rig frame: origin at the bottom of the common edge of the two boards, z up along that edge, board A's printed face
+in the plane y = 0 (facing +y, extending along +x), board B's in the plane x = 0 (facing +x, extending along +y):
+a concave "open book" viewed from the (+x, +y) side. Seen from there, board A is on the left and board B on the
+right, both upright, columns running left to right. ``features["corners"]`` lists board A's 36 corners then board
+B's 36, each row-major in its board frame (``T_rig_board_a``, ``T_rig_board_b``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.sim.scenes.base import SceneObject, color_material_xml, fmt, pose_attrs
+
+BOARD_SQUARES = 7
+BOARD_PATTERN_M = 0.197  # section 5.2
+SQUARE_M = BOARD_PATTERN_M / BOARD_SQUARES  # assumption: the pattern fills the stated 197 mm
+MARGIN_M = 0.02  # assumption: white quiet border around each pattern
+SQUARE_DEPTH_M = 0.002  # thickness of the square tiles (their back faces are hidden)
+
+
+def _check_board_args(rows, cols, square_m, margin_m, thickness_m):
+    if int(rows) != rows or int(cols) != cols or rows < 3 or cols < 3:
+        raise ValueError(f"board: rows and cols must be integers >= 3 (squares), got {rows} x {cols}")
+    for k, v in (("square_m", square_m), ("margin_m", margin_m), ("thickness_m", thickness_m)):
+        if not np.isfinite(v) or v <= 0 or v > 1.0:
+            raise ValueError(f"board: {k} must be in (0, 1] m, got {v!r}")
+    if thickness_m <= SQUARE_DEPTH_M:
+        raise ValueError(f"board: thickness_m must exceed the tile depth {SQUARE_DEPTH_M} m, got {thickness_m}")
+
+
+def board_corners(rows=BOARD_SQUARES, cols=BOARD_SQUARES, square_m=SQUARE_M):
+    """Inner corners of a ``rows x cols``-square board in its board frame, row-major, shape ((rows-1)(cols-1), 3)."""
+    i, j = np.meshgrid(np.arange(rows - 1), np.arange(cols - 1), indexing="ij")
+    return np.stack([(j.ravel() + 1) * square_m, (i.ravel() + 1) * square_m, np.zeros(i.size)], -1)
+
+
+def _board_geoms(prefix, rows, cols, s, margin, thickness, mat_black, mat_white, mat_back):
+    """Geoms of one board in its board frame (face z = 0 towards -z)."""
+    d = SQUARE_DEPTH_M / 2
+    g = []
+    for i in range(rows):
+        for j in range(cols):
+            mat = mat_black if (i + j) % 2 == 0 else mat_white
+            g.append(f'<geom name="{prefix}_sq_{i}_{j}" type="box" size="{fmt([s / 2, s / 2, d])}" '
+                     f'pos="{fmt([(j + 0.5) * s, (i + 0.5) * s, d])}" material="{mat}"/>\n')
+    W, H = cols * s, rows * s
+    strips = {"top": ((W / 2, -margin / 2), (W / 2 + margin, margin / 2)),
+              "bottom": ((W / 2, H + margin / 2), (W / 2 + margin, margin / 2)),
+              "left": ((-margin / 2, H / 2), (margin / 2, H / 2)),
+              "right": ((W + margin / 2, H / 2), (margin / 2, H / 2))}
+    for k, ((cx, cy), (hx, hy)) in strips.items():
+        g.append(f'<geom name="{prefix}_border_{k}" type="box" size="{fmt([hx, hy, d])}" pos="{fmt([cx, cy, d])}" '
+                 f'material="{mat_white}"/>\n')
+    back = (thickness - SQUARE_DEPTH_M) / 2
+    g.append(f'<geom name="{prefix}_backing" type="box" size="{fmt([W / 2 + margin, H / 2 + margin, back])}" '
+             f'pos="{fmt([W / 2, H / 2, SQUARE_DEPTH_M + back])}" material="{mat_back}"/>\n')
+    return "".join(g)
+
+
+def _materials(name):
+    return (color_material_xml(f"{name}_black", (0.03, 0.03, 0.03, 1), specular=0.0, shininess=0.0)
+            + color_material_xml(f"{name}_white", (0.92, 0.92, 0.92, 1), specular=0.0, shininess=0.0)
+            + color_material_xml(f"{name}_back", (0.45, 0.35, 0.25, 1), specular=0.1, shininess=0.1))
+
+
+def planar_board(rows=BOARD_SQUARES, cols=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M, thickness_m=0.01,
+                 name: str = "board") -> SceneObject:
+    """A planar chessboard of ``rows x cols`` squares (m), fragment in its board frame (module docstring).
+
+    ``features``: ``corners`` ((rows-1)(cols-1), 3) m, row-major; ``pattern_size`` (cols-1, rows-1) as OpenCV's
+    ``patternSize`` (corners per row, per column); ``square_m``; ``outline`` (4, 3) the pattern's outer corners.
+    """
+    _check_board_args(rows, cols, square_m, margin_m, thickness_m)
+    geoms = _board_geoms(name, rows, cols, square_m, margin_m, thickness_m, f"{name}_black", f"{name}_white",
+                         f"{name}_back")
+    W, H = cols * square_m, rows * square_m
+    features = {"corners": board_corners(rows, cols, square_m), "pattern_size": (cols - 1, rows - 1),
+                "square_m": float(square_m), "outline": np.array([[0, 0, 0], [W, 0, 0], [W, H, 0], [0, H, 0.0]])}
+    return SceneObject(name=name, worldbody_xml=f'<body name="{name}">\n{geoms}</body>\n', asset_xml=_materials(name),
+                       files={}, features=features)
+
+
+def rig_board_poses(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M):
+    """``(T_rig_board_a, T_rig_board_b)``, each (4, 4): the two board frames in the rig frame (module docstring)."""
+    top = margin_m + squares * square_m
+    T_a = np.eye(4)
+    T_a[:3, :3] = np.array([[-1.0, 0, 0], [0, 0, -1], [0, -1, 0]])  # x_b = -x_rig, y_b = -z_rig, z_b = -y_rig
+    T_a[:3, 3] = [margin_m + squares * square_m, 0.0, top]
+    T_b = np.eye(4)
+    T_b[:3, :3] = np.array([[0.0, 0, -1], [1, 0, 0], [0, -1, 0]])  # x_b = +y_rig, y_b = -z_rig, z_b = -x_rig
+    T_b[:3, 3] = [0.0, margin_m, top]
+    return T_a, T_b
+
+
+def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M, thickness_m=0.01,
+                    name: str = "rig") -> SceneObject:
+    """The two-plane calibration rig of section 5.2: two perpendicular ``squares x squares`` chessboards.
+
+    Parameters
+    ----------
+    squares : int
+        Squares per side of each board (7 in the thesis).
+    square_m : float
+        Square size (m); default 0.197 / 7.
+    margin_m, thickness_m : float
+        White border around each pattern, board thickness (m).
+    name : str
+        Object name (prefix of the MJCF names).
+
+    Returns
+    -------
+    SceneObject
+        ``features``: ``corners`` (2 (squares-1)^2, 3) rig frame, board A then B, each row-major;
+        ``corners_board_a``, ``corners_board_b`` (same, split); ``T_rig_board_a``, ``T_rig_board_b`` (4, 4);
+        ``pattern_size`` per board (OpenCV); ``square_m``.
+    """
+    _check_board_args(squares, squares, square_m, margin_m, thickness_m)
+    T_a, T_b = rig_board_poses(squares, square_m, margin_m)
+    body = [f'<body name="{name}">\n']
+    for key, T in (("a", T_a), ("b", T_b)):
+        geoms = _board_geoms(f"{name}_{key}", squares, squares, square_m, margin_m, thickness_m, f"{name}_black",
+                             f"{name}_white", f"{name}_back")
+        body.append(f'<body name="{name}_board_{key}" {pose_attrs(T)}>\n{geoms}</body>\n')
+    body.append("</body>\n")
+    local = board_corners(squares, squares, square_m)
+    ca = local @ T_a[:3, :3].T + T_a[:3, 3]
+    cb = local @ T_b[:3, :3].T + T_b[:3, 3]
+    features = {"corners": np.vstack([ca, cb]), "corners_board_a": ca, "corners_board_b": cb,
+                "T_rig_board_a": T_a, "T_rig_board_b": T_b, "pattern_size": (squares - 1, squares - 1),
+                "square_m": float(square_m)}
+    return SceneObject(name=name, worldbody_xml="".join(body), asset_xml=_materials(name), files={}, features=features)

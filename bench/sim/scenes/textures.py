@@ -1,0 +1,297 @@
+"""Procedural, seeded textures for the subsea scenes (numpy + OpenCV only).
+
+Every generator takes an explicit ``numpy.random.Generator`` and returns an 8-bit **BGR** image ``(H, W, 3)``
+(OpenCV's channel order; :func:`encode_png` writes a PNG that MuJoCo reads as RGB). The same generator state gives
+byte-identical images: only numpy draws and OpenCV's deterministic drawing/resizing are used.
+
+Texture content is chosen for what the pipeline needs from a subsea panel: structure on several scales that survives
+underwater attenuation and blur (stencil text, bolt heads, stripes, paint-wear edges, growth blobs) rather than
+pixel-scale noise alone, which the water medium erases.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bench.errors import ConfigError
+
+# Colours (BGR, 0..255)
+SAFETY_YELLOW = (20, 190, 235)
+SUBSEA_ORANGE = (20, 110, 235)
+PANEL_GREY = (120, 118, 112)
+RUST = (30, 70, 140)
+DARK_RUST = (20, 40, 80)
+BARE_STEEL = (150, 150, 145)
+GROWTH_GREEN = (70, 120, 90)
+GROWTH_WHITE = (200, 210, 215)
+BLACK = (25, 25, 25)
+WHITE = (235, 235, 235)
+
+_FONTS = (cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_TRIPLEX)
+
+
+def _check_shape(shape):
+    h, w = (int(v) for v in shape)
+    if h < 8 or w < 8:
+        raise ValueError(f"texture shape: expected at least 8 x 8 pixels, got {shape}")
+    return h, w
+
+
+def fractal_noise(rng: np.random.Generator, shape, base_cells=4, octaves=5, persistence=0.55):
+    """Band-limited fractal value noise in [0, 1].
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    shape : (int, int)
+        Image height and width (px).
+    base_cells : int
+        Number of random lattice cells across the shorter side at the coarsest octave.
+    octaves : int
+        Octaves, each with twice the lattice density of the previous one.
+    persistence : float
+        Amplitude ratio between successive octaves.
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+    """
+    h, w = _check_shape(shape)
+    out = np.zeros((h, w), np.float32)
+    amp, total = 1.0, 0.0
+    for k in range(int(octaves)):
+        cells = base_cells * 2**k
+        gh = max(2, int(round(cells * h / min(h, w))) + 1)
+        gw = max(2, int(round(cells * w / min(h, w))) + 1)
+        grid = rng.random((gh, gw)).astype(np.float32)
+        out += amp * cv2.resize(grid, (w, h), interpolation=cv2.INTER_CUBIC)
+        total += amp
+        amp *= persistence
+    out /= total
+    lo, hi = float(out.min()), float(out.max())
+    return (out - lo) / max(hi - lo, 1e-6)
+
+
+def _blend(img, color, alpha):
+    """``img * (1 - alpha) + color * alpha`` with ``alpha (H, W)`` in [0, 1] (float32, in place on ``img``)."""
+    img = np.asarray(img, np.float32)
+    d = np.subtract(np.asarray(color, np.float32), img, dtype=np.float32)
+    d *= np.clip(alpha, 0.0, 1.0).astype(np.float32, copy=False)[..., None]
+    img += d
+    return img
+
+
+def painted_metal(rng: np.random.Generator, shape, color=PANEL_GREY, wear=0.35, rust=0.35, growth=0.3, bolts=True):
+    """Painted steel with paint wear, rust streaks, marine growth and bolt heads.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    shape : (int, int)
+        Height and width (px).
+    color : (3,) BGR
+        Paint colour.
+    wear, rust, growth : float in [0, 1]
+        Amount of bare/worn paint patches, rust streaks (vertical drips), marine-growth blobs and barnacles.
+    bolts : bool
+        Draw rows of shaded bolt heads along the edges.
+
+    Returns
+    -------
+    ndarray, shape (H, W, 3), uint8 (BGR)
+    """
+    h, w = _check_shape(shape)
+    s = min(h, w)
+    shade = fractal_noise(rng, (h, w), base_cells=3, octaves=6)
+    img = np.asarray(color, np.float32) * (0.75 + 0.45 * shade[..., None])
+    # Paint wear: thresholded noise exposes primer/steel/rust with a dark rim (sharp, multi-scale edges).
+    if wear > 0:
+        n = fractal_noise(rng, (h, w), base_cells=5, octaves=5)
+        thr = 1.0 - 0.35 * wear
+        patch = (n > thr).astype(np.float32)
+        rim = cv2.dilate(patch, np.ones((3, 3), np.uint8), iterations=max(1, s // 400)) - patch
+        img = _blend(img, BARE_STEEL, patch * 0.8)
+        img = _blend(img, RUST, patch * fractal_noise(rng, (h, w), base_cells=12, octaves=3))
+        img = _blend(img, DARK_RUST, rim * 0.9)
+    # Rust streaks: drips running down from random sources (bolts, seams).
+    if rust > 0:
+        streak = np.zeros((h, w), np.float32)
+        for _ in range(int(6 + 40 * rust)):
+            x0 = int(rng.integers(0, w))
+            y0 = int(rng.integers(0, max(1, h - h // 8)))
+            length = int(rng.uniform(0.05, 0.45) * h)
+            width = max(1, int(rng.uniform(0.002, 0.008) * s))
+            cv2.line(streak, (x0, y0), (x0 + int(rng.normal(0, 0.01 * s)), min(h - 1, y0 + length)),
+                     float(rng.uniform(0.3, 0.9)), width)
+        streak = cv2.GaussianBlur(streak, (0, 0), sigmaX=max(0.5, 0.002 * s), sigmaY=max(1.0, 0.01 * s))
+        img = _blend(img, RUST, np.clip(streak, 0, 1) * 0.85)
+    # Marine growth: soft green/brown blobs, then white barnacles with dark centres.
+    if growth > 0:
+        blob = np.zeros((h, w), np.float32)
+        for _ in range(int(5 + 25 * growth)):
+            c = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+            ax = (int(rng.uniform(0.01, 0.06) * s), int(rng.uniform(0.01, 0.05) * s))
+            cv2.ellipse(blob, c, ax, float(rng.uniform(0, 180)), 0, 360, float(rng.uniform(0.4, 1.0)), -1)
+        blob = cv2.GaussianBlur(blob, (0, 0), max(1.0, 0.004 * s))
+        blob *= 0.6 + 0.4 * fractal_noise(rng, (h, w), base_cells=20, octaves=3)
+        img = _blend(img, GROWTH_GREEN, np.clip(blob, 0, 1) * 0.85)
+        out = np.clip(img, 0, 255).astype(np.uint8)
+        for _ in range(int(40 + 400 * growth)):
+            c = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+            r = max(2, int(rng.uniform(0.002, 0.008) * s))
+            cv2.circle(out, c, r, GROWTH_WHITE, -1, cv2.LINE_AA)
+            cv2.circle(out, c, max(1, r // 2), (60, 70, 70), -1, cv2.LINE_AA)
+        img = out.astype(np.float32)
+    out = np.clip(img, 0, 255).astype(np.uint8)
+    if bolts:
+        _bolt_rows(out, rng)
+    grain = (rng.normal(0.0, 4.0, (h, w, 1))).astype(np.float32)
+    return np.clip(out.astype(np.float32) + grain, 0, 255).astype(np.uint8)
+
+
+def _bolt_rows(img, rng):
+    """Shaded bolt heads along the four edges (in place)."""
+    h, w = img.shape[:2]
+    s = min(h, w)
+    r = max(3, int(0.012 * s))
+    inset = 3 * r
+    pitch = max(4 * r, int(0.08 * s))
+    pts = [(x, y) for x in range(inset, w - inset + 1, pitch) for y in (inset, h - inset)]
+    pts += [(inset, y) for y in range(inset + pitch, h - inset - pitch + 1, pitch)]
+    pts += [(w - inset, y) for y in range(inset + pitch, h - inset - pitch + 1, pitch)]
+    for x, y in pts:
+        cv2.circle(img, (x + r // 4, y + r // 4), r, (30, 30, 30), -1, cv2.LINE_AA)  # shadow
+        cv2.circle(img, (x, y), r, (165, 165, 160), -1, cv2.LINE_AA)
+        a = float(rng.uniform(0, np.pi / 3))
+        hexagon = np.array([[x + 0.7 * r * np.cos(a + k * np.pi / 3), y + 0.7 * r * np.sin(a + k * np.pi / 3)]
+                            for k in range(6)], np.int32)
+        cv2.polylines(img, [hexagon], True, (70, 70, 70), max(1, r // 5), cv2.LINE_AA)
+
+
+def hazard_stripes(shape, stripe_px=None, colors=(SAFETY_YELLOW, BLACK), angle_deg=45.0):
+    """Diagonal two-colour hazard stripes, ``(H, W, 3)`` uint8 BGR (deterministic)."""
+    h, w = _check_shape(shape)
+    stripe_px = stripe_px or max(4, min(h, w) // 2)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    a = np.deg2rad(angle_deg)
+    band = np.floor((xx * np.cos(a) + yy * np.sin(a)) / stripe_px).astype(int) % 2
+    out = np.empty((h, w, 3), np.uint8)
+    out[band == 0] = colors[0]
+    out[band == 1] = colors[1]
+    return out
+
+
+def stencil_text(img, text, org, height_px, color=BLACK, font=cv2.FONT_HERSHEY_DUPLEX, thickness=None):
+    """Draw ``text`` with its baseline-left at ``org`` and cap height ``height_px`` (in place); returns its width."""
+    scale = height_px / 22.0  # Hershey fonts are ~22 px high at scale 1
+    thickness = thickness or max(1, int(round(height_px / 9)))
+    cv2.putText(img, text, (int(org[0]), int(org[1])), font, scale, color, thickness, cv2.LINE_AA)
+    (tw, _), _ = cv2.getTextSize(text, font, scale, thickness)
+    return tw
+
+
+def label_plate(rng: np.random.Generator, lines, shape, background=WHITE, ink=BLACK, border=True, weathering=0.3):
+    """An engraved/stencilled tag: text lines on a plate with a border, rivets and light weathering."""
+    h, w = _check_shape(shape)
+    img = np.empty((h, w, 3), np.float32)
+    img[:] = background
+    img *= (0.85 + 0.15 * fractal_noise(rng, (h, w), base_cells=3, octaves=4))[..., None]
+    if weathering > 0:
+        spots = fractal_noise(rng, (h, w), base_cells=8, octaves=4)
+        img = _blend(img, RUST, np.clip((spots - (1 - 0.3 * weathering)) * 4, 0, 1))
+    out = np.clip(img, 0, 255).astype(np.uint8)
+    if border:
+        t = max(2, h // 25)
+        cv2.rectangle(out, (t, t), (w - 1 - t, h - 1 - t), ink, t, cv2.LINE_AA)
+        r = max(2, h // 20)
+        for cx, cy in ((3 * r + t, 3 * r + t), (w - 3 * r - t, 3 * r + t), (3 * r + t, h - 3 * r - t),
+                       (w - 3 * r - t, h - 3 * r - t)):
+            cv2.circle(out, (cx, cy), r, (90, 90, 90), -1, cv2.LINE_AA)
+    lines = list(lines)
+    n = max(1, len(lines))
+    line_h = 0.62 * h / n
+    for i, text in enumerate(lines):
+        cap = line_h * (0.75 if i == 0 else 0.55)
+        font = _FONTS[int(rng.integers(0, len(_FONTS)))]
+        thickness = max(1, int(round(cap / 8)))
+        (tw, _), _ = cv2.getTextSize(text, font, cap / 22.0, thickness)
+        if tw > 0.86 * w:  # shrink to fit
+            cap *= 0.86 * w / tw
+            (tw, _), _ = cv2.getTextSize(text, font, cap / 22.0, thickness)
+        y = 0.19 * h + (i + 0.8) * (0.68 * h / n)
+        cv2.putText(out, text, (int((w - tw) / 2), int(y)), font, cap / 22.0, ink, thickness, cv2.LINE_AA)
+    return out
+
+
+def dial_face(rng: np.random.Generator, size_px, vmin=0, vmax=None, label=None):
+    """A pressure-gauge dial: ticks, numbers, a red zone, a needle at a random reading, and a unit label.
+
+    The dial fills the inscribed circle of a square ``(size_px, size_px, 3)`` BGR image; the corners are bezel grey.
+    """
+    n = int(size_px)
+    _check_shape((n, n))
+    vmax = vmax if vmax is not None else int(rng.choice([10, 16, 25, 40, 60, 100, 250, 400]))
+    label = label or str(rng.choice(["BAR", "PSI x100", "MPa", "kPa x10"]))
+    img = np.empty((n, n, 3), np.uint8)
+    img[:] = (110, 110, 110)
+    c = (n // 2, n // 2)
+    R = int(0.49 * n)
+    cv2.circle(img, c, R, (238, 240, 240), -1, cv2.LINE_AA)
+    a0, a1 = np.deg2rad(225.0), np.deg2rad(-45.0)  # sweep 270 deg clockwise (image y down)
+
+    def ang(v):
+        return a0 + (a1 - a0) * (v - vmin) / (vmax - vmin)
+
+    # red zone over the last 15 %
+    cv2.ellipse(img, c, (int(0.8 * R), int(0.8 * R)), 0, -np.rad2deg(ang(vmin + 0.85 * (vmax - vmin))),
+                -np.rad2deg(a1), (40, 40, 210), max(2, n // 30), cv2.LINE_AA)
+    n_major = 5
+    for k in range(n_major * 5 + 1):
+        v = vmin + (vmax - vmin) * k / (n_major * 5)
+        a = ang(v)
+        major = k % 5 == 0
+        r0 = R * (0.72 if major else 0.8)
+        p0 = (int(c[0] + r0 * np.cos(a)), int(c[1] - r0 * np.sin(a)))
+        p1 = (int(c[0] + 0.9 * R * np.cos(a)), int(c[1] - 0.9 * R * np.sin(a)))
+        cv2.line(img, p0, p1, BLACK, max(1, n // (60 if major else 150)), cv2.LINE_AA)
+        if major:
+            txt = f"{v:g}"
+            scale = n / 420.0
+            (tw, th), _ = cv2.getTextSize(txt, cv2.FONT_HERSHEY_SIMPLEX, scale, max(1, n // 150))
+            q = (int(c[0] + 0.55 * R * np.cos(a) - tw / 2), int(c[1] - 0.55 * R * np.sin(a) + th / 2))
+            cv2.putText(img, txt, q, cv2.FONT_HERSHEY_SIMPLEX, scale, BLACK, max(1, n // 150), cv2.LINE_AA)
+    (tw, th), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_DUPLEX, n / 500.0, max(1, n // 170))
+    cv2.putText(img, label, (c[0] - tw // 2, int(c[1] + 0.45 * R)), cv2.FONT_HERSHEY_DUPLEX, n / 500.0, BLACK,
+                max(1, n // 170), cv2.LINE_AA)
+    reading = float(rng.uniform(0.1, 0.8))
+    a = a0 + (a1 - a0) * reading
+    tip = (int(c[0] + 0.85 * R * np.cos(a)), int(c[1] - 0.85 * R * np.sin(a)))
+    tail = (int(c[0] - 0.15 * R * np.cos(a)), int(c[1] + 0.15 * R * np.sin(a)))
+    cv2.line(img, tail, tip, (30, 30, 160), max(2, n // 45), cv2.LINE_AA)
+    cv2.circle(img, c, max(3, n // 22), BLACK, -1, cv2.LINE_AA)
+    return img
+
+
+def encode_png(img) -> bytes:
+    """Lossless PNG bytes of a uint8 BGR/gray image (deterministic)."""
+    img = np.asarray(img)
+    if img.dtype != np.uint8 or img.ndim not in (2, 3):
+        raise ValueError(f"image: expected uint8 (H, W[, 3]), got {img.dtype} {img.shape}")
+    ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise ValueError("image: PNG encoding failed")
+    return buf.tobytes()
+
+
+def load_image_file(path, field: str) -> np.ndarray:
+    """Read any image file OpenCV can decode as 8-bit BGR; a missing or unreadable file is a one-line ConfigError."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(str(p), field, "texture file not found")
+    img = cv2.imdecode(np.frombuffer(p.read_bytes(), np.uint8), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ConfigError(str(p), field, "not a readable image file")
+    return img
