@@ -12,7 +12,7 @@ export MUJOCO_GL ?= egl
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[dev]"
+	$(BIN)/python -m pip install -q -e ".[dev,cluster]"
 	@touch $(STAMP)
 
 venv: $(STAMP)

@@ -18,7 +18,39 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                      help="override a scenario key (dotted path), e.g. --set monte_carlo.seeds=50")
     run.add_argument("--quiet", action="store_true", help="print only the result path")
+
+    sw = sub.add_parser("sweep", help="run a grid of scenario runs (resumable; one SQLite row per run)")
+    sw.add_argument("scenario", help="scenario YAML file")
+    sw.add_argument("--param", dest="params", action="append", default=[], metavar="KEY=V1,V2,...",
+                    help="a swept scenario key and its values (repeatable: the grid is their product)")
+    sw.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="a fixed override for every run")
+    sw.add_argument("--seeds", type=int, default=1, help="seeds per grid point (seed, seed+1, ...; default 1)")
+    sw.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    sw.add_argument("--backend", choices=("local", "ray"), default="local")
+    sw.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
+    sw.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
+    sw.add_argument("--out", default=None, help="sweep folder (default runs/sweep-<scenario name>)")
     return p
+
+
+def _sweep(args) -> None:
+    from pathlib import Path
+
+    from bench.scenario.sweep import parse_param, parse_set, run_sweep
+
+    if args.seeds < 1:
+        raise BenchError(f"--seeds: must be >= 1, got {args.seeds}")
+    params = [parse_param(p) for p in args.params]
+    fixed = dict(parse_set(item) for item in args.overrides)
+    out = args.out or str(Path("runs") / f"sweep-{Path(args.scenario).stem}")
+    res = run_sweep(args.scenario, params, list(range(args.seed, args.seed + args.seeds)), out, args.backend,
+                    args.address, args.workers, fixed=fixed)
+    print(f"{res['rows']} finished runs in {res['store']}; summary {res['summary']}")
+    for p in res["plots"]:
+        print(f"plot {p}")
+    for e in res["errors"]:
+        print(f"failed: {e}")
 
 
 def main(argv=None) -> int:
@@ -29,6 +61,8 @@ def main(argv=None) -> int:
 
             run_scenario_file(args.scenario, out=args.out, seed=args.seed, overrides=args.overrides,
                               verbose=not args.quiet)
+        elif args.command == "sweep":
+            _sweep(args)
         return 0
     except BenchError as exc:
         print(f"bench: error: {exc}", file=sys.stderr)

@@ -29,8 +29,8 @@ def load_scenario(path, seed=None, overrides=()) -> dict:
     return cfg
 
 
-def run_scenario_file(path, out=None, seed=None, overrides=(), verbose=True):
-    """Run one scenario; returns the path of ``result.json``."""
+def run_scenario_file(path, out=None, seed=None, overrides=(), verbose=True, quiet=False):
+    """Run one scenario; returns the path of ``result.json`` (``quiet``: print nothing, e.g. in sweep workers)."""
     cfg = load_scenario(path, seed, overrides)
     out_dir = Path(out) if out else Path("runs") / cfg["name"]
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -38,6 +38,6 @@ def run_scenario_file(path, out=None, seed=None, overrides=(), verbose=True):
     result_path = module.run(cfg, out_dir, verbose=verbose)
     if verbose:
         print(f"wrote {result_path}")
-    else:
+    elif not quiet:
         print(result_path)
     return result_path

@@ -1,0 +1,327 @@
+"""``bench sweep``: a grid of scenario runs (keys x values x seeds), resumable, one SQLite row per finished run.
+
+* Each run is ``bench run`` of the scenario with ``--set key=value`` overrides and a seed, in its own folder
+  ``DIR/runs/<run_id>/``; ``run_id`` is a hash of the scenario file's content, the overrides and the seed, so a
+  finished run is recognised whatever the order of the grid.
+* Rows go into ``DIR/sweep.sqlite`` (table ``runs``: ``run_id`` primary key, parameters, seed, metrics, timings,
+  versions, status) in one transaction per finished run, written by the parent process only. SQLite's atomic commit
+  means a sweep killed at any moment - SIGKILL included - loses at most the runs in flight and never leaves a
+  partial or duplicate row; the next ``bench sweep`` with the same arguments skips the finished run ids.
+* Backends: ``local`` (a process pool, default ``os.cpu_count()`` workers) and ``ray`` (the same work function as
+  Ray tasks, on a local instance or ``--address`` of a cluster; needs the ``cluster`` extra).
+* At the end: a summary table (median and spread per grid point and metric) as CSV and a plot per metric against
+  the first swept key.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import os
+import platform
+import sqlite3
+import sys
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from bench.errors import BenchError, ConfigError
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS runs (
+    run_id TEXT PRIMARY KEY,
+    params TEXT NOT NULL,
+    seed INTEGER NOT NULL,
+    status TEXT NOT NULL,
+    message TEXT,
+    metrics TEXT,
+    timings TEXT,
+    versions TEXT,
+    result_path TEXT,
+    finished_at REAL
+)
+"""
+
+
+def parse_param(spec: str, source: str = "--param") -> tuple:
+    """``"key=v1,v2,..."`` -> ``(key, [values parsed as YAML])``; a YAML list after ``=`` is accepted too."""
+    if "=" not in spec:
+        raise ConfigError(source, spec, "expected KEY=V1,V2,...")
+    key, raw = spec.split("=", 1)
+    key = key.strip()
+    if not key:
+        raise ConfigError(source, spec, "empty key")
+    try:
+        parsed = yaml.safe_load(raw)
+    except yaml.YAMLError:
+        parsed = None
+    if isinstance(parsed, list):
+        values = parsed
+    else:
+        values = []
+        for item in raw.split(","):
+            try:
+                values.append(yaml.safe_load(item))
+            except yaml.YAMLError:
+                raise ConfigError(source, key, f"value {item!r} is not valid YAML") from None
+    if not values:
+        raise ConfigError(source, key, "no values")
+    return key, values
+
+
+def parse_set(spec: str) -> tuple:
+    """``"key=value"`` -> ``(key, value parsed as YAML)``, as ``bench run --set``."""
+    if "=" not in spec:
+        raise ConfigError("--set", spec, "expected KEY=VALUE")
+    key, raw = spec.split("=", 1)
+    try:
+        return key.strip(), yaml.safe_load(raw)
+    except yaml.YAMLError:
+        raise ConfigError("--set", key, f"value {raw!r} is not valid YAML") from None
+
+
+def grid(params: list, seeds: list) -> list:
+    """Every combination as ``(overrides dict, seed)``, params varying slowest-first as given."""
+    keys = [k for k, _ in params]
+    out = []
+    for combo in itertools.product(*[v for _, v in params]):
+        for seed in seeds:
+            out.append((dict(zip(keys, combo, strict=True)), int(seed)))
+    return out
+
+
+def run_id(scenario_text: str, overrides: dict, seed: int) -> str:
+    h = hashlib.sha256()
+    h.update(scenario_text.encode())
+    h.update(json.dumps(overrides, sort_keys=True, default=str).encode())
+    h.update(str(seed).encode())
+    return h.hexdigest()[:16]
+
+
+def versions() -> dict:
+    """Versions of the interpreter and the libraries a result depends on."""
+    out = {"python": platform.python_version()}
+    for mod in ("numpy", "scipy", "cv2", "mujoco", "pinocchio"):
+        try:
+            out[mod] = __import__(mod).__version__
+        except Exception:  # noqa: BLE001 - a missing optional library is recorded as absent
+            out[mod] = None
+    return out
+
+
+def run_one(scenario: str, overrides: dict, seed: int, out_dir: str) -> dict:
+    """Run one grid point (in a worker process or a Ray task); returns the row's content."""
+    from bench.scenario.runner import run_scenario_file
+
+    t0 = time.perf_counter()
+    sets = [f"{k}={json.dumps(v)}" for k, v in overrides.items()]
+    try:
+        path = run_scenario_file(scenario, out=out_dir, seed=seed, overrides=sets, verbose=False, quiet=True)
+        doc = json.loads(Path(path).read_text())
+        return {"status": "done", "message": "", "metrics": doc.get("metrics", {}),
+                "timings": {**doc.get("timings_s", {}), "wall_s": time.perf_counter() - t0},
+                "result_path": str(path), "versions": versions()}
+    except BenchError as exc:
+        return {"status": "error", "message": str(exc), "metrics": {}, "timings": {"wall_s": time.perf_counter() - t0},
+                "result_path": None, "versions": versions()}
+
+
+class SweepStore:
+    """The SQLite file of a sweep; every write is one committed transaction."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.db = sqlite3.connect(self.path, timeout=30)
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("PRAGMA synchronous=FULL")
+        self.db.execute(_SCHEMA)
+        self.db.commit()
+
+    def finished(self) -> set:
+        return {r[0] for r in self.db.execute("SELECT run_id FROM runs WHERE status = 'done'")}
+
+    def add(self, rid: str, overrides: dict, seed: int, row: dict) -> None:
+        with self.db:
+            self.db.execute(
+                "INSERT OR REPLACE INTO runs VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (rid, json.dumps(overrides, sort_keys=True), seed, row["status"], row["message"],
+                 json.dumps(row["metrics"]), json.dumps(row["timings"]), json.dumps(row["versions"]),
+                 row["result_path"], time.time()))
+
+    def rows(self) -> list:
+        cur = self.db.execute("SELECT run_id, params, seed, status, message, metrics, timings FROM runs "
+                              "ORDER BY run_id")
+        return [{"run_id": r[0], "params": json.loads(r[1]), "seed": r[2], "status": r[3], "message": r[4],
+                 "metrics": json.loads(r[5] or "{}"), "timings": json.loads(r[6] or "{}")} for r in cur]
+
+    def close(self) -> None:
+        self.db.close()
+
+
+class _Progress:
+    def __init__(self, total: int, done: int, stream=sys.stderr):
+        self.total, self.done, self.t0, self.stream, self.new = total, done, time.perf_counter(), stream, 0
+
+    def step(self, ok: bool = True) -> None:
+        self.done += 1
+        self.new += 1
+        frac = self.done / max(self.total, 1)
+        rate = (time.perf_counter() - self.t0) / self.new
+        eta = rate * (self.total - self.done)
+        bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
+        self.stream.write(f"\r[{bar}] {self.done}/{self.total} runs, eta {eta:5.0f} s{'' if ok else ' (error)'}")
+        self.stream.flush()
+        if self.done == self.total:
+            self.stream.write("\n")
+
+
+def _local_backend(tasks, workers):
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        pending = {pool.submit(run_one, *t[1:]): t for t in tasks}
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in done:
+                yield pending.pop(fut), fut.result()
+
+
+def _ray_backend(tasks, address):
+    try:
+        import ray
+    except ImportError:
+        raise BenchError("--backend ray needs Ray: pip install -e '.[cluster]'") from None
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address=address, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
+    try:
+        remote = ray.remote(run_one)
+        refs = {remote.remote(*t[1:]): t for t in tasks}
+        while refs:
+            ready, _ = ray.wait(list(refs), num_returns=1)
+            for ref in ready:
+                yield refs.pop(ref), ray.get(ref)
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", address=None, workers=None,
+              progress: bool = True, fixed: dict | None = None) -> dict:
+    """Run (or resume) a sweep; returns ``{"store": path, "summary": path, "plots": [...], "rows": n}``.
+
+    ``params`` is a list of ``(key, values)`` (the grid); ``fixed`` overrides every run (``--set``).
+    """
+    fixed = dict(fixed or {})
+    clash = set(fixed) & {k for k, _ in params}
+    if clash:
+        raise ConfigError("--set", sorted(clash)[0], "is also swept with --param")
+    scenario = Path(scenario)
+    if not scenario.is_file():
+        raise ConfigError(scenario, "<file>", "not found")
+    if backend not in ("local", "ray"):
+        raise ConfigError("--backend", backend, "expected 'local' or 'ray'")
+    from bench.scenario.runner import load_scenario
+
+    for overrides, seed in grid(params, seeds[:1]):  # validate every value before launching anything
+        load_scenario(scenario, seed, [f"{k}={json.dumps(v)}" for k, v in {**fixed, **overrides}.items()])
+    out = Path(out)
+    store = SweepStore(out / "sweep.sqlite")
+    text = scenario.read_text()
+    todo, all_tasks = [], grid(params, seeds)
+    finished = store.finished()
+    for overrides, seed in all_tasks:
+        full = {**fixed, **overrides}
+        rid = run_id(text, full, seed)
+        if rid not in finished:
+            todo.append((rid, str(scenario.resolve()), full, seed, str((out / "runs" / rid).resolve())))
+    bar = _Progress(len(all_tasks), len(all_tasks) - len(todo)) if progress else None
+    stream = _local_backend(todo, workers or os.cpu_count()) if backend == "local" else _ray_backend(todo, address)
+    for task, row in stream:
+        store.add(task[0], task[2], task[3], row)
+        if bar:
+            bar.step(row["status"] == "done")
+    rows = [r for r in store.rows() if r["status"] == "done"]
+    errors = [r for r in store.rows() if r["status"] != "done"]
+    store.close()
+    summary = summarise(rows, [k for k, _ in params], out)
+    summary["errors"] = [f"{r['params']} seed {r['seed']}: {r['message']}" for r in errors]
+    return summary
+
+
+def summarise(rows: list, keys: list, out: Path) -> dict:
+    """Median and spread (min, max, 25 %, 75 %) per grid point and metric -> CSV, and one plot per metric."""
+    from bench.scenario.results import write_table_csv
+
+    groups = {}
+    for r in rows:
+        groups.setdefault(tuple(json.dumps(r["params"].get(k)) for k in keys), []).append(r)
+    metrics = sorted({m for r in rows for m in r["metrics"]})
+    table = {k: [] for k in keys}
+    table["runs"] = []
+    for m in metrics:
+        for s in ("median", "q25", "q75", "min", "max"):
+            table[f"{m}_{s}"] = []
+    order = sorted(groups, key=lambda g: [_sort_key(json.loads(v)) for v in g])
+    for g in order:
+        for k, v in zip(keys, g, strict=True):
+            table[k].append(json.loads(v))
+        rs = groups[g]
+        table["runs"].append(len(rs))
+        for m in metrics:
+            vals = np.array([r["metrics"][m] for r in rs if r["metrics"].get(m) is not None], dtype=float)
+            stats = (np.median(vals), *np.percentile(vals, [25, 75]), vals.min(), vals.max()) if len(vals) else \
+                (np.nan,) * 5
+            for s, v in zip(("median", "q25", "q75", "min", "max"), stats, strict=True):
+                table[f"{m}_{s}"].append(float(v))
+    write_table_csv(out / "summary.csv", table)
+    plots = []
+    if keys and metrics and all(_is_number(v) for v in table[keys[0]]):
+        plots = _plot(table, keys, metrics, out)
+    return {"store": str(out / "sweep.sqlite"), "summary": str(out / "summary.csv"), "plots": plots,
+            "rows": len(rows), "table": table}
+
+
+def _sort_key(v):
+    return (0, v, "") if _is_number(v) else (1, 0, str(v))
+
+
+def _is_number(v):
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _plot(table, keys, metrics, out):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x = np.array(table[keys[0]], dtype=float)
+    others = list(zip(*(table[k] for k in keys[1:]), strict=True)) if len(keys) > 1 else [()] * len(x)
+    paths = []
+    for m in metrics:
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for label in sorted(set(others), key=str):
+            sel = np.array([o == label for o in others])
+            idx = np.argsort(x[sel])
+            xs = x[sel][idx]
+            med = np.array(table[f"{m}_median"])[sel][idx]
+            lo = np.array(table[f"{m}_q25"])[sel][idx]
+            hi = np.array(table[f"{m}_q75"])[sel][idx]
+            name = ", ".join(f"{k}={v}" for k, v in zip(keys[1:], label, strict=True)) or "median"
+            ax.plot(xs, med, "o-", label=name)
+            ax.fill_between(xs, lo, hi, alpha=0.2)
+        ax.set_xlabel(keys[0])
+        ax.set_ylabel(m)
+        ax.set_title(f"{m}: median and interquartile range over seeds")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        path = out / f"sweep_{m}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        paths.append(str(path))
+    return paths
