@@ -294,12 +294,13 @@ def table10_commands() -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------------------------- MJCF
-def reference_pose(reference: SceneObject, distance_m: float) -> np.ndarray:
+def reference_pose(reference: SceneObject, distance_m: float, lateral_m: float = 0.0) -> np.ndarray:
     """Default ``T_table_reference``: the reference object faces the camera ``distance_m`` ahead (table z).
 
-    A rig (features with ``corners_board_a``): its common edge vertical at ``(0, ., distance)``, the bisector of
-    the two boards towards the camera, the patterns' mid-height at the camera height; board A on the left.
-    Anything else (a panel): its front face (object z = 0, normal +z) at ``z_table = distance``, upright, centred.
+    A rig (features with ``corners_board_a``): its common edge vertical at ``(lateral, ., distance)``, the bisector
+    of the two boards towards the camera, the patterns' mid-height at the camera height; board A on the left.
+    Anything else (a panel): its front face (object z = 0, normal +z) at ``z_table = distance``, upright, centred
+    at ``x_table = lateral``.
     """
     if not np.isfinite(distance_m) or distance_m <= 0:
         raise ValueError(f"reference distance: must be positive (m), got {distance_m!r}")
@@ -308,8 +309,8 @@ def reference_pose(reference: SceneObject, distance_m: float) -> np.ndarray:
         r2 = 1 / np.sqrt(2)
         R = np.array([[-r2, r2, 0.0], [0.0, 0.0, -1.0], [-r2, -r2, 0.0]])  # columns x_r, y_r, z_r in table axes
         mid = float(np.mean(f["corners"][:, 2]))
-        return homogeneous(R, [0.0, mid, distance_m])
-    return homogeneous(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, distance_m])
+        return homogeneous(R, [lateral_m, mid, distance_m])
+    return homogeneous(np.diag([1.0, -1.0, -1.0]), [lateral_m, 0.0, distance_m])
 
 
 def xy_table(model: TableModel, camera_xml: str = "", reference: SceneObject | None = None,
@@ -330,7 +331,11 @@ def xy_table(model: TableModel, camera_xml: str = "", reference: SceneObject | N
     reference_distance_m : float or None
         Default 0.7 m for a camera on the axis, 0.5 m for an off-axis (underwater) camera.
     T_table_reference : (4, 4) or None
-        Overrides :func:`reference_pose`.
+        Overrides :func:`reference_pose`. By default the reference is centred in front of the camera at the table's
+        centre position (lateral offset = the camera's x offset). For the underwater set-up this is inferred from
+        Table 10: its angles aim every view at x = -95 .. -127 mm (e.g. image 1: camera at x = -180 mm turned 6 deg
+        sees x = -180 + 500 tan 6 deg = -127 mm; image 17: -20 - 500 tan 12 deg = -126 mm), i.e. at a rig in front
+        of the off-axis camera, not on the rotation axis.
     T_world_table : (4, 4)
         Table frame in the world.
 
@@ -395,7 +400,7 @@ def xy_table(model: TableModel, camera_xml: str = "", reference: SceneObject | N
         if reference_distance_m is None:
             reference_distance_m = LAB_REFERENCE_DISTANCE_M if np.linalg.norm(o) == 0 else \
                 UNDERWATER_REFERENCE_DISTANCE_M
-        T_tr = reference_pose(reference, reference_distance_m) if T_table_reference is None else \
+        T_tr = reference_pose(reference, reference_distance_m, float(o[0])) if T_table_reference is None else \
             check_transform(T_table_reference, "T_table_reference")
         ref_xml = f'<body name="{reference.name}_pose" {pose_attrs(T_tr)}>\n{reference.worldbody_xml}</body>\n'
         ref_assets, files, ref_features = reference.asset_xml, dict(reference.files), reference.features
