@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from bench.camera import calibration as cal
+from bench.camera.heikkila import fit_implicit_inverse
 from bench.camera.plots import plot_residual_vectors
 
 
@@ -64,7 +65,7 @@ def main(argv=None):
     print(f"{'time_s':12s}{t_ours:16.3f}{'':12s}{t_cv:16.3f}")
     print("per-view chi (Eq. 196), px:", np.array2string(ours.per_view_rms_px, precision=3))
     print("thesis parameters:", {k: round(v, 4) for k, v in ours.thesis_parameters().items()})
-    inv = cal.fit_inverse_model(ours.K, ours.dist, size)
+    inv = fit_implicit_inverse(ours.camera)
     print(f"implicit inverse model (Eq. 77-86): grid rms {inv.rms_px:.4f} px, max {inv.max_px:.4f} px")
     out = Path(args.out)
     png = plot_residual_vectors(out / "residuals_view0.png", uvs[0], ours.residuals_px[0], image=cv2.imread(used[0]),

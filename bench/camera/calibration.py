@@ -9,7 +9,8 @@ Pipeline of :func:`calibrate_camera`:
    pinhole model re-estimated from the corrected pixels, until the coefficients settle;
 3. Levenberg-Marquardt over all views (Eq. 74) with the chosen model, analytic Jacobian: ``"heikkila"`` = radial +
    tangential (Eq. 75-76: ``k1, k2, p1, p2`` and optionally ``k3``), ``"radial"`` = ``k1, k2``, ``"pinhole"`` = none;
-4. optionally (:func:`fit_inverse_model`) Heikkilä's implicit inverse model for undistortion (Eq. 77-86).
+4. Heikkilä's implicit inverse model for undistortion (Eq. 77-86) is fitted to the result by
+   :func:`bench.camera.heikkila.fit_implicit_inverse` (``result.camera``).
 
 Conventions: OpenCV camera frame and distortion order ``(k1, k2, p1, p2[, k3])``; Eq. 75-76 are this model with
 ``fx = s_u f``, ``fy = f`` and no skew (Eq. 75 prints ``k2 v^5`` for ``k2 u^5`` and Eq. 76 ``k1 u^2 v^2`` for
@@ -73,17 +74,13 @@ def _distort_values(x_n, dist5):
 def _distortion_jacobians(x, y, dist5):
     """Partial derivatives of the OpenCV/Heikkilä distortion (Eq. 75-76) at normalised ``x, y (N,)``.
 
-    Returns ``D_xy (N, 2, 2)`` (d(x_d, y_d)/d(x, y)) and ``D_k (N, 2, 5)`` (d(x_d, y_d)/d(k1, k2, p1, p2, k3)).
+    Returns ``D_xy (N, 2, 2)`` (d(x_d, y_d)/d(x, y), from :func:`bench.camera.model.distortion_jacobian`) and
+    ``D_k (N, 2, 5)`` (d(x_d, y_d)/d(k1, k2, p1, p2, k3)).
     """
-    k1, k2, p1, p2, k3 = dist5
+    from bench.camera.model import distortion_jacobian
+
+    D_xy = distortion_jacobian(np.column_stack([x, y]), dist5)
     r2 = x * x + y * y
-    g = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
-    dg = k1 + 2 * k2 * r2 + 3 * k3 * r2**2  # dg / d(r^2)
-    D_xy = np.empty(x.shape + (2, 2))
-    D_xy[:, 0, 0] = g + 2 * x * x * dg + 2 * p1 * y + 6 * p2 * x
-    D_xy[:, 0, 1] = 2 * x * y * dg + 2 * p1 * x + 2 * p2 * y
-    D_xy[:, 1, 0] = 2 * x * y * dg + 2 * p1 * x + 2 * p2 * y
-    D_xy[:, 1, 1] = g + 2 * y * y * dg + 6 * p1 * y + 2 * p2 * x
     D_k = np.empty(x.shape + (2, 5))
     D_k[:, 0, 0], D_k[:, 1, 0] = x * r2, y * r2
     D_k[:, 0, 1], D_k[:, 1, 1] = x * r2**2, y * r2**2
@@ -428,11 +425,15 @@ class CalibrationResult:
         """Distortion coefficients as OpenCV expects them: 4 when ``k3 = 0``, else 5."""
         return self.dist if self.dist[4] != 0.0 else self.dist[:4].copy()
 
+    @property
     def camera(self):
-        """The calibrated :class:`bench.camera.model.CameraModel`."""
+        """The calibrated :class:`bench.camera.model.CameraModel` (None when the calibration failed)."""
         from bench.camera.model import CameraModel
 
-        return CameraModel.from_opencv(self.K, self.dist_opencv, self.image_size)
+        if not self.success:
+            return None
+        return CameraModel(int(self.image_size[0]), int(self.image_size[1]), self.K, self.dist, name="calibrated",
+                           model=self.model)
 
     def thesis_parameters(self) -> dict:
         """Eq. 50's ``alpha, beta (px), theta (deg), u0, v0 (px)``."""
@@ -542,79 +543,6 @@ def calibrate_camera(object_points, image_points, image_size, model: str = "heik
     return CalibrationResult(bool(success), message, model, s.K(), _full_dist(model, s.dist), size, T_out, rms,
                              per_view, residuals, list(problem.intr_names), problem.intrinsic_vector(s), cov,
                              float(np.sqrt(sigma2)), iterations, cost, timings)
-
-
-@dataclass(frozen=True)
-class InverseModel:
-    """Heikkilä's implicit inverse (undistortion) model, Eq. 77-86.
-
-    Attributes
-    ----------
-    g : ndarray (8,)
-        ``g1 .. g8`` of Eq. 77-78 (unitless).
-    K : ndarray (3, 3)
-        The intrinsic matrix the normalised coordinates refer to (px).
-    rms_px : float
-        RMS of the model's error on the fitting grid, expressed in ideal pixels (``fx`` times normalised error).
-    max_px : float
-        Largest such error on the grid.
-    """
-
-    g: np.ndarray
-    K: np.ndarray
-    rms_px: float
-    max_px: float
-
-    def undistort(self, uv):
-        """Ideal normalised coordinates ``(N, 2)`` of distorted pixels ``uv (N, 2)`` (Eq. 77-79)."""
-        uv = np.asarray(uv, dtype=float)
-        if uv.ndim != 2 or uv.shape[1] != 2 or not np.all(np.isfinite(uv)):
-            raise ValueError(f"uv: expected finite pixels of shape (N, 2), got {uv.shape}")
-        xs = np.column_stack([uv, np.ones(len(uv))]) @ np.linalg.inv(self.K).T  # Eq. 79 (with skew)
-        return _apply_inverse(self.g, xs[:, 0], xs[:, 1])
-
-
-def _apply_inverse(g, us, vs):
-    r2 = us * us + vs * vs
-    G = (g[4] * r2 + g[5] * us + g[6] * vs + g[7]) * r2 + 1.0  # Eq. 78
-    u = us + us * (g[0] * r2 + g[1] * r2**2) + 2 * g[2] * us * vs + g[3] * (r2 + 2 * us * us)  # Eq. 77
-    v = vs + vs * (g[0] * r2 + g[1] * r2**2) + g[2] * (r2 + 2 * vs * vs) + 2 * g[3] * us * vs
-    return np.column_stack([u, v]) / G[:, None]
-
-
-def fit_inverse_model(K, dist, image_size, grid: int = 40) -> InverseModel:
-    """Fit the implicit inverse model (Eq. 77-86) to a calibrated camera ``K``, ``dist`` (OpenCV order).
-
-    A ``grid x grid`` lattice of ideal points spanning the image (ideal normalised ``u^, v^ = K^-1 p``) is distorted
-    by the forward model (Eq. 75-76), giving ``u*, v*``; the vector ``g`` solves the stacked linear system
-    ``e = T g`` (Eq. 81-85) by least squares (Eq. 86, read ``(T^T T)^-1 T^T e``). Misprints corrected: Eq. 81's first
-    entry is ``-u* r^2`` (printed ``-u*^2 r^2``) and its fifth ``u^ r^4`` (printed ``u* r^4``), as in V_i (Eq. 82).
-    """
-    K = np.asarray(K, dtype=float)
-    dist5 = np.zeros(5)
-    d = np.asarray(dist, dtype=float).ravel()
-    dist5[: min(5, d.size)] = d[:5]
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or not np.all(np.isfinite(dist5)):
-        raise ValueError("K, dist: expected a finite (3, 3) matrix and finite coefficients")
-    w, h = image_size
-    pu, pv = np.meshgrid(np.linspace(0, w - 1, grid), np.linspace(0, h - 1, grid))
-    ideal = np.column_stack([pu.ravel(), pv.ravel(), np.ones(pu.size)]) @ np.linalg.inv(K).T
-    uh, vh = ideal[:, 0], ideal[:, 1]
-    xd = _distort_values(np.column_stack([uh, vh]), dist5)  # Eq. 75-76 in normalised form
-    us, vs = xd[:, 0], xd[:, 1]
-    r2 = us * us + vs * vs
-    U = np.column_stack([-us * r2, -us * r2**2, -2 * us * vs, -(r2 + 2 * us * us), uh * r2**2, uh * us * r2,
-                         uh * vs * r2, uh * r2])  # Eq. 81
-    V = np.column_stack([-vs * r2, -vs * r2**2, -(r2 + 2 * vs * vs), -2 * us * vs, vh * r2**2, vh * us * r2,
-                         vh * vs * r2, vh * r2])  # Eq. 82
-    T = np.empty((2 * len(us), 8))
-    T[0::2], T[1::2] = U, V  # Eq. 83
-    e = np.empty(2 * len(us))
-    e[0::2], e[1::2] = us - uh, vs - vh  # Eq. 84
-    g = np.linalg.lstsq(T, e, rcond=None)[0]  # Eq. 85-86
-    err = (_apply_inverse(g, us, vs) - np.column_stack([uh, vh])) * [K[0, 0], K[1, 1]]
-    norm = np.linalg.norm(err, axis=1)
-    return InverseModel(g, K.copy(), float(np.sqrt(np.mean(norm**2))), float(norm.max()))
 
 
 def reprojection_residuals(result: CalibrationResult, object_points, image_points):
