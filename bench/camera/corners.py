@@ -430,11 +430,28 @@ def intersect_lines(l1, l2):
 def kmeans_lines(points, normals, lines0, gate_px, angle_tol_deg=30.0, max_iterations=20, min_points=6):
     """k-means line fitting (§3.3.5): assign each point to the nearest line, refit each line (Eq. 92-93), repeat.
 
-    Stops when the assignment is the same in two consecutive iterations (the thesis's criterion). Points farther than
+    Stops when the assignment is the same in two consecutive iterations (the thesis's criterion) or after
+    ``max_iterations`` (an assignment can flip-flop between two states for a point at the gate). Points farther than
     ``gate_px`` from every line, or whose gradient ``normals`` is more than ``angle_tol_deg`` away from the line's
     normal, are left unassigned (additions that keep stray edges out).
 
-    Returns ``(lines (L, 3), labels (K,), iterations, ok)``; ``labels`` is -1 for unassigned points.
+    Parameters
+    ----------
+    points, normals : arrays (K, 2)
+        Edge points (px) and their unit gradient directions.
+    lines0 : array (L, 3)
+        Initial lines ``a u + b v + c = 0``, ``a^2 + b^2 = 1``.
+
+    Returns
+    -------
+    lines : ndarray (L, 3)
+    labels : ndarray (K,)
+        Line index of each point, -1 when unassigned.
+    iterations : int
+    converged : bool
+        The assignment settled.
+    enough : bool
+        Every line kept at least ``min_points`` points (otherwise ``lines`` are the last valid ones).
     """
     lines = np.array(lines0, dtype=float)
     labels = None
@@ -446,14 +463,14 @@ def kmeans_lines(points, normals, lines0, gate_px, angle_tol_deg=30.0, max_itera
         new = np.argmin(dist, axis=1)
         new[np.min(dist, axis=1) > gate_px] = -1
         if labels is not None and np.array_equal(new, labels):
-            return lines, labels, it - 1, True
+            return lines, labels, it - 1, True, True
         labels = new
         for k in range(len(lines)):
             sel = labels == k
             if sel.sum() < min_points:
-                return lines, labels, it, False
+                return lines, labels, it, False, False
             lines[k] = fit_line_tls(points[sel])
-    return lines, labels, max_iterations, False
+    return lines, labels, max_iterations, False, True
 
 
 def _line_through(p, direction):
@@ -476,24 +493,58 @@ def _subpix(gray_u8, uv, inner):
     return c.reshape(-1, 2).astype(float)
 
 
+def grid_outliers(uv, inner, tol: float = 0.2) -> np.ndarray:
+    """Corners of a detected grid that break its regularity: mask ``(nx * ny,)``.
+
+    Every three consecutive corners of a row or column have a second difference ``c0 - 2 c1 + c2`` that is small
+    under perspective and mild distortion; a triple whose second difference exceeds ``tol`` times the median corner
+    spacing flags its three corners (a misplaced corner flags the triples it is part of).
+    """
+    nx, ny = inner
+    g = np.asarray(uv, dtype=float).reshape(ny, nx, 2)
+    spacing = np.median(np.concatenate([np.linalg.norm(np.diff(g, axis=1), axis=2).ravel(),
+                                        np.linalg.norm(np.diff(g, axis=0), axis=2).ravel()]))
+    bad = np.zeros((ny, nx), dtype=bool)
+    if nx >= 3:
+        e = np.linalg.norm(g[:, :-2] - 2 * g[:, 1:-1] + g[:, 2:], axis=2) > tol * spacing
+        bad[:, :-2] |= e
+        bad[:, 1:-1] |= e
+        bad[:, 2:] |= e
+    if ny >= 3:
+        e = np.linalg.norm(g[:-2] - 2 * g[1:-1] + g[2:], axis=2) > tol * spacing
+        bad[:-2] |= e
+        bad[1:-1] |= e
+        bad[2:] |= e
+    return bad.ravel()
+
+
 def _detect_grid(gray_u8, inner, accuracy=True, subpix=True):
-    """One chessboard with ``inner`` corners: ``(uv (n, 2), detector)`` or ``(None, reason)``."""
+    """One chessboard with ``inner`` corners: ``(uv (n, 2), detector)`` or ``(None, reason)``.
+
+    ``findChessboardCornersSB`` first; when it finds nothing, or a grid with a misplaced corner (it can return one,
+    e.g. 27 px off on one of the real webcam photos), ``findChessboardCorners``.
+    """
     flags = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE
     if accuracy:
         flags |= cv2.CALIB_CB_ACCURACY
     ok, c = cv2.findChessboardCornersSB(gray_u8, inner, flags=flags)
     how = "findChessboardCornersSB"
+    reasons = ["findChessboardCornersSB found no board"]
+    if ok and grid_outliers(c.reshape(-1, 2), inner).any():
+        ok, reasons = False, ["findChessboardCornersSB returned an irregular grid"]
     if not ok:
         ok, c = cv2.findChessboardCorners(gray_u8, inner,
                                           flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
         how = "findChessboardCorners"
         if not ok:
-            return None, "findChessboardCornersSB and findChessboardCorners found no board"
+            return None, " and ".join(reasons + ["findChessboardCorners found no board"])
         subpix = True  # the quad detector's corners are pixel-accurate only
     uv = c.reshape(-1, 2).astype(float)
     if subpix:
         uv = _subpix(gray_u8, uv, inner)
         how += "+cornerSubPix"
+    if grid_outliers(uv, inner).any():
+        return None, f"{how} returned an irregular grid (a misplaced corner)"
     return uv, how
 
 
@@ -640,6 +691,7 @@ def extract_corners_opencv(image, board=(7, 7), accuracy: bool = True, subpix: b
 def extract_corners_thesis(image, board_geometry=(7, 7), initial_P=None, outer_corners_uv=None, *,
                            sigma: float = 1.0, threshold: float = 0.15, window: float = 0.7, inner_px: float = 3.0,
                            gate: float = 0.2, final_gate_px: float = 1.5, angle_tol_deg: float = 30.0,
+                           local_threshold: float = 0.4,
                            max_iterations: int = 20, subpixel: bool = True) -> CornerResult:
     """Corners by non-maximum suppression and k-means line fitting (§3.3.3-3.3.5).
 
@@ -665,6 +717,8 @@ def extract_corners_thesis(image, board_geometry=(7, 7), initial_P=None, outer_c
         re-centred on the first estimate) uses ``final_gate_px``.
     angle_tol_deg : float
         Largest angle between an edge point's gradient and the normal of the line it is assigned to.
+    local_threshold : float
+        In each window only edge points stronger than this fraction of the window's 90th-percentile magnitude count.
     max_iterations : int
         Per k-means run.
 
@@ -709,7 +763,7 @@ def extract_corners_thesis(image, board_geometry=(7, 7), initial_P=None, outer_c
         side = 0.5 * np.minimum(np.linalg.norm(du, axis=1), np.linalg.norm(dv, axis=1))
         for k in range(len(xy)):
             res = _corner_from_edges(edges, c0[k], du[k], dv[k], side[k], window, r_in, gate, final_gate_px,
-                                     angle_tol_deg, max_iterations, (w, h))
+                                     angle_tol_deg, max_iterations, (w, h), local_threshold)
             if res is None:
                 failed.append(len(uv_all))
                 uv_all.append(np.full(2, np.nan))
@@ -731,7 +785,7 @@ def extract_corners_thesis(image, board_geometry=(7, 7), initial_P=None, outer_c
 
 
 def _corner_from_edges(edges, c0, du, dv, side, window, r_in, gate, final_gate_px, angle_tol_deg, max_iterations,
-                       size):
+                       size, local_threshold):
     """One corner: two k-means passes on the edge points around the prediction ``c0``; None when it fails."""
     if not (np.all(np.isfinite(c0)) and side > 2.0 * r_in):
         return None
@@ -745,12 +799,17 @@ def _corner_from_edges(edges, c0, du, dv, side, window, r_in, gate, final_gate_p
     for gate_px in (max(gate * side, 2.0), final_gate_px):
         d = np.linalg.norm(edges.uv - centre, axis=1)
         sel = (d > r_in) & (d < r_out)
+        if sel.sum() < 12:
+            return None
+        # local threshold: the board lines are the window's strongest edges (keeps out print and JPEG ghost edges,
+        # e.g. the lighter interior of a printed black square)
+        sel &= edges.magnitude >= local_threshold * np.percentile(edges.magnitude[sel], 90)
         pts, nrm = edges.uv[sel], edges.normal[sel]
         if len(pts) < 12:
             return None
-        lines, labels, it, ok = kmeans_lines(pts, nrm, lines, gate_px, angle_tol_deg, max_iterations)
+        lines, labels, it, _, enough = kmeans_lines(pts, nrm, lines, gate_px, angle_tol_deg, max_iterations)
         total += it
-        if not ok:
+        if not enough:
             return None
         p = intersect_lines(lines[0], lines[1])
         if not np.all(np.isfinite(p)) or np.linalg.norm(p - c0) > 0.5 * r_out:
