@@ -1,0 +1,248 @@
+"""``camera.yaml``: a camera's intrinsics and distortion in an OpenCV FileStorage-compatible file.
+
+Keys (``../shared/design.md``)::
+
+    camera_matrix   3x3 !!opencv-matrix (px), Eq. 50 in OpenCV layout (skew in K[0, 1])
+    dist_coeffs     1x5 !!opencv-matrix, (k1, k2, p1, p2, k3) on normalised coordinates
+    image_width, image_height   px
+    model           pinhole | radial | heikkila
+    name            the camera's name
+    pixel_pitch_mm  (optional) sensor pixel size, needed for the Heikkilä parameters
+    intrinsics_eq50 the thesis's alpha_px, beta_px, theta_deg, u0_px, v0_px (Eq. 50), derived
+    heikkila_eq75   (when the camera has a pixel pitch, no skew and no k3) the thesis's s_u, f_px, f_mm, u0_px,
+                    v0_px, k1_per_mm2, k2_per_mm4, T1_per_mm, T2_per_mm, pixels_per_mm (Tables 9/15 form), derived
+    extra           (optional) a flat mapping of numbers/strings the writer wants to keep (e.g. reprojection RMS)
+
+``camera_matrix`` and ``dist_coeffs`` are authoritative; the derived blocks are written for people and checked on
+reading (a block that disagrees with the matrices is an error). ``cv2.FileStorage`` reads these files and the reader
+accepts files written by OpenCV (also the calibration sample's ``distortion_coefficients`` and its bookkeeping keys,
+which are ignored). Note that OpenCV's own functions ignore ``K[0, 1]`` (they have no skew). Errors are one-line
+:class:`~bench.errors.ConfigError` naming the file and the key.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bench.camera.dlt import thesis_parameters
+from bench.camera.heikkila import heikkila_of
+from bench.camera.model import CameraModel
+from bench.errors import ConfigError
+
+_KEYS = {"camera_matrix", "dist_coeffs", "image_width", "image_height", "model", "name", "pixel_pitch_mm",
+         "intrinsics_eq50", "heikkila_eq75", "extra"}
+#: keys that OpenCV's calibration sample writes beside the camera; accepted and ignored
+_OPENCV_SAMPLE_KEYS = {"distortion_coefficients", "calibration_time", "nr_of_frames", "nrOfFrames", "board_width",
+                       "board_height", "board_Width", "board_Height", "square_size", "square_Size", "flags",
+                       "calibrate_FixAspectRatio", "fisheye_model", "avg_reprojection_error",
+                       "per_view_reprojection_errors", "extrinsic_parameters", "image_points", "grid_points",
+                       "aspectRatio", "fix_aspect_ratio", "image_size"}
+_EQ50_KEYS = ("alpha_px", "beta_px", "theta_deg", "u0_px", "v0_px")
+_HEIKKILA_KEYS = ("s_u", "f_px", "f_mm", "u0_px", "v0_px", "k1_per_mm2", "k2_per_mm4", "T1_per_mm", "T2_per_mm",
+                  "pixels_per_mm")
+#: relative tolerance between the derived blocks and the matrices on reading
+_CONSISTENCY_RTOL = 1e-9
+
+
+def thesis_blocks(camera: CameraModel) -> dict:
+    """The derived blocks ``intrinsics_eq50`` and (when defined) ``heikkila_eq75`` of a camera, file units."""
+    alpha, beta, theta, u0, v0 = thesis_parameters(camera.K)
+    out = {"intrinsics_eq50": {"alpha_px": alpha, "beta_px": beta, "theta_deg": float(np.rad2deg(theta)),
+                               "u0_px": u0, "v0_px": v0}}
+    if camera.pixel_pitch is not None and camera.skew == 0 and camera.dist[4] == 0:
+        h = heikkila_of(camera)
+        mm = 1e-3
+        out["heikkila_eq75"] = {"s_u": h.s_u, "f_px": h.f_px, "f_mm": h.f / mm, "u0_px": h.u0, "v0_px": h.v0,
+                                "k1_per_mm2": h.k1 * mm**2, "k2_per_mm4": h.k2 * mm**4, "T1_per_mm": h.p1 * mm,
+                                "T2_per_mm": h.p2 * mm, "pixels_per_mm": mm / h.pixel_pitch}
+    return out
+
+
+def camera_yaml_text(camera: CameraModel, extra: dict | None = None) -> str:
+    """The text of ``camera.yaml`` for ``camera`` (written by ``cv2.FileStorage``)."""
+    fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
+    fs.write("camera_matrix", np.asarray(camera.K, dtype=np.float64))
+    fs.write("dist_coeffs", np.asarray(camera.dist, dtype=np.float64).reshape(1, 5))
+    fs.write("image_width", int(camera.width))
+    fs.write("image_height", int(camera.height))
+    fs.write("model", camera.model)
+    fs.write("name", camera.name)
+    if camera.pixel_pitch is not None:
+        fs.write("pixel_pitch_mm", float(camera.pixel_pitch * 1e3))
+    for block, values in thesis_blocks(camera).items():
+        fs.startWriteStruct(block, cv2.FILE_NODE_MAP)
+        for key, val in values.items():
+            fs.write(key, float(val))
+        fs.endWriteStruct()
+    if extra:
+        fs.startWriteStruct("extra", cv2.FILE_NODE_MAP)
+        for key, val in extra.items():
+            if isinstance(val, str):
+                fs.write(str(key), val)
+            elif isinstance(val, (int, float, np.integer, np.floating)) and not isinstance(val, bool) \
+                    and np.isfinite(val):
+                fs.write(str(key), float(val))
+            else:
+                raise ValueError(f"extra.{key}: expected a finite number or a string, got {val!r}")
+        fs.endWriteStruct()
+    return fs.releaseAndGetString()
+
+
+def write_camera_yaml(path, camera: CameraModel, extra: dict | None = None) -> Path:
+    """Write ``camera.yaml`` atomically (temporary file in the same folder, then rename); returns the path."""
+    path = Path(path)
+    text = camera_yaml_text(camera, extra)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def _numbers(src, key, node) -> np.ndarray:
+    """A matrix node (``!!opencv-matrix`` or a plain nested sequence of numbers) as a float array."""
+    if node.isMap():
+        mat = node.mat()
+        if mat is None:
+            raise ConfigError(src, key, "expected a matrix (!!opencv-matrix or a list of numbers)")
+        return np.asarray(mat, dtype=float)
+    if node.isSeq():
+        rows = []
+        for i in range(node.size()):
+            item = node.at(i)
+            if item.isSeq():
+                rows.append([_scalar(src, f"{key}[{i}]", item.at(j)) for j in range(item.size())])
+            else:
+                rows.append(_scalar(src, f"{key}[{i}]", item))
+        try:
+            return np.asarray(rows, dtype=float)
+        except ValueError:
+            raise ConfigError(src, key, "rows of unequal length") from None
+    raise ConfigError(src, key, "expected a matrix (!!opencv-matrix or a list of numbers)")
+
+
+def _scalar(src, key, node) -> float:
+    if not (node.isInt() or node.isReal()):
+        raise ConfigError(src, key, "expected a number")
+    val = float(node.real())
+    if not np.isfinite(val):
+        raise ConfigError(src, key, "must be finite")
+    return val
+
+
+def _int(src, key, node) -> int:
+    if not node.isInt() or node.real() <= 0:
+        raise ConfigError(src, key, "expected a positive integer (px)")
+    return int(node.real())
+
+
+def _check_block(src, root, block, names, expected: dict | None):
+    node = root.getNode(block)
+    if not node.isMap():
+        raise ConfigError(src, block, "expected a mapping")
+    keys = set(node.keys())
+    unknown = sorted(keys - set(names))
+    if unknown:
+        raise ConfigError(src, f"{block}.{unknown[0]}", f"unknown key (allowed: {', '.join(names)})")
+    if expected is None:
+        raise ConfigError(src, block, "present, but the camera has no such form (needs pixel_pitch_mm, no skew, "
+                                      "no k3)")
+    for k in names:
+        if k not in keys:
+            raise ConfigError(src, f"{block}.{k}", "missing")
+        val = _scalar(src, f"{block}.{k}", node.getNode(k))
+        ref = expected[k]
+        if abs(val - ref) > _CONSISTENCY_RTOL * max(abs(ref), 1e-12) + 1e-15:
+            raise ConfigError(src, f"{block}.{k}", f"{val!r} disagrees with camera_matrix/dist_coeffs ({ref!r})")
+
+
+def read_camera_yaml(path, with_extra: bool = False):
+    """Read ``camera.yaml`` (ours, or one written by OpenCV) into a :class:`CameraModel`.
+
+    Parameters
+    ----------
+    path : str or Path
+    with_extra : bool
+        Also return the ``extra`` mapping (``{}`` when absent).
+
+    Returns
+    -------
+    camera : CameraModel
+        ``name`` defaults to the file's parent folder name, ``model`` to the one derived from the coefficients.
+    extra : dict, only with ``with_extra``
+    """
+    path = Path(path)
+    src = str(path)
+    if not path.is_file():
+        raise ConfigError(src, "file", "not found")
+    try:
+        fs = cv2.FileStorage(src, cv2.FILE_STORAGE_READ)
+    except cv2.error as exc:
+        msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else "parse error"
+        raise ConfigError(src, "file", f"not a readable OpenCV YAML/XML/JSON file ({msg.strip()})") from None
+    try:
+        if not fs.isOpened():
+            raise ConfigError(src, "file", "cannot be opened")
+        root = fs.root()
+        if not root.isMap():
+            raise ConfigError(src, "<top>", "expected a mapping")
+        keys = list(root.keys())
+        for k in keys:
+            if k not in _KEYS and k not in _OPENCV_SAMPLE_KEYS:
+                raise ConfigError(src, k, f"unknown key (allowed: {', '.join(sorted(_KEYS))})")
+        for k in ("camera_matrix", "image_width", "image_height"):
+            if k not in keys:
+                raise ConfigError(src, k, "missing")
+        dist_key = "dist_coeffs" if "dist_coeffs" in keys else "distortion_coefficients"
+        if dist_key not in keys:
+            raise ConfigError(src, "dist_coeffs", "missing")
+        K = _numbers(src, "camera_matrix", root.getNode("camera_matrix"))
+        if K.shape != (3, 3):
+            raise ConfigError(src, "camera_matrix", f"expected 3x3, got shape {K.shape}")
+        dist = _numbers(src, dist_key, root.getNode(dist_key)).ravel()
+        width = _int(src, "image_width", root.getNode("image_width"))
+        height = _int(src, "image_height", root.getNode("image_height"))
+        model = None
+        if "model" in keys:
+            node = root.getNode("model")
+            if not node.isString():
+                raise ConfigError(src, "model", "expected a string")
+            model = node.string()
+        name = root.getNode("name").string() if "name" in keys else (path.parent.name or "camera")
+        pitch = None
+        if "pixel_pitch_mm" in keys:
+            pitch = _scalar(src, "pixel_pitch_mm", root.getNode("pixel_pitch_mm")) * 1e-3
+        try:
+            camera = CameraModel(width, height, K, dist, name=name, model=model, pixel_pitch=pitch)
+        except ValueError as exc:
+            field, _, problem = str(exc).partition(": ")
+            field = {"K": "camera_matrix", "dist": dist_key, "pixel_pitch": "pixel_pitch_mm"}.get(field, field)
+            raise ConfigError(src, field, problem or str(exc)) from None
+        derived = thesis_blocks(camera)
+        if "intrinsics_eq50" in keys:
+            _check_block(src, root, "intrinsics_eq50", _EQ50_KEYS, derived["intrinsics_eq50"])
+        if "heikkila_eq75" in keys:
+            _check_block(src, root, "heikkila_eq75", _HEIKKILA_KEYS, derived.get("heikkila_eq75"))
+        extra = {}
+        if "extra" in keys:
+            node = root.getNode("extra")
+            if not node.isMap():
+                raise ConfigError(src, "extra", "expected a mapping")
+            for k in node.keys():
+                item = node.getNode(k)
+                extra[k] = item.string() if item.isString() else _scalar(src, f"extra.{k}", item)
+    finally:
+        fs.release()
+    return (camera, extra) if with_extra else camera
+
