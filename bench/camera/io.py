@@ -188,9 +188,11 @@ def read_camera_yaml(path, with_extra: bool = False):
         raise ConfigError(src, "file", "not found")
     try:
         fs = cv2.FileStorage(src, cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else "parse error"
-        raise ConfigError(src, "file", f"not a readable OpenCV YAML/XML/JSON file ({msg.strip()})") from None
+    except (cv2.error, SystemError) as exc:  # OpenCV's parser errors arrive as cv2.error wrapped in SystemError
+        cause = exc.__cause__ or exc.__context__ or exc
+        lines = [ln.strip() for ln in str(cause).splitlines() if ln.strip()]
+        msg = lines[-1] if lines else "parse error"
+        raise ConfigError(src, "file", f"not a readable OpenCV YAML/XML/JSON file ({msg})") from None
     try:
         if not fs.isOpened():
             raise ConfigError(src, "file", "cannot be opened")
