@@ -110,8 +110,8 @@ def _null_vector(L, solver, what):
     number); ``solver="eig"`` is Eq. 58 literally. Raises when the minimiser is not unique.
     """
     if solver == "svd":
-        _, s, Vt = np.linalg.svd(L, full_matrices=False)
-        sv = s  # descending
+        _, s, Vt = np.linalg.svd(L, full_matrices=L.shape[0] < L.shape[1])  # full: keep the null space of a wide L
+        sv = np.concatenate([s, np.zeros(L.shape[1] - len(s))])  # descending; implicit zeros of a wide L
         m = Vt[-1]
     elif solver == "eig":
         w, V = np.linalg.eigh(L.T @ L)  # ascending

@@ -166,3 +166,13 @@ def test_pose_from_projection_and_plane_frame(truth):
     local = transform_points(np.linalg.inv(F), board)
     assert np.abs(local[:, 2]).max() < 1e-12 and np.linalg.det(F[:3, :3]) == pytest.approx(1.0)
     assert dlt.is_planar(board) and not dlt.is_planar(X)
+
+
+def test_homography_from_exactly_four_points():
+    """8 equations, 9 unknowns: the null vector must come from the full SVD (a thin one drops it)."""
+    rng = np.random.default_rng(7)
+    H = np.array([[1.1, 0.1, 5.0], [0.05, 0.9, -3.0], [1e-3, 2e-3, 1.0]])
+    xy = rng.uniform(-1, 1, (4, 2))
+    p = np.c_[xy, np.ones(4)] @ H.T
+    Hh = dlt.homography_dlt(xy, p[:, :2] / p[:, 2:])
+    assert np.abs(Hh / Hh[2, 2] - H).max() <= 1e-9
