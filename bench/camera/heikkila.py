@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.camera.model import CameraModel, check_K, check_dist, check_points, distort, from_pixels
+from bench.camera.model import CameraModel, check_dist, check_K, check_points, distort, from_pixels
 
 #: the thesis's pixel pitch (§5.3: 100 pixels/mm), m
 THESIS_PIXEL_PITCH = 1e-5

@@ -4,9 +4,21 @@ import cv2
 import numpy as np
 import pytest
 
-from bench.camera.model import (CameraModel, check_dist, check_K, distort, distortion_jacobian, from_pixels, model_of,
-                                project_pinhole, radial_eq67, random_camera_model, to_pixels, undistort,
-                                unproject_pinhole)
+from bench.camera.model import (
+    CameraModel,
+    check_dist,
+    check_K,
+    distort,
+    distortion_jacobian,
+    from_pixels,
+    model_of,
+    project_pinhole,
+    radial_eq67,
+    random_camera_model,
+    to_pixels,
+    undistort,
+    unproject_pinhole,
+)
 from bench.camera.presets import load_preset
 
 

@@ -3,9 +3,17 @@
 import numpy as np
 import pytest
 
-from bench.camera.heikkila import (THESIS_PIXEL_PITCH, HeikkilaParameters, camera_from_heikkila, eq75_as_printed,
-                                   fit_implicit_inverse, heikkila_of, heikkila_project, heikkila_to_opencv,
-                                   opencv_to_heikkila)
+from bench.camera.heikkila import (
+    THESIS_PIXEL_PITCH,
+    HeikkilaParameters,
+    camera_from_heikkila,
+    eq75_as_printed,
+    fit_implicit_inverse,
+    heikkila_of,
+    heikkila_project,
+    heikkila_to_opencv,
+    opencv_to_heikkila,
+)
 from bench.camera.model import distort, undistort
 from bench.camera.presets import load_preset
 
