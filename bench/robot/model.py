@@ -19,7 +19,7 @@ from bench.errors import ConfigError
 PARAM_KINDS = ("x", "y", "z", "s", "r", "p")
 
 _JOINT_KEYS = {"name", "type", "a_mm", "d_mm", "alpha_deg", "theta_offset_deg", "min_deg", "max_deg"}
-_TOP_KEYS = {"name", "units", "joints", "ee_point_mm"}
+_TOP_KEYS = {"name", "units", "joints", "ee_point_mm", "calibration"}  # calibration: bench.robot.calibration_file
 
 
 @dataclass(frozen=True)
