@@ -210,7 +210,12 @@ class DistortionStage:
                  for c in chans]
         sub = parts[0] if len(parts) == 1 else np.stack(parts, axis=-1)
         s, W, H = self.supersample, self.camera.width, self.camera.height
-        out = sub.reshape(H, s, W, s, *sub.shape[2:]).mean(axis=(1, 3), dtype=np.float32)
+        if s == 1:
+            out = sub
+        elif sub.ndim == 2 or sub.shape[2] <= 4:  # INTER_AREA at an integer factor is the exact block mean
+            out = cv2.resize(sub, (W, H), interpolation=cv2.INTER_AREA)
+        else:
+            out = sub.reshape(H, s, W, s, sub.shape[2]).mean(axis=(1, 3), dtype=np.float32)
         if img.dtype.kind in "ui":
             info = np.iinfo(img.dtype)
             return np.clip(np.rint(out), info.min, info.max).astype(img.dtype)
