@@ -31,6 +31,13 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
     sw.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
     sw.add_argument("--out", default=None, help="sweep folder (default runs/sweep-<scenario name>)")
+    loc = sub.add_parser("locate", help="in-situ base localisation on a dataset folder (section 3.9)")
+    loc.add_argument("dataset", help="dataset folder (manifest.yaml, images/, joints.csv, camera.yaml, robot.yaml)")
+    loc.add_argument("--out", default=None, help="folder for locate.json (default: print only)")
+    loc.add_argument("--method", choices=("svd", "horn", "rodrigues"), default="svd",
+                     help="absolute-orientation estimator (rodrigues = the thesis's quaternion method)")
+    loc.add_argument("--pnp", action="store_true", help="single-view PnP against the map instead of two views")
+    loc.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     return p
 
 
@@ -63,6 +70,11 @@ def main(argv=None) -> int:
                               verbose=not args.quiet)
         elif args.command == "sweep":
             _sweep(args)
+        elif args.command == "locate":
+            from bench.vision.locate_dataset import locate_dataset
+
+            res, _ = locate_dataset(args.dataset, args.out, method=args.method, pnp=args.pnp, seed=args.seed)
+            return 0 if res.success else 1
         return 0
     except BenchError as exc:
         print(f"bench: error: {exc}", file=sys.stderr)
