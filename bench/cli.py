@@ -38,6 +38,12 @@ def _parser() -> argparse.ArgumentParser:
                      help="absolute-orientation estimator (rodrigues = the thesis's quaternion method)")
     loc.add_argument("--pnp", action="store_true", help="single-view PnP against the map instead of two views")
     loc.add_argument("--seed", type=int, default=0, help="RANSAC seed")
+    cc = sub.add_parser("calibrate-camera", help="corners + calibration (+ OpenCV reference) on a rig dataset")
+    cc.add_argument("dataset", help="dataset folder with rig views and target.yaml")
+    cc.add_argument("--out", required=True, help="folder for camera.yaml, calibration.json, per_view.csv, plots")
+    cc.add_argument("--model", choices=("heikkila", "radial", "pinhole"), default="heikkila")
+    cc.add_argument("--extractor", choices=("thesis", "opencv"), default="thesis",
+                    help="corner extractor: the thesis's edge/k-means method or OpenCV's")
     return p
 
 
@@ -70,6 +76,11 @@ def main(argv=None) -> int:
                               verbose=not args.quiet)
         elif args.command == "sweep":
             _sweep(args)
+        elif args.command == "calibrate-camera":
+            from bench.camera.calibrate_dataset import calibrate_dataset
+
+            res, _ = calibrate_dataset(args.dataset, args.out, model=args.model, extractor=args.extractor)
+            return 0 if res.success else 1
         elif args.command == "locate":
             from bench.vision.locate_dataset import locate_dataset
 

@@ -2,32 +2,10 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import json
-import math
 from pathlib import Path
 
-from bench.fileio import atomic_write_text
-
-
-def _clean(value):
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if hasattr(value, "item"):
-        return _clean(value.item())
-    return value
-
-
-def write_table_csv(path, table: dict) -> None:
-    """Write ``{column: [values]}`` as CSV."""
-    buf = io.StringIO()
-    w = csv.writer(buf)
-    cols = list(table)
-    w.writerow(cols)
-    for row in zip(*(table[c] for c in cols), strict=True):
-        w.writerow([_clean(v) for v in row])
-    atomic_write_text(path, buf.getvalue())
+from bench.fileio import _clean, atomic_write_text, write_table_csv  # noqa: F401 - write_table_csv re-exported
 
 
 def write_result(out_dir, scenario: str, seed: int, metrics: dict, tables: dict, timings_s: dict,

@@ -20,9 +20,12 @@ SMALL_ARGS = [a for k, v in SMALL.items() for a in ("--set", f"{k}={json.dumps(v
 
 def _rows(db):
     con = sqlite3.connect(db)
-    rows = con.execute("SELECT run_id, params, seed, status, metrics, finished_at FROM runs").fetchall()
-    con.close()
-    return rows
+    try:
+        return con.execute("SELECT run_id, params, seed, status, metrics, finished_at FROM runs").fetchall()
+    except sqlite3.OperationalError:  # the sweep has created the file but not yet its table
+        return []
+    finally:
+        con.close()
 
 
 def test_parse_and_grid():
