@@ -1,0 +1,154 @@
+"""MJCF of the TA-40 generated from ``models/ta40.yaml`` and a vector of generalized errors (exact SE(3) form).
+
+Body chain (the perturbed geometry lives in the body placements, Eq. 10 regrouped)::
+
+    base                        the robot base O0 (placed in the world by the scene)
+      link1   at E0 Rz(off1)    hinge joint1 about z; frame 1 = S1 E1 in it
+        link2 at S1 E1 Rz(off2) hinge joint2 about z; ...
+          ...
+            link6                frame 6 = S6 E6; site ee = p_ee in frame 6
+
+with ``S_k = Tz(d_k) Tx(a_k) Rx(alpha_k)``, so that ``T_base_k = E0 A1 E1 ... Ak Ek`` with ``A_k = Rz(theta_k) S_k``
+exactly. Sites: ``frame0`` .. ``frame6`` (the DH frames), ``ee``, ``link5`` (Eq. 188: frame 4 times ``A5``, i.e.
+``S5`` in body link5, *before* E5), ``camera_mount`` (the nominal mount on link 5). The camera ``link5_camera`` sits
+at the *true* mount (nominal composed with the unknown bias) with the intrinsics of :mod:`bench.sim.camera`.
+Visual meshes come from :mod:`bench.sim.meshes` (in-memory STL assets); bodies carry simple inertias and position
+actuators so the model steps; visuals do not collide.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.geometry.transforms import homogeneous, rot_x, rot_y, rot_z
+from bench.robot.model import Robot
+from bench.sim.camera import mujoco_camera_xml
+from bench.sim.meshes import camera_housing_mesh, link_meshes, stl_bytes
+from bench.sim.scenes.base import SceneObject, fmt, pose_attrs
+
+#: Link masses (kg) and joint gains for the position actuators: rough figures for a 1.95 m hydraulic arm.
+_MASS = (40.0, 25.0, 20.0, 8.0, 12.0, 4.0, 3.0)
+_KP = (8000.0, 12000.0, 8000.0, 1500.0, 1500.0, 500.0)
+
+
+def error_transform(e6) -> np.ndarray:
+    """Exact generalized-error matrix ``Trans(x, y, z) Rz(r) Ry(s) Rx(p)`` of one frame (Eq. 9, exact form)."""
+    x, y, z, s, r, p = np.asarray(e6, dtype=float)
+    return homogeneous(rot_z(r) @ rot_y(s) @ rot_x(p), [x, y, z])
+
+
+def dh_static(robot: Robot, k: int) -> np.ndarray:
+    """``S_k = Tz(d_k) Tx(a_k) Rx(alpha_k)`` (the part of ``A_k`` after the joint rotation), k = 1..n."""
+    return homogeneous(rot_x(robot.alpha[k - 1]), [robot.a[k - 1], 0.0, robot.d[k - 1]])
+
+
+def _check_eps(robot: Robot, eps):
+    if eps is None:
+        return np.zeros((robot.n + 1, 6))
+    eps = np.asarray(eps, dtype=float)
+    if eps.shape != (robot.n_errors,) or not np.all(np.isfinite(eps)):
+        raise ValueError(f"eps: expected {robot.n_errors} finite generalized errors (m, rad), got shape {eps.shape}")
+    return eps.reshape(robot.n + 1, 6)
+
+
+def _site(name, T, size=0.01, rgba="0.9 0.2 0.2 0.6"):
+    return f'<site name="{name}" {pose_attrs(T)} size="{size}" rgba="{rgba}" group="3"/>\n'
+
+
+def robot_object(robot: Robot, eps=None, T_link5_mount=None, camera=None, name: str = "ta40") -> SceneObject:
+    """The arm as a scene object (base frame = object frame; place it with :func:`bench.sim.scenes.base.place`).
+
+    Parameters
+    ----------
+    robot : Robot
+        Nominal DH model (TA-40 structure).
+    eps : array_like (6 (n + 1),), optional
+        Generalized errors of the true arm (m, rad), exact form; zero if omitted.
+    T_link5_mount : array_like (4, 4), optional
+        The nominal camera mount on link 5 (site ``camera_mount``); identity if omitted.
+    camera : tuple, optional
+        ``(K, width, height, T_link5_cam)``: a camera ``link5_camera`` rendering the skew-free ``K`` at the true
+        mount ``T_link5_cam`` (OpenCV optical frame in the link-5 frame of Eq. 188).
+    """
+    if robot.n != 6:
+        raise ValueError(f"robot: the MJCF generator builds a 6-joint arm, got {robot.n} joints")
+    E = _check_eps(robot, eps)
+    meshes = link_meshes(robot)
+    files = {f"{name}_{k}.stl": stl_bytes(m) for k, m in meshes.items()}
+    files[f"{name}_camera.stl"] = stl_bytes(camera_housing_mesh())
+    asset = ['<material name="ta40_yellow" rgba="0.95 0.7 0.1 1" specular="0.3" shininess="0.3"/>\n',
+             '<material name="ta40_steel" rgba="0.55 0.57 0.6 1" specular="0.6" shininess="0.6"/>\n']
+    asset += [f'<mesh name="{name}_{k}" file="{name}_{k}.stl"/>\n' for k in meshes]
+    asset.append(f'<mesh name="{name}_camera" file="{name}_camera.stl"/>\n')
+
+    def geom(k, mat="ta40_yellow"):
+        return (f'<geom type="mesh" mesh="{name}_{k}" material="{mat}" contype="0" conaffinity="0" group="1" '
+                f'mass="0"/>\n')
+
+    def inertial(k):
+        return f'<inertial pos="0 0 0" mass="{_MASS[k]}" diaginertia="{fmt([_MASS[k] * 0.02] * 3)}"/>\n'
+
+    body = [f'<body name="{name}_base">\n', inertial(0), geom("base", "ta40_steel"),
+            _site("frame0", error_transform(E[0]))]
+    closing = []
+    T_parent = error_transform(E[0])  # placement of link1 in the base body (before the joint offset)
+    for k in range(1, robot.n + 1):
+        S_k = dh_static(robot, k)
+        place = T_parent @ homogeneous(rot_z(robot.theta_offset[k - 1]), np.zeros(3))
+        lo, hi = robot.q_min[k - 1], robot.q_max[k - 1]  # rad (compiler angle="radian")
+        body.append(f'<body name="link{k}" {pose_attrs(place)}>\n')
+        body.append(inertial(k))
+        body.append(f'<joint name="joint{k}" type="hinge" axis="0 0 1" range="{lo:.17g} {hi:.17g}" damping="200" '
+                    f'armature="1"/>\n')
+        body.append(geom(f"link{k}", "ta40_steel" if k in (5, 6) else "ta40_yellow"))
+        F_k = S_k @ error_transform(E[k])
+        body.append(_site(f"frame{k}", F_k))
+        if k == 5:
+            body.append(_site("link5", S_k, 0.015, "0.2 0.9 0.2 0.6"))  # Eq. 188: before E5
+            Tm = np.eye(4) if T_link5_mount is None else np.asarray(T_link5_mount, float)
+            body.append(_site("camera_mount", S_k @ Tm, 0.012, "0.2 0.2 0.9 0.6"))
+            if camera is not None:
+                K, width, height, T_link5_cam = camera
+                T_body_cam = S_k @ np.asarray(T_link5_cam, float)
+                body.append(mujoco_camera_xml("link5_camera", K, width, height, T_body_cam) + "\n")
+                body.append(f'<geom type="mesh" mesh="{name}_camera" material="ta40_steel" {pose_attrs(T_body_cam)} '
+                            f'contype="0" conaffinity="0" group="1" mass="0"/>\n')
+        if k == robot.n:
+            body.append(_site("ee", F_k @ homogeneous(np.eye(3), robot.p_ee), 0.015, "0.9 0.9 0.2 0.8"))
+        closing.append("</body>\n")
+        T_parent = F_k
+    body += closing[::-1]
+    body.append("</body>\n")
+    features = {"joint_names": [f"joint{k}" for k in range(1, robot.n + 1)], "eps": E.ravel().copy()}
+    return SceneObject(name=name, worldbody_xml="".join(body), asset_xml="".join(asset), files=files,
+                       features=features)
+
+
+def actuators_xml(robot: Robot) -> str:
+    """Position actuators for joint1..joint6 (so the standalone model holds a pose under gravity)."""
+    rows = [f'<position name="act{k}" joint="joint{k}" kp="{_KP[k - 1]}" kv="{0.2 * _KP[k - 1]:.6g}" '
+            f'ctrlrange="{robot.q_min[k - 1]:.17g} {robot.q_max[k - 1]:.17g}"/>\n' for k in range(1, robot.n + 1)]
+    return "<actuator>\n" + "".join(rows) + "</actuator>\n"
+
+
+def home_configuration(robot: Robot) -> np.ndarray:
+    """The ``home`` keyframe (rad): arm raised, forearm forward, wrist level, inside every joint range."""
+    q = np.deg2rad([30.0, 40.0, 60.0, 0.0, 50.0, 0.0])
+    return np.clip(q, robot.q_min, robot.q_max)
+
+
+def robot_mjcf(robot: Robot, eps=None, T_link5_mount=None, camera=None, model_name: str = "ta40",
+               mesh_dir: str | None = None) -> tuple:
+    """The scene-free robot model: ``(xml, assets)`` for ``mujoco.MjModel.from_xml_string(xml, assets=assets)``.
+
+    Base at the world origin; position actuators; a ``home`` keyframe. ``mesh_dir`` makes the mesh files relative
+    to a folder (for the committed ``models/ta40/ta40.xml``) instead of in-memory assets.
+    """
+    obj = robot_object(robot, eps, T_link5_mount, camera)
+    q = home_configuration(robot)
+    compiler = f'<compiler angle="radian" meshdir="{mesh_dir}"/>' if mesh_dir else '<compiler angle="radian"/>'
+    xml = (f'<mujoco model="{model_name}">\n{compiler}\n<option timestep="0.002" integrator="implicitfast"/>\n'
+           f'<asset>\n{obj.asset_xml}</asset>\n<worldbody>\n{obj.worldbody_xml}</worldbody>\n'
+           f'{actuators_xml(robot)}<keyframe>\n<key name="home" qpos="{fmt(q)}" ctrl="{fmt(q)}"/>\n</keyframe>\n'
+           "</mujoco>\n")
+    return xml, dict(obj.files)
