@@ -26,6 +26,11 @@ from bench.sim.camera import mujoco_camera_xml
 from bench.sim.meshes import camera_housing_mesh, link_meshes, stl_bytes
 from bench.sim.scenes.base import SceneObject, fmt, pose_attrs
 
+#: The nominal camera mount on link 5 (Eq. 188 frame): the optical axis along the joint-6 axis (the approach
+#: direction), 100 mm to the side and 200 mm ahead of the wrist centre, beside the gripper. An assumption: the thesis
+#: mounts the camera on link 5 without giving the offsets.
+NOMINAL_T_LINK5_CAM = homogeneous(np.eye(3), [0.10, 0.0, 0.20])
+
 #: Link masses (kg) and joint gains for the position actuators: rough figures for a 1.95 m hydraulic arm.
 _MASS = (40.0, 25.0, 20.0, 8.0, 12.0, 4.0, 3.0)
 _KP = (8000.0, 12000.0, 8000.0, 1500.0, 1500.0, 500.0)
