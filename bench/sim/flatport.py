@@ -397,6 +397,18 @@ class FlatPortImage:
     unresolved: np.ndarray
 
 
+def _remap_flat(src, uv):
+    """Bilinear ``cv2.remap`` of a single-channel float32 image at ``uv (N, 2)`` (maps laid out in rows of 1024)."""
+    n = uv.shape[0]
+    cols = 1024
+    rows = -(-n // cols)
+    pad = np.zeros((rows * cols, 2), np.float32)
+    pad[:n] = uv
+    pad = pad.reshape(rows, cols, 2)
+    out = cv2.remap(src, pad[..., 0], pad[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1)[:n]
+
+
 class FlatPortStage:
     """The image of a pinhole render seen through a flat port (per-pixel ray tracing).
 
@@ -517,8 +529,7 @@ class FlatPortStage:
 
         def sample(pts):
             uv = to_pixels(pts[:, :2] / pts[:, 2:3], K_r).astype(np.float32)
-            z = cv2.remap(depth32, uv[:, 0:1], uv[:, 1:2], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            return z[:, 0].astype(float), uv
+            return _remap_flat(depth32, uv).astype(float), uv
 
         z0, uv = sample(w)  # the far direction
         lam = np.full(N, np.inf)
