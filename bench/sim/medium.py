@@ -1,0 +1,373 @@
+"""The water medium and the image sensor: what water, a lamp and a camera sensor do to a rendered image.
+
+All images here are linear radiance in ``[0, 1]`` (a uint8 render is divided by 255 and treated as linear), channels in
+RGB order, shape ``(H, W, 3)``; path lengths in m; every parameter is SI with the unit in its name. Stages, each usable
+on its own and applied in this order by :func:`apply_medium`:
+
+1. :func:`illuminate` - a lamp co-located with the camera: ``E = ambient + (r_ref / r)^2 cos^k(theta)`` (inverse
+   square in range, a ``cos^k`` beam profile about the optical axis), optionally attenuated on its way out;
+2. :func:`attenuate` - the revised underwater image formation model of Akkaynak & Treibitz (CVPR 2018, "A revised
+   underwater image formation model"; Sea-thru, CVPR 2019), with distinct coefficients for the direct signal and the
+   backscatter: ``I_c = J_c exp(-beta_D_c r) + B_inf_c (1 - exp(-beta_B_c r))`` per channel ``c``; ``r`` is the path
+   length in water along the pixel's ray. For a pinhole render it comes from the z-depth map:
+   ``r = z |ray| / ray_z`` (:func:`path_length_m`); the flat-port stage returns it directly
+   (:attr:`bench.sim.flatport.FlatPortImage.water_path`, from the outer glass surface);
+3. :func:`forward_scatter` - small-angle scattering as a depth-dependent Gaussian blur, ``sigma = c r`` px (capped);
+4. :func:`sensor` - photo-electrons (Poisson shot noise, full-well capacity), Gaussian read noise in electrons, gain
+   in DN per electron, 8-bit quantisation; :func:`jpeg` optional compression (``quality = 0`` is off).
+
+Noise is drawn from an explicit ``numpy.random.Generator``: the same seed gives the same image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from bench.camera.model import check_K
+
+# ----------------------------------------------------------------------------------------------------------------------
+# parameters
+# ----------------------------------------------------------------------------------------------------------------------
+
+
+def _vec3(owner, key, value, lo=0.0, hi=np.inf):
+    arr = np.array(value, dtype=float).reshape(-1) if np.ndim(value) else np.full(3, float(value))
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)) or np.any(arr < lo) or np.any(arr > hi):
+        raise ValueError(f"{owner}: {key}: expected 3 finite values (R, G, B) in [{lo:g}, {hi:g}], got {value!r}")
+    arr.flags.writeable = False
+    return arr
+
+
+def _scalar(owner, key, value, lo=0.0, hi=np.inf, lo_open=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(value) or value < lo or value > hi or (lo_open and value == lo):
+        bound = f"({lo:g}" if lo_open else f"[{lo:g}"
+        raise ValueError(f"{owner}: {key}: expected a finite number in {bound}, {hi:g}], got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class WaterMedium:
+    """Per-channel (R, G, B) optical coefficients of a water body (Akkaynak & Treibitz's revised model).
+
+    Attributes
+    ----------
+    beta_D_per_m : (3,) float
+        Attenuation coefficient of the direct signal (1/m).
+    beta_B_per_m : (3,) float
+        Backscatter coefficient (1/m).
+    B_inf : (3,) float
+        Veiling light (backscatter at infinite range), linear radiance in [0, 1].
+    forward_scatter_px_per_m : float
+        Forward-scatter blur: Gaussian sigma (output px) per metre of path.
+    name : str
+    """
+
+    beta_D_per_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    beta_B_per_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    B_inf: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    forward_scatter_px_per_m: float = 0.0
+    name: str = "water"
+
+    def __post_init__(self):
+        src = f"medium {self.name!r}"
+        object.__setattr__(self, "beta_D_per_m", _vec3(src, "beta_D_per_m", self.beta_D_per_m, 0.0, 50.0))
+        object.__setattr__(self, "beta_B_per_m", _vec3(src, "beta_B_per_m", self.beta_B_per_m, 0.0, 50.0))
+        object.__setattr__(self, "B_inf", _vec3(src, "B_inf", self.B_inf, 0.0, 1.0))
+        object.__setattr__(self, "forward_scatter_px_per_m",
+                           _scalar(src, "forward_scatter_px_per_m", self.forward_scatter_px_per_m, 0.0, 100.0))
+
+
+#: Water presets, broadband camera RGB (R ~ 600, G ~ 525, B ~ 475 nm). The attenuation values are rounded,
+#: approximate broadband coefficients for Jerlov water types (Jerlov, "Marine Optics", 1976; the IOPs of the types in
+#: Solonenko & Mobley, Appl. Opt. 54(17), 2015) in the ranges that Akkaynak et al., "What is the space of attenuation
+#: coefficients in underwater computer vision?", CVPR 2017, report for consumer cameras: clear ocean = Jerlov I,
+#: coastal = Jerlov 3C, turbid harbour = Jerlov 9C. beta_B and B_inf are of the same order as Sea-thru's estimates
+#: (Akkaynak & Treibitz, CVPR 2019) and the forward-scatter blur is a bench choice: illustrative values, not a
+#: measurement of a particular site.
+WATER_PRESETS = {
+    "clear_ocean": dict(beta_D_per_m=(0.35, 0.07, 0.04), beta_B_per_m=(0.30, 0.10, 0.08), B_inf=(0.02, 0.12, 0.25),
+                        forward_scatter_px_per_m=0.1),
+    "coastal": dict(beta_D_per_m=(0.55, 0.30, 0.40), beta_B_per_m=(0.55, 0.35, 0.45), B_inf=(0.05, 0.22, 0.20),
+                    forward_scatter_px_per_m=0.4),
+    "turbid_harbour": dict(beta_D_per_m=(1.10, 0.90, 1.40), beta_B_per_m=(1.20, 1.00, 1.40),
+                           B_inf=(0.12, 0.25, 0.18), forward_scatter_px_per_m=1.2),
+}
+
+
+def water_preset(name: str) -> WaterMedium:
+    """The :class:`WaterMedium` of a preset; unknown name -> one-line ``ValueError`` listing the known ones."""
+    if not isinstance(name, str) or name not in WATER_PRESETS:
+        raise ValueError(f"water preset: unknown {name!r} (known: {', '.join(sorted(WATER_PRESETS))})")
+    return WaterMedium(name=name, **WATER_PRESETS[name])
+
+
+@dataclass(frozen=True)
+class Light:
+    """A lamp co-located with the camera centre plus ambient light.
+
+    Attributes
+    ----------
+    ref_range_m : float
+        Range (m) at which the lamp's on-axis irradiance factor is 1 (``(ref_range_m / r)^2``).
+    beam_exponent : float
+        ``k`` of the ``cos^k(theta)`` beam profile (0 = isotropic).
+    ambient : float
+        Ambient irradiance factor added everywhere (>= 0).
+    attenuate_outgoing : bool
+        Also attenuate the lamp's light on its way to the scene (``exp(-beta_D r)``, needs a medium).
+    """
+
+    ref_range_m: float = 1.0
+    beam_exponent: float = 2.0
+    ambient: float = 0.0
+    attenuate_outgoing: bool = True
+
+    def __post_init__(self):
+        object.__setattr__(self, "ref_range_m", _scalar("light", "ref_range_m", self.ref_range_m, 0.0, 1e3, True))
+        object.__setattr__(self, "beam_exponent", _scalar("light", "beam_exponent", self.beam_exponent, 0.0, 1e3))
+        object.__setattr__(self, "ambient", _scalar("light", "ambient", self.ambient, 0.0, 1e3))
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """Image sensor: shot noise on electrons, read noise, gain, 8-bit output, optional JPEG.
+
+    Attributes
+    ----------
+    full_well_e : float
+        Electrons collected for linear radiance 1 at ``exposure = 1`` (and the clipping level).
+    exposure : float
+        Scale from linear radiance to the fraction of full well.
+    gain_dn_per_e : float
+        Digital numbers per electron (``255 / full_well_e`` maps full well to 255).
+    read_noise_e : float
+        Standard deviation of the Gaussian read noise (electrons).
+    jpeg_quality : int
+        0 = lossless 8-bit output, 1..100 = JPEG re-encoding with ``cv2.imencode`` at that quality.
+    """
+
+    full_well_e: float = 10000.0
+    exposure: float = 1.0
+    gain_dn_per_e: float = 255.0 / 10000.0
+    read_noise_e: float = 5.0
+    jpeg_quality: int = 0
+
+    def __post_init__(self):
+        object.__setattr__(self, "full_well_e", _scalar("sensor", "full_well_e", self.full_well_e, 1.0, 1e8))
+        object.__setattr__(self, "exposure", _scalar("sensor", "exposure", self.exposure, 0.0, 1e6, True))
+        object.__setattr__(self, "gain_dn_per_e", _scalar("sensor", "gain_dn_per_e", self.gain_dn_per_e, 0.0, 1e3,
+                                                          True))
+        object.__setattr__(self, "read_noise_e", _scalar("sensor", "read_noise_e", self.read_noise_e, 0.0, 1e6))
+        q = self.jpeg_quality
+        if isinstance(q, bool) or not isinstance(q, (int, np.integer)) or not 0 <= q <= 100:
+            raise ValueError(f"sensor: jpeg_quality: expected an integer in 0..100 (0 = off), got {q!r}")
+        object.__setattr__(self, "jpeg_quality", int(q))
+
+
+# ----------------------------------------------------------------------------------------------------------------------
+# checks and geometry
+# ----------------------------------------------------------------------------------------------------------------------
+def check_image(image, name="image") -> np.ndarray:
+    """Linear float64 radiance ``(H, W, 3)``: uint8 is divided by 255, floats must be finite and >= 0."""
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 1 or img.shape[1] < 1:
+        raise ValueError(f"{name}: expected an RGB image (H, W, 3), got shape {img.shape}")
+    if img.dtype == np.uint8:
+        return img.astype(float) / 255.0
+    if img.dtype.kind != "f":
+        raise ValueError(f"{name}: expected uint8 or float radiance, got dtype {img.dtype}")
+    img = img.astype(float)
+    if not np.all(np.isfinite(img)) or np.any(img < 0):
+        raise ValueError(f"{name}: float radiance must be finite and >= 0")
+    return img
+
+
+def check_path(path_m, shape, name="path_m") -> np.ndarray:
+    """Path lengths ``(H, W)`` (m): >= 0, inf allowed (background), no NaN."""
+    r = np.asarray(path_m, dtype=float)
+    if r.shape != tuple(shape):
+        raise ValueError(f"{name}: expected shape {tuple(shape)}, got {r.shape}")
+    if np.any(np.isnan(r)) or np.any(r < 0):
+        raise ValueError(f"{name}: must be >= 0 m (inf for background), no NaN")
+    return r
+
+
+def pixel_rays(K, size) -> np.ndarray:
+    """Rays ``(H, W, 3)`` with ``z = 1`` through the pixel centres of a pinhole camera (Eq. 51)."""
+    K = check_K(K)
+    W, H = (int(v) for v in size)
+    uu, vv = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    y = (vv - K[1, 2]) / K[1, 1]
+    x = (uu - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    return np.stack([x, y, np.ones_like(x)], -1)
+
+
+def path_length_m(depth_z_m, rays_cam) -> np.ndarray:
+    """Path length along each pixel's ray to the point of z-depth ``z``: ``r = z |ray| / ray_z`` (m).
+
+    Parameters
+    ----------
+    depth_z_m : array_like (H, W)
+        z-depth (m, along the optical axis); inf for background.
+    rays_cam : array_like (H, W, 3)
+        The pixel rays (any length, ``ray_z > 0``), e.g. :func:`pixel_rays`.
+    """
+    z = np.asarray(depth_z_m, dtype=float)
+    rays = np.asarray(rays_cam, dtype=float)
+    if rays.shape != z.shape + (3,):
+        raise ValueError(f"rays_cam: expected shape {z.shape + (3,)}, got {rays.shape}")
+    if np.any(rays[..., 2] <= 0):
+        raise ValueError("rays_cam: every ray must point forward (z > 0)")
+    check_path(z, z.shape, "depth_z_m")
+    return z * np.linalg.norm(rays, axis=-1) / rays[..., 2]
+
+
+def cos_beam(rays_cam) -> np.ndarray:
+    """Cosine of each ray's angle to the optical axis (the lamp's axis), ``(H, W)``."""
+    rays = np.asarray(rays_cam, dtype=float)
+    return rays[..., 2] / np.linalg.norm(rays, axis=-1)
+
+
+# ----------------------------------------------------------------------------------------------------------------------
+# the stages
+# ----------------------------------------------------------------------------------------------------------------------
+def illuminate(image, range_m, cos_theta, light: Light, medium: WaterMedium | None = None) -> np.ndarray:
+    """Scene radiance lit by a co-located lamp: ``J (ambient + (r_ref / r)^2 cos^k(theta) [exp(-beta_D r)])``.
+
+    Parameters
+    ----------
+    image : array_like (H, W, 3)
+        Reflectance-like render (linear).
+    range_m : array_like (H, W)
+        Distance (m) from the lamp (the camera centre) to the point; inf = background (no lamp light).
+    cos_theta : array_like (H, W)
+        Cosine of the angle off the lamp's axis (:func:`cos_beam`).
+    light : Light
+    medium : WaterMedium, optional
+        Attenuates the outgoing light when ``light.attenuate_outgoing``.
+    """
+    J = check_image(image)
+    r = check_path(range_m, J.shape[:2], "range_m")
+    c = np.asarray(cos_theta, dtype=float)
+    if c.shape != r.shape or np.any(~np.isfinite(c)) or np.any(c < 0) or np.any(c > 1):
+        raise ValueError(f"cos_theta: expected values in [0, 1] with shape {r.shape}")
+    with np.errstate(divide="ignore"):
+        lamp = (light.ref_range_m / r) ** 2 * c**light.beam_exponent
+    lamp = np.where(r > 0, lamp, 0.0)[..., None]
+    if medium is not None and light.attenuate_outgoing:
+        lamp = lamp * np.exp(-medium.beta_D_per_m * r[..., None])
+    return J * (light.ambient + lamp)
+
+
+def attenuate(image, path_m, medium: WaterMedium) -> np.ndarray:
+    """``I_c = J_c exp(-beta_D_c r) + B_inf_c (1 - exp(-beta_B_c r))`` (Akkaynak & Treibitz 2018, revised model).
+
+    ``path_m`` is the in-water path length along each pixel's ray (m); inf gives the veiling light ``B_inf``.
+    """
+    J = check_image(image)
+    r = check_path(path_m, J.shape[:2])[..., None]
+    direct = np.where(np.isinf(r), 0.0, J * np.exp(-medium.beta_D_per_m * np.where(np.isinf(r), 0.0, r)))
+    return direct + medium.B_inf * (1.0 - np.exp(-medium.beta_B_per_m * r))
+
+
+def forward_scatter(image, path_m, sigma_px_per_m: float, max_sigma_px: float = 3.0, levels: int = 7):
+    """Depth-dependent Gaussian blur ``sigma = min(sigma_px_per_m r, max_sigma_px)`` (px).
+
+    The image is blurred at ``levels`` sigmas evenly spaced in ``[0, max]`` and each pixel interpolates linearly
+    between the two levels around its sigma (a zero path leaves a pixel unchanged).
+    """
+    img = check_image(image)
+    r = check_path(path_m, img.shape[:2])
+    sigma_px_per_m = _scalar("forward_scatter", "sigma_px_per_m", sigma_px_per_m, 0.0, 100.0)
+    max_sigma_px = _scalar("forward_scatter", "max_sigma_px", max_sigma_px, 0.0, 50.0, True)
+    sig = np.minimum(sigma_px_per_m * np.where(np.isinf(r), np.inf, r), max_sigma_px)
+    sig = np.where(np.isnan(sig), 0.0, sig)  # 0 * inf
+    if not np.any(sig > 0):
+        return img
+    grid = np.linspace(0.0, max_sigma_px, levels)
+    stack = [img] + [cv2.GaussianBlur(img, (0, 0), sigmaX=g, sigmaY=g, borderType=cv2.BORDER_REFLECT) for g in grid[1:]]
+    pos = sig / grid[1]
+    i0 = np.clip(np.floor(pos).astype(int), 0, levels - 2)
+    f = (pos - i0)[..., None]
+    stack = np.stack(stack)
+    rows, cols = np.indices(sig.shape)
+    return (1 - f) * stack[i0, rows, cols] + f * stack[i0 + 1, rows, cols]
+
+
+def sensor(image, rng: np.random.Generator, spec: Sensor) -> np.ndarray:
+    """8-bit image of linear radiance: ``DN = round(gain (Poisson(min(E, full well)) + N(0, read^2)))``.
+
+    ``E = image * exposure * full_well_e`` electrons; DN clipped to 0..255; then JPEG if ``spec.jpeg_quality``.
+    """
+    img = check_image(image)
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
+    electrons = np.minimum(img * spec.exposure * spec.full_well_e, spec.full_well_e)
+    e = rng.poisson(electrons).astype(float) + rng.normal(0.0, spec.read_noise_e, img.shape) \
+        if spec.read_noise_e > 0 else rng.poisson(electrons).astype(float)
+    out = np.clip(np.rint(spec.gain_dn_per_e * e), 0, 255).astype(np.uint8)
+    return jpeg(out, spec.jpeg_quality)
+
+
+def jpeg(image_u8, quality: int) -> np.ndarray:
+    """JPEG round trip of an RGB uint8 image at ``quality`` (1..100) with ``cv2.imencode``; 0 returns it unchanged."""
+    img = np.asarray(image_u8)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"image_u8: expected uint8 (H, W, 3), got {img.dtype} {img.shape}")
+    if isinstance(quality, bool) or not isinstance(quality, (int, np.integer)) or not 0 <= quality <= 100:
+        raise ValueError(f"quality: expected an integer in 0..100 (0 = off), got {quality!r}")
+    if quality == 0:
+        return img
+    ok, buf = cv2.imencode(".jpg", img[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError("image_u8: JPEG encoding failed")
+    return np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
+
+
+@dataclass(frozen=True)
+class MediumChain:
+    """The medium and sensor stages with their parameters (any of ``medium``/``light``/``sensor`` may be None)."""
+
+    medium: WaterMedium | None = None
+    light: Light | None = None
+    sensor: Sensor | None = None
+    max_blur_px: float = 3.0
+
+
+def apply_medium(image, path_m, rng: np.random.Generator, chain: MediumChain, cos_theta=None):
+    """Illuminate, attenuate + backscatter, forward-scatter, then the sensor (see the module docstring).
+
+    Parameters
+    ----------
+    image : array_like (H, W, 3)
+        The render (uint8 or linear float).
+    path_m : array_like (H, W)
+        In-water path length (m) per pixel (inf = background); also used as the lamp range (the few cm between the
+        camera centre and the port are neglected for the lamp).
+    rng : numpy.random.Generator
+    chain : MediumChain
+    cos_theta : array_like (H, W), optional
+        Beam profile cosines; required when ``chain.light`` is set.
+
+    Returns
+    -------
+    ndarray (H, W, 3)
+        uint8 when ``chain.sensor`` is set, else linear float64.
+    """
+    img = check_image(image)
+    r = check_path(path_m, img.shape[:2])
+    if chain.light is not None:
+        if cos_theta is None:
+            raise ValueError("cos_theta: needed for the lamp's beam profile (see cos_beam)")
+        img = illuminate(img, r, cos_theta, chain.light, chain.medium)
+    if chain.medium is not None:
+        img = attenuate(img, r, chain.medium)
+        if chain.medium.forward_scatter_px_per_m > 0:
+            img = forward_scatter(img, r, chain.medium.forward_scatter_px_per_m, chain.max_blur_px)
+    if chain.sensor is not None:
+        return sensor(img, rng, chain.sensor)
+    return img

@@ -1,0 +1,174 @@
+"""Water medium and sensor (issue 3 item 4c): each effect on its own, noise statistics, JPEG, seeding, bad input."""
+
+import cv2
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from bench.sim.medium import (
+    Light,
+    MediumChain,
+    Sensor,
+    WaterMedium,
+    apply_medium,
+    attenuate,
+    cos_beam,
+    forward_scatter,
+    illuminate,
+    jpeg,
+    path_length_m,
+    pixel_rays,
+    sensor,
+    water_preset,
+)
+
+K = np.array([[100.0, 0.0, 31.5], [0.0, 105.0, 23.5], [0.0, 0.0, 1.0]])
+SIZE = (64, 48)
+
+
+def _texture(rng, h=48, w=64):
+    return rng.uniform(0.05, 0.9, (h, w, 3))
+
+
+def test_zero_path_leaves_the_image_unchanged():
+    rng = np.random.default_rng(11)
+    img = _texture(rng)
+    zero = np.zeros(img.shape[:2])
+    for name in ("clear_ocean", "coastal", "turbid_harbour"):
+        med = water_preset(name)
+        np.testing.assert_array_equal(attenuate(img, zero, med), img)
+        np.testing.assert_array_equal(forward_scatter(img, zero, med.forward_scatter_px_per_m), img)
+        out = apply_medium(img, zero, rng, MediumChain(medium=med))
+        np.testing.assert_array_equal(out, img)
+
+
+def test_attenuation_ratio_per_channel_on_a_grey_target():
+    med = WaterMedium(beta_D_per_m=(0.6, 0.25, 0.35), beta_B_per_m=(0.5, 0.3, 0.4), B_inf=(0.0, 0.0, 0.0))
+    grey = np.full((4, 5, 3), 0.5)
+    r = np.linspace(0.0, 4.0, 20).reshape(4, 5)
+    out = attenuate(grey, r, med)
+    ratio = out / grey
+    np.testing.assert_allclose(ratio, np.exp(-med.beta_D_per_m * r[..., None]), rtol=0, atol=1e-15)
+    # with veiling light: the backscatter term adds exactly B_inf (1 - exp(-beta_B r)), independent of the target
+    med2 = WaterMedium(beta_D_per_m=med.beta_D_per_m, beta_B_per_m=med.beta_B_per_m, B_inf=(0.1, 0.3, 0.2))
+    np.testing.assert_allclose(attenuate(grey, r, med2) - out,
+                               med2.B_inf * (1 - np.exp(-med2.beta_B_per_m * r[..., None])), atol=1e-15)
+
+
+def test_backscatter_tends_to_veiling_light():
+    med = water_preset("coastal")
+    img = _texture(np.random.default_rng(12), 3, 4)
+    far = attenuate(img, np.full((3, 4), 60.0), med)
+    assert np.abs(far - med.B_inf).max() <= 1e-6
+    np.testing.assert_array_equal(attenuate(img, np.full((3, 4), np.inf), med), np.broadcast_to(med.B_inf, (3, 4, 3)))
+    ranges = np.array([[0.5, 1.0, 2.0, 4.0, 8.0]])
+    dist = np.abs(attenuate(np.zeros((1, 5, 3)), ranges, med) - med.B_inf).max(axis=-1)[0]
+    assert np.all(np.diff(dist) < 0)  # monotone approach
+
+
+def test_path_length_from_depth():
+    rays = pixel_rays(K, SIZE)
+    z = np.full((48, 64), 2.0)
+    r = path_length_m(z, rays)
+    uu, vv = np.meshgrid(np.arange(64.0), np.arange(48.0))
+    x, y = (uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1]
+    np.testing.assert_allclose(r, 2.0 * np.sqrt(1 + x**2 + y**2), rtol=1e-15)
+    z[0, 0] = np.inf
+    assert np.isinf(path_length_m(z, rays)[0, 0])
+
+
+def test_light_falloff_inverse_square_and_beam():
+    light = Light(ref_range_m=1.0, beam_exponent=3.0, ambient=0.0)
+    img = np.full((1, 3, 3), 0.4)
+    r = np.array([[1.0, 2.0, 4.0]])
+    out = illuminate(img, r, np.ones((1, 3)), light)
+    np.testing.assert_allclose(out[0, :, 0], 0.4 / r[0] ** 2, rtol=1e-15)
+    c = np.array([[1.0, 0.9, 0.5]])
+    out = illuminate(img, np.ones((1, 3)), c, light)
+    np.testing.assert_allclose(out[0, :, 1], 0.4 * c[0] ** 3, rtol=1e-15)
+    med = water_preset("turbid_harbour")
+    out = illuminate(img, r, np.ones((1, 3)), light, med)
+    np.testing.assert_allclose(out[0], 0.4 / r[0, :, None] ** 2 * np.exp(-med.beta_D_per_m * r[0, :, None]),
+                               rtol=1e-14)
+    assert np.all(illuminate(img, np.full((1, 3), np.inf), np.ones((1, 3)), light) == 0)
+    np.testing.assert_allclose(cos_beam(pixel_rays(K, SIZE))[23, 31], 1 / np.sqrt(1 + (0.5 / 100) ** 2 +
+                                                                              (0.5 / 105) ** 2), rtol=1e-14)
+
+
+def test_forward_scatter_blurs_more_with_range():
+    img = np.zeros((40, 60, 3))
+    img[:, 30:] = 1.0  # a vertical step edge
+    near = forward_scatter(img, np.full((40, 60), 1.0), 0.5, 3.0)
+    far = forward_scatter(img, np.full((40, 60), 5.0), 0.5, 3.0)
+
+    def width(im):
+        row = im[20, :, 0]
+        return np.count_nonzero((row > 0.05) & (row < 0.95))
+
+    assert 0 < width(near) < width(far)
+    # at an exact blur level the result is that Gaussian blur (mean and symmetry of the edge preserved)
+    assert abs(far[20, 29, 0] + far[20, 30, 0] - 1.0) <= 1e-6
+
+
+def test_noise_variance_matches_shot_plus_read_model():
+    spec = Sensor(full_well_e=2000.0, exposure=1.0, gain_dn_per_e=0.12, read_noise_e=6.0)
+    rng = np.random.default_rng(13)
+    level = 0.4
+    img = np.full((200, 200, 3), level)
+    out = sensor(img, rng, spec).astype(float)
+    mean_e = level * spec.full_well_e
+    var_model = spec.gain_dn_per_e**2 * (mean_e + spec.read_noise_e**2) + 1.0 / 12.0  # + quantisation
+    n = out.size
+    var = out.var(ddof=1)
+    tol = 5 * var_model * np.sqrt(2.0 / (n - 1))  # 5 standard errors of a sample variance
+    print(f"sensor: variance {var:.4f} DN^2 vs model {var_model:.4f} (tolerance {tol:.4f}); mean {out.mean():.3f} vs "
+          f"{spec.gain_dn_per_e * mean_e:.3f} DN")
+    assert abs(var - var_model) <= tol
+    assert abs(out.mean() - spec.gain_dn_per_e * mean_e) <= 5 * np.sqrt(var_model / n) + 0.01
+    # read noise alone (dark frame, gain 1), clipped at 0: P(DN >= k) = P(N(0, 3^2) >= k - 1/2)
+    dark = sensor(np.zeros((200, 200, 3)), rng, Sensor(gain_dn_per_e=1.0, read_noise_e=3.0)).astype(float)
+    for k in (1, 3, 6):
+        p = norm.sf((k - 0.5) / 3.0)
+        assert abs(np.mean(dark >= k) - p) <= 5 * np.sqrt(p * (1 - p) / dark.size)
+    # full well clips
+    sat = sensor(np.full((2, 2, 3), 5.0), rng, Sensor(full_well_e=1000.0, gain_dn_per_e=0.2, read_noise_e=0.0))
+    assert np.all(sat >= 190) and np.all(sat <= 210)
+
+
+def test_same_seed_same_image_and_jpeg_ordering():
+    rng = np.random.default_rng(14)
+    img = _texture(rng, 64, 96)
+    med = water_preset("coastal")
+    chain = MediumChain(medium=med, light=Light(ambient=0.3), sensor=Sensor())
+    r = np.full((64, 96), 1.5)
+    c = np.ones((64, 96))
+    a = apply_medium(img, r, np.random.default_rng(5), chain, c)
+    b = apply_medium(img, r, np.random.default_rng(5), chain, c)
+    d = apply_medium(img, r, np.random.default_rng(6), chain, c)
+    assert a.dtype == np.uint8 and np.array_equal(a, b) and not np.array_equal(a, d)
+    smooth = cv2.GaussianBlur(img, (0, 0), 2.0)
+    clean = np.clip(np.rint(smooth * 255), 0, 255).astype(np.uint8)
+    errs = [np.sqrt(np.mean((jpeg(clean, q).astype(float) - clean) ** 2)) for q in (95, 75, 40, 10)]
+    print("JPEG rms error (DN) at quality 95/75/40/10:", np.round(errs, 2))
+    assert all(e1 < e2 for e1, e2 in zip(errs, errs[1:], strict=False))
+    assert np.array_equal(jpeg(clean, 0), clean)
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda: WaterMedium(beta_D_per_m=(-0.1, 0, 0)), "beta_D_per_m"),
+    (lambda: WaterMedium(B_inf=(0.1, 2.0, 0.1)), "B_inf"),
+    (lambda: WaterMedium(beta_B_per_m=(0.1, 0.2)), "beta_B_per_m"),
+    (lambda: Light(ref_range_m=0.0), "ref_range_m"),
+    (lambda: Sensor(jpeg_quality=101), "jpeg_quality"),
+    (lambda: Sensor(full_well_e=float("nan")), "full_well_e"),
+    (lambda: water_preset("bathtub"), "clear_ocean, coastal, turbid_harbour"),
+    (lambda: attenuate(np.zeros((2, 2, 3)), np.full((2, 2), np.nan), water_preset("coastal")), "path_m"),
+    (lambda: attenuate(np.zeros((2, 2)), np.zeros((2, 2)), water_preset("coastal")), "image"),
+    (lambda: sensor(np.zeros((2, 2, 3)), 3, Sensor()), "rng"),
+    (lambda: apply_medium(np.zeros((2, 2, 3)), np.ones((2, 2)), np.random.default_rng(0),
+                          MediumChain(light=Light())), "cos_theta"),
+])
+def test_bad_input(make, match):
+    with pytest.raises(ValueError, match=match) as exc:
+        make()
+    assert "\n" not in str(exc.value)
