@@ -164,6 +164,34 @@ PLANE_C = 0.6
 SIGMA = 0.004  # blob radius on the plane (m)
 
 
+def _texture(pts, blobs):
+    val = np.full(pts.shape[:-1], 30.0)
+    for b in blobs:
+        val += 200.0 * np.exp(-np.sum((pts - b) ** 2, -1) / (2 * SIGMA**2))
+    return val
+
+
+def _exact_port_image(lens, port, blobs, n=6):
+    """The ideal output: every pixel footprint integrated by n x n rays traced analytically onto the plane."""
+    sub = (np.arange(n) + 0.5) / n - 0.5
+    us = (np.arange(lens.width)[:, None] + sub).ravel()
+    vs = (np.arange(lens.height)[:, None] + sub).ravel()
+    o, w, _ = trace_rays(lens.unproject(np.stack(np.meshgrid(us, vs), -1)), port)
+    lam = (PLANE_C - o @ PLANE_N) / (w @ PLANE_N)
+    val = _texture(o + lam[..., None] * w, blobs)
+    return val.reshape(lens.height, n, lens.width, n).mean(axis=(1, 3))
+
+
+def _centroids(img, uv_pred, R=6):
+    out = []
+    for uv in uv_pred:
+        u0, v0 = (int(round(c)) for c in uv)
+        win = img[v0 - R:v0 + R + 1, u0 - R:u0 + R + 1] - 30.0
+        us, vs = np.meshgrid(np.arange(u0 - R, u0 + R + 1), np.arange(v0 - R, v0 + R + 1))
+        out.append(np.array([np.sum(win * us), np.sum(win * vs)]) / np.sum(win))
+    return np.array(out)
+
+
 def _plane_render(spec, blobs):
     """Pinhole RGB and z-depth of a slanted plane textured with Gaussian blobs (3D centres ``blobs``)."""
     uu, vv = np.meshgrid(np.arange(spec.width, dtype=float), np.arange(spec.height, dtype=float))
@@ -171,10 +199,7 @@ def _plane_render(spec, blobs):
     y = (vv - spec.K[1, 2]) / spec.K[1, 1]
     rays = np.stack([x, y, np.ones_like(x)], -1)
     z = PLANE_C / (rays @ PLANE_N)
-    pts = rays * z[..., None]
-    val = np.full(z.shape, 30.0)
-    for b in blobs:
-        val += 200.0 * np.exp(-np.sum((pts - b) ** 2, -1) / (2 * SIGMA**2))
+    val = _texture(rays * z[..., None], blobs)
     rgb = np.stack([val, 0.5 * val, 0.25 * val + 10], -1).astype(np.float32)
     depth = z.copy()
     depth[(uu < 3) & (vv < 3)] = np.inf  # a patch of background in the corner (outside the view)
@@ -199,23 +224,17 @@ def test_stage_places_points_where_project_flatport_says():
     dt = time.perf_counter() - t0
     uv_pred = lens.project(np.concatenate([project_flatport(blobs, PORT), np.ones((len(blobs), 1))], -1))
     assert np.abs(uv_pred - uv_t).max() <= 1e-9  # the projection agrees with the trace through the lens
-    errs = []
-    img = out.image[..., 0]
-    for uv in uv_pred:
-        u0, v0 = (int(round(c)) for c in uv)
-        R = 6
-        win = img[v0 - R:v0 + R + 1, u0 - R:u0 + R + 1] - 30.0
-        us, vs = np.meshgrid(np.arange(u0 - R, u0 + R + 1), np.arange(v0 - R, v0 + R + 1))
-        c = np.array([np.sum(win * us), np.sum(win * vs)]) / np.sum(win)
-        errs.append(np.linalg.norm(c - uv))
-    errs = np.array(errs)
+    c_stage = _centroids(out.image[..., 0], uv_pred)
+    errs = np.linalg.norm(c_stage - uv_pred, axis=-1)
+    err_exact = np.linalg.norm(c_stage - _centroids(_exact_port_image(lens, PORT, blobs), uv_pred), axis=-1)
     # the depth and water path at pixel centres against the analytic plane
     oc, wc, _ = stage.rays("centre")
     lam_true = (PLANE_C - oc @ PLANE_N) / (wc @ PLANE_N)
     path_err = np.abs(out.water_path - lam_true).max()
-    print(f"stage: blob centroid vs project_flatport max {errs.max():.4f} px rms {np.sqrt(np.mean(errs**2)):.4f} px; "
+    print(f"stage: blob centroid vs project_flatport max {errs.max():.4f} px rms {np.sqrt(np.mean(errs**2)):.4f} px, "
+          f"vs exact box-filtered image max {err_exact.max():.4f} px; "
           f"water path max err {1e6 * path_err:.2f} um; converged {out.converged_fraction:.4f}; {dt:.2f} s")
-    assert errs.max() <= 0.1
+    assert errs.max() <= 0.1 and err_exact.max() <= 0.02
     assert path_err <= 1e-4 * lam_true.max()
     assert out.converged_fraction == 1.0 and out.unresolved.sum() == 0
     np.testing.assert_allclose(out.depth, oc[..., 2] + lam_true * wc[..., 2], rtol=1e-4)
@@ -273,3 +292,68 @@ def test_stage_bad_input():
         FlatPortStage(K, (80, 61), PORT, 2, lens=CameraModel(80, 60, K))
     with pytest.raises(ValueError, match="supersample"):
         FlatPortStage(K, (80, 60), PORT, 0)
+
+
+# ----------------------------------------------------------------------------------------------------------------------
+# optics presets (housing + medium parts)
+# ----------------------------------------------------------------------------------------------------------------------
+def test_optics_presets():
+    from bench.camera.presets import load_preset
+    from bench.sim.optics_presets import optics_preset, optics_preset_names
+
+    assert optics_preset_names() == ["air_webcam", "underwater_in_air", "underwater_in_water"]
+    webcam = optics_preset("air_webcam")
+    assert webcam.port is None and webcam.chain.medium is None and webcam.chain.sensor is not None
+    in_air, in_water = optics_preset("underwater_in_air"), optics_preset("underwater_in_water")
+    assert in_air.port.n_water == in_air.port.n_air and in_air.chain.medium is None
+    assert in_water.port.n_water > 1.3 and in_water.chain.medium.name == "coastal"
+    for p in (webcam, in_air, in_water):
+        load_preset(p.nominal_camera), load_preset(p.lens_camera)
+    # the submerged port magnifies the inner camera by ~ n_water near the image centre (Table 15 vs 9: 1.30)
+    lens = load_preset(in_water.lens_camera)
+    p = np.array([[0.001, 0.0005, 2.0]])
+    x_port = project_flatport(p, in_water.port)
+    x_port0 = project_flatport(np.array([[0.0, 0.0, 2.0]]), in_water.port)
+    ratio = np.linalg.norm(x_port - x_port0) / np.linalg.norm(p[0, :2] / p[0, 2])
+    print(f"underwater_in_water: paraxial magnification {ratio:.4f} (n_water {in_water.port.n_water}; thesis "
+          f"Table 15/9 focal ratio {662.6 / 510.06:.4f}); lens fx {lens.fx:.1f} px")
+    assert abs(ratio - in_water.port.n_water) <= 0.01
+    shift = project_flatport(p, in_air.port) - project_flatport(np.array([[0.0, 0.0, 2.0]]), in_air.port)
+    in_air_ratio = np.linalg.norm(shift) / np.linalg.norm(p[0, :2] / p[0, 2])
+    assert abs(in_air_ratio - 1.0) <= 0.01  # a slab in air does not magnify (only shifts by ~mm at 2 m)
+    with pytest.raises(ValueError, match="known: air_webcam, underwater_in_air, underwater_in_water") as exc:
+        optics_preset("deep_sea")
+    assert "\n" not in str(exc.value)
+
+
+def test_composed_lens_and_port_stage():
+    """Lens distortion (the inner camera) then the port: known points land where lens.project(project_flatport)."""
+    from bench.sim.optics_presets import optics_preset
+
+    preset = optics_preset("underwater_in_water")
+    from bench.camera.presets import load_preset
+
+    full = load_preset(preset.lens_camera)
+    s = 4  # a 1/4-scale camera keeps the test fast
+    K = full.K.copy()
+    K[:2] /= s
+    K[0, 2], K[1, 2] = (full.cx + 0.5) / s - 0.5, (full.cy + 0.5) / s - 0.5
+    lens = CameraModel(full.width // s, full.height // s, K, dist=full.dist)
+    stage = FlatPortStage(lens.K, lens.size, preset.port, 3, lens=lens)
+    spec = stage.render_spec(z_min=0.45)
+    uv_t = np.stack(np.meshgrid(np.linspace(20, 140, 4), np.linspace(18, 100, 3)), -1).reshape(-1, 2) + 0.3
+    o, w, _ = trace_rays(lens.unproject(uv_t), preset.port)
+    lam = (PLANE_C - o @ PLANE_N) / (w @ PLANE_N)
+    blobs = o + lam[:, None] * w
+    rgb, depth = _plane_render(spec, blobs)
+    out = stage.apply(rgb, depth, spec.K)
+    uv_pred = lens.project(np.concatenate([project_flatport(blobs, preset.port), np.ones((len(blobs), 1))], -1))
+    c_stage = _centroids(out.image[..., 0], uv_pred)
+    c_exact = _centroids(_exact_port_image(lens, preset.port, blobs), uv_pred)
+    err_exact = np.linalg.norm(c_stage - c_exact, axis=-1)
+    err_proj = np.linalg.norm(c_stage - uv_pred, axis=-1)
+    print(f"composed lens + port (underwater_in_water, 160x120, s=3): centroid vs exact box-filtered image max "
+          f"{err_exact.max():.4f} px; vs lens.project(project_flatport) max {err_proj.max():.4f} px (includes the "
+          f"centroid's own shift under the strong lens distortion)")
+    assert err_exact.max() <= 0.02
+    assert np.all(err_proj <= 0.1 + np.linalg.norm(c_exact - uv_pred, axis=-1))
