@@ -9,9 +9,10 @@ from bench.scenario.schema import apply_overrides, load_yaml, validate
 
 
 def _kinds():
-    from bench.scenario import kinematic_identification, tracker_base_frame
+    from bench.scenario import in_situ, kinematic_identification, tracker_base_frame
 
-    return {"kinematic_identification": kinematic_identification, "tracker_base_frame": tracker_base_frame}
+    return {"kinematic_identification": kinematic_identification, "tracker_base_frame": tracker_base_frame,
+            "in_situ": in_situ}
 
 
 def load_scenario(path, seed=None, overrides=()) -> dict:

@@ -27,9 +27,9 @@ from bench.sim.meshes import camera_housing_mesh, link_meshes, stl_bytes
 from bench.sim.scenes.base import SceneObject, fmt, pose_attrs
 
 #: The nominal camera mount on link 5 (Eq. 188 frame): the optical axis along the joint-6 axis (the approach
-#: direction), 100 mm to the side and 200 mm ahead of the wrist centre, beside the gripper. An assumption: the thesis
-#: mounts the camera on link 5 without giving the offsets.
-NOMINAL_T_LINK5_CAM = homogeneous(np.eye(3), [0.10, 0.0, 0.20])
+#: direction), 120 mm to the side and 300 mm ahead of the wrist centre (clear of the jaws), rolled 180 deg so that
+#: forward views come out about upright. An assumption: the thesis mounts the camera on link 5 without offsets.
+NOMINAL_T_LINK5_CAM = homogeneous(rot_z(np.pi), [0.12, 0.0, 0.30])
 
 #: Link masses (kg) and joint gains for the position actuators: rough figures for a 1.95 m hydraulic arm.
 _MASS = (40.0, 25.0, 20.0, 8.0, 12.0, 4.0, 3.0)

@@ -165,6 +165,32 @@ def hand_eye_axxb(T_base_mount, T_cam_target, method: str = "park", refine: bool
                          condition, method)
 
 
+def resolve_target_symmetry(T_base_mount, T_cam_target, T_mount_cam_guess, symmetries):
+    """Make the target frame consistent across views when the target looks the same after a symmetry.
+
+    A symmetric target (e.g. the two-plane rig after a half turn) can be labelled differently from view to view, so
+    each view's ``T_cam_target`` may be off by one of the target's symmetries ``S`` (``T_cam_target S``), which breaks
+    ``AX = XB``. With a rough mount (the nominal one), each view predicts the target's pose in the base frame; per view
+    the candidate ``T_cam_target S`` closest to the consensus (the medoid over views and candidates) is kept.
+
+    Returns ``(T_cam_target (N, 4, 4) consistent, chosen symmetry index per view)``.
+    """
+    A = _check_stack(T_base_mount, "T_base_mount")
+    B = _check_stack(T_cam_target, "T_cam_target")
+    S = [np.eye(4)] + [np.asarray(s, dtype=float) for s in symmetries]
+    cand = np.stack([A @ np.asarray(T_mount_cam_guess, float) @ B @ s for s in S], axis=1)  # (N, k, 4, 4)
+    flat = cand.reshape(-1, 4, 4)
+
+    def dist(T1, T2):
+        return np.linalg.norm(T1[..., :3, 3] - T2[..., :3, 3], axis=-1) + 0.5 * rotation_angle(
+            np.swapaxes(T1[..., :3, :3], -1, -2) @ T2[..., :3, :3])
+
+    D = np.array([dist(cand, T).min(axis=1).sum() for T in flat])  # each view's best candidate's distance to T
+    medoid = flat[int(np.argmin(D))]
+    choice = np.argmin(dist(cand, medoid), axis=1)
+    return np.stack([B[i] @ S[c] for i, c in enumerate(choice)]), choice
+
+
 def mount_rotation(theta_x0, theta_y0, theta_z0):
     """``R0`` of Eq. 197, ``Ry(theta_y0) Rx(theta_x0) Rz(theta_z0)`` (labels trusted; see the module note)."""
     return rot_y(theta_y0) @ rot_x(theta_x0) @ rot_z(theta_z0)  # Eq. 197, factors as labelled

@@ -39,19 +39,26 @@ def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0) -> Vie
 
 
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
-                   seed: int = 0, verbose: bool = True):
+                   seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine: bool = True,
+                   ransac: dict | None = None):
     """Build the map from the survey views and locate the base from the two ``locate`` views.
 
+    ``camera_path`` / ``robot_path`` replace the dataset's own files (e.g. the results of an earlier calibration);
+    ``ransac`` passes ``iterations``, ``d_r`` (m), ``r_lim`` to :func:`~bench.vision.insitu.locate`.
     Returns ``(LocateResult, report dict)``; writes ``out/locate.json`` when ``out`` is given.
     """
     t0 = time.perf_counter()
     ds = load_dataset(root)
-    if ds.camera_path is None or ds.robot_path is None:
+    camera_path = Path(camera_path) if camera_path else ds.camera_path
+    robot_path = Path(robot_path) if robot_path else ds.robot_path
+    if camera_path is None or robot_path is None:
         raise ConfigError(Path(root) / "manifest.yaml", "camera/robot", "the dataset needs camera.yaml and robot.yaml")
-    camera = ds.camera()
-    robot, eps, T_link5_cam = load_calibrated_robot(ds.robot_path)
+    from bench.camera.io import read_camera_yaml
+
+    camera = read_camera_yaml(camera_path)
+    robot, eps, T_link5_cam = load_calibrated_robot(robot_path)
     if T_link5_cam is None:
-        warnings.warn(f"{ds.robot_path}: no calibration.camera_mount; using an identity mount", stacklevel=2)
+        warnings.warn(f"{robot_path}: no calibration.camera_mount; using an identity mount", stacklevel=2)
         T_link5_cam = np.eye(4)
     roles = {r: [v for v in ds.views if v.role == r] for r in ("reference", "surround", "locate")}
     if len(roles["reference"]) != 1:
@@ -70,7 +77,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     if pnp:
         res = locate_pnp(kmap, a, config, focal_px=camera.fx)
     else:
-        res = locate(kmap, a, obs[roles["locate"][1].name], config, method=method, rng=seed)
+        res = locate(kmap, a, obs[roles["locate"][1].name], config, method=method, rng=seed, refine=refine,
+                     **(ransac or {}))
     res.timings_s.update({"detect_s": t_detect, "map_s": t_map, "pipeline_total_s": time.perf_counter() - t0})
     report = {"dataset": str(ds.root), "success": res.success, "message": res.message, "map_points": len(kmap),
               "map_stats": kmap.stats, "n_matches": res.n_matches, "inliers": res.n_inliers,

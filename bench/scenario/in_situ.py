@@ -1,0 +1,414 @@
+"""Scenario kind ``in_situ``: the whole story of the thesis on the simulated TA-40 (``make demo``).
+
+Simulation (``render``, also ``bench sim render``) writes one dataset, as a real campaign would:
+
+1. lab - tracker points of the end effector (arm calibration) and views of the two-plane rig taken by the link-5
+   camera at several arm poses (camera and camera-mount calibration);
+2. site - the ROV parks the base at an unknown pose in front of a manifold panel; a reference view and surrounding
+   views (baselines chosen by Eq. 199) make the survey; the base then moves and two new views are taken.
+
+The dataset holds images, joint *readings*, tracker points and the *nominal* robot and camera files; ``truth/``
+holds the true errors, base poses, mount, intrinsics, joint angles and panel features.
+
+The pipeline (``run``) then uses only the public part: identification from the tracker points (Eq. 14 / LM), camera
+calibration from the rig corners, the mount by AX = XB, the survey map and the localisation (section 3.9), and is
+scored against the truth: ``base_pos_err_mm`` and ``base_rot_err_deg`` are the errors of the base's displacement
+between the survey and the new parking (the site frame of the pipeline is the survey base frame).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from bench.camera.calibrate_dataset import load_target
+from bench.camera.calibration import calibrate_camera
+from bench.camera.corners import extract_corners_opencv, extract_corners_thesis
+from bench.camera.io import camera_yaml_text, write_camera_yaml
+from bench.camera.presets import load_preset
+from bench.dataset import DatasetWriter, load_dataset
+from bench.errors import ConfigError
+from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
+from bench.robot.calibration_file import write_calibrated_robot
+from bench.robot.identifiability import closed_form_reduction
+from bench.robot.identification import identify_iterative
+from bench.robot.kinematics import ee_position
+from bench.robot.model import load_robot, random_errors
+from bench.robot.orientation import link5_frame
+from bench.scenario.results import write_result, write_table_csv
+from bench.scenario.schema import required
+from bench.vision.handeye import hand_eye_axxb, resolve_target_symmetry
+from bench.vision.insitu import MapConfig
+from bench.vision.locate_dataset import locate_dataset
+
+SCHEMA = {
+    "name": required(str),
+    "kind": required(str),
+    "description": (str, ""),
+    "seed": (int, 0),
+    "robot": (str, "../models/ta40.yaml"),
+    "truth": {"error_trans_mm": (float, 2.0), "error_rot_deg": (float, 1.0),
+              "mount_mm": (list, [120.0, 0.0, 300.0]), "mount_roll_deg": (float, 180.0),
+              "mount_bias_mm": (list, [2.0, -1.5, 3.0]),
+              "mount_bias_deg": (list, [0.5, -0.8, 1.0]), "focal_error_pct": (float, 1.5),
+              "principal_error_px": (float, 4.0)},
+    "camera": {"preset": (str, "air_webcam"), "supersample": (int, 2), "read_noise_dn": (float, 1.0)},
+    "encoders": {"noise_deg": (float, 0.002), "resolution_deg": (float, 0.001)},
+    "lab": {"tracker_poses": (int, 100), "tracker_sigma_mm": (float, 0.05), "rig_views": (int, 10),
+            "rig_distance_m": (float, 0.75)},
+    "site": {"panel_width_m": (float, 1.2), "panel_height_m": (float, 0.8), "standoff_m": (float, 1.0),
+             "eye_base_m": (list, [1.5, 0.7, 0.7]), "base_offset_m": (float, 0.3), "base_rot_deg": (float, 10.0)},
+    "survey": {"offsets_mm": (list, [[130, 0], [-130, 0], [0, 130], [0, -130], [95, 95], [-95, -95]])},
+    "locate": {"baseline_mm": (float, 150.0), "motion_m": (float, 0.15), "motion_deg": (float, 5.0)},
+    "pipeline": {"method": (str, "svd"), "extractor": (str, "opencv"), "refine": (bool, True),
+                 "ransac_iterations": (int, 100), "d_r_mm": (float, 20.0), "r_lim": (float, 0.1)},
+    "outputs": {"cache": (bool, True)},
+}
+
+DEG = np.pi / 180
+TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
+
+
+def _vec(cfg, key, n):
+    sec, k = key.split(".")
+    v = cfg[sec][k]
+    if len(v) != n or not all(isinstance(x, (int, float)) and np.isfinite(x) for x in v):
+        raise ConfigError(cfg["_file"], key, f"expected {n} numbers, got {v!r}")
+    return np.array(v, dtype=float)
+
+
+def _check(cfg):
+    src = cfg["_file"]
+    for key in ("camera.supersample", "lab.tracker_poses", "lab.rig_views"):
+        sec, k = key.split(".")
+        if cfg[sec][k] < 1:
+            raise ConfigError(src, key, f"must be >= 1, got {cfg[sec][k]}")
+    for key in ("lab.tracker_sigma_mm", "site.standoff_m", "locate.baseline_mm"):
+        sec, k = key.split(".")
+        if cfg[sec][k] <= 0:
+            raise ConfigError(src, key, f"must be > 0, got {cfg[sec][k]}")
+    if cfg["lab"]["tracker_sigma_mm"] > 50:
+        raise ConfigError(src, "lab.tracker_sigma_mm", "implausible: the unit is mm")
+    if cfg["pipeline"]["method"] not in ("svd", "horn", "rodrigues"):
+        raise ConfigError(src, "pipeline.method", "expected svd, horn or rodrigues")
+    if cfg["pipeline"]["extractor"] not in ("opencv", "thesis"):
+        raise ConfigError(src, "pipeline.extractor", "expected opencv or thesis")
+    for row in cfg["survey"]["offsets_mm"]:
+        if not (isinstance(row, list) and len(row) == 2):
+            raise ConfigError(src, "survey.offsets_mm", f"expected [x_mm, y_mm] pairs, got {row!r}")
+
+
+# ------------------------------------------------------------------------------------------------ truth
+
+
+def _truth(cfg, robot, rng):
+    t = cfg["truth"]
+    eps = random_errors(rng, trans=t["error_trans_mm"] * 1e-3, rot=t["error_rot_deg"] * DEG)
+    mount = homogeneous(rot_z(t["mount_roll_deg"] * DEG), _vec(cfg, "truth.mount_mm", 3) * 1e-3)
+    b = _vec(cfg, "truth.mount_bias_deg", 3) * DEG  # thesis theta_x0, theta_y0, theta_z0 (Eq. 197, as labelled)
+    bias = homogeneous(rot_y(b[1]) @ rot_x(b[0]) @ rot_z(b[2]), _vec(cfg, "truth.mount_bias_mm", 3) * 1e-3)
+    nominal_cam = load_preset(cfg["camera"]["preset"])
+    K = nominal_cam.K.copy()
+    K[0, 0] *= 1 + rng.uniform(-1, 1) * t["focal_error_pct"] / 100
+    K[1, 1] *= 1 + rng.uniform(-1, 1) * t["focal_error_pct"] / 100
+    K[:2, 2] += rng.uniform(-1, 1, 2) * t["principal_error_px"]
+    true_cam = nominal_cam.replace(K=K, name=f"{nominal_cam.name} (true)")
+    return eps, mount, mount @ bias, nominal_cam, true_cam
+
+
+def _random_motion(rng, trans_m, rot_deg, vertical=0.3):
+    """A ROV parking perturbation: yaw up to ``rot_deg``, roll/pitch a fifth of it, translation mostly horizontal."""
+    R = rot_z(rng.uniform(-1, 1) * rot_deg * DEG) @ rot_x(rng.uniform(-1, 1) * rot_deg * DEG / 5) @ \
+        rot_y(rng.uniform(-1, 1) * rot_deg * DEG / 5)
+    t = rng.uniform(-1, 1, 3) * trans_m * np.array([1.0, 1.0, vertical])
+    return homogeneous(R, t)
+
+
+def _plan(robot, T_world_base, eye_w, target_w, mount, q_seed):
+    from bench.sim.views import look_at_configuration
+
+    T_base_world = invert(T_world_base)
+    return look_at_configuration(robot, transform_points(T_base_world, eye_w), transform_points(T_base_world, target_w),
+                                 mount, q_seed=q_seed, n_starts=6)
+
+
+# ------------------------------------------------------------------------------------------------ simulation
+
+
+def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
+    """Simulate the campaign and write the dataset (with ``truth/``); returns the simulator's metrics."""
+    from bench.sim.campaign import ArmScene, SensorModel
+    from bench.sim.checks import distortion_roundtrip, kinematics_check, marker_check
+    from bench.sim.encoders import EncoderModel
+    from bench.sim.scenes.base import place
+    from bench.sim.scenes.panel import manifold_panel
+    from bench.sim.scenes.rig import calibration_rig
+    from bench.sim.views import look_at
+
+    _check(cfg)
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(cfg["seed"])
+    robot = load_robot(Path(cfg["_file"]).parent / cfg["robot"])
+    eps, mount_nominal, mount_true, nominal_cam, true_cam = _truth(cfg, robot, rng)
+    enc = EncoderModel(cfg["encoders"]["noise_deg"] * DEG, cfg["encoders"]["resolution_deg"] * DEG)
+    sensor = SensorModel(cfg["camera"]["read_noise_dn"])
+    site = cfg["site"]
+
+    # --- site geometry: the panel faces the nominal reference eye, `standoff` ahead along +x of the world ------------
+    eye_ref = _vec(cfg, "site.eye_base_m", 3)  # world = nominal base frame
+    centre = eye_ref + np.array([site["standoff_m"], 0.0, 0.0])
+    R_wp = np.column_stack([[0, -1, 0], [0, 0, 1], [-1, 0, 0]]).astype(float)  # panel x, y (up), z (out) in world
+    T_world_panel = homogeneous(R_wp, centre)
+    panel = manifold_panel(rng, site["panel_width_m"], site["panel_height_m"], name="panel")
+    # the lab rig: fold line vertical, both boards facing the arm, in front of the nominal base
+    rig_origin = eye_ref + np.array([cfg["lab"]["rig_distance_m"], 0.0, -0.12])
+    T_world_rig = homogeneous(rot_z(3 * np.pi / 4), rig_origin)  # both boards face the arm (-x of the world)
+    rig = calibration_rig(name="rig")
+    rig_centre = transform_points(T_world_rig, rig.features["corners"]).mean(axis=0)
+
+    views = []  # (name, role, T_world_base, q_true)
+    q_home = np.deg2rad([28.0, 37.0, 49.0, 82.0, 29.0, 0.0])
+
+    # --- lab: rig views from several directions (rotation diversity for AX = XB), base at the world origin -----------
+    n_rig = cfg["lab"]["rig_views"]
+    az = np.linspace(-25, 25, n_rig) * DEG
+    el = 12 * DEG * np.sin(np.linspace(0, 2 * np.pi, n_rig, endpoint=False))
+    q_seed = q_home
+    for k in range(n_rig):
+        d = cfg["lab"]["rig_distance_m"]
+        direction = np.array([np.cos(el[k]) * np.cos(az[k]), np.cos(el[k]) * np.sin(az[k]), np.sin(el[k])])
+        eye = rig_centre - d * direction
+        sol = _plan(robot, np.eye(4), eye, rig_centre, mount_nominal, q_seed if k else None)
+        if not sol.success:
+            continue
+        views.append((f"rig{k:02d}", "rig", np.eye(4), sol.q))
+        q_seed = sol.q
+
+    # --- site: parking 1 (survey) and parking 2 (locate) -------------------------------------------------------------
+    offs = np.array(cfg["survey"]["offsets_mm"], dtype=float) * 1e-3
+    T_ref_look = look_at(eye_ref, centre)
+    survey_eyes = [eye_ref] + list(transform_points(T_ref_look, np.c_[offs, np.zeros(len(offs))]))
+    base_l = cfg["locate"]["baseline_mm"] * 1e-3
+    locate_eyes = list(transform_points(T_ref_look, np.array([[-base_l / 2, 0, 0], [base_l / 2, 0, 0]])))
+    parkings = 0
+    while parkings < 20:
+        parkings += 1
+        T_wb1 = _random_motion(rng, site["base_offset_m"], site["base_rot_deg"])
+        T_wb2 = T_wb1 @ _random_motion(rng, cfg["locate"]["motion_m"], cfg["locate"]["motion_deg"])
+        site_views, ok, q_seed = [], True, None
+        for i, eye in enumerate(survey_eyes):
+            sol = _plan(robot, T_wb1, eye, centre, mount_nominal, q_seed)
+            if not sol.success:
+                ok = False
+                break
+            site_views.append(("ref" if i == 0 else f"survey{i:02d}", "reference" if i == 0 else "surround", T_wb1,
+                               sol.q))
+            q_seed = sol.q if i == 0 else site_views[0][3]
+        for i, eye in enumerate(locate_eyes if ok else []):
+            sol = _plan(robot, T_wb2, eye, centre, mount_nominal, site_views[0][3])
+            if not sol.success:
+                ok = False
+                break
+            site_views.append((f"locate{i}", "locate", T_wb2, sol.q))
+        if ok:
+            break
+    if not ok:
+        raise ConfigError(cfg["_file"], "site", "no reachable set of views in 20 random parkings: reduce "
+                                                "site.base_offset_m / base_rot_deg or move site.eye_base_m")
+    views += site_views
+    t_plan = time.perf_counter() - t0
+
+    # --- render ----------------------------------------------------------------------------------------------------
+    objects = {"rig": [place(rig, T_world_rig, "rig_lab")]}  # the lab
+    objects.update({r: [place(panel, T_world_panel, "panel_site")] for r in ("reference", "surround", "locate")})
+    scenes = {}
+    images, readings = {}, {}
+    ss = cfg["camera"]["supersample"]
+    if verbose:
+        print(f"rendering {len(views)} views ({len(views) - len(site_views)} rig, {len(site_views)} site) ...",
+              file=sys.stderr)
+    for n, (name, role, T_wb, q) in enumerate(views):
+        key = (role == "rig",) + tuple(np.round(T_wb, 12).ravel())
+        if key not in scenes:
+            scenes[key] = ArmScene(robot, eps, T_wb, mount_true, true_cam, objects[role], ss, sensor, cache_dir,
+                                   T_link5_mount=mount_nominal)
+        images[name] = scenes[key].render(q, seed=cfg["seed"] * 1000 + n)
+        readings[name] = enc.read(q, rng)
+        if verbose:
+            print(f"\r  {n + 1}/{len(views)}", end="", file=sys.stderr)
+    if verbose:
+        print(file=sys.stderr)
+    render_s = [s for sc in scenes.values() for s in sc.render_s]
+    for sc in scenes.values():
+        sc.close()
+
+    # --- tracker campaign (lab, base at the origin; the tracker frame is the base frame found from the arcs) -------
+    q_tr = robot.random_configurations(rng, cfg["lab"]["tracker_poses"])
+    p_tr = ee_position(robot, q_tr, eps) + rng.normal(0, cfg["lab"]["tracker_sigma_mm"] * 1e-3, (len(q_tr), 3))
+    q_tr_read = enc.read(q_tr, rng)
+
+    # --- write the dataset --------------------------------------------------------------------------------------------
+    out_dataset = Path(out_dataset)
+    with DatasetWriter(out_dataset, kind="in_situ", name=cfg["name"], overwrite=True,
+                       created_by=f"bench sim render {Path(cfg['_file']).name} (seed {cfg['seed']})") as w:
+        for name, role, _, _ in views:
+            w.add_view(name, images[name], q=readings[name], role=role)
+        w.write_tracker([f"p{i:03d}" for i in range(len(q_tr))], p_tr, q_tr_read)
+        w.write_text("camera.yaml", camera_yaml_text(nominal_cam))
+        shutil.copyfile(Path(cfg["_file"]).parent / cfg["robot"], w.path("robot.yaml"))
+        w.write_text("target.yaml", TARGET_YAML)
+        truth = {
+            "units": "SI (m, rad)",
+            "errors": eps.tolist(),
+            "T_link5_cam": mount_true.tolist(),
+            "T_link5_cam_nominal": mount_nominal.tolist(),
+            "camera_K": true_cam.K.tolist(), "camera_dist": true_cam.dist.tolist(),
+            "T_world_rig": T_world_rig.tolist(), "T_world_panel": T_world_panel.tolist(),
+            "views": {name: {"role": role, "T_world_base": T_wb.tolist(), "q_true": q.tolist()}
+                      for name, role, T_wb, q in views},
+            "T_world_base_survey": T_wb1.tolist(), "T_world_base_locate": T_wb2.tolist(),
+            "valves_world": {k: {"centre": transform_points(T_world_panel, v["centre"]).tolist(),
+                                 "axis": (R_wp @ np.asarray(v["axis"])).tolist()}
+                             for k, v in panel.features["valves"].items()},
+            "panel_corners_world": transform_points(T_world_panel, panel.features["corners"]).tolist(),
+            "tracker_q_true": q_tr.tolist(),
+        }
+        w.write_text("truth/truth.yaml", yaml.safe_dump(truth, sort_keys=False))
+        checks = kinematics_check(robot, eps, np.array([v[3] for v in views]))
+        checks.update(marker_check(true_cam, ss))
+        checks["distortion_roundtrip_max_px"] = distortion_roundtrip(true_cam)
+        if render_s:  # all views from the cache: no render was timed
+            checks["render_fps"] = float(1.0 / np.median(render_s))
+        from bench.vision.features import detect_sift
+
+        counts = [len(detect_sift(images[n])) for n, role, _, _ in views if role in ("reference", "surround")]
+        checks["panel_sift_keypoints"] = float(np.median(counts))
+        checks["views_rendered"] = float(len(render_s))
+        checks["plan_s"] = t_plan
+        checks["parking_attempts"] = float(parkings)
+        w.write_text("truth/sim_checks.json", json.dumps(checks, indent=2) + "\n")
+    if verbose:
+        print(f"wrote {out_dataset} ({len(views)} views, {len(q_tr)} tracker points)")
+    return checks
+
+
+# ------------------------------------------------------------------------------------------------ pipeline
+
+
+def calibrate_lab(ds, robot, cfg, out):
+    """The pipeline's lab step on the dataset: arm (tracker), camera (rig), mount (AX = XB); writes calibrated files."""
+    t0 = time.perf_counter()
+    red = closed_form_reduction(robot)
+    sigma = cfg["lab"]["tracker_sigma_mm"] * 1e-3
+    ident = identify_iterative(robot, ds.tracker["q"], ds.tracker["p"], red, sigma=sigma)
+    if not ident.success:
+        raise ConfigError(ds.root / "tracker.csv", "<identification>", ident.message)
+    eps_hat = ident.eps
+    t_arm = time.perf_counter() - t0
+    geometry = load_target(ds.root / "target.yaml")
+    rig_views = [v for v in ds.views if v.role == "rig"]
+    Xs, uvs, used = [], [], []
+    for v in rig_views:
+        img = v.image()
+        res = (extract_corners_opencv(img, geometry) if cfg["pipeline"]["extractor"] == "opencv" else
+               extract_corners_thesis(img, geometry))
+        if res.success:
+            Xs.append(res.object_points)
+            uvs.append(res.uv)
+            used.append(v)
+    if len(used) < 3:
+        raise ConfigError(ds.root, "rig views", f"the rig was found in {len(used)} views (need >= 3)")
+    size = (used[0].image().shape[1], used[0].image().shape[0])
+    cal = calibrate_camera(Xs, uvs, size, model="heikkila")
+    if not cal.success:
+        raise ConfigError(ds.root, "rig views", f"camera calibration failed: {cal.message}")
+    t_cam = time.perf_counter() - t0 - t_arm
+    T_base_l5 = np.stack([link5_frame(robot, v.q, eps_hat) for v in used])
+    # the rig looks the same after a half turn about the horizontal bisector of its boards: make its frame consistent
+    z_mid = float(np.mean(geometry.object_points()[:, 2]))
+    S = homogeneous(np.array([[0.0, 1, 0], [1, 0, 0], [0, 0, -1]]), [0.0, 0.0, 2 * z_mid])
+    mount_nominal = homogeneous(rot_z(cfg["truth"]["mount_roll_deg"] * DEG), _vec(cfg, "truth.mount_mm", 3) * 1e-3)
+    T_cam_target, _ = resolve_target_symmetry(T_base_l5, cal.T_cam_target, mount_nominal, [S])
+    he = hand_eye_axxb(T_base_l5, T_cam_target)
+    if not he.success:
+        raise ConfigError(ds.root, "rig views", f"mount calibration failed: {he.message}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_camera_yaml(out / "camera.yaml", cal.camera)
+    write_calibrated_robot(out / "robot.yaml", ds.robot_path, robot, eps_hat, he.T_mount_cam,
+                           notes=f"identified from {len(ds.tracker['q'])} tracker points; mount from {len(used)} rig "
+                                 "views (AX = XB)")
+    return {"eps": eps_hat, "camera": cal, "mount": he, "rig_views_used": len(used),
+            "timings": {"arm_calibration_s": t_arm, "camera_calibration_s": t_cam,
+                        "mount_calibration_s": time.perf_counter() - t0 - t_arm - t_cam}}
+
+
+def run(cfg, out_dir, verbose=True):
+    """Render (cached) the campaign, run the pipeline on the dataset, score against the truth, write result.json."""
+    _check(cfg)
+    out_dir = Path(out_dir)
+    t0 = time.perf_counter()
+    ds_dir = out_dir / "dataset"
+    cache = out_dir.parent / ".render_cache" if cfg["outputs"]["cache"] else None
+    checks = render(cfg, ds_dir, verbose=verbose, cache_dir=cache)
+    t_render = time.perf_counter() - t0
+    ds = load_dataset(ds_dir)
+    robot = ds.robot()
+    lab = calibrate_lab(ds, robot, cfg, out_dir / "calibrated")
+    p = cfg["pipeline"]
+    res, report = locate_dataset(ds_dir, out_dir, method=p["method"], seed=cfg["seed"],
+                                 config=MapConfig(), verbose=False, camera_path=out_dir / "calibrated" / "camera.yaml",
+                                 robot_path=out_dir / "calibrated" / "robot.yaml", refine=p["refine"],
+                                 ransac=dict(iterations=p["ransac_iterations"], d_r=p["d_r_mm"] * 1e-3,
+                                             r_lim=p["r_lim"]))
+
+    # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
+    truth = yaml.safe_load((ds_dir / "truth" / "truth.yaml").read_text())
+    T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
+    metrics = dict(checks)
+    metrics["map_points"] = float(report["map_points"])
+    metrics["inliers"] = float(report["inliers"])
+    metrics["insitu_solve_s"] = float(sum(res.timings_s.get(k, 0.0) for k in ("match_s", "triangulate_s", "align_s",
+                                                                                 "refine_s")))
+    if res.success:
+        T = res.T_world_base
+        metrics["base_pos_err_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
+        metrics["base_rot_err_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
+        std = np.sqrt(np.clip(np.diag(res.covariance), 0, None))
+        metrics["base_pos_std_mm"] = float(np.linalg.norm(std[3:]) * 1e3)
+        metrics["base_rot_std_deg"] = float(np.rad2deg(np.linalg.norm(std[:3])))
+    else:
+        metrics["base_pos_err_mm"] = metrics["base_rot_err_deg"] = float("nan")
+    cam_true = np.array(truth["camera_K"])
+    metrics["focal_err_pct"] = float(abs(lab["camera"].K[0, 0] / cam_true[0, 0] - 1) * 100)
+    metrics["reproj_rms_px"] = float(lab["camera"].rms_px)
+    Tm_true, Tm_hat = np.array(truth["T_link5_cam"]), lab["mount"].T_mount_cam
+    metrics["mount_pos_err_mm"] = float(np.linalg.norm(Tm_hat[:3, 3] - Tm_true[:3, 3]) * 1e3)
+    metrics["mount_rot_err_deg"] = float(np.rad2deg(rotation_angle(Tm_hat[:3, :3].T @ Tm_true[:3, :3])))
+    q_ho = load_robot(Path(cfg["_file"]).parent / cfg["robot"]).random_configurations(np.random.default_rng(1), 500)
+    eps_true = np.array(truth["errors"])
+    metrics["arm_heldout_rms_mm"] = float(np.sqrt(np.mean(np.sum(
+        (ee_position(robot, q_ho, lab["eps"]) - ee_position(robot, q_ho, eps_true)) ** 2, axis=1))) * 1e3)
+    timings = {"render_s": t_render, **lab["timings"], **{k: float(v) for k, v in res.timings_s.items()},
+               "total_s": time.perf_counter() - t0}
+    table = {"quantity": ["base position (mm)", "base rotation (deg)", "mount position (mm)", "mount rotation (deg)",
+                          "focal length (%)", "arm held-out RMS (mm)"],
+             "error": [metrics["base_pos_err_mm"], metrics["base_rot_err_deg"], metrics["mount_pos_err_mm"],
+                       metrics["mount_rot_err_deg"], metrics["focal_err_pct"], metrics["arm_heldout_rms_mm"]]}
+    write_table_csv(out_dir / "errors.csv", table)
+    path = write_result(out_dir, cfg["name"], cfg["seed"], metrics, {"errors": table}, timings,
+                        {"dataset": "dataset", "locate": "locate.json", "calibrated_camera": "calibrated/camera.yaml",
+                         "calibrated_robot": "calibrated/robot.yaml"})
+    if verbose:
+        print(f"{cfg['name']} (seed {cfg['seed']}): {res.message}")
+        for k in ("base_pos_err_mm", "base_rot_err_deg", "base_pos_std_mm", "map_points", "inliers", "insitu_solve_s",
+                  "mount_pos_err_mm", "mount_rot_err_deg", "focal_err_pct", "reproj_rms_px", "arm_heldout_rms_mm",
+                  "sim_vs_fk_max_err_m", "marker_projection_rms_px", "render_fps", "panel_sift_keypoints"):
+            print(f"  {k:<28} {metrics.get(k, float('nan')):.6g}")
+    return path
