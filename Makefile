@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/bench run scenarios/table2_kinematic_identification.yaml --out $(OUT)/demo
+	$(BIN)/bench run scenarios/ta40_in_situ_manifold.yaml --out $(OUT)/demo
 
 test: $(STAMP)
 	$(BIN)/ruff check bench tests tools
@@ -26,6 +26,8 @@ test: $(STAMP)
 
 reproduce: $(STAMP)
 	$(BIN)/bench run scenarios/table2_kinematic_identification.yaml --out $(OUT)/table2 --set monte_carlo.seeds=500
+	$(BIN)/bench run scenarios/tracker_base_frame.yaml --out $(OUT)/tracker_base_frame
+	$(BIN)/bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds 20 --out $(OUT)/sweep-insitu
 
 benchmark: $(STAMP)
 	$(BIN)/python tools/benchmark.py --out $(OUT)/benchmark.json

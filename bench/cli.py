@@ -31,6 +31,15 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
     sw.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
     sw.add_argument("--out", default=None, help="sweep folder (default runs/sweep-<scenario name>)")
+    sim = sub.add_parser("sim", help="simulator commands")
+    simsub = sim.add_subparsers(dest="sim_command", required=True)
+    rend = simsub.add_parser("render", help="simulate a scenario's campaign and write its dataset (with truth/)")
+    rend.add_argument("scenario", help="scenario YAML file (a kind that renders, e.g. in_situ)")
+    rend.add_argument("--out", required=True, help="dataset folder to write (atomically; replaced if it exists)")
+    rend.add_argument("--seed", type=int, default=None)
+    rend.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    rend.add_argument("--no-cache", action="store_true", help="render every view even if cached")
+
     loc = sub.add_parser("locate", help="in-situ base localisation on a dataset folder (section 3.9)")
     loc.add_argument("dataset", help="dataset folder (manifest.yaml, images/, joints.csv, camera.yaml, robot.yaml)")
     loc.add_argument("--out", default=None, help="folder for locate.json (default: print only)")
@@ -45,6 +54,21 @@ def _parser() -> argparse.ArgumentParser:
     cc.add_argument("--extractor", choices=("thesis", "opencv"), default="thesis",
                     help="corner extractor: the thesis's edge/k-means method or OpenCV's")
     return p
+
+
+def _sim_render(args) -> None:
+    from pathlib import Path
+
+    from bench.scenario.runner import _kinds, load_scenario
+
+    cfg = load_scenario(args.scenario, args.seed, args.overrides)
+    module = _kinds()[cfg["kind"]]
+    if not hasattr(module, "render"):
+        raise BenchError(f"{args.scenario}: kind {cfg['kind']!r} has no simulated campaign to render")
+    cache = None if args.no_cache else Path(args.out).resolve().parent / ".render_cache"
+    checks = module.render(cfg, args.out, verbose=True, cache_dir=cache)
+    for k, v in checks.items():
+        print(f"  {k:<32} {v:.6g}" if isinstance(v, float) else f"  {k:<32} {v}")
 
 
 def _sweep(args) -> None:
@@ -76,6 +100,8 @@ def main(argv=None) -> int:
                               verbose=not args.quiet)
         elif args.command == "sweep":
             _sweep(args)
+        elif args.command == "sim":
+            _sim_render(args)
         elif args.command == "calibrate-camera":
             from bench.camera.calibrate_dataset import calibrate_dataset
 

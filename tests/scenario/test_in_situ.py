@@ -1,0 +1,83 @@
+"""Smoke version of the TA-40 in-situ scenario (fewer views, no supersampling) and the truth-separation check."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+pytest.importorskip("mujoco")
+
+from bench.scenario.runner import load_scenario, run_scenario_file  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENARIO = ROOT / "scenarios" / "ta40_in_situ_manifold.yaml"
+SMOKE = ["camera.supersample=1", "lab.rig_views=7", "lab.tracker_poses=60", "outputs.cache=false",
+         "survey.offsets_mm=[[130, 0], [-130, 0], [0, 130], [0, -130]]"]
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("insitu") / "run"
+    path = run_scenario_file(SCENARIO, out=out, seed=2, overrides=SMOKE, verbose=False, quiet=True)
+    return out, json.loads(Path(path).read_text())
+
+
+def test_smoke_accuracy(smoke_run):
+    _, res = smoke_run
+    m = res["metrics"]
+    assert m["sim_vs_fk_max_err_m"] <= 1e-9 and m["sim_vs_pinocchio_max_err_m"] <= 1e-9
+    assert m["marker_projection_rms_px"] <= 0.1
+    assert m["reproj_rms_px"] < 0.2 and m["focal_err_pct"] < 0.3  # the camera calibrated from the rig views
+    assert m["arm_heldout_rms_mm"] < 0.1  # the arm calibrated from the tracker points
+    assert m["mount_pos_err_mm"] < 5 and m["mount_rot_err_deg"] < 0.5
+    assert m["map_points"] > 50 and m["inliers"] > 20
+    # smoke-size campaign: the full-size targets (2 mm, 0.05 deg over 20 seeds) are `make reproduce`'s business
+    assert m["base_pos_err_mm"] < 10 and m["base_rot_err_deg"] < 0.3
+    assert m["base_pos_err_mm"] < 5 * m["base_pos_std_mm"] + 1.0  # consistent with the reported uncertainty
+    assert set(res) == {"scenario", "seed", "metrics", "tables", "timings_s", "artifacts"}
+
+
+def _numbers(obj):
+    if isinstance(obj, dict):
+        for v in obj.values():
+            yield from _numbers(v)
+    elif isinstance(obj, list):
+        for v in obj:
+            yield from _numbers(v)
+    elif isinstance(obj, (int, float)) and not isinstance(obj, bool):
+        yield float(obj)
+
+
+def test_no_truth_value_outside_truth(smoke_run):
+    out, _ = smoke_run
+    ds = out / "dataset"
+    truth = yaml.safe_load((ds / "truth" / "truth.yaml").read_text())
+    secret = {round(v, 9) for key in ("errors", "T_link5_cam", "camera_K", "T_world_base_survey",
+                                      "T_world_base_locate") for v in _numbers(truth[key])
+              if abs(v) > 1e-6 and abs(abs(v) - 1.0) > 1e-9}
+    secret |= {round(v, 9) for view in truth["views"].values() for v in view["q_true"] if abs(v) > 1e-6}
+    leaks = []
+    for path in ds.rglob("*"):
+        if "truth" in path.relative_to(ds).parts or path.suffix not in (".csv", ".yaml"):
+            continue
+        text = path.read_text()
+        for token in text.replace(",", " ").replace("[", " ").replace("]", " ").split():
+            try:
+                v = float(token)
+            except ValueError:
+                continue
+            for scale in (1.0, 1e-3, np.pi / 180):  # SI, or written in mm / deg
+                if round(v * scale, 9) in secret:
+                    leaks.append(f"{path.name}: {token}")
+    assert not leaks, leaks[:5]
+
+
+def test_unknown_key_is_one_line_error():
+    from bench.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"survey.offset_mm: unknown key \(did you mean 'survey.offsets_mm'\?\)"):
+        load_scenario(SCENARIO, overrides=["survey.offset_mm=[[1, 2]]"])
+    with pytest.raises(ConfigError, match="lab.tracker_sigma_mm: implausible"):
+        run_scenario_file(SCENARIO, out="/nonexistent/never", overrides=["lab.tracker_sigma_mm=500"], verbose=False)
