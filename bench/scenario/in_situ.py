@@ -43,6 +43,7 @@ from bench.robot.model import load_robot, random_errors
 from bench.robot.orientation import link5_frame
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.schema import required
+from bench.sim.optics_presets import optics_preset
 from bench.vision.handeye import hand_eye_axxb, resolve_target_symmetry
 from bench.vision.insitu import MapConfig
 from bench.vision.locate_dataset import locate_dataset
@@ -58,7 +59,7 @@ SCHEMA = {
               "mount_bias_mm": (list, [2.0, -1.5, 3.0]),
               "mount_bias_deg": (list, [0.5, -0.8, 1.0]), "focal_error_pct": (float, 1.5),
               "principal_error_px": (float, 4.0)},
-    "camera": {"preset": (str, "air_webcam"), "supersample": (int, 2), "read_noise_dn": (float, 1.0)},
+    "camera": {"preset": (str, "air_webcam"), "supersample": (int, 2)},
     "encoders": {"noise_deg": (float, 0.002), "resolution_deg": (float, 0.001)},
     "lab": {"tracker_poses": (int, 100), "tracker_sigma_mm": (float, 0.05), "rig_views": (int, 10),
             "rig_distance_m": (float, 0.75)},
@@ -113,13 +114,18 @@ def _truth(cfg, robot, rng):
     mount = homogeneous(rot_z(t["mount_roll_deg"] * DEG), _vec(cfg, "truth.mount_mm", 3) * 1e-3)
     b = _vec(cfg, "truth.mount_bias_deg", 3) * DEG  # thesis theta_x0, theta_y0, theta_z0 (Eq. 197, as labelled)
     bias = homogeneous(rot_y(b[1]) @ rot_x(b[0]) @ rot_z(b[2]), _vec(cfg, "truth.mount_bias_mm", 3) * 1e-3)
-    nominal_cam = load_preset(cfg["camera"]["preset"])
-    K = nominal_cam.K.copy()
+    try:
+        optics = optics_preset(cfg["camera"]["preset"])
+    except ValueError as exc:
+        raise ConfigError(cfg["_file"], "camera.preset", str(exc)) from None
+    nominal_cam = load_preset(optics.nominal_camera)  # the specification the pipeline is given
+    lens = load_preset(optics.lens_camera)  # the lens inside the housing (= the whole camera in air)
+    K = lens.K.copy()
     K[0, 0] *= 1 + rng.uniform(-1, 1) * t["focal_error_pct"] / 100
     K[1, 1] *= 1 + rng.uniform(-1, 1) * t["focal_error_pct"] / 100
     K[:2, 2] += rng.uniform(-1, 1, 2) * t["principal_error_px"]
-    true_cam = nominal_cam.replace(K=K, name=f"{nominal_cam.name} (true)")
-    return eps, mount, mount @ bias, nominal_cam, true_cam
+    true_cam = lens.replace(K=K, name=f"{lens.name} (true)")
+    return eps, mount, mount @ bias, nominal_cam, true_cam, optics
 
 
 def _random_motion(rng, trans_m, rot_deg, vertical=0.3):
@@ -143,7 +149,7 @@ def _plan(robot, T_world_base, eye_w, target_w, mount, q_seed):
 
 def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     """Simulate the campaign and write the dataset (with ``truth/``); returns the simulator's metrics."""
-    from bench.sim.campaign import ArmScene, SensorModel
+    from bench.sim.campaign import ArmScene
     from bench.sim.checks import distortion_roundtrip, kinematics_check, marker_check
     from bench.sim.encoders import EncoderModel
     from bench.sim.scenes.base import place
@@ -155,9 +161,8 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     t0 = time.perf_counter()
     rng = np.random.default_rng(cfg["seed"])
     robot = load_robot(Path(cfg["_file"]).parent / cfg["robot"])
-    eps, mount_nominal, mount_true, nominal_cam, true_cam = _truth(cfg, robot, rng)
+    eps, mount_nominal, mount_true, nominal_cam, true_cam, optics = _truth(cfg, robot, rng)
     enc = EncoderModel(cfg["encoders"]["noise_deg"] * DEG, cfg["encoders"]["resolution_deg"] * DEG)
-    sensor = SensorModel(cfg["camera"]["read_noise_dn"])
     site = cfg["site"]
 
     # --- site geometry: the panel faces the nominal reference eye, `standoff` ahead along +x of the world ------------
@@ -236,8 +241,8 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     for n, (name, role, T_wb, q) in enumerate(views):
         key = (role == "rig",) + tuple(np.round(T_wb, 12).ravel())
         if key not in scenes:
-            scenes[key] = ArmScene(robot, eps, T_wb, mount_true, true_cam, objects[role], ss, sensor, cache_dir,
-                                   T_link5_mount=mount_nominal)
+            scenes[key] = ArmScene(robot, eps, T_wb, mount_true, true_cam, objects[role], ss, optics.chain, cache_dir,
+                                   T_link5_mount=mount_nominal, port=optics.port)
         images[name] = scenes[key].render(q, seed=cfg["seed"] * 1000 + n)
         readings[name] = enc.read(q, rng)
         if verbose:
@@ -255,6 +260,8 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
 
     # --- write the dataset --------------------------------------------------------------------------------------------
     out_dataset = Path(out_dataset)
+    # the paraxial focal length of lens + flat port is n_water / n_air times the lens's (no port: the lens's)
+    mag = optics.port.n_water / optics.port.n_air if optics.port is not None else 1.0
     with DatasetWriter(out_dataset, kind="in_situ", name=cfg["name"], overwrite=True,
                        created_by=f"bench sim render {Path(cfg['_file']).name} (seed {cfg['seed']})") as w:
         for name, role, _, _ in views:
@@ -269,6 +276,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
             "T_link5_cam": mount_true.tolist(),
             "T_link5_cam_nominal": mount_nominal.tolist(),
             "camera_K": true_cam.K.tolist(), "camera_dist": true_cam.dist.tolist(),
+            "camera_K_effective": (np.diag([mag, mag, 1.0]) @ true_cam.K).tolist(),
             "T_world_rig": T_world_rig.tolist(), "T_world_panel": T_world_panel.tolist(),
             "views": {name: {"role": role, "T_world_base": T_wb.tolist(), "q_true": q.tolist()}
                       for name, role, T_wb, q in views},
@@ -385,7 +393,7 @@ def run(cfg, out_dir, verbose=True):
         metrics["base_rot_std_deg"] = float(np.rad2deg(np.linalg.norm(std[:3])))
     else:
         metrics["base_pos_err_mm"] = metrics["base_rot_err_deg"] = float("nan")
-    cam_true = np.array(truth["camera_K"])
+    cam_true = np.array(truth["camera_K_effective"])
     metrics["focal_err_pct"] = float(abs(lab["camera"].K[0, 0] / cam_true[0, 0] - 1) * 100)
     metrics["reproj_rms_px"] = float(lab["camera"].rms_px)
     Tm_true, Tm_hat = np.array(truth["T_link5_cam"]), lab["mount"].T_mount_cam

@@ -1,8 +1,11 @@
 """Render the views of a campaign: the TA-40 (true geometry) with its link-5 camera in a scene, through the optics.
 
 :class:`ArmScene` compiles one MuJoCo model (the arm placed at ``T_world_base``, the camera at its true mount, the
-scene objects) and renders views at *true* joint angles: a supersampled pinhole render (RGB + depth), the lens stage
-(:class:`~bench.sim.distortion.DistortionStage`), then the sensor (noise, 8 bit). Finished images are cached on disk
+scene objects) and renders views at *true* joint angles: a supersampled pinhole render (RGB + depth), then either
+the lens stage (:class:`~bench.sim.distortion.DistortionStage`, camera in air) or lens + flat port
+(:class:`~bench.sim.flatport.FlatPortStage`, ray-traced through the housing's glass into water), then the medium and
+sensor chain (:func:`~bench.sim.medium.apply_medium`: lamp, attenuation and backscatter on the in-water path,
+forward scatter, shot and read noise, 8 bit, optional JPEG). Finished images are cached on disk
 by a content hash of everything that determines them (model XML and assets, joint angles, camera, optics, noise seed),
 so a sweep never renders the same view twice.
 """
@@ -11,7 +14,6 @@ from __future__ import annotations
 
 import hashlib
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -19,22 +21,11 @@ import numpy as np
 
 from bench.camera.model import CameraModel
 from bench.sim.distortion import DistortionStage
+from bench.sim.flatport import FlatPortStage
+from bench.sim.medium import MediumChain, apply_medium, cos_beam, path_length_m
 from bench.sim.mjcf import robot_object
 from bench.sim.render import SceneRenderer
 from bench.sim.scenes.base import compose, place
-
-
-@dataclass(frozen=True)
-class SensorModel:
-    """Image sensor: Gaussian read noise (grey levels, std) on the 8-bit image; 0 = noise-free."""
-
-    read_noise_dn: float = 0.0
-
-    def apply(self, img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        if self.read_noise_dn <= 0:
-            return img
-        noisy = img.astype(float) + rng.normal(0.0, self.read_noise_dn, img.shape)
-        return np.clip(np.round(noisy), 0, 255).astype(np.uint8)
 
 
 class ArmScene:
@@ -45,19 +36,30 @@ class ArmScene:
     robot, eps : the nominal model and the TRUE generalized errors (exact form).
     T_world_base : (4, 4) the true base pose.
     T_link5_cam : (4, 4) the TRUE camera mount.
-    camera : CameraModel, the TRUE camera (intrinsics and lens distortion).
+    camera : CameraModel, the TRUE camera (intrinsics and lens distortion; the lens inside the housing if ``port``).
     objects : list of SceneObject (already placed in the world).
     supersample : int
+    chain : MediumChain, the medium and sensor stages (default: noise-free 8 bit).
+    port : FlatPort or None, the housing's flat port (None: the lens sees the scene directly).
     cache_dir : path or None
+    z_min : float, nearest scene depth the flat-port render must cover (m).
     """
 
     def __init__(self, robot, eps, T_world_base, T_link5_cam, camera: CameraModel, objects, supersample: int = 2,
-                 sensor: SensorModel | None = None, cache_dir=None, T_link5_mount=None):
+                 chain: MediumChain | None = None, cache_dir=None, T_link5_mount=None, port=None, z_min: float = 0.3):
         import mujoco
 
         self.robot, self.camera = robot, camera
-        self.stage = DistortionStage(camera, supersample)
-        self.spec = self.stage.render_spec()
+        self.port = port
+        if port is None:
+            self.stage = DistortionStage(camera, supersample)
+            self.spec = self.stage.render_spec()
+        else:
+            self.stage = FlatPortStage(camera.K, camera.size, port, supersample, lens=camera)
+            self.spec = self.stage.render_spec(z_min)
+        grid = _pixel_grid(camera)
+        self._rays = camera.unproject(grid, normalize=False)  # the lens's pixel rays (distortion included)
+        self._cos = cos_beam(self._rays)
         arm = robot_object(robot, eps, T_link5_mount, (self.spec.K, self.spec.width, self.spec.height, T_link5_cam))
         self.objects = [place(arm, T_world_base, "ta40")] + list(objects)
         xml, assets = compose(self.objects, offscreen=(self.spec.width, self.spec.height), center=(1.0, 0.0, 0.5),
@@ -65,14 +67,14 @@ class ArmScene:
         self.model = mujoco.MjModel.from_xml_string(xml, assets=assets)
         self.data = mujoco.MjData(self.model)
         self.qadr = [self.model.jnt_qposadr[self.model.joint(f"joint{k}").id] for k in range(1, robot.n + 1)]
-        self.sensor = sensor or SensorModel()
+        self.chain = chain or MediumChain()
         h = hashlib.sha256(xml.encode())
         for k in sorted(assets):
             h.update(k.encode())
             h.update(hashlib.sha256(assets[k]).digest())
         h.update(np.ascontiguousarray(camera.K).tobytes())
         h.update(np.ascontiguousarray(camera.dist).tobytes())
-        h.update(repr((camera.width, camera.height, supersample, self.sensor)).encode())
+        h.update(repr((camera.width, camera.height, supersample, self.chain, port)).encode())
         self._key = h.hexdigest()
         self.cache_dir = Path(cache_dir) if cache_dir else None
         self._renderer = None
@@ -100,9 +102,17 @@ class ArmScene:
             self._renderer = SceneRenderer(self.model, "link5_camera", self.spec.width, self.spec.height)
         self.data.qpos[self.qadr] = q_true
         mujoco.mj_forward(self.model, self.data)
-        rgb, _ = self._renderer.render(self.data)
-        img = self.stage.warp_image(rgb, self.spec.K)
-        img = self.sensor.apply(img, np.random.default_rng(seed))
+        rgb, depth = self._renderer.render(self.data)
+        rng = np.random.default_rng(seed)
+        if self.port is None:
+            img, z = self.stage.apply(rgb, self.spec.K, depth)
+            path = path_length_m(z, self._rays)
+        else:
+            out = self.stage.apply(rgb, depth, self.spec.K)
+            img, path = out.image, out.water_path
+        img = apply_medium(img, path, rng, self.chain, self._cos if self.chain.light is not None else None)
+        if img.dtype != np.uint8:
+            img = np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
         self.render_s.append(time.perf_counter() - t0)
         if self.cache_dir is not None:
             self.cache_dir.mkdir(parents=True, exist_ok=True)
@@ -115,3 +125,9 @@ class ArmScene:
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+def _pixel_grid(camera: CameraModel) -> np.ndarray:
+    """Pixel centres ``(H, W, 2)`` of the camera's image."""
+    u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
+    return np.stack([u, v], axis=-1)
