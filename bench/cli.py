@@ -47,6 +47,8 @@ def _parser() -> argparse.ArgumentParser:
                      help="absolute-orientation estimator (rodrigues = the thesis's quaternion method)")
     loc.add_argument("--pnp", action="store_true", help="single-view PnP against the map instead of two views")
     loc.add_argument("--seed", type=int, default=0, help="RANSAC seed")
+    loc.add_argument("--robot", default=None, help="calibrated robot file (default: the dataset's robot.yaml)")
+    loc.add_argument("--camera", default=None, help="calibrated camera file (default: the dataset's camera.yaml)")
     cc = sub.add_parser("calibrate-camera", help="corners + calibration (+ OpenCV reference) on a rig dataset")
     cc.add_argument("dataset", help="dataset folder with rig views and target.yaml")
     cc.add_argument("--out", required=True, help="folder for camera.yaml, calibration.json, per_view.csv, plots")
@@ -110,7 +112,8 @@ def main(argv=None) -> int:
         elif args.command == "locate":
             from bench.vision.locate_dataset import locate_dataset
 
-            res, _ = locate_dataset(args.dataset, args.out, method=args.method, pnp=args.pnp, seed=args.seed)
+            res, _ = locate_dataset(args.dataset, args.out, method=args.method, pnp=args.pnp, seed=args.seed,
+                                    camera_path=args.camera, robot_path=args.robot)
             return 0 if res.success else 1
         return 0
     except BenchError as exc:

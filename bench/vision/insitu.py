@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from bench.geometry.transforms import invert, transform_points
+from bench.geometry.transforms import invert, transform_points, vee
 from bench.vision.features import (
     ORIENTATION_TOL_DEG,
     RATIO,
@@ -442,8 +442,7 @@ def locate_pnp(kmap: KeypointMap, view_a: ViewObservation, config: MapConfig | N
         h = np.zeros(6)
         h[k] = 1e-7
         Tp, Tm = world_base(x0 + h), world_base(x0 - h)
-        dR, _ = cv2.Rodrigues(Tp[:3, :3] @ Tm[:3, :3].T)
-        Jw[:3, k] = dR.ravel() / 2e-7
+        Jw[:3, k] = vee(Tp[:3, :3] @ Tm[:3, :3].T) / 2e-7  # small-angle log (cv2.Rodrigues rounds it to 0)
         Jw[3:, k] = (Tp[:3, 3] - Tm[:3, 3]) / 2e-7
     cov = Jw @ cov_rt @ Jw.T
     err = np.linalg.norm((img[inl] - proj.reshape(-1, 2)), axis=1)

@@ -66,9 +66,10 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                                                               f"{len(roles['reference'])}")
     if not roles["surround"]:
         raise ConfigError(ds.root / "manifest.yaml", "views", "no view with role 'surround' (the survey)")
-    if len(roles["locate"]) != (1 if pnp else 2):
+    if len(roles["locate"]) < (1 if pnp else 2):
         raise ConfigError(ds.root / "manifest.yaml", "views", f"expected {1 if pnp else 2} views with role 'locate', "
                                                               f"found {len(roles['locate'])}")
+    roles["locate"] = roles["locate"][: 1 if pnp else 2]
     obs = {v.name: observe(v, camera, robot, eps, T_link5_cam) for r in roles.values() for v in r}
     t_detect = time.perf_counter() - t0
     kmap = build_map(obs[roles["reference"][0].name], [obs[v.name] for v in roles["surround"]], config)

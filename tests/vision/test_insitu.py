@@ -91,6 +91,9 @@ def test_noisy_outliers_base_within_its_covariance(ta40):
     assert "refined" in res.message and np.linalg.norm(std[3:]) < 1e-3
     pnp = locate_pnp(kmap, loc[0])
     assert pnp.success and np.linalg.norm(pnp.T_world_base[:3, 3] - T_true[:3, 3]) < 5e-3
+    std_pnp = np.sqrt(np.diag(pnp.covariance))
+    assert np.all(std_pnp > 0)  # every direction has an uncertainty (the rotation rows too)
+    assert rotation_angle(pnp.T_world_base[:3, :3] @ T_true[:3, :3].T) < 4 * np.linalg.norm(std_pnp[:3])
 
 
 def test_failures_are_results(ta40):
