@@ -62,7 +62,7 @@ SCHEMA = {
     "camera": {"preset": (str, "air_webcam"), "supersample": (int, 2)},
     "encoders": {"noise_deg": (float, 0.002), "resolution_deg": (float, 0.001)},
     "lab": {"tracker_poses": (int, 100), "tracker_sigma_mm": (float, 0.05), "rig_views": (int, 10),
-            "rig_distance_m": (float, 0.75)},
+            "rig_distance_m": (float, 0.9)},
     "site": {"panel_width_m": (float, 1.2), "panel_height_m": (float, 0.8), "standoff_m": (float, 1.0),
              "eye_base_m": (list, [1.5, 0.7, 0.7]), "base_offset_m": (float, 0.3), "base_rot_deg": (float, 10.0)},
     "survey": {"offsets_mm": (list, [[130, 0], [-130, 0], [0, 130], [0, -130], [95, 95], [-95, -95]])},
