@@ -14,6 +14,12 @@ exactly. Sites: ``frame0`` .. ``frame6`` (the DH frames), ``ee``, ``link5`` (Eq.
 at the *true* mount (nominal composed with the unknown bias) with the intrinsics of :mod:`bench.sim.camera`.
 Visual meshes come from :mod:`bench.sim.meshes` (in-memory STL assets); bodies carry simple inertias and position
 actuators so the model steps; visuals do not collide.
+
+Composition (the interface with the scenes): :func:`robot_object` returns the arm as a
+:class:`~bench.sim.scenes.base.SceneObject` (``worldbody_xml`` fragment, ``asset_xml`` fragment, in-memory ``files``),
+the same type every scene generator returns; :func:`scene_mjcf` places it at ``T_world_base`` with
+:func:`~bench.sim.scenes.base.place` and pastes any further scene objects next to it with
+:func:`~bench.sim.scenes.base.compose`. :func:`camera_mount_with_bias` makes the true mount from the nominal one.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from bench.geometry.transforms import homogeneous, rot_x, rot_y, rot_z
 from bench.robot.model import Robot
 from bench.sim.camera import mujoco_camera_xml
 from bench.sim.meshes import camera_housing_mesh, link_meshes, stl_bytes
-from bench.sim.scenes.base import SceneObject, fmt, pose_attrs
+from bench.sim.scenes.base import SceneObject, compose, fmt, place, pose_attrs
 
 #: The nominal camera mount on link 5 (Eq. 188 frame): the optical axis along the joint-6 axis (the approach
 #: direction), 120 mm to the side and 300 mm ahead of the wrist centre (clear of the jaws), rolled 180 deg so that
@@ -45,6 +51,38 @@ def error_transform(e6) -> np.ndarray:
 def dh_static(robot: Robot, k: int) -> np.ndarray:
     """``S_k = Tz(d_k) Tx(a_k) Rx(alpha_k)`` (the part of ``A_k`` after the joint rotation), k = 1..n."""
     return homogeneous(rot_x(robot.alpha[k - 1]), [robot.a[k - 1], 0.0, robot.d[k - 1]])
+
+
+def camera_mount_with_bias(T_link5_mount, theta_x0: float = 0.0, theta_y0: float = 0.0, theta_z0: float = 0.0,
+                           t_bias=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """The true camera mount ``T_link5_cam``: the nominal mount composed with an unknown bias (thesis §5.2.2).
+
+    ``T_link5_cam = T_link5_mount @ [R0 | t_bias]`` with ``R0 = Ry(theta_y0) Rx(theta_x0) Rz(theta_z0)`` (Eq. 197,
+    factors as labelled - see :mod:`bench.vision.handeye` for the printed label swap): the bias acts in the nominal
+    optical frame, ``theta_z0`` is the roll in the image plane, ``theta_y0`` the pan, ``theta_x0`` the tilt.
+
+    Parameters
+    ----------
+    T_link5_mount : array_like (4, 4)
+        Nominal mount: the OpenCV optical frame in the link-5 frame of Eq. 188 (m).
+    theta_x0, theta_y0, theta_z0 : float
+        Bias rotations (rad).
+    t_bias : array_like (3,)
+        Bias translation in the nominal optical frame (m).
+    """
+    from bench.geometry.transforms import check_transform
+
+    T = check_transform(T_link5_mount, "T_link5_mount")
+    angles = np.array([theta_x0, theta_y0, theta_z0], dtype=float)
+    t = np.asarray(t_bias, dtype=float)
+    if T.shape != (4, 4):
+        raise ValueError(f"T_link5_mount: expected one (4, 4) transform, got shape {T.shape}")
+    if not np.all(np.isfinite(angles)) or np.abs(angles).max() > np.pi:
+        raise ValueError(f"theta_x0, theta_y0, theta_z0: expected finite angles within +-pi rad, got {angles.tolist()}")
+    if t.shape != (3,) or not np.all(np.isfinite(t)):
+        raise ValueError(f"t_bias: expected a finite 3-vector (m), got {np.asarray(t_bias).tolist()}")
+    R0 = rot_y(theta_y0) @ rot_x(theta_x0) @ rot_z(theta_z0)  # Eq. 197 (as labelled)
+    return T @ homogeneous(R0, t)
 
 
 def _check_eps(robot: Robot, eps):
@@ -157,3 +195,30 @@ def robot_mjcf(robot: Robot, eps=None, T_link5_mount=None, camera=None, model_na
            f'{actuators_xml(robot)}<keyframe>\n<key name="home" qpos="{fmt(q)}" ctrl="{fmt(q)}"/>\n</keyframe>\n'
            "</mujoco>\n")
     return xml, dict(obj.files)
+
+
+def scene_mjcf(robot: Robot, eps=None, T_world_base=None, objects=(), T_link5_mount=None, camera=None,
+               offscreen=(1280, 960), center=(1.0, 0.0, 0.5), extent=4.0, actuators: bool = False) -> tuple:
+    """The arm placed at ``T_world_base`` among scene objects: ``(xml, assets)`` for ``MjModel.from_xml_string``.
+
+    Parameters
+    ----------
+    robot, eps, T_link5_mount, camera
+        As for :func:`robot_object` (``camera = (K, width, height, T_link5_cam)``, the TRUE mount).
+    T_world_base : array_like (4, 4), optional
+        The robot base frame O0 in the world (m); identity if omitted.
+    objects : iterable of SceneObject
+        Further scene objects, already placed in the world (``bench.sim.scenes.base.place``): each brings a
+        ``<worldbody>`` fragment, ``<asset>`` entries and its asset files; names must be unique and prefixed.
+    offscreen, center, extent
+        Passed to :func:`bench.sim.scenes.base.compose` (framebuffer size; free/overview camera framing).
+    actuators : bool
+        Add the position actuators ``act1`` .. ``act6`` (for stepping; rendering sets joint angles directly).
+    """
+    T = np.eye(4) if T_world_base is None else T_world_base
+    arm = place(robot_object(robot, eps, T_link5_mount, camera), T, "ta40")
+    xml, assets = compose([arm, *objects], offscreen=offscreen, center=center, extent=extent)
+    if actuators:
+        end = xml.rindex("</mujoco>")
+        xml = xml[:end] + actuators_xml(robot) + xml[end:]
+    return xml, assets

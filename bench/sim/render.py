@@ -1,12 +1,19 @@
 """Headless rendering of a MuJoCo scene from a named camera: RGB and metric depth.
 
-``MUJOCO_GL=egl`` is set by :mod:`bench.sim` before MuJoCo is imported unless the user chose a backend. If an
-OpenGL context cannot be created, the error is one line naming the Debian packages that provide Mesa's software EGL.
+* :func:`check_gl` - creates and frees a tiny OpenGL context; when that fails (typically ``MUJOCO_GL=egl`` without
+  Mesa's EGL) it raises a one-line :class:`~bench.errors.BenchError` naming the Debian packages to install.
+* :class:`SceneRenderer` - RGB and depth of the current ``MjData`` from one camera at the framebuffer size.
+* :class:`Renderer` - the bench's renderer: sets the *true* joint angles, renders an ``s``-times supersampled frame
+  and returns the pinhole image of the camera's own ``K`` (box filter over each pixel's footprint) and the metric
+  depth (the nearest surface within each pixel's footprint; never averaged across edges).
+
+``MUJOCO_GL=egl`` is set by :mod:`bench.sim` before MuJoCo is imported unless the user chose a backend.
 """
 
 from __future__ import annotations
 
 import os
+import time
 
 import numpy as np
 
@@ -14,6 +21,25 @@ from bench.errors import BenchError
 
 EGL_HINT = ("could not create an OpenGL context for headless rendering (MUJOCO_GL={gl}): {err}. "
             "On Debian/Ubuntu install Mesa's EGL: apt-get install libegl1 libgl1-mesa-dri")
+
+
+def _gl_error(exc: Exception) -> BenchError:
+    lines = str(exc).strip().splitlines() or [type(exc).__name__]
+    return BenchError(EGL_HINT.format(gl=os.environ.get("MUJOCO_GL"), err=lines[0]))
+
+
+def check_gl() -> None:
+    """Create and free a 1 x 1 OpenGL context with the backend of ``MUJOCO_GL``; :class:`BenchError` if impossible."""
+    try:
+        import mujoco
+
+        if mujoco.GLContext is None:  # no backend could be loaded at import time
+            raise RuntimeError("MuJoCo found no usable OpenGL backend")
+        ctx = mujoco.GLContext(1, 1)
+        ctx.make_current()
+        ctx.free()
+    except Exception as exc:  # noqa: BLE001 - any GL failure becomes the one-line hint
+        raise _gl_error(exc) from None
 
 
 class SceneRenderer:
@@ -36,7 +62,7 @@ class SceneRenderer:
             self._rgb = mujoco.Renderer(model, self.height, self.width)
             self._depth = mujoco.Renderer(model, self.height, self.width)
         except Exception as exc:  # noqa: BLE001 - any GL failure becomes the one-line hint
-            raise BenchError(EGL_HINT.format(gl=os.environ.get("MUJOCO_GL"), err=str(exc).splitlines()[0])) from None
+            raise _gl_error(exc) from None
         self._depth.enable_depth_rendering()
         self.zfar = model.vis.map.zfar * model.stat.extent
 
@@ -52,6 +78,111 @@ class SceneRenderer:
     def close(self) -> None:
         self._rgb.close()
         self._depth.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+class Renderer:
+    """RGB and metric depth from a camera of a model at given true joint angles, supersampled.
+
+    Parameters
+    ----------
+    model : mujoco.MjModel
+        A compiled scene (e.g. :func:`bench.sim.mjcf.scene_mjcf`). Its offscreen buffer is enlarged if it is smaller
+        than the supersampled frame.
+    camera : str
+        Camera name (default the arm's ``link5_camera``).
+    supersample : int
+        ``s`` in 1..16: the frame is rendered at ``s W x s H`` and box-filtered down.
+    width, height : int, optional
+        Output size (px); default the camera's ``resolution``.
+    joints : sequence of str, optional
+        Joints set by :meth:`render` (default ``joint1`` .. ``joint6``).
+
+    Attributes
+    ----------
+    K : ndarray (3, 3)
+        OpenCV intrinsics of the output image (:func:`bench.sim.camera.opencv_intrinsics`).
+    render_s : list of float
+        Wall time of each :meth:`render` call (s).
+    """
+
+    def __init__(self, model, camera: str = "link5_camera", supersample: int = 1, width: int | None = None,
+                 height: int | None = None, joints=None):
+        import mujoco
+
+        from bench.sim.camera import _camera_id, opencv_intrinsics
+        from bench.sim.distortion import check_supersample
+
+        self.model, self.camera = model, camera
+        self.supersample = s = check_supersample(supersample)
+        try:
+            cid = _camera_id(model, camera)
+        except ValueError as exc:
+            raise BenchError(str(exc)) from None
+        res = model.cam_resolution[cid]
+        self.width = int(res[0] if width is None else width)
+        self.height = int(res[1] if height is None else height)
+        if self.width <= 0 or self.height <= 0 or (width is None and self.width * self.height == 1):
+            raise ValueError(f"camera {camera!r}: give width and height (the camera has no resolution attribute)")
+        self.K = opencv_intrinsics(model, camera, self.width, self.height)
+        names = [f"joint{k}" for k in range(1, 7)] if joints is None else list(joints)
+        ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names]
+        missing = [n for n, i in zip(names, ids, strict=True) if i < 0]
+        if missing:
+            raise BenchError(f"joints: {missing} not in the model")
+        self.joints = names
+        self._qadr = np.array([model.jnt_qposadr[i] for i in ids], dtype=int)
+        self._range = np.array([model.jnt_range[i] for i in ids], dtype=float)
+        self._limited = np.array([bool(model.jnt_limited[i]) for i in ids])
+        check_gl()
+        g = model.vis.global_
+        g.offwidth, g.offheight = max(g.offwidth, s * self.width), max(g.offheight, s * self.height)
+        self.data = mujoco.MjData(model)
+        self._scene = SceneRenderer(model, camera, s * self.width, s * self.height)
+        self.render_s: list = []
+
+    def set_joints(self, q_true) -> None:
+        """Set the true joint angles ``q_true (n,)`` (rad) and update the kinematics."""
+        import mujoco
+
+        q = np.asarray(q_true, dtype=float)
+        if q.shape != (len(self.joints),) or not np.all(np.isfinite(q)):
+            raise ValueError(f"q_true: expected {len(self.joints)} finite joint angles (rad), got shape {q.shape}")
+        lo, hi = self._range[:, 0], self._range[:, 1]
+        bad = self._limited & ((q < lo - 1e-9) | (q > hi + 1e-9))
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise ValueError(f"q_true: {self.joints[k]} = {q[k]:.6g} rad is outside its range "
+                             f"[{lo[k]:.6g}, {hi[k]:.6g}] rad")
+        self.data.qpos[self._qadr] = q
+        mujoco.mj_forward(self.model, self.data)
+
+    def render(self, q_true=None) -> tuple:
+        """``(rgb uint8 (H, W, 3), depth float64 (H, W) m)`` at the true joint angles ``q_true`` (rad).
+
+        ``q_true=None`` renders the current state. RGB is the mean of each pixel's ``s x s`` sub-samples (in the
+        8-bit encoded values, rounded); depth is the distance along the optical axis of the nearest surface among
+        them, ``inf`` where nothing is seen.
+        """
+        t0 = time.perf_counter()
+        if q_true is not None:
+            self.set_joints(q_true)
+        rgb, depth = self._scene.render(self.data)
+        s, h, w = self.supersample, self.height, self.width
+        if s > 1:
+            rgb = np.round(rgb.reshape(h, s, w, s, 3).mean(axis=(1, 3), dtype=np.float64)).astype(np.uint8)
+            depth = depth.reshape(h, s, w, s).min(axis=(1, 3))
+        self.render_s.append(time.perf_counter() - t0)
+        return rgb, depth
+
+    def close(self) -> None:
+        self._scene.close()
 
     def __enter__(self):
         return self
