@@ -3,6 +3,9 @@
 The simulator renders at the *true* joint angles; the dataset carries only the *readings*: the true angle plus a
 fixed per-joint offset (an encoder zero error), white noise, quantisation to the encoder resolution, and optional
 backlash (the reading lags the true angle by half the backlash in the direction of the last motion). Angles in rad.
+:func:`motion_directions` gives that direction along a sequence of poses, so a campaign reads its views in the order
+the arm visits them (a joint approached from above and from below reads differently: a hysteresis loop of width
+``backlash_rad``).
 """
 
 from __future__ import annotations
@@ -48,3 +51,19 @@ class EncoderModel:
         if self.resolution_rad:
             out = np.round(out / self.resolution_rad) * self.resolution_rad
         return out
+
+
+def motion_directions(q_sequence, tol_rad: float = 1e-12) -> np.ndarray:
+    """Sign of each joint's last motion on arrival at every pose of ``q_sequence (m, n)`` (rad): ``(m, n)``.
+
+    +1 / -1 after a move up / down, the previous sign when a joint does not move, 0 before its first move.
+    """
+    q = np.asarray(q_sequence, dtype=float)
+    if q.ndim != 2 or not np.all(np.isfinite(q)):
+        raise ValueError(f"q_sequence: expected a finite (m, n) array of joint angles (rad), got shape {q.shape}")
+    step = np.diff(q, axis=0)
+    sign = np.where(step > tol_rad, 1.0, np.where(step < -tol_rad, -1.0, 0.0))
+    out = np.zeros_like(q)
+    for i in range(1, len(q)):
+        out[i] = np.where(sign[i - 1] != 0, sign[i - 1], out[i - 1])
+    return out

@@ -42,6 +42,28 @@ def check_gl() -> None:
         raise _gl_error(exc) from None
 
 
+def box_filter(image, s: int) -> np.ndarray:
+    """Mean of each ``s x s`` pixel block of ``image (s H, s W, 3) uint8``, rounded: ``(H, W, 3) uint8``.
+
+    ``cv2.resize(..., INTER_AREA)`` on float32 at an integer factor is the exact block mean (to float32 rounding);
+    five times faster than a numpy reduction.
+    """
+    import cv2
+
+    h, w = image.shape[0] // s, image.shape[1] // s
+    mean = cv2.resize(image.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    return np.clip(np.round(mean), 0, 255).astype(np.uint8)
+
+
+def nearest_surface(depth, s: int) -> np.ndarray:
+    """Minimum of each ``s x s`` block of ``depth (s H, s W)``: the nearest surface in each pixel footprint (m)."""
+    out = depth[0::s, 0::s].copy()
+    for i in range(s):
+        for j in range(s):
+            np.minimum(out, depth[i::s, j::s], out=out)
+    return out
+
+
 class SceneRenderer:
     """Render RGB and depth from camera ``camera`` of ``model`` at ``width x height`` px.
 
@@ -174,10 +196,9 @@ class Renderer:
         if q_true is not None:
             self.set_joints(q_true)
         rgb, depth = self._scene.render(self.data)
-        s, h, w = self.supersample, self.height, self.width
+        s = self.supersample
         if s > 1:
-            rgb = np.round(rgb.reshape(h, s, w, s, 3).mean(axis=(1, 3), dtype=np.float64)).astype(np.uint8)
-            depth = depth.reshape(h, s, w, s).min(axis=(1, 3))
+            rgb, depth = box_filter(rgb, s), nearest_surface(depth, s)
         self.render_s.append(time.perf_counter() - t0)
         return rgb, depth
 

@@ -124,7 +124,7 @@ def test_renderer_supersampling_is_a_box_filter_of_the_fine_render(scene, render
         fine.close()
     rgb, depth = renderers[3].render(scene.q)
     box = rgb_f.reshape(H, 3, W, 3, 3).mean(axis=(1, 3))
-    assert np.abs(rgb.astype(float) - box).max() <= 0.5 + 1e-9
+    assert np.abs(rgb.astype(float) - box).max() <= 0.5 + 1e-4  # rounded mean (float32 accumulation)
     assert np.array_equal(depth, depth_f.reshape(H, 3, W, 3).min(axis=(1, 3)))
 
 

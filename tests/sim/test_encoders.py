@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from bench.sim.encoders import EncoderModel
+from bench.sim.encoders import EncoderModel, motion_directions
 
 
 def test_noise_quantisation_backlash():
@@ -21,6 +21,28 @@ def test_noise_quantisation_backlash():
     assert np.allclose(off, [1e-3, 0, 0, 0, 0, -1e-3])
 
 
+def test_backlash_hysteresis_loop_along_a_sweep():
+    """Sweep a joint up and back down: the readings trace a loop of width = backlash, offset by -/+ backlash / 2."""
+    rng = np.random.default_rng(92)
+    up = np.linspace(-0.2, 0.2, 41)
+    sweep = np.concatenate([up, up[::-1][1:]])
+    q = np.zeros((len(sweep), 6))
+    q[:, 2] = sweep
+    q[:, 4] = 0.1  # never moves
+    direction = motion_directions(q)
+    assert direction[0, 2] == 0 and np.all(direction[1:41, 2] == 1) and np.all(direction[41:, 2] == -1)
+    assert np.all(direction[:, 4] == 0)
+    enc = EncoderModel(noise_std_rad=2e-5, resolution_rad=1e-5, backlash_rad=1e-3)
+    r = enc.read(q, rng, direction)
+    err = r[:, 2] - q[:, 2]
+    assert abs(err[1:41].mean() + 5e-4) < 1e-5 and abs(err[41:].mean() - 5e-4) < 1e-5  # mean of 40 noisy readings
+    going_up, coming_down = r[1:40, 2], r[41:80, 2][::-1]  # the same true angles from either side
+    assert abs(np.mean(coming_down - going_up) - 1e-3) < 1.5e-5  # loop width = backlash (noise 2e-5 / sqrt(39) * 2)
+    assert np.abs(r[:, 4] - 0.1).max() < 1e-4  # no motion, no backlash offset
+    pause = motion_directions(np.array([[0.0], [1.0], [1.0], [0.5], [0.5]]))
+    assert pause.ravel().tolist() == [0, 1, 1, -1, -1]  # a pause keeps the last direction
+
+
 def test_bad_parameters():
     with pytest.raises(ValueError, match="noise_std_rad"):
         EncoderModel(noise_std_rad=-1.0)
@@ -28,3 +50,5 @@ def test_bad_parameters():
         EncoderModel(resolution_rad=0.5)
     with pytest.raises(ValueError, match="NaN"):
         EncoderModel().read(np.array([np.nan] * 6), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="q_sequence"):
+        motion_directions(np.zeros(6))

@@ -74,12 +74,13 @@ def test_kinematics_check_reports_exact_agreement(ta40):
     assert res["sim_vs_fk_max_err_m"] <= 1e-9 and res["sim_vs_pinocchio_max_err_m"] <= 1e-9
 
 
-def test_skew_and_bad_intrinsics_are_refused():
+def test_skew_and_bad_intrinsics_are_refused(ta40):
     K = np.array([[700.0, 1.0, 320.0], [0.0, 700.0, 240.0], [0.0, 0.0, 1.0]])
     with pytest.raises(ValueError, match="skew"):
         mujoco_camera_xml("c", K, 640, 480, np.eye(4))
     with pytest.raises(ValueError, match="fx, fy > 0"):
         mujoco_camera_xml("c", np.diag([-1.0, 1.0, 1.0]), 640, 480, np.eye(4))
     with pytest.raises(ValueError, match="eps"):
-        robot_mjcf(__import__("bench.robot.model", fromlist=["x"]).load_robot(
-            __import__("bench.robot.model", fromlist=["x"]).default_robot_path()), np.zeros(41))
+        robot_mjcf(ta40, np.zeros(41))
+    with pytest.raises(ValueError, match="eps"):
+        robot_mjcf(ta40, np.full(42, np.nan))
