@@ -20,7 +20,8 @@ import numpy as np
 from bench.errors import BenchError
 
 EGL_HINT = ("could not create an OpenGL context for headless rendering (MUJOCO_GL={gl}): {err}. "
-            "On Debian/Ubuntu install Mesa's EGL: apt-get install libegl1 libgl1-mesa-dri")
+            "Set MUJOCO_GL=egl before mujoco is imported; on Debian/Ubuntu install Mesa's EGL: "
+            "apt-get install libegl1 libgl1-mesa-dri")
 
 
 def _gl_error(exc: Exception) -> BenchError:
