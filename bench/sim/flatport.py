@@ -271,9 +271,9 @@ def _radial_offset(s, L, n_k):
     return rho, drho
 
 
-def project_flatport(p_cam, port: FlatPort, *, tol: float = PROJECT_TOL, max_iterations: int = 100,
+def project_flatport(p_cam, port: FlatPort, K=None, *, tol: float = PROJECT_TOL, max_iterations: int = 100,
                      full_output: bool = False):
-    """Forward projection of water points through the flat port: the pinhole coordinate of the in-air ray.
+    """Forward projection of water points through the flat port: the image point of the in-air ray.
 
     Solves ``rho(s) = h s / c_a + t s / c_g + (z_p - h - t) s / c_w = rho_p`` with ``c_k = sqrt(n_k^2 - s^2)`` for the
     refraction invariant ``s in [0, min n)``: ``rho`` is increasing and convex, Newton steps are kept inside a
@@ -284,6 +284,9 @@ def project_flatport(p_cam, port: FlatPort, *, tol: float = PROJECT_TOL, max_ite
     p_cam : array_like (..., 3)
         Points in the camera frame (m); they must lie beyond the outer glass surface.
     port : FlatPort
+    K : array_like (3, 3), optional
+        Intrinsics of the (distortion-free) camera inside the housing (px, Eq. 50, skew allowed): when given, the
+        result is in pixels ``uv = K (x_n, 1)``; with a distorted lens use ``lens.project`` on ``(x_n, 1)`` instead.
     tol : float
         Convergence tolerance on the radial residual (m).
     max_iterations : int
@@ -293,10 +296,13 @@ def project_flatport(p_cam, port: FlatPort, *, tol: float = PROJECT_TOL, max_ite
     Returns
     -------
     x_n : ndarray (..., 2)
-        ``(x/z, y/z)`` of the in-air ray direction (the inner camera's ideal normalised coordinate, Eq. 46); NaN for
-        points inside the housing or on the wrong side, and for non-converged points.
+        ``(x/z, y/z)`` of the in-air ray direction (the inner camera's ideal normalised coordinate, Eq. 46), or the
+        pixels ``uv`` (px, OpenCV convention) when ``K`` is given; NaN for points inside the housing or on the wrong
+        side, and for non-converged points. With ``full_output`` a :class:`FlatPortProjection` (its ``x_n`` holds
+        the pixels when ``K`` is given).
     """
     port = _as_port(port)
+    K = None if K is None else check_K(K, "K")
     p = np.asarray(p_cam, dtype=float)
     if p.ndim < 1 or p.shape[-1] != 3:
         raise ValueError(f"p_cam: expected shape (..., 3), got {p.shape}")
@@ -354,6 +360,8 @@ def project_flatport(p_cam, port: FlatPort, *, tol: float = PROJECT_TOL, max_ite
     ok_v = conv_v & (dir_cam[:, 2] > 0)
     vals = np.where(ok_v[:, None], dir_cam[:, :2] / dir_cam[:, 2:3], np.nan)
     x_n[valid] = vals
+    if K is not None:
+        x_n = to_pixels(x_n, K)  # Eq. 50
     if not full_output:
         return x_n
     converged = np.zeros(p.shape[:-1], dtype=bool)
@@ -429,7 +437,10 @@ class FlatPortStage:
     (dis-occlusion, a few render px wide at depth edges) cannot be seen in a single-centre render: such rays converge
     onto the occluder or oscillate. Sub-rays that do not converge take ``background`` (default: the render sampled in
     the ray's direction at infinity); rays whose render depth is infinite see the background at infinity, which is
-    exact (no parallax at infinity).
+    exact (no parallax at infinity). The test with a near half-plane (0.4 m) in front of a wall (1.0 m), edge 6 cm
+    off the axis, ``f = 160`` px: the stage differs from an exact ray trace only in a 1-2 px band next to the edge
+    (predicted analytically as the wall points the shifted rays see but the centre does not) and by <= 0.3 DN
+    elsewhere.
 
     Parameters
     ----------
