@@ -4,8 +4,9 @@ All images here are linear radiance in ``[0, 1]`` (a uint8 render is divided by 
 RGB order, shape ``(H, W, 3)``; path lengths in m; every parameter is SI with the unit in its name. Stages, each usable
 on its own and applied in this order by :func:`apply_medium`:
 
-1. :func:`illuminate` - a lamp co-located with the camera: ``E = ambient + (r_ref / r)^2 cos^k(theta)`` (inverse
-   square in range, a ``cos^k`` beam profile about the optical axis), optionally attenuated on its way out;
+1. :func:`illuminate` - a lamp co-located with the camera or offset (:func:`lamp_geometry`):
+   ``E = ambient + (r_ref / r)^2 cos^k(theta)`` (inverse square in the lamp-to-point range, a ``cos^k`` beam profile
+   about the lamp's axis), optionally attenuated on its way out (``exp(-beta_D r)``);
 2. :func:`attenuate` - the revised underwater image formation model of Akkaynak & Treibitz (CVPR 2018, "A revised
    underwater image formation model"; Sea-thru, CVPR 2019), with distinct coefficients for the direct signal and the
    backscatter: ``I_c = J_c exp(-beta_D_c r) + B_inf_c (1 - exp(-beta_B_c r))`` per channel ``c``; ``r`` is the path
@@ -107,29 +108,47 @@ def water_preset(name: str) -> WaterMedium:
 
 @dataclass(frozen=True)
 class Light:
-    """A lamp co-located with the camera centre plus ambient light.
+    """A lamp (co-located with the camera centre by default, or offset) plus ambient light.
 
     Attributes
     ----------
     ref_range_m : float
         Range (m) at which the lamp's on-axis irradiance factor is 1 (``(ref_range_m / r)^2``).
     beam_exponent : float
-        ``k`` of the ``cos^k(theta)`` beam profile (0 = isotropic).
+        ``k`` of the ``cos^k(theta)`` beam profile about the lamp's axis (0 = isotropic).
     ambient : float
         Ambient irradiance factor added everywhere (>= 0).
     attenuate_outgoing : bool
         Also attenuate the lamp's light on its way to the scene (``exp(-beta_D r)``, needs a medium).
+    position_m : (3,) float
+        Lamp position in the camera frame (m); ``(0, 0, 0)`` is co-located.
+    axis : (3,) float
+        Beam axis in the camera frame (normalised here); default the optical axis ``(0, 0, 1)``.
     """
 
     ref_range_m: float = 1.0
     beam_exponent: float = 2.0
     ambient: float = 0.0
     attenuate_outgoing: bool = True
+    position_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    axis: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
 
     def __post_init__(self):
         object.__setattr__(self, "ref_range_m", _scalar("light", "ref_range_m", self.ref_range_m, 0.0, 1e3, True))
         object.__setattr__(self, "beam_exponent", _scalar("light", "beam_exponent", self.beam_exponent, 0.0, 1e3))
         object.__setattr__(self, "ambient", _scalar("light", "ambient", self.ambient, 0.0, 1e3))
+        object.__setattr__(self, "position_m", _vec3("light", "position_m", self.position_m, -10.0, 10.0))
+        axis = np.array(self.axis, dtype=float).reshape(-1)
+        if axis.shape != (3,) or not np.all(np.isfinite(axis)) or np.linalg.norm(axis) < 1e-9:
+            raise ValueError(f"light: axis: expected a non-zero finite 3-vector, got {self.axis!r}")
+        axis = axis / np.linalg.norm(axis)
+        axis.flags.writeable = False
+        object.__setattr__(self, "axis", axis)
+
+    @property
+    def co_located(self) -> bool:
+        """True when the lamp sits at the camera centre and points along the optical axis."""
+        return bool(np.all(self.position_m == 0) and np.allclose(self.axis, (0.0, 0.0, 1.0), rtol=0, atol=1e-15))
 
 
 @dataclass(frozen=True)
@@ -232,20 +251,48 @@ def cos_beam(rays_cam) -> np.ndarray:
     return rays[..., 2] / np.linalg.norm(rays, axis=-1)
 
 
+def lamp_geometry(points_cam, light: Light):
+    """Range (m) from the lamp to each scene point and the cosine of its angle off the beam axis.
+
+    Parameters
+    ----------
+    points_cam : array_like (H, W, 3)
+        Scene points in the camera frame (m); rows with a non-finite coordinate (background) get range inf, cos 0.
+    light : Light
+
+    Returns
+    -------
+    range_m : ndarray (H, W)
+    cos_theta : ndarray (H, W)
+        Clipped to [0, 1] (points behind the lamp get no lamp light).
+    """
+    p = np.asarray(points_cam, dtype=float)
+    if p.ndim != 3 or p.shape[2] != 3:
+        raise ValueError(f"points_cam: expected shape (H, W, 3), got {p.shape}")
+    if np.any(np.isnan(p)):
+        raise ValueError("points_cam: contains NaN (use inf for background)")
+    fin = np.all(np.isfinite(p), axis=-1)
+    v = np.where(fin[..., None], p - light.position_m, light.axis)
+    r = np.linalg.norm(v, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.where(r > 0, (v @ light.axis) / r, 1.0)
+    return np.where(fin, r, np.inf), np.where(fin, np.clip(c, 0.0, 1.0), 0.0)
+
+
 # ----------------------------------------------------------------------------------------------------------------------
 # the stages
 # ----------------------------------------------------------------------------------------------------------------------
 def illuminate(image, range_m, cos_theta, light: Light, medium: WaterMedium | None = None) -> np.ndarray:
-    """Scene radiance lit by a co-located lamp: ``J (ambient + (r_ref / r)^2 cos^k(theta) [exp(-beta_D r)])``.
+    """Scene radiance lit by the lamp: ``J (ambient + (r_ref / r)^2 cos^k(theta) [exp(-beta_D r)])``.
 
     Parameters
     ----------
     image : array_like (H, W, 3)
         Reflectance-like render (linear).
     range_m : array_like (H, W)
-        Distance (m) from the lamp (the camera centre) to the point; inf = background (no lamp light).
+        Distance (m) from the lamp to the point; inf = background (no lamp light).
     cos_theta : array_like (H, W)
-        Cosine of the angle off the lamp's axis (:func:`cos_beam`).
+        Cosine of the angle off the lamp's axis (:func:`cos_beam` for a co-located lamp, else :func:`lamp_geometry`).
     light : Light
     medium : WaterMedium, optional
         Attenuates the outgoing light when ``light.attenuate_outgoing``.
@@ -313,6 +360,19 @@ def sensor(image, rng: np.random.Generator, spec: Sensor) -> np.ndarray:
     return jpeg(out, spec.jpeg_quality)
 
 
+def encode_jpeg(image_u8, quality: int) -> bytes:
+    """JPEG bytes of an RGB uint8 image ``(H, W, 3)`` at ``quality`` (1..100) with ``cv2.imencode``."""
+    img = np.asarray(image_u8)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"image_u8: expected uint8 (H, W, 3), got {img.dtype} {img.shape}")
+    if isinstance(quality, bool) or not isinstance(quality, (int, np.integer)) or not 1 <= quality <= 100:
+        raise ValueError(f"quality: expected an integer in 1..100, got {quality!r}")
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(img[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError("image_u8: JPEG encoding failed")
+    return buf.tobytes()
+
+
 def jpeg(image_u8, quality: int) -> np.ndarray:
     """JPEG round trip of an RGB uint8 image at ``quality`` (1..100) with ``cv2.imencode``; 0 returns it unchanged."""
     img = np.asarray(image_u8)
@@ -322,9 +382,7 @@ def jpeg(image_u8, quality: int) -> np.ndarray:
         raise ValueError(f"quality: expected an integer in 0..100 (0 = off), got {quality!r}")
     if quality == 0:
         return img
-    ok, buf = cv2.imencode(".jpg", img[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-    if not ok:
-        raise ValueError("image_u8: JPEG encoding failed")
+    buf = np.frombuffer(encode_jpeg(img, quality), dtype=np.uint8)
     return np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
 
 
@@ -338,7 +396,7 @@ class MediumChain:
     max_blur_px: float = 3.0
 
 
-def apply_medium(image, path_m, rng: np.random.Generator, chain: MediumChain, cos_theta=None):
+def apply_medium(image, path_m, rng: np.random.Generator, chain: MediumChain, cos_theta=None, points_cam=None):
     """Illuminate, attenuate + backscatter, forward-scatter, then the sensor (see the module docstring).
 
     Parameters
@@ -346,12 +404,16 @@ def apply_medium(image, path_m, rng: np.random.Generator, chain: MediumChain, co
     image : array_like (H, W, 3)
         The render (uint8 or linear float).
     path_m : array_like (H, W)
-        In-water path length (m) per pixel (inf = background); also used as the lamp range (the few cm between the
-        camera centre and the port are neglected for the lamp).
+        In-water path length (m) per pixel (inf = background). Without ``points_cam`` it is also the lamp range of a
+        co-located lamp (the few cm between the camera centre and the port are neglected for the lamp).
     rng : numpy.random.Generator
     chain : MediumChain
     cos_theta : array_like (H, W), optional
-        Beam profile cosines; required when ``chain.light`` is set.
+        Beam profile cosines of a co-located lamp (:func:`cos_beam`); required when ``chain.light`` is set and
+        ``points_cam`` is not given.
+    points_cam : array_like (H, W, 3), optional
+        The scene point of each pixel (m, camera frame; inf = background): the lamp range and beam angle are then
+        computed from the lamp's position and axis (:func:`lamp_geometry`); required for an offset lamp.
 
     Returns
     -------
@@ -361,9 +423,17 @@ def apply_medium(image, path_m, rng: np.random.Generator, chain: MediumChain, co
     img = check_image(image)
     r = check_path(path_m, img.shape[:2])
     if chain.light is not None:
-        if cos_theta is None:
+        if points_cam is not None:
+            r_lamp, cos_theta = lamp_geometry(points_cam, chain.light)
+            if r_lamp.shape != r.shape:
+                raise ValueError(f"points_cam: expected shape {r.shape + (3,)}, got {np.shape(points_cam)}")
+            img = illuminate(img, r_lamp, cos_theta, chain.light, chain.medium)
+        elif not chain.light.co_located:
+            raise ValueError("points_cam: needed for a lamp that is not co-located with the camera (lamp_geometry)")
+        elif cos_theta is None:
             raise ValueError("cos_theta: needed for the lamp's beam profile (see cos_beam)")
-        img = illuminate(img, r, cos_theta, chain.light, chain.medium)
+        else:
+            img = illuminate(img, r, cos_theta, chain.light, chain.medium)
     if chain.medium is not None:
         img = attenuate(img, r, chain.medium)
         if chain.medium.forward_scatter_px_per_m > 0:

@@ -13,9 +13,11 @@ from bench.sim.medium import (
     apply_medium,
     attenuate,
     cos_beam,
+    encode_jpeg,
     forward_scatter,
     illuminate,
     jpeg,
+    lamp_geometry,
     path_length_m,
     pixel_rays,
     sensor,
@@ -172,3 +174,59 @@ def test_bad_input(make, match):
     with pytest.raises(ValueError, match=match) as exc:
         make()
     assert "\n" not in str(exc.value)
+
+
+def test_offset_lamp_geometry_and_falloff():
+    rays = pixel_rays(K, SIZE)
+    pts = rays * 2.0  # a fronto-parallel wall at z = 2 m
+    # co-located: lamp_geometry gives the ray length and the ray's angle to the optical axis
+    r0, c0 = lamp_geometry(pts, Light())
+    np.testing.assert_allclose(r0, path_length_m(np.full((48, 64), 2.0), rays), rtol=1e-15)
+    np.testing.assert_allclose(c0, cos_beam(rays), rtol=1e-15)
+    # a lamp 0.3 m to the right, tilted 10 deg towards the axis
+    ang = np.deg2rad(-10.0)
+    light = Light(ref_range_m=1.5, beam_exponent=4.0, position_m=(0.3, 0.0, 0.0), axis=(np.sin(ang), 0, np.cos(ang)))
+    r, c = lamp_geometry(pts, light)
+    v = pts - np.array([0.3, 0.0, 0.0])
+    np.testing.assert_allclose(r, np.linalg.norm(v, axis=-1), rtol=1e-15)
+    np.testing.assert_allclose(c, v @ light.axis / np.linalg.norm(v, axis=-1), rtol=1e-14)
+    # the brightest point on the wall is where the beam axis meets it: x = 0.3 + 2 tan(-10 deg) < 0.3
+    img = np.full((48, 64, 3), 0.5)
+    out = apply_medium(img, np.linalg.norm(pts, axis=-1), np.random.default_rng(0), MediumChain(light=light),
+                       points_cam=pts)
+    np.testing.assert_allclose(out[..., 0], 0.5 * (1.5 / r) ** 2 * c**4, rtol=1e-14)
+    lit = out[24, :, 0]
+    u_peak = np.argmax(lit)
+    assert lit[u_peak] > lit[0] and lit[u_peak] > lit[-1]  # a beam spot inside the image (not at the border)
+    # the analytic spot on that row, from a fine 1D search of (1 / r^2) cos^4 along the wall
+    x_fine = np.linspace(-1.0, 1.0, 200001)
+    y_row = (24 - K[1, 2]) / K[1, 1] * 2.0
+    v_fine = np.stack([x_fine - 0.3, np.full_like(x_fine, y_row), np.full_like(x_fine, 2.0)], -1)
+    r_fine = np.linalg.norm(v_fine, axis=-1)
+    x_true = x_fine[np.argmax((v_fine @ light.axis / r_fine) ** 4 / r_fine**2)]
+    u_true = K[0, 2] + K[0, 0] * x_true / 2.0
+    assert 0.3 + 2.0 * np.tan(ang) < x_true < 0.3  # between the beam axis and the lamp's foot (1/r^2 pull)
+    assert abs(u_peak - u_true) <= 0.5 + 1e-9
+    # background pixels get no lamp light
+    pts_bg = pts.copy()
+    pts_bg[0, 0] = np.inf
+    r_bg, c_bg = lamp_geometry(pts_bg, light)
+    assert np.isinf(r_bg[0, 0]) and c_bg[0, 0] == 0
+    # an offset lamp needs the points
+    with pytest.raises(ValueError, match="points_cam"):
+        apply_medium(img, np.ones((48, 64)), np.random.default_rng(0), MediumChain(light=light), np.ones((48, 64)))
+
+
+def test_jpeg_quality_100_beats_30_in_size_and_psnr():
+    rng = np.random.default_rng(15)
+    img = np.clip(np.rint(cv2.GaussianBlur(_texture(rng, 64, 96), (0, 0), 1.5) * 255), 0, 255).astype(np.uint8)
+
+    def psnr(a):
+        return 10 * np.log10(255.0**2 / np.mean((a.astype(float) - img) ** 2))
+
+    size = {q: len(encode_jpeg(img, q)) for q in (100, 30)}
+    quality = {q: psnr(jpeg(img, q)) for q in (100, 30)}
+    print(f"JPEG 96x64: q100 {size[100]} B {quality[100]:.1f} dB; q30 {size[30]} B {quality[30]:.1f} dB")
+    assert size[100] > 1.5 * size[30] and quality[100] > quality[30] + 5.0
+    with pytest.raises(ValueError, match="quality"):
+        encode_jpeg(img, 0)
