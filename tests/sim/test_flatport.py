@@ -482,3 +482,60 @@ def test_occlusion_residual_is_confined_to_the_predicted_disocclusion_band():
     # the unresolved sub-rays lie in the predicted band (+ the bilinear footprint of the depth edge), nowhere else
     unres_px = out.unresolved > 0
     assert np.all(grown[unres_px]) and unres_px.sum() >= 0.5 * band.sum()
+
+
+def test_optics_preset_configs_in_file_units_and_overrides():
+    from bench.sim.optics_presets import PRESET_CONFIGS, optics_from_config, optics_preset, preset_config
+
+    for name in PRESET_CONFIGS:
+        cfg = preset_config(name)
+        built = optics_from_config(cfg, "test", name)
+        if cfg["port"] is not None:
+            assert built.port.d0 == cfg["port"]["lens_to_glass_mm"] * 1e-3
+            assert built.port.t == cfg["port"]["glass_thickness_mm"] * 1e-3
+            np.testing.assert_allclose(built.port.tilt, np.deg2rad(cfg["port"]["tilt_deg"]), rtol=1e-15)
+            np.testing.assert_allclose(built.port.decentre, np.array(cfg["port"]["decentre_mm"]) * 1e-3, rtol=1e-15)
+        cfg["sensor"]["jpeg_quality"] = 55
+        assert PRESET_CONFIGS[name]["sensor"]["jpeg_quality"] == 0  # preset_config is a copy
+    p = optics_preset("underwater_in_water", {"port": {"glass_thickness_mm": 8.0}, "light": None,
+                                              "water": {"preset": "turbid_harbour"}, "sensor": {"jpeg_quality": 40}})
+    assert p.port.t == 0.008 and p.port.d0 == 0.02 and p.chain.medium.name == "turbid_harbour"
+    assert p.chain.light is None and p.chain.sensor.jpeg_quality == 40 and p.chain.sensor.read_noise_e == 5.0
+    custom = optics_preset("underwater_in_water", {"water": None})
+    assert custom.chain.medium is None and custom.port.n_water == 1.34
+    water = {"beta_D_per_m": [0.4, 0.1, 0.05], "beta_B_per_m": [0.3, 0.1, 0.05], "B_inf": [0.0, 0.1, 0.2],
+             "forward_scatter_px_per_m": 0.2}
+    med = optics_preset("underwater_in_water", {"water": water}).chain.medium  # replaces the preset name whole
+    assert med.name == "custom" and med.forward_scatter_px_per_m == 0.2
+    np.testing.assert_array_equal(med.beta_D_per_m, water["beta_D_per_m"])
+    np.testing.assert_array_equal(med.beta_B_per_m, water["beta_B_per_m"])
+    np.testing.assert_array_equal(med.B_inf, water["B_inf"])
+
+
+@pytest.mark.parametrize("preset, overrides, field", [
+    ("underwater_in_water", {"port": {"glass_thickness_mm": -1.0}}, "port.glass_thickness_mm"),
+    ("underwater_in_water", {"port": {"lens_to_glass_mm": 0.0}}, "port.lens_to_glass_mm"),
+    ("underwater_in_water", {"port": {"n_glass": 0.9}}, "port.n_glass"),
+    ("underwater_in_water", {"port": {"n_water": "sea"}}, "port.n_water"),
+    ("underwater_in_water", {"port": {"tilt_deg": [50.0, 0.0]}}, "port.tilt_deg"),
+    ("underwater_in_water", {"port": {"tilt_deg": [1.0]}}, "port.tilt_deg"),
+    ("underwater_in_water", {"port": {"tilt_deg": [0.0, 40.0], "decentre_mm": [-30.0, 0.0]}}, "port.decentre_mm"),
+    ("underwater_in_water", {"port": {"thickness": 3.0}}, "port.thickness"),
+    ("underwater_in_water", {"water": {"preset": "bathtub"}}, "water.preset"),
+    ("underwater_in_water", {"water": {"preset": "coastal", "B_inf": [0, 0, 0]}}, "water.B_inf"),
+    ("air_webcam", {"water": {"beta_D_per_m": [-0.1, 0, 0], "beta_B_per_m": [0, 0, 0], "B_inf": [0, 0, 0],
+                              "forward_scatter_px_per_m": 0.0}}, "water.beta_D_per_m"),
+    ("underwater_in_air", {"water": {"preset": "coastal"}}, "water"),
+    ("underwater_in_water", {"light": {"ref_range_m": 0.0}}, "light.ref_range_m"),
+    ("underwater_in_water", {"light": {"axis": [0.0, 0.0, 0.0]}}, "light.axis"),
+    ("underwater_in_water", {"sensor": {"jpeg_quality": 101}}, "sensor.jpeg_quality"),
+    ("underwater_in_water", {"sensor": {"full_well_e": float("nan")}}, "sensor.full_well_e"),
+    ("underwater_in_water", {"lens": {}}, "lens"),
+])
+def test_impossible_optics_are_one_line_config_errors(preset, overrides, field):
+    from bench.sim.optics_presets import optics_preset
+
+    with pytest.raises(ConfigError) as exc:
+        optics_preset(preset, overrides)
+    assert exc.value.field == field and "\n" not in str(exc.value)
+    assert str(exc.value).startswith(f"optics preset '{preset}': {field}: ")
