@@ -61,10 +61,10 @@ def _parser() -> argparse.ArgumentParser:
 def _sim_render(args) -> None:
     from pathlib import Path
 
-    from bench.scenario.runner import _kinds, load_scenario
+    from bench.scenario.runner import kind_module, load_scenario
 
     cfg = load_scenario(args.scenario, args.seed, args.overrides)
-    module = _kinds()[cfg["kind"]]
+    module = kind_module(cfg["kind"])
     if not hasattr(module, "render"):
         raise BenchError(f"{args.scenario}: kind {cfg['kind']!r} has no simulated campaign to render")
     cache = None if args.no_cache else Path(args.out).resolve().parent / ".render_cache"

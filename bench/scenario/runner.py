@@ -2,28 +2,34 @@
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 
 from bench.errors import ConfigError
 from bench.scenario.schema import apply_overrides, load_yaml, validate
 
+# scenario kind -> module of bench.scenario (imported only when a scenario of that kind runs)
+KINDS = {
+    "kinematic_identification": "kinematic_identification",
+    "tracker_base_frame": "tracker_base_frame",
+    "in_situ": "in_situ",
+    "xy_table": "xy_table",
+    "camera_calibration": "camera_calibration",
+}
 
-def _kinds():
-    from bench.scenario import in_situ, kinematic_identification, tracker_base_frame
 
-    return {"kinematic_identification": kinematic_identification, "tracker_base_frame": tracker_base_frame,
-            "in_situ": in_situ}
+def kind_module(kind: str, source="<scenario>"):
+    """The module implementing a scenario ``kind`` (``SCHEMA``, ``run``, optionally ``render``)."""
+    if kind not in KINDS:
+        raise ConfigError(source, "kind", f"unknown scenario kind {kind!r} (known: {', '.join(KINDS)})")
+    return importlib.import_module(f"bench.scenario.{KINDS[kind]}")
 
 
 def load_scenario(path, seed=None, overrides=()) -> dict:
     """Load, override and validate a scenario; paths inside it are resolved relative to the file."""
     path = Path(path)
     raw = apply_overrides(load_yaml(path), overrides, str(path))
-    kind = raw.get("kind")
-    kinds = _kinds()
-    if kind not in kinds:
-        raise ConfigError(path, "kind", f"unknown scenario kind {kind!r} (known: {', '.join(kinds)})")
-    cfg = validate(raw, kinds[kind].SCHEMA, str(path))
+    cfg = validate(raw, kind_module(raw.get("kind"), path).SCHEMA, str(path))
     if seed is not None:
         cfg["seed"] = int(seed)
     cfg["_file"] = str(path.resolve())
@@ -35,7 +41,7 @@ def run_scenario_file(path, out=None, seed=None, overrides=(), verbose=True, qui
     cfg = load_scenario(path, seed, overrides)
     out_dir = Path(out) if out else Path("runs") / cfg["name"]
     out_dir.mkdir(parents=True, exist_ok=True)
-    module = _kinds()[cfg["kind"]]
+    module = kind_module(cfg["kind"])
     result_path = module.run(cfg, out_dir, verbose=verbose)
     if verbose:
         print(f"wrote {result_path}")
