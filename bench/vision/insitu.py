@@ -116,7 +116,14 @@ def _matches(f1: Features, f2: Features, cfg: MapConfig) -> Matches:
     return kept
 
 
-def build_map(reference: ViewObservation, surrounding: list, config: MapConfig | None = None) -> KeypointMap:
+def reference_matches(reference: ViewObservation, views: list, config: MapConfig | None = None) -> list:
+    """Ratio-test and orientation-filtered matches of the reference keypoints in each view (as :func:`build_map`)."""
+    cfg = config or MapConfig()
+    return [_matches(reference.features, v.features, cfg) for v in views]
+
+
+def build_map(reference: ViewObservation, surrounding: list, config: MapConfig | None = None,
+              matches: list | None = None) -> KeypointMap:
     """Triangulate the reference keypoints against the surrounding views (section 3.9, Eq. 162-164).
 
     Parameters
@@ -125,6 +132,10 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
     surrounding : list of ViewObservation
         Views around the reference, base not moved.
     config : MapConfig, optional
+    matches : list of Matches, optional
+        Reference -> surrounding-view matches, one per view, already ratio- and orientation-filtered (as
+        :func:`reference_matches` gives them); computed here when omitted. Lets a caller that builds many maps from
+        subsets of the same views (the x-y table experiments) match each view once.
 
     Returns
     -------
@@ -138,8 +149,10 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
     T_world_ref = np.asarray(reference.T_base_cam, dtype=float)
     est = [[] for _ in range(n)]  # per reference keypoint: (p on the reference ray, p on the other ray)
     stats = {"reference_keypoints": n, "matches": 0, "after_gap_filter": 0}
-    for view in surrounding:
-        m = _matches(reference.features, view.features, cfg)
+    if matches is not None and len(matches) != len(surrounding):
+        raise ValueError(f"matches: {len(matches)} match sets for {len(surrounding)} surrounding views")
+    for k, view in enumerate(surrounding):
+        m = _matches(reference.features, view.features, cfg) if matches is None else matches[k]
         stats["matches"] += len(m)
         if len(m) == 0:
             continue
