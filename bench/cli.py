@@ -55,7 +55,61 @@ def _parser() -> argparse.ArgumentParser:
     cc.add_argument("--model", choices=("heikkila", "radial", "pinhole"), default="heikkila")
     cc.add_argument("--extractor", choices=("thesis", "opencv"), default="thesis",
                     help="corner extractor: the thesis's edge/k-means method or OpenCV's")
+    _add_interchange_commands(sub)
     return p
+
+
+_INTERCHANGE = ("export", "export-camera", "import-tracker", "import-joints")
+
+
+def _add_interchange_commands(sub) -> None:
+    """``bench export``, ``export-camera``, ``import-tracker``, ``import-joints`` (README: Interchange)."""
+    ex = sub.add_parser("export", help="write a (calibrated) robot file as URDF or MJCF")
+    ex.add_argument("robot", help="robot.yaml, e.g. the calibrated one (errors + camera mount)")
+    ex.add_argument("--format", required=True, choices=("urdf", "mjcf"))
+    ex.add_argument("--out", required=True, help="file to write (atomically)")
+    ex.add_argument("--name", default=None, help="model name in the file (default: the robot file's name)")
+    ex.add_argument("--velocity-deg-s", type=float, default=None, help="URDF joint speed limit (default: 0 = unknown)")
+    ex.add_argument("--effort-nm", type=float, default=None, help="URDF joint effort limit (default: 0 = unknown)")
+    ec = sub.add_parser("export-camera", help="write camera.yaml as OpenCV FileStorage YAML or ROS camera_info")
+    ec.add_argument("camera", help="camera.yaml")
+    ec.add_argument("--format", required=True, choices=("opencv", "ros"))
+    ec.add_argument("--out", required=True, help="file to write (atomically)")
+    it = sub.add_parser("import-tracker", help="convert a laser-tracker export to the dataset's tracker.csv")
+    it.add_argument("file", help="tracker export (CSV; units in the column names or given by --units)")
+    it.add_argument("--units", choices=("mm", "m"), default=None, help="the coordinates' unit")
+    it.add_argument("--joints", default=None, help="joint log with a reading per point (matched by name)")
+    it.add_argument("--joint-units", choices=("deg", "rad"), default=None, help="the joint readings' unit")
+    it.add_argument("--out", required=True, help="tracker.csv to write (atomically)")
+    ij = sub.add_parser("import-joints", help="convert a joint log to the dataset's joints.csv")
+    ij.add_argument("file", help="joint log (CSV; units in the column names or given by --units)")
+    ij.add_argument("--units", choices=("deg", "rad"), default=None, help="the readings' unit")
+    ij.add_argument("--out", required=True, help="joints.csv to write (atomically)")
+
+
+def _interchange(args) -> int:
+    if args.command == "export":
+        from math import radians
+
+        from bench.robot.export import export_robot
+
+        for opt, val in (("--velocity-deg-s", args.velocity_deg_s), ("--effort-nm", args.effort_nm)):
+            if val is not None and not val > 0:
+                raise BenchError(f"{opt}: expected a positive limit, got {val}")
+        vel = None if args.velocity_deg_s is None else radians(args.velocity_deg_s)
+        path = export_robot(args.robot, args.format, args.out, args.name, vel, args.effort_nm)
+        print(f"wrote {path} ({args.format.upper()})")
+    elif args.command == "export-camera":
+        from bench.camera.export import export_camera
+
+        print(f"wrote {export_camera(args.camera, args.format, args.out)} ({args.format})")
+    else:
+        from bench.robot.importers import import_joints, import_tracker
+
+        res = (import_tracker(args.file, args.out, args.units, args.joints, args.joint_units)
+               if args.command == "import-tracker" else import_joints(args.file, args.out, args.units))
+        print(f"wrote {res.path}: {res.rows} rows (read in {', '.join(res.units.values())})")
+    return 0
 
 
 def _sim_render(args) -> None:
@@ -115,6 +169,8 @@ def main(argv=None) -> int:
             res, _ = locate_dataset(args.dataset, args.out, method=args.method, pnp=args.pnp, seed=args.seed,
                                     camera_path=args.camera, robot_path=args.robot)
             return 0 if res.success else 1
+        elif args.command in _INTERCHANGE:
+            return _interchange(args)
         return 0
     except BenchError as exc:
         print(f"bench: error: {exc}", file=sys.stderr)
