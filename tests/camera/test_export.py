@@ -20,8 +20,8 @@ def cameras():
     rng = np.random.default_rng(77)
     out = {p: load_preset(p) for p in ("air_webcam", "underwater_in_air", "underwater_in_water")}
     for model in ("pinhole", "radial", "heikkila"):
-        out[f"random_{model}_k3"] = random_camera_model(rng, 800, 600, model=model, skew=False, k3=model != "pinhole",
-                                                         name=f"random_{model}")
+        name = f"random_{model}" + ("_k3" if model != "pinhole" else "")
+        out[name] = random_camera_model(rng, 800, 600, model=model, skew=False, k3=model != "pinhole", name=name)
     return out
 
 
