@@ -15,13 +15,13 @@ disagree, or none, are errors. What the stated unit makes of the numbers is then
 * tracker coordinates beyond a tracker's range (100 m) - millimetres given as metres; or points spanning less than
   10 mm - metres given as millimetres (a kinematic campaign spans the arm's workspace, about 2 m for the TA-40).
 
-Columns: a key (``point``, ``name``, ``id``, ``label``, ``view``, ``target``; or a non-numeric first column),
-coordinates ``x, y, z``, joints ``q1..q6`` (also ``j``, ``joint``, ``theta``, ``axis``, ``a`` + 1..6); other columns
-(time, uncertainty, ...) are ignored. Without a header the columns are taken by position: ``[key,] x, y, z[, q1..q6]``
-or ``[key,] q1..q6``; rows without a key are named ``point001``/``view001`` in file order. The tracker points need
-the joint readings they were taken at: from joint columns in the same file or from a joint log matched by name.
-Values are carried into the dataset's units directly (mm stays mm, deg stays deg), so the user's numbers are not
-rounded; the output is written atomically.
+Columns: a key (``point``, ``point name``, ``id``, ``name``, ``label``, ``view``, ``target``; else the first column
+if its title is none of the following), coordinates ``x, y, z``, joints ``q1..q6`` (also ``j``, ``joint``,
+``theta``, ``axis``, ``a`` + 1..6); other columns (uncertainty, ...) are ignored. Without a header the columns are
+taken by position: ``[key,] x, y, z[, q1..q6]`` or ``[key,] q1..q6``; rows without a key are named
+``point001``/``view001`` in file order. The tracker points need the joint readings they were taken at: from joint
+columns in the same file or from a joint log matched by name. Values are carried into the dataset's units directly
+(mm stays mm, deg stays deg), so the user's numbers are not rounded; the output is written atomically.
 """
 
 from __future__ import annotations
