@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -71,8 +72,42 @@ def load_target(path):
     raise ConfigError(path, "type", f"expected 'two_plane_rig' or 'planar', got {kind!r}")
 
 
-def calibrate_dataset(root, out, model: str = "heikkila", extractor: str = "thesis", verbose: bool = True):
-    """Detect corners in every view, calibrate, compare with OpenCV; returns ``(CalibrationResult, report)``."""
+@dataclass
+class DatasetCorners:
+    """Corners detected in the views of a dataset (:func:`detect_dataset_corners`).
+
+    Attributes
+    ----------
+    names : list of str
+        Views in which the whole target was found, in manifest order.
+    object_points : list of ndarray (N_i, 3)
+        Target points (m, target frame) of each used view.
+    image_points : list of ndarray (N_i, 2)
+        Detected pixels (px), same order.
+    image_size : (int, int)
+        ``(width, height)`` of the images (px).
+    skipped : list of str
+        ``"view: reason"`` for the views where the target was not found.
+    geometry : BoardGeometry
+        The target of ``target.yaml``.
+    detect_s : float
+        Wall time of the detection (s).
+    """
+
+    names: list
+    object_points: list
+    image_points: list
+    image_size: tuple
+    skipped: list
+    geometry: object
+    detect_s: float
+
+
+def detect_dataset_corners(root, extractor: str = "thesis") -> DatasetCorners:
+    """Detect the target of ``target.yaml`` in every view of a dataset with the thesis's or OpenCV's extractor.
+
+    One-line :class:`ConfigError` when the views differ in size or the target is found in no view.
+    """
     t0 = time.perf_counter()
     ds = load_dataset(root)
     geometry = load_target(ds.root / "target.yaml")
@@ -95,9 +130,17 @@ def calibrate_dataset(root, out, model: str = "heikkila", extractor: str = "thes
         Xs.append(res.object_points)
         uvs.append(res.uv)
         names.append(v.name)
-    t_detect = time.perf_counter() - t0
     if not Xs:
         raise ConfigError(ds.root, "views", "the target was found in no view: " + "; ".join(skipped[:3]))
+    return DatasetCorners(names, Xs, uvs, size, skipped, geometry, time.perf_counter() - t0)
+
+
+def calibrate_dataset(root, out, model: str = "heikkila", extractor: str = "thesis", verbose: bool = True):
+    """Detect corners in every view, calibrate, compare with OpenCV; returns ``(CalibrationResult, report)``."""
+    ds = load_dataset(root)
+    det = detect_dataset_corners(ds.root, extractor)
+    Xs, uvs, names, skipped, size = det.object_points, det.image_points, det.names, det.skipped, det.image_size
+    t_detect = det.detect_s
     result = calibrate_camera(Xs, uvs, size, model=model)
     ref = opencv_reference([X.astype(np.float32) for X in Xs], [u.astype(np.float32) for u in uvs], size, model)
     report = {"dataset": str(ds.root), "model": model, "extractor": extractor, "views_used": names,

@@ -116,6 +116,43 @@ def opencv_to_heikkila(K, dist, pixel_pitch: float = THESIS_PIXEL_PITCH) -> Heik
                               p1=d[2] / f, p2=d[3] / f, pixel_pitch=pitch)
 
 
+#: order of the parameters in :func:`heikkila_covariance` (that of :class:`HeikkilaParameters`)
+HEIKKILA_NAMES = ("s_u", "f", "u0", "v0", "k1", "k2", "p1", "p2")
+#: order of the OpenCV parameters it takes (``CalibrationResult.parameter_names`` of the ``"heikkila"`` model)
+OPENCV_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
+
+
+def heikkila_jacobian(K, dist, pixel_pitch: float = THESIS_PIXEL_PITCH) -> np.ndarray:
+    """Derivative ``(8, 8)`` of the Heikkilä parameters (:data:`HEIKKILA_NAMES`, SI) with respect to OpenCV's
+    ``fx, fy, cx, cy, k1, k2, p1, p2`` (:data:`OPENCV_NAMES`) at ``K, dist`` (the map of :func:`opencv_to_heikkila`).
+
+    With ``f = fy pitch``: ``s_u = fx / fy``, ``k1 = k1_cv / f^2``, ``k2 = k2_cv / f^4``, ``p = p_cv / f``.
+    """
+    h = opencv_to_heikkila(K, dist, pixel_pitch)
+    fx, fy = float(K[0][0]), float(K[1][1])
+    f = h.f
+    J = np.zeros((8, 8))
+    J[0, 0], J[0, 1] = 1.0 / fy, -fx / fy**2  # s_u
+    J[1, 1] = h.pixel_pitch  # f (m)
+    J[2, 2] = J[3, 3] = 1.0  # u0, v0
+    J[4, 4], J[4, 1] = 1.0 / f**2, -2.0 * h.k1 / fy  # k1 = k1_cv / (fy pitch)^2
+    J[5, 5], J[5, 1] = 1.0 / f**4, -4.0 * h.k2 / fy
+    J[6, 6], J[6, 1] = 1.0 / f, -h.p1 / fy
+    J[7, 7], J[7, 1] = 1.0 / f, -h.p2 / fy
+    return J
+
+
+def heikkila_covariance(K, dist, cov_opencv, pixel_pitch: float = THESIS_PIXEL_PITCH) -> np.ndarray:
+    """Covariance ``(8, 8)`` of the Heikkilä parameters (:data:`HEIKKILA_NAMES`; SI: m, m^-2, m^-4, m^-1) from the
+    covariance of OpenCV's ``fx, fy, cx, cy, k1, k2, p1, p2`` (``CalibrationResult.covariance`` of the ``"heikkila"``
+    model), by first-order propagation ``J C J^T`` (:func:`heikkila_jacobian`)."""
+    C = np.asarray(cov_opencv, dtype=float)
+    if C.shape != (8, 8) or not np.all(np.isfinite(C)):
+        raise ValueError(f"cov_opencv: expected a finite (8, 8) covariance of {OPENCV_NAMES}, got shape {C.shape}")
+    J = heikkila_jacobian(K, dist, pixel_pitch)
+    return J @ C @ J.T
+
+
 def camera_from_heikkila(params: HeikkilaParameters, width: int, height: int, name: str = "camera") -> CameraModel:
     """The :class:`CameraModel` (model ``"heikkila"``, with the pixel pitch) of Heikkilä parameters."""
     K, dist = heikkila_to_opencv(params)

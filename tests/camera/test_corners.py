@@ -357,3 +357,21 @@ def test_failures_are_reported():
         cc.extract_corners_thesis(img, (7, 7), outer_corners_uv=np.full((4, 2), np.nan))
     with pytest.raises(ValueError, match="pattern_size"):
         cc.extract_corners_opencv(img, (7,))
+
+
+def test_grid_outliers_tolerates_strong_smooth_distortion():
+    """Near the border of Table 9's image the second differences of a true grid reach 0.2 of the corner spacing
+    (perspective + pincushion); the grid is regular (small third differences) and must not be rejected."""
+    from bench.camera.presets import load_preset
+    from bench.geometry.transforms import homogeneous, rot_x, rot_y
+
+    cam = load_preset("underwater_in_air")
+    X = cc.planar_board((6, 6), 0.028).object_points()
+    T = homogeneous(rot_y(0.75) @ rot_x(-0.3), [0.10, -0.06, 0.5])  # a board turned 43 deg, towards a corner
+    uv = cam.project(X @ T[:3, :3].T + T[:3, 3])
+    g = uv.reshape(6, 6, 2)
+    spacing = np.median(np.linalg.norm(np.diff(g, axis=1), axis=2))
+    assert np.linalg.norm(g[:, :-2] - 2 * g[:, 1:-1] + g[:, 2:], axis=2).max() > 0.2 * spacing  # the old rule's case
+    assert not cc.grid_outliers(uv, (6, 6)).any()
+    uv[14] += [0.3 * spacing, 0.0]  # a misplaced corner is still found
+    assert cc.grid_outliers(uv, (6, 6))[14]
