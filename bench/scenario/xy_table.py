@@ -1,0 +1,835 @@
+"""Scenario kind ``xy_table``: the thesis's x-y table experiments (section 5.2.2, Tables 5-8; section 5.4, 11-14).
+
+Simulation (``render``, also ``bench sim render``) writes one dataset, as the lab campaign would:
+
+* ``calibration`` views - the two-plane rig photographed from a few directions (the camera is calibrated first, as
+  in section 5.2.1 / 5.3);
+* ``table`` views - the camera on the x-y table's rotary stage at the poses of Table 4 (web camera on the rotation
+  axis, a textured reference object 700 mm ahead) or Table 10 (underwater camera 100 mm off the axis, the rig 500 mm
+  ahead), with the table's *readings* in ``table.csv``;
+* ``camera.yaml`` (the nominal camera), ``table.yaml`` (the table's nominal geometry), ``target.yaml`` (the rig);
+* ``truth/``: the table's positioning errors, the camera's true intrinsics and its true orientation/centre on the
+  support (the bias ``R0`` of Eq. 197 and a centre offset), every true camera pose, the reference object's pose.
+
+The truth differs from what the pipeline is told by: the table's positioning errors (scale, backlash,
+orthogonality, wobble; :class:`~bench.sim.scenes.xy_table.TableModel`) and readout quantisation; the camera's bias
+on its support; the true intrinsics (focal length, principal point, distortion) vs the nominal camera file; the
+housing's glass (underwater optics: not a central camera); image noise and SIFT.
+
+The pipeline (``run``) uses only the public part: camera calibration from the rig views (Heikkilä's model or the
+pinhole, :mod:`bench.camera.calibration`), then :mod:`bench.vision.xy_table_positioning` - features, the thesis's
+search for ``R0`` (Eq. 197-198), and for every intraocular distance and pair the map ``1p``, ``2p``, RANSAC and the
+four alignment methods. The evaluator scores each estimated position against the true camera centres (relative to
+the reference view's, in the table's axes) and prints our four tables beside the thesis's.
+
+Error sources can be switched off one at a time (``sim.*`` keys) and truth can be injected on the evaluator's side
+(``pipeline.camera: true``, ``pipeline.mount_bias: true``, ``pipeline.features: true_projection``); every injection is
+listed in ``result.json`` (``metrics.truth_injected`` and the ``setup`` table).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from bench.camera.calibrate_dataset import load_target
+from bench.camera.calibration import calibrate_camera
+from bench.camera.corners import extract_corners_opencv
+from bench.camera.io import camera_yaml_text
+from bench.camera.model import CameraModel
+from bench.camera.presets import load_preset
+from bench.dataset import DatasetWriter, load_dataset
+from bench.errors import ConfigError
+from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
+from bench.scenario.results import write_result, write_table_csv
+from bench.scenario.schema import required
+from bench.vision.features import Features
+from bench.vision.insitu import MapConfig
+from bench.vision.triangulation import required_baseline
+from bench.vision.xy_table_positioning import (
+    PositioningConfig,
+    corner_features,
+    estimate_positions,
+    load_table_spec,
+    sift_features,
+    table_views,
+)
+
+DEG = np.pi / 180
+DATA = Path(__file__).resolve().parents[2] / "scenarios" / "data"
+THESIS_TABLES = {"table4": (DATA / "thesis_tables_5_8.csv", {"quaternion": 5, "quaternion_ratio": 6, "lms": 7,
+                                                              "lms_ratio": 8}, "Figures 49-52"),
+                 "table10": (DATA / "thesis_tables_11_14.csv", {"quaternion": 11, "quaternion_ratio": 12, "lms": 13,
+                                                                "lms_ratio": 14}, "Figures 55-58")}
+LABELS = {"quaternion": "RANSAC, quaternion", "quaternion_ratio": "RANSAC, quaternion, error-ratio elimination",
+          "lms": "RANSAC, LMS", "lms_ratio": "RANSAC, LMS, error-ratio elimination"}
+TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
+CAMERA_CHOICES = ("calibrated", "nominal", "true")
+BIAS_CHOICES = ("estimated", "true", "zero")
+FEATURE_CHOICES = ("sift", "corners", "true_projection")
+
+SCHEMA = {
+    "name": required(str),
+    "kind": required(str),
+    "description": (str, ""),
+    "seed": (int, 0),
+    "sim": {
+        "poses": (str, "table4"),               # table4 (section 5.2.2) | table10 (section 5.4)
+        "positions": (list, []),                # pose numbers to use (empty: all rows of the table)
+        "optics": (str, "air_webcam"),          # optics preset (bench.sim.optics_presets)
+        "port": (bool, True),                   # keep the preset's housing glass (false: no port)
+        "sensor_noise": (bool, True),           # shot and read noise (false: noise-free 8-bit images)
+        "supersample": (int, 2),
+        "reference_object": (str, "panel"),     # panel (procedural manifold panel) | rig (calibration rig)
+        "reference_distance_mm": (float, 700.0),
+        "panel_size_m": (list, [0.8, 0.6]),
+        "table_errors": (bool, True),           # random positioning errors of the table (false: exact table)
+        "mount_bias_deg": (list, [0.3, 6.2, -1.8]),        # true theta_x0, theta_y0, theta_z0 (Eq. 197)
+        "camera_centre_error_mm": (list, [0.5, 0.3, 1.0]),  # true camera centre minus the nominal one (support)
+        "focal_error_pct": (float, 1.5),        # true intrinsics vs the nominal camera file (uniform +-)
+        "principal_error_px": (float, 4.0),
+        "distortion_error_pct": (float, 5.0),
+        "calibration_views": (int, 7),          # rig views for the camera calibration (thesis: 7)
+        "calibration_distance_mm": (float, 800.0),
+        "true_projection_points": (int, 800),   # points on the reference for pipeline.features = true_projection
+    },
+    "pipeline": {
+        "camera": (str, "calibrated"),          # calibrated (rig views) | nominal (camera.yaml) | true (INJECTED)
+        "camera_model": (str, "pinhole"),       # heikkila | radial | pinhole (calibration model)
+        "mount_bias": (str, "estimated"),       # estimated (Eq. 197-198 search) | true (INJECTED) | zero
+        "bias_refine": (bool, False),           # finer second pass of the search
+        "features": (str, "sift"),              # sift | corners (rig) | true_projection (INJECTED)
+        "reference_view": (int, 11),
+        "intraocular_mm": (list, [20, 30, 40, 50, 60, 70, 80, 90, 100, 110]),
+        "map_min_baseline_mm": (float, 49.0),   # Eq. 199
+        "map_exclude": (list, []),              # pose numbers never used for 1p
+        "range_mm": (float, 700.0),             # for the Eq. 199 figure reported with the calibrated camera
+        "depth_resolution_mm": (float, 10.0),
+        "orientation_tol_deg": (float, 20.0),
+        "gap_mm": (float, 5.0),
+        "ransac_iterations": (int, 100),
+        "d_r_mm": (float, 20.0),
+        "r_lim": (float, 0.1),
+    },
+    "outputs": {"cache": (bool, True), "plots": (bool, True)},
+}
+
+
+# ------------------------------------------------------------------------------------------------ configuration
+
+
+def _vec(cfg, key, n):
+    sec, k = key.split(".")
+    v = cfg[sec][k]
+    if not isinstance(v, list) or len(v) != n or not all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v):
+        raise ConfigError(cfg["_file"], key, f"expected {n} numbers, got {v!r}")
+    return np.array(v, dtype=float)
+
+
+def _ints(cfg, key):
+    sec, k = key.split(".")
+    v = cfg[sec][k]
+    if not all(isinstance(x, int) and not isinstance(x, bool) and x >= 1 for x in v):
+        raise ConfigError(cfg["_file"], key, f"expected a list of pose numbers (integers >= 1), got {v!r}")
+    return [int(x) for x in v]
+
+
+def _check(cfg):
+    src, s, p = cfg["_file"], cfg["sim"], cfg["pipeline"]
+    choices = {"sim.poses": ("table4", "table10"), "sim.reference_object": ("panel", "rig"),
+               "pipeline.camera": CAMERA_CHOICES, "pipeline.mount_bias": BIAS_CHOICES,
+               "pipeline.features": FEATURE_CHOICES, "pipeline.camera_model": ("heikkila", "radial", "pinhole")}
+    for key, allowed in choices.items():
+        sec, k = key.split(".")
+        if cfg[sec][k] not in allowed:
+            raise ConfigError(src, key, f"expected one of {', '.join(allowed)}, got {cfg[sec][k]!r}")
+    for key in ("sim.supersample", "sim.calibration_views", "pipeline.ransac_iterations", "sim.true_projection_points"):
+        sec, k = key.split(".")
+        if cfg[sec][k] < 1:
+            raise ConfigError(src, key, f"must be >= 1, got {cfg[sec][k]}")
+    for key in ("sim.reference_distance_mm", "sim.calibration_distance_mm", "pipeline.gap_mm", "pipeline.d_r_mm",
+                "pipeline.r_lim", "pipeline.range_mm", "pipeline.depth_resolution_mm",
+                "pipeline.orientation_tol_deg"):
+        sec, k = key.split(".")
+        if cfg[sec][k] <= 0:
+            raise ConfigError(src, key, f"must be > 0, got {cfg[sec][k]}")
+    for key in ("sim.focal_error_pct", "sim.principal_error_px", "sim.distortion_error_pct",
+                "pipeline.map_min_baseline_mm"):
+        sec, k = key.split(".")
+        if cfg[sec][k] < 0:
+            raise ConfigError(src, key, f"must be >= 0, got {cfg[sec][k]}")
+    if s["reference_distance_mm"] < 100:
+        raise ConfigError(src, "sim.reference_distance_mm", "implausible: the unit is mm")
+    if p["features"] == "corners" and s["reference_object"] != "rig":
+        raise ConfigError(src, "pipeline.features", "corners need the rig as reference object (sim.reference_object)")
+    d = p["intraocular_mm"]
+    if not d or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in d):
+        raise ConfigError(src, "pipeline.intraocular_mm", f"expected positive distances (mm), got {d!r}")
+    _vec(cfg, "sim.mount_bias_deg", 3)
+    _vec(cfg, "sim.camera_centre_error_mm", 3)
+    _vec(cfg, "sim.panel_size_m", 2)
+    _ints(cfg, "sim.positions")
+    _ints(cfg, "pipeline.map_exclude")
+
+
+def _poses(cfg):
+    """(pose numbers, commands (N, 3) [x_m, z_m, rot_rad], TableModel) of the campaign, in the order visited."""
+    from bench.sim.scenes.xy_table import (
+        NO_ERRORS,
+        lab_table_model,
+        random_table_errors,
+        table4_commands,
+        table10_commands,
+        underwater_table_model,
+    )
+
+    s = cfg["sim"]
+    commands = table4_commands() if s["poses"] == "table4" else table10_commands()
+    numbers = list(range(1, len(commands) + 1))
+    chosen = _ints(cfg, "sim.positions") or numbers
+    bad = [n for n in chosen if n not in numbers]
+    if bad:
+        raise ConfigError(cfg["_file"], "sim.positions", f"pose {bad[0]} is not in {s['poses']} (1..{len(numbers)})")
+    if cfg["pipeline"]["reference_view"] not in chosen:
+        raise ConfigError(cfg["_file"], "pipeline.reference_view",
+                          f"pose {cfg['pipeline']['reference_view']} is not among sim.positions")
+    chosen = sorted(set(chosen))
+    return chosen, commands[np.array(chosen) - 1], (lab_table_model, underwater_table_model)[s["poses"] == "table10"], \
+        NO_ERRORS, random_table_errors
+
+
+def view_name(number: int) -> str:
+    """Dataset name of the table view of pose ``number`` (``p01`` ...)."""
+    return f"p{number:02d}"
+
+
+# ------------------------------------------------------------------------------------------------ rendering
+
+
+class OpticsCamera:
+    """A MuJoCo camera rendered through the optics chain of a preset, cached on disk by content hash.
+
+    The same stages as :class:`bench.sim.campaign.ArmScene` (which renders the arm's link-5 camera): supersampled
+    pinhole render -> lens stage (in air) or lens + flat port, -> medium and sensor chain -> 8-bit RGB. ``xml``,
+    ``assets`` are a composed scene containing the camera ``name`` placed with :func:`mujoco_camera_xml` at this
+    object's ``spec``; :meth:`render` takes a function that sets the state of ``MjData`` and a key that determines it.
+    """
+
+    def __init__(self, make_xml, lens: CameraModel, optics, supersample: int, cache_dir=None, name="cam",
+                 z_min: float = 0.3):
+        import mujoco
+
+        from bench.sim.distortion import DistortionStage
+        from bench.sim.flatport import FlatPortStage
+        from bench.sim.medium import cos_beam
+
+        self.lens, self.optics, self.name = lens, optics, name
+        if optics.port is None:
+            self.stage = DistortionStage(lens, supersample)
+            self.spec = self.stage.render_spec()
+        else:
+            self.stage = FlatPortStage(lens.K, lens.size, optics.port, supersample, lens=lens)
+            self.spec = self.stage.render_spec(z_min)
+        u, v = np.meshgrid(np.arange(lens.width, dtype=float), np.arange(lens.height, dtype=float))
+        self._rays = lens.unproject(np.stack([u, v], -1), normalize=False)
+        self._cos = cos_beam(self._rays)
+        xml, assets = make_xml(self.spec)
+        self.model = mujoco.MjModel.from_xml_string(xml, assets=assets)
+        self.data = mujoco.MjData(self.model)
+        h = hashlib.sha256(xml.encode())
+        for k in sorted(assets):
+            h.update(k.encode())
+            h.update(hashlib.sha256(assets[k]).digest())
+        h.update(np.ascontiguousarray(lens.K).tobytes())
+        h.update(np.ascontiguousarray(lens.dist).tobytes())
+        h.update(repr((lens.width, lens.height, supersample, optics.chain, optics.port)).encode())
+        self._key = h.hexdigest()
+        self.cache_dir = Path(cache_dir) if cache_dir else None
+        self._renderer = None
+        self.render_s: list = []
+
+    def render(self, set_state, state_key, seed: int) -> np.ndarray:
+        """RGB uint8 (camera size) with the state set by ``set_state(model, data)``; cached by ``state_key``."""
+        import cv2
+        import mujoco
+
+        from bench.sim.medium import apply_medium, path_length_m
+        from bench.sim.render import SceneRenderer
+
+        h = hashlib.sha256(self._key.encode())
+        h.update(np.round(np.asarray(state_key, float), 12).tobytes())
+        h.update(str(seed).encode())
+        key = h.hexdigest()[:32]
+        path = self.cache_dir / f"{key}.png" if self.cache_dir is not None else None
+        if path is not None and path.is_file():
+            img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+            if img is not None:
+                return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        t0 = time.perf_counter()
+        if self._renderer is None:
+            self._renderer = SceneRenderer(self.model, self.name, self.spec.width, self.spec.height)
+        set_state(self.model, self.data)
+        mujoco.mj_forward(self.model, self.data)
+        rgb, depth = self._renderer.render(self.data)
+        if self.optics.port is None:
+            img, z = self.stage.apply(rgb, self.spec.K, depth)
+            water = path_length_m(z, self._rays)
+        else:
+            out = self.stage.apply(rgb, depth, self.spec.K)
+            img, water = out.image, out.water_path
+        chain = self.optics.chain
+        img = apply_medium(img, water, np.random.default_rng(seed), chain,
+                           self._cos if chain.light is not None else None)
+        if img.dtype != np.uint8:
+            img = np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
+        self.render_s.append(time.perf_counter() - t0)
+        if path is not None:
+            self.cache_dir.mkdir(parents=True, exist_ok=True)
+            tmp = self.cache_dir / f".{key}.{time.time_ns()}.png"
+            cv2.imwrite(str(tmp), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+            tmp.replace(path)
+        return img
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def _optics(cfg):
+    from bench.sim.optics_presets import optics_preset
+
+    s = cfg["sim"]
+    overrides = {}
+    if not s["port"]:
+        overrides["port"] = None
+        overrides["water"] = None  # the water needs the port
+        overrides["light"] = None
+    if not s["sensor_noise"]:
+        overrides["sensor"] = None
+    try:
+        return optics_preset(s["optics"], overrides or None)
+    except ValueError as exc:
+        raise ConfigError(cfg["_file"], "sim.optics", str(exc)) from None
+
+
+def _true_camera(cfg, rng, lens: CameraModel) -> CameraModel:
+    s = cfg["sim"]
+    K = lens.K.copy()
+    K[0, 0] *= 1 + rng.uniform(-1, 1) * s["focal_error_pct"] / 100
+    K[1, 1] *= 1 + rng.uniform(-1, 1) * s["focal_error_pct"] / 100
+    K[:2, 2] += rng.uniform(-1, 1, 2) * s["principal_error_px"]
+    dist = lens.dist * (1 + rng.uniform(-1, 1, lens.dist.shape) * s["distortion_error_pct"] / 100)
+    return lens.replace(K=K, dist=dist, name=f"{lens.name} (true)")
+
+
+def _calibration_poses(n, distance_m, rng):
+    """``T_rig_cam`` of ``n`` rig views: looking at the rig centre from azimuths +-25 deg, elevations +-12 deg,
+    rolls +-8 deg (the rig frame: :func:`~bench.sim.scenes.xy_table.reference_pose` seen from the table)."""
+    from bench.sim.views import look_at
+
+    az = np.linspace(-25, 25, n) * DEG if n > 1 else np.zeros(1)
+    el = 12 * DEG * np.sin(np.linspace(0, 2 * np.pi, n, endpoint=False))
+    roll = 8 * DEG * np.cos(np.linspace(0, 2 * np.pi, n, endpoint=False) + 0.7)
+    out = []
+    for k in range(n):
+        d = distance_m * (1 + 0.08 * rng.uniform(-1, 1))
+        direction = np.array([np.sin(az[k]) * np.cos(el[k]), -np.sin(el[k]), np.cos(az[k]) * np.cos(el[k])])
+        T = look_at(-d * direction, np.zeros(3), down=(0.0, 1.0, 0.0))  # table-like frame: y down
+        T[:3, :3] = T[:3, :3] @ rot_z(roll[k])
+        out.append(T)
+    return out
+
+
+def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
+    """Simulate the campaign and write the dataset (with ``truth/``); returns the simulator's figures."""
+    from bench.sim.camera import mujoco_camera_xml
+    from bench.sim.scenes.base import compose, place
+    from bench.sim.scenes.panel import manifold_panel
+    from bench.sim.scenes.rig import calibration_rig
+    from bench.sim.scenes.xy_table import DEFAULT_T_WORLD_TABLE, reference_pose, xy_table
+
+    _check(cfg)
+    t0 = time.perf_counter()
+    s = cfg["sim"]
+    rng = np.random.default_rng(cfg["seed"])
+    numbers, commands, make_model, no_errors, random_errors = _poses(cfg)
+    errors = random_errors(rng) if s["table_errors"] else no_errors
+    tm = make_model(errors)
+    run = tm.run(commands)
+    optics = _optics(cfg)
+    nominal_cam = load_preset(optics.nominal_camera)
+    lens = _true_camera(cfg, rng, load_preset(optics.lens_camera))
+    b = _vec(cfg, "sim.mount_bias_deg", 3) * DEG
+    R0_true = rot_y(b[1]) @ rot_x(b[0]) @ rot_z(b[2])  # Eq. 197, factors as labelled
+    T_mount_cam = homogeneous(R0_true, _vec(cfg, "sim.camera_centre_error_mm", 3) * 1e-3)
+    if s["reference_object"] == "panel":
+        w, h = _vec(cfg, "sim.panel_size_m", 2)
+        try:
+            ref_obj = manifold_panel(rng, w, h, name="ref")
+        except ValueError as exc:
+            raise ConfigError(cfg["_file"], "sim.panel_size_m", str(exc)) from None
+    else:
+        ref_obj = calibration_rig(name="ref")
+    # the experimenter puts the object where the camera sees it: its centre (the panel's face centre, the rig's
+    # pattern centroid) on the reference view's TRUE optical axis, reference_distance_mm from the camera centre;
+    # its orientation faces the table (-z), as reference_pose() sets it
+    dist_m = s["reference_distance_mm"] * 1e-3
+    T_ref_cam = run.T_table_mount[numbers.index(cfg["pipeline"]["reference_view"])] @ T_mount_cam
+    aim = T_ref_cam[:3, 3] + dist_m * T_ref_cam[:3, 2]
+    T_table_ref = reference_pose(ref_obj, dist_m, float(tm.camera_offset_m[0]))
+    centre = transform_points(T_table_ref, ref_obj.features["corners"]).mean(axis=0) \
+        if s["reference_object"] == "rig" else T_table_ref[:3, 3]
+    T_table_ref[[0, 2], 3] += aim[[0, 2]] - centre[[0, 2]]
+    z_min = 0.5 * min(dist_m, s["calibration_distance_mm"] * 1e-3)
+
+    def table_xml(spec):
+        cam = mujoco_camera_xml("xy_cam", spec.K, spec.width, spec.height, T_mount_cam)
+        obj = xy_table(tm, cam, reference=ref_obj, T_table_reference=T_table_ref)
+        return compose([obj], offscreen=(spec.width, spec.height), center=(0.0, dist_m / 2, 0.4), extent=2.0)
+
+    # the calibration rig (a scene of its own) stands as it would in front of the table; views around its centre
+    rig = calibration_rig(name="calrig")
+    T_table_rig = reference_pose(rig, 1.0)
+    T_world_rig = DEFAULT_T_WORLD_TABLE @ T_table_rig
+    c_table = transform_points(T_table_rig, rig.features["corners"]).mean(axis=0)
+    cal_poses = _calibration_poses(s["calibration_views"], s["calibration_distance_mm"] * 1e-3, rng)
+    T_world_cal = [DEFAULT_T_WORLD_TABLE @ homogeneous(np.eye(3), c_table) @ T for T in cal_poses]
+
+    def cal_xml(spec):
+        cam = mujoco_camera_xml("xy_cam", spec.K, spec.width, spec.height, np.eye(4))
+        extra = f'<body name="calcam" mocap="true">\n{cam}\n</body>\n'
+        return compose([place(rig, T_world_rig)], extra, offscreen=(spec.width, spec.height),
+                       center=T_world_rig[:3, 3], extent=2.0)
+
+    scene = OpticsCamera(table_xml, lens, optics, s["supersample"], cache_dir, "xy_cam", z_min)
+    cal_scene = OpticsCamera(cal_xml, lens, optics, s["supersample"], cache_dir, "xy_cam", z_min)
+    jadr = [scene.model.joint(n).qposadr[0] for n in tm.joint_names]
+    images = {}
+    n_total = len(numbers) + len(cal_poses)
+    if verbose:
+        print(f"rendering {n_total} views ({len(cal_poses)} calibration, {len(numbers)} table) ...", file=sys.stderr)
+    from bench.geometry.quaternion import matrix_to_quaternion
+
+    for k, T_w in enumerate(T_world_cal):
+
+        def set_cal(model, data, T_w=T_w):
+            data.mocap_pos[0] = T_w[:3, 3]
+            data.mocap_quat[0] = matrix_to_quaternion(T_w[:3, :3])
+
+        images[f"cal{k + 1:02d}"] = cal_scene.render(set_cal, T_w.ravel(), cfg["seed"] * 1000 + 500 + k)
+        if verbose:
+            print(f"\r  {k + 1}/{n_total}", end="", file=sys.stderr)
+    q_table = np.stack([run.qpos[n] for n in tm.joint_names], -1)
+    for i, num in enumerate(numbers):
+        def set_table(model, data, q=q_table[i]):
+            data.qpos[jadr] = q
+
+        images[view_name(num)] = scene.render(set_table, q_table[i], cfg["seed"] * 1000 + num)
+        if verbose:
+            print(f"\r  {len(cal_poses) + i + 1}/{n_total}", end="", file=sys.stderr)
+    if verbose:
+        print(file=sys.stderr)
+    render_s = scene.render_s + cal_scene.render_s
+    scene.close()
+    cal_scene.close()
+
+    # --- truth ------------------------------------------------------------------------------------------------------
+    T_table_cam = run.T_table_mount @ T_mount_cam
+    centre_err = np.linalg.norm(T_table_cam[:, :3, 3] - run.T_table_mount_nominal[:, :3, 3], axis=1)
+    truth = {
+        "units": "SI (m, rad)",
+        "poses": s["poses"], "positions": numbers,
+        "table_errors": {k: float(v) for k, v in errors.__dict__.items()},
+        "commanded": run.commanded.tolist(), "read": run.read.tolist(), "true_joints": run.true.tolist(),
+        "T_table_mount": run.T_table_mount.tolist(),
+        "T_mount_cam": T_mount_cam.tolist(),
+        "mount_bias_deg": _vec(cfg, "sim.mount_bias_deg", 3).tolist(),
+        "T_table_cam": {view_name(n): T_table_cam[i].tolist() for i, n in enumerate(numbers)},
+        "camera_offset_m": tm.camera_offset_m.tolist(),
+        "camera_K": lens.K.tolist(), "camera_dist": lens.dist.tolist(), "camera_size": list(lens.size),
+        "optics": {"preset": optics.name, "port": None if optics.port is None else {
+            "d0": optics.port.d0, "t": optics.port.t, "n_air": optics.port.n_air, "n_glass": optics.port.n_glass,
+            "n_water": optics.port.n_water, "tilt": optics.port.tilt.tolist(),
+            "decentre": optics.port.decentre.tolist()}},
+        "reference_object": s["reference_object"], "T_table_reference": T_table_ref.tolist(),
+        "reference_corners": ref_obj.features["corners"].tolist() if "corners" in ref_obj.features else None,
+        "panel_size_m": _vec(cfg, "sim.panel_size_m", 2).tolist() if s["reference_object"] == "panel" else None,
+        "calibration": {"T_world_rig": T_world_rig.tolist(),
+                        "T_world_cam": {f"cal{k + 1:02d}": T.tolist() for k, T in enumerate(T_world_cal)}},
+    }
+    checks = {"views_rendered": float(len(render_s)),
+              "camera_centre_vs_readings_max_mm": float(centre_err.max() * 1e3),
+              "sim_s": time.perf_counter() - t0}
+    if render_s:
+        checks["render_fps"] = float(1.0 / np.median(render_s))
+
+    # --- the dataset --------------------------------------------------------------------------------------------------
+    out_dataset = Path(out_dataset)
+    spec_yaml = (f"# nominal geometry of the x-y table (thesis section 5.2 / 5.4)\n"
+                 f"camera_offset_mm: {[float(v) for v in tm.camera_offset_m * 1e3]}\n"
+                 f"travel_mm: {tm.travel_m * 1e3:g}\nresolution_mm: {tm.resolution_m * 1e3:g}\n"
+                 f"resolution_deg: {np.rad2deg(tm.resolution_rad):g}\n")
+    with DatasetWriter(out_dataset, kind="xy_table", name=cfg["name"], overwrite=True,
+                       created_by=f"bench sim render {Path(cfg['_file']).name} (seed {cfg['seed']})") as w:
+        for k in range(len(cal_poses)):
+            w.add_view(f"cal{k + 1:02d}", images[f"cal{k + 1:02d}"], role="calibration")
+        for i, num in enumerate(numbers):
+            w.add_view(view_name(num), images[view_name(num)], table=run.read[i], role="table",
+                       notes=f"{s['poses']} position {num}")
+        w.write_text("camera.yaml", camera_yaml_text(nominal_cam))
+        w.write_text("table.yaml", spec_yaml)
+        w.write_text("target.yaml", TARGET_YAML)
+        w.write_text("truth/truth.yaml", yaml.safe_dump(truth, sort_keys=False))
+        w.write_text("truth/sim_checks.json", json.dumps(checks, indent=2) + "\n")
+    if verbose:
+        print(f"wrote {out_dataset} ({len(numbers)} table views, {len(cal_poses)} calibration views)")
+    return checks
+
+
+# ------------------------------------------------------------------------------------------------ pipeline side
+
+
+def calibrate_from_rig_views(ds, model: str):
+    """Corners (OpenCV extractor, ``target.yaml``) in the ``calibration`` views -> :func:`calibrate_camera`."""
+    geometry = load_target(ds.root / "target.yaml")
+    Xs, uvs, size = [], [], None
+    for v in ds.views:
+        if v.role != "calibration":
+            continue
+        img = v.image()
+        res = extract_corners_opencv(img, geometry)
+        if res.success:
+            Xs.append(res.object_points)
+            uvs.append(res.uv)
+            size = (img.shape[1], img.shape[0])
+    if len(Xs) < 2:
+        raise ConfigError(ds.root, "calibration views", f"the rig was found in {len(Xs)} views (need >= 2)")
+    cal = calibrate_camera(Xs, uvs, size, model=model)
+    if not cal.success:
+        raise ConfigError(ds.root, "calibration views", f"camera calibration failed: {cal.message}")
+    return cal, len(Xs)
+
+
+def _project_true(p_cam, lens: CameraModel, port) -> np.ndarray:
+    """Exact pixels of camera-frame points through the true optics (lens, and the housing's port if any)."""
+    if port is None:
+        return lens.project(p_cam)
+    from bench.sim.flatport import project_flatport
+
+    x_n = project_flatport(p_cam, port)
+    return lens.project(np.concatenate([x_n, np.ones(x_n.shape[:-1] + (1,))], axis=-1))
+
+
+def true_projection_features(truth: dict, names, n_points: int, rng) -> dict:
+    """EVALUATOR-SIDE TRUTH INJECTION: exact projections of known points on the reference object as features.
+
+    Rig: its 72 corners (ids as descriptors). Panel: ``n_points`` points drawn on the backplate plane (panel z = 0,
+    inside its outline) with random unit descriptors (occlusion by the valves is ignored). Points outside an image
+    or behind the camera are left out of that view. Removes detection noise and false matches.
+    """
+    from bench.sim.flatport import FlatPort
+
+    T_tr = np.array(truth["T_table_reference"])
+    lens = CameraModel(int(truth["camera_size"][0]), int(truth["camera_size"][1]), np.array(truth["camera_K"]),
+                       np.array(truth["camera_dist"]))
+    pd = truth["optics"]["port"]
+    port = None if pd is None else FlatPort(d0=pd["d0"], t=pd["t"], n_air=pd["n_air"], n_glass=pd["n_glass"],
+                                            n_water=pd["n_water"], tilt=np.array(pd["tilt"]),
+                                            decentre=np.array(pd["decentre"]))
+    if truth["reference_corners"] is not None:
+        p_obj = np.array(truth["reference_corners"])
+        ids = np.arange(len(p_obj))
+        desc = corner_features(np.zeros((len(ids), 2)), ids, len(ids)).descriptors
+    else:
+        w, h = truth["panel_size_m"]
+        p_obj = np.c_[rng.uniform(-0.45 * w, 0.45 * w, n_points), rng.uniform(-0.45 * h, 0.45 * h, n_points),
+                      np.zeros(n_points)]
+        desc = rng.normal(size=(n_points, 128)).astype(np.float32)
+        desc /= np.linalg.norm(desc, axis=1, keepdims=True)
+    p_table = transform_points(T_tr, p_obj)
+    out = {}
+    for n in names:
+        p_cam = transform_points(invert(np.array(truth["T_table_cam"][n])), p_table)
+        front = p_cam[:, 2] > 0.05
+        uv = np.full((len(p_cam), 2), np.nan)
+        uv[front] = _project_true(p_cam[front], lens, port)
+        ok = front & np.all(np.isfinite(uv), axis=1) & lens.in_image(np.nan_to_num(uv, nan=-1e9))
+        k = np.count_nonzero(ok)
+        out[n] = Features(uv[ok], np.zeros(k), np.full(k, 4.0), np.ones(k), desc[ok])
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ scoring / report
+
+
+def load_thesis_table(poses: str) -> dict:
+    """The thesis's printed table rows ``{(method, d_mm): row}`` (``scenarios/data/thesis_tables_*.csv``)."""
+    path, _, _ = THESIS_TABLES[poses]
+    lines = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+    out = {}
+    for row in csv.DictReader(lines):
+        out[(row["method"], float(row["d_mm"]))] = {
+            "table": int(row["table"]), "combinations": int(row["combinations"]),
+            **{k: float(row[k]) for k in ("err_x_mm", "err_y_mm", "err_z_mm")}}
+    return out
+
+
+def score(result, truth: dict, reference: str, methods) -> tuple:
+    """Per-combination errors (estimated minus true position of camera a relative to the reference, table axes) and
+    the RMS table per (d_o, method). Returns ``(per_combination table, summary table)``."""
+    T_tc = {n: np.array(T) for n, T in truth["T_table_cam"].items()}
+    c_ref = T_tc[reference][:3, 3]
+    rows = {k: [] for k in ("d_mm", "a", "b", "method", "success", "est_x_mm", "est_y_mm", "est_z_mm", "true_x_mm",
+                            "true_y_mm", "true_z_mm", "err_x_mm", "err_y_mm", "err_z_mm", "baseline_mm", "map_points",
+                            "pairs_3d", "ransac_inliers", "inliers")}
+    for c in result.combinations:
+        true = (T_tc[c.a][:3, 3] - c_ref) * 1e3
+        est = c.p_table * 1e3
+        for key, val in (("d_mm", c.d_m * 1e3), ("a", c.a), ("b", c.b), ("method", c.method),
+                         ("success", int(c.success)), ("baseline_mm", np.linalg.norm(T_tc[c.a][:3, 3] -
+                                                                                      T_tc[c.b][:3, 3]) * 1e3),
+                         ("map_points", c.map_points), ("pairs_3d", c.pairs_3d),
+                         ("ransac_inliers", c.ransac_inliers), ("inliers", c.inliers)):
+            rows[key].append(val)
+        for i, ax in enumerate("xyz"):
+            rows[f"est_{ax}_mm"].append(float(est[i]))
+            rows[f"true_{ax}_mm"].append(float(true[i]))
+            rows[f"err_{ax}_mm"].append(float(est[i] - true[i]))
+    summary = {k: [] for k in ("d_mm", "method", "combinations", "failed", "err_x_mm", "err_y_mm", "err_z_mm",
+                               "mean_baseline_mm")}
+    d_all = np.array(rows["d_mm"], float)
+    meth = np.array(rows["method"], object)
+    ok = np.array(rows["success"], bool)
+    err = np.stack([np.array(rows[f"err_{a}_mm"], float) for a in "xyz"], -1) if rows["d_mm"] else np.empty((0, 3))
+    base = np.array(rows["baseline_mm"], float)
+    for d in sorted(result.pairs):
+        for m in methods:
+            sel = (np.abs(d_all - d) < 1e-6) & (meth == m)
+            good = sel & ok
+            rms = np.sqrt(np.mean(err[good] ** 2, axis=0)) if good.any() else np.full(3, np.nan)
+            summary["d_mm"].append(float(d))
+            summary["method"].append(m)
+            summary["combinations"].append(len(result.pairs[d]))
+            summary["failed"].append(int(np.count_nonzero(sel & ~ok)))
+            for i, ax in enumerate("xyz"):
+                summary[f"err_{ax}_mm"].append(float(rms[i]))
+            summary["mean_baseline_mm"].append(float(base[sel].mean()) if sel.any() else float("nan"))
+    return rows, summary
+
+
+def add_thesis_columns(summary: dict, thesis: dict) -> dict:
+    """The thesis's printed numbers beside ours (NaN where the thesis has no such row)."""
+    out = dict(summary)
+    for col in ("table", "combinations", "err_x_mm", "err_y_mm", "err_z_mm"):
+        out[f"thesis_{col}"] = [thesis.get((m, d), {}).get(col, float("nan"))
+                                for m, d in zip(summary["method"], summary["d_mm"], strict=True)]
+    return out
+
+
+def format_tables(summary: dict, poses: str) -> str:
+    """Our four tables in the thesis's layout, each cell ``ours (thesis)`` in mm."""
+    _, numbers, _ = THESIS_TABLES[poses]
+    lines = []
+    ds = sorted(set(summary["d_mm"]))
+    for m in ("quaternion", "quaternion_ratio", "lms", "lms_ratio"):
+        idx = {d: i for i, (d, mm) in enumerate(zip(summary["d_mm"], summary["method"], strict=True)) if mm == m}
+        if not idx:
+            continue
+        lines.append(f"Table {numbers[m]} ({LABELS[m]}): RMS position error, ours (thesis), mm")
+        lines.append("d_o [mm]      " + "".join(f"{d:>14g}" for d in ds))
+
+        def cell(i, col):
+            ours, th = summary[col][i], summary[f"thesis_{col}"][i]
+            if col == "combinations":
+                return f"{ours:d} ({th:g})" if np.isfinite(th) else f"{ours:d}"
+            return f"{ours:.1f} ({th:.1f})" if np.isfinite(th) else f"{ours:.1f}"
+
+        lines.append("Combinations  " + "".join(f"{cell(idx[d], 'combinations'):>14}" for d in ds))
+        for ax in "xyz":
+            lines.append(f"Error {ax} [mm]  " + "".join(f"{cell(idx[d], f'err_{ax}_mm'):>14}" for d in ds))
+        lines.append("")
+    return "\n".join(lines)
+
+
+def plot_tables(summary: dict, poses: str, path) -> str:
+    """Error vs intraocular distance, one panel per method (Figures 49-52 / 55-58), the thesis's values dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    _, numbers, figs = THESIS_TABLES[poses]
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), sharex=True)
+    colors = {"x": "tab:blue", "y": "tab:orange", "z": "tab:green"}
+    for ax, m in zip(axes.ravel(), ("quaternion", "quaternion_ratio", "lms", "lms_ratio"), strict=True):
+        sel = [i for i, mm in enumerate(summary["method"]) if mm == m]
+        d = np.array(summary["d_mm"])[sel]
+        for a in "xyz":
+            ax.plot(d, np.array(summary[f"err_{a}_mm"])[sel], "o-", color=colors[a], ms=4, label=f"{a} (ours)")
+            ax.plot(d, np.array(summary[f"thesis_err_{a}_mm"])[sel], "s--", color=colors[a], ms=3, alpha=0.55,
+                    label=f"{a} (thesis)")
+        ax.set_yscale("log")
+        ax.set_title(f"Table {numbers[m]}: {LABELS[m]}", fontsize=10)
+        ax.set_ylabel("RMS position error (mm)")
+        ax.grid(alpha=0.3, which="both")
+    for ax in axes[1]:
+        ax.set_xlabel("intraocular distance d_o (mm)")
+    axes[0, 0].legend(fontsize=7, ncol=2)
+    fig.suptitle(f"x-y table positioning error vs intraocular distance ({figs}); dashed: the thesis")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path).name
+
+
+# ------------------------------------------------------------------------------------------------ run
+
+
+def run(cfg, out_dir, verbose=True):
+    """Render (cached), calibrate the camera, run the positioning pipeline, score against the truth."""
+    _check(cfg)
+    out_dir = Path(out_dir)
+    t0 = time.perf_counter()
+    s, p = cfg["sim"], cfg["pipeline"]
+    ds_dir = out_dir / "dataset"
+    cache = out_dir.parent / ".render_cache" if cfg["outputs"]["cache"] else None
+    checks = render(cfg, ds_dir, verbose=verbose, cache_dir=cache)
+    timings = {"render_s": time.perf_counter() - t0}
+    ds = load_dataset(ds_dir)
+    truth = yaml.safe_load((ds_dir / "truth" / "truth.yaml").read_text())  # the evaluator's business only
+    injected = []
+    metrics = dict(checks)
+
+    # --- the camera -------------------------------------------------------------------------------------------------
+    t1 = time.perf_counter()
+    K_true = np.array(truth["camera_K"])
+    if p["camera"] == "calibrated":
+        cal, n_cal = calibrate_from_rig_views(ds, p["camera_model"])
+        camera = cal.camera
+        metrics["reproj_rms_px"] = float(cal.rms_px)
+        metrics["calibration_views_used"] = float(n_cal)
+    elif p["camera"] == "nominal":
+        camera = ds.camera()
+    else:
+        injected.append("camera")
+        camera = CameraModel(int(truth["camera_size"][0]), int(truth["camera_size"][1]), K_true,
+                             np.array(truth["camera_dist"]), name="true lens (INJECTED)")
+    metrics["focal_err_pct"] = float(abs(camera.K[0, 0] / K_true[0, 0] - 1) * 100)
+    metrics["eq199_baseline_mm"] = float(required_baseline(p["range_mm"] * 1e-3, camera.K[0, 0],
+                                                           p["depth_resolution_mm"] * 1e-3) * 1e3)
+    timings["camera_s"] = time.perf_counter() - t1
+
+    # --- features ---------------------------------------------------------------------------------------------------
+    t1 = time.perf_counter()
+    views = table_views(ds)
+    names = [v.name for v in views]
+    if p["features"] == "true_projection":
+        injected.append("features")
+        feats = true_projection_features(truth, names, s["true_projection_points"],
+                                         np.random.default_rng((cfg["seed"], 7)))
+    elif p["features"] == "sift":
+        feats = {v.name: sift_features(v.image(expected_size=camera.size)) for v in views}
+    else:
+        geometry = load_target(ds.root / "target.yaml")
+        feats, lost = {}, []
+        for v in views:
+            res = extract_corners_opencv(v.image(expected_size=camera.size), geometry)
+            if res.success:
+                feats[v.name] = corner_features(res.uv, res.ids, geometry.n_corners)
+            else:
+                lost.append(v.name)
+        metrics["corner_views_lost"] = float(len(lost))
+    timings["features_s"] = time.perf_counter() - t1
+    ref = view_name(p["reference_view"])
+    if ref not in feats:
+        raise ConfigError(ds_dir, ref, "no features found in the reference view")
+
+    # --- the mount bias and the experiment --------------------------------------------------------------------------
+    R0_true = np.array(truth["T_mount_cam"])[:3, :3]
+    R0 = None
+    if p["mount_bias"] == "true":
+        injected.append("mount_bias")
+        R0 = R0_true
+    elif p["mount_bias"] == "zero":
+        R0 = np.eye(3)
+    pc = PositioningConfig(
+        reference=ref, intraocular_mm=tuple(float(d) for d in p["intraocular_mm"]),
+        map_min_baseline_m=p["map_min_baseline_mm"] * 1e-3,
+        map_exclude=tuple(view_name(n) for n in _ints(cfg, "pipeline.map_exclude")),
+        map=MapConfig(orientation_tol_deg=p["orientation_tol_deg"], gap_max_m=p["gap_mm"] * 1e-3),
+        ransac_iterations=p["ransac_iterations"], d_r_m=p["d_r_mm"] * 1e-3, r_lim=p["r_lim"],
+        bias_refine=p["bias_refine"], seed=cfg["seed"])
+    spec = load_table_spec(ds.root / "table.yaml")
+    res = estimate_positions(feats, {n: ds.view(n).table for n in feats}, camera, spec, pc, R0=R0, verbose=verbose)
+    timings.update({k: float(v) for k, v in res.timings_s.items()})
+
+    # --- score ------------------------------------------------------------------------------------------------------
+    rows, summary = score(res, truth, ref, pc.methods)
+    thesis = load_thesis_table(s["poses"])
+    summary = add_thesis_columns(summary, thesis)
+    b_true = np.array(truth["mount_bias_deg"])
+    metrics["bias_rot_err_deg"] = float(np.rad2deg(rotation_angle(res.R0.T @ R0_true)))
+    for i, a in enumerate(("x0", "y0", "z0")):
+        metrics[f"theta_{a}_true_deg"] = float(b_true[i])
+        if np.isfinite(res.bias_deg[i]):
+            metrics[f"theta_{a}_deg"] = float(res.bias_deg[i])
+            metrics[f"theta_{a}_err_deg"] = float(res.bias_deg[i] - b_true[i])
+    metrics["truth_injected"] = float(len(injected))
+    metrics["combinations_total"] = float(sum(len(v) for v in res.pairs.values()))
+    metrics["estimates_failed"] = float(sum(not c.success for c in res.combinations))
+    metrics["keypoints_median"] = float(np.median(list(res.keypoints.values())))
+    metrics["keypoints_reference"] = float(res.keypoints[ref])
+    ok = [c for c in res.combinations if c.success]
+    if ok:
+        metrics["map_points_median"] = float(np.median([c.map_points for c in ok]))
+        metrics["pairs_3d_median"] = float(np.median([c.pairs_3d for c in ok]))
+        metrics["inliers_median"] = float(np.median([c.inliers for c in ok]))
+    ds_list = sorted(res.pairs)
+    for m in pc.methods:
+        for d_key, label in ((100.0, "100"), (ds_list[0], "min_d"), (ds_list[-1], "max_d")):
+            idx = [i for i, (d, mm) in enumerate(zip(summary["d_mm"], summary["method"], strict=True))
+                   if mm == m and abs(d - d_key) < 1e-6]
+            if idx:
+                for ax in "xyz":
+                    metrics[f"{m}_err_{ax}_mm_at_{label}"] = summary[f"err_{ax}_mm"][idx[0]]
+    timings["total_s"] = time.perf_counter() - t0
+
+    # --- outputs ----------------------------------------------------------------------------------------------------
+    setup = {"item": ["camera", "mount_bias", "features", "table_errors", "port", "sensor_noise", "optics",
+                      "reference_object", "camera_model"],
+             "value": [p["camera"], p["mount_bias"], p["features"], str(s["table_errors"]), str(s["port"]),
+                       str(s["sensor_noise"]), s["optics"], s["reference_object"], p["camera_model"]],
+             "truth_injected": [int(k in injected) for k in ("camera", "mount_bias", "features")] + [0] * 6}
+    write_table_csv(out_dir / "position_error_vs_intraocular.csv", summary)
+    write_table_csv(out_dir / "combinations.csv", rows)
+    write_table_csv(out_dir / "setup.csv", setup)
+    artifacts = {"dataset": "dataset", "table": "position_error_vs_intraocular.csv", "combinations": "combinations.csv",
+                 "setup": "setup.csv"}
+    if cfg["outputs"]["plots"] and summary["d_mm"]:
+        artifacts["plot"] = plot_tables(summary, s["poses"], out_dir / "position_error_vs_intraocular.png")
+    path = write_result(out_dir, cfg["name"], cfg["seed"], metrics,
+                        {"position_error_vs_intraocular": summary, "combinations": rows, "setup": setup}, timings,
+                        artifacts)
+    if verbose:
+        print(f"{cfg['name']} (seed {cfg['seed']}): {res.message}")
+        if injected:
+            print(f"  TRUTH INJECTED (evaluator side): {', '.join(injected)}")
+        if res.search is not None:
+            print(f"  mount rotation search: {res.search.message}; true theta_x0, y0, z0 = {b_true.tolist()} deg")
+        print(format_tables(summary, s["poses"]))
+        for k in ("lms_ratio_err_x_mm_at_100", "lms_ratio_err_y_mm_at_100", "lms_ratio_err_z_mm_at_100",
+                  "bias_rot_err_deg", "reproj_rms_px", "focal_err_pct", "keypoints_reference", "map_points_median",
+                  "inliers_median", "estimates_failed"):
+            if k in metrics:
+                print(f"  {k:<28} {metrics[k]:.4g}")
+        print("  timings: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items() if v >= 0.05))
+    return path
