@@ -180,8 +180,9 @@ def _check(cfg):
     _ints(cfg, "pipeline.map_exclude")
 
 
-def _poses(cfg):
-    """(pose numbers, commands (N, 3) [x_m, z_m, rot_rad], TableModel) of the campaign, in the order visited."""
+def _campaign(cfg, rng):
+    """``(pose numbers, TableModel, TableRun)``: the chosen poses of Table 4 / 10 in the order visited, the table
+    (random positioning errors unless ``sim.table_errors`` is false) and what it did (truth and readings)."""
     from bench.sim.scenes.xy_table import (
         NO_ERRORS,
         lab_table_model,
@@ -202,8 +203,9 @@ def _poses(cfg):
         raise ConfigError(cfg["_file"], "pipeline.reference_view",
                           f"pose {cfg['pipeline']['reference_view']} is not among sim.positions")
     chosen = sorted(set(chosen))
-    return chosen, commands[np.array(chosen) - 1], (lab_table_model, underwater_table_model)[s["poses"] == "table10"], \
-        NO_ERRORS, random_table_errors
+    errors = random_table_errors(rng) if s["table_errors"] else NO_ERRORS
+    model = (lab_table_model if s["poses"] == "table4" else underwater_table_model)(errors)
+    return chosen, model, model.run(commands[np.array(chosen) - 1])
 
 
 def view_name(number: int) -> str:
@@ -361,10 +363,8 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     t0 = time.perf_counter()
     s = cfg["sim"]
     rng = np.random.default_rng(cfg["seed"])
-    numbers, commands, make_model, no_errors, random_errors = _poses(cfg)
-    errors = random_errors(rng) if s["table_errors"] else no_errors
-    tm = make_model(errors)
-    run = tm.run(commands)
+    numbers, tm, run = _campaign(cfg, rng)
+    errors = tm.errors
     optics = _optics(cfg)
     nominal_cam = load_preset(optics.nominal_camera)
     lens = _true_camera(cfg, rng, load_preset(optics.lens_camera))
