@@ -27,6 +27,11 @@ from bench.sim.mjcf import robot_object
 from bench.sim.render import SceneRenderer
 from bench.sim.scenes.base import compose, place
 
+#: Version of the image chain's algorithms, part of every render's cache key: bump it when a change of the code
+#: (not of a parameter, which the key already holds) changes the images. 2: sensor noise drawn per row band from
+#: child generators (``bench.sim.parallel``).
+IMAGE_CHAIN_VERSION = 2
+
 
 class ArmScene:
     """The arm with its camera in a scene, ready to render views.
@@ -60,6 +65,8 @@ class ArmScene:
         grid = _pixel_grid(camera)
         self._rays = camera.unproject(grid, normalize=False)  # the lens's pixel rays (distortion included)
         self._cos = cos_beam(self._rays)
+        # path length per unit z-depth along each pixel's ray, |ray| / ray_z (path_length_m, computed once)
+        self._path_per_z = path_length_m(np.ones(self._rays.shape[:2]), self._rays)
         arm = robot_object(robot, eps, T_link5_mount, (self.spec.K, self.spec.width, self.spec.height, T_link5_cam))
         self.objects = [place(arm, T_world_base, "ta40")] + list(objects)
         xml, assets = compose(self.objects, offscreen=(self.spec.width, self.spec.height), center=(1.0, 0.0, 0.5),
@@ -68,7 +75,8 @@ class ArmScene:
         self.data = mujoco.MjData(self.model)
         self.qadr = [self.model.jnt_qposadr[self.model.joint(f"joint{k}").id] for k in range(1, robot.n + 1)]
         self.chain = chain or MediumChain()
-        h = hashlib.sha256(xml.encode())
+        h = hashlib.sha256(f"image chain {IMAGE_CHAIN_VERSION}".encode())
+        h.update(xml.encode())
         for k in sorted(assets):
             h.update(k.encode())
             h.update(hashlib.sha256(assets[k]).digest())
@@ -106,7 +114,7 @@ class ArmScene:
         rng = np.random.default_rng(seed)
         if self.port is None:
             img, z = self.stage.apply(rgb, self.spec.K, depth)
-            path = path_length_m(z, self._rays)
+            path = z * self._path_per_z  # = path_length_m(z, self._rays)
         else:
             out = self.stage.apply(rgb, depth, self.spec.K)
             img, path = out.image, out.water_path

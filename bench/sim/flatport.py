@@ -35,6 +35,7 @@ from bench.camera.model import CameraModel, check_K, from_pixels, to_pixels, unp
 from bench.errors import ConfigError
 from bench.geometry.transforms import rot_x, rot_y
 from bench.sim.distortion import RenderSpec, check_supersample, subsample_coordinates
+from bench.sim.parallel import band_edges, map_bands
 
 #: convergence tolerance of the forward projection (m, on the radial offset from the port axis)
 PROJECT_TOL = 1e-12
@@ -405,18 +406,6 @@ class FlatPortImage:
     unresolved: np.ndarray
 
 
-def _remap_flat(src, uv):
-    """Bilinear ``cv2.remap`` of a single-channel float32 image at ``uv (N, 2)`` (maps laid out in rows of 1024)."""
-    n = uv.shape[0]
-    cols = 1024
-    rows = -(-n // cols)
-    pad = np.zeros((rows * cols, 2), np.float32)
-    pad[:n] = uv
-    pad = pad.reshape(rows, cols, 2)
-    out = cv2.remap(src, pad[..., 0], pad[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1)[:n]
-
-
 class FlatPortStage:
     """The image of a pinhole render seen through a flat port (per-pixel ray tracing).
 
@@ -530,104 +519,214 @@ class FlatPortStage:
         return RenderSpec(K, int(size[0]), int(size[1]), self.supersample)
 
     # --- the depth iteration ------------------------------------------------------------------------------------------
+    def projection(self, which: str, K_render) -> _RayProjection:
+        """Cached :class:`_RayProjection` of the ``which`` rays (see :meth:`rays`) into a render with ``K_render``."""
+        K_r = check_K(K_render, "K_render")
+        key = self._key(which) + (K_r.tobytes(),)
+        if key in _PROJ_CACHE:
+            _PROJ_CACHE.move_to_end(key)
+            return _PROJ_CACHE[key]
+        o, w, _ = self.rays(which)
+        proj = _RayProjection.build(o, w, K_r)
+        _PROJ_CACHE[key] = proj
+        while len(_PROJ_CACHE) > _CACHE_SIZE:
+            _PROJ_CACHE.popitem(last=False)
+        return proj
+
     @staticmethod
     def _solve(o, w, depth32, K_r, max_iterations, tol_rel):
-        """Fixed point of the ray parameter for flat arrays ``o, w (N, 3)``: returns ``(lam, uv, status)``.
+        """Fixed point of the ray parameter for arrays ``o, w (..., 3)``: returns ``(lam, uv, status)`` (flat).
 
         status: 0 converged on a finite surface, 1 background (infinite depth), 2 not converged.
         """
-        N = o.shape[0]
-
-        def sample(pts):
-            uv = to_pixels(pts[:, :2] / pts[:, 2:3], K_r).astype(np.float32)
-            return _remap_flat(depth32, uv).astype(float), uv
-
-        z0, uv = sample(w)  # the far direction
-        lam = np.full(N, np.inf)
-        status = np.full(N, 2, dtype=np.int8)
-        fin = np.isfinite(z0)
-        status[~fin] = 1
-        act = np.flatnonzero(fin)
-        lam[act] = (z0[act] - o[act, 2]) / w[act, 2]
-        for _ in range(max_iterations):
-            if act.size == 0:
-                break
-            pts = o[act] + lam[act, None] * w[act]
-            good = pts[:, 2] > 0
-            z, _uv = sample(np.where(good[:, None], pts, w[act]))
-            new = (z - o[act, 2]) / w[act, 2]
-            fin = np.isfinite(new) & good
-            conv = fin & (np.abs(new - lam[act]) <= tol_rel * np.abs(lam[act]))
-            lam[act] = np.where(fin, new, lam[act])
-            status[act[conv]] = 0
-            status[act[~fin]] = 2
-            act = act[fin & ~conv]
-        pts = o + np.where(np.isfinite(lam), lam, 1.0)[:, None] * w
-        pts = np.where((status == 0)[:, None], pts, w)
-        uv = to_pixels(pts[:, :2] / pts[:, 2:3], K_r)
-        return lam, uv, status
+        proj = _RayProjection.build(np.asarray(o, float).reshape(1, -1, 3), np.asarray(w, float).reshape(1, -1, 3),
+                                    check_K(K_r, "K_render"))
+        lam, u, v, status = _depth_fixed_point(proj, np.asarray(depth32, np.float32), max_iterations, tol_rel)
+        return lam.ravel(), np.stack([u.ravel(), v.ravel()], -1).astype(float), status.ravel()
 
     def apply(self, image, depth, K_render, *, max_iterations: int = 12, tol_rel: float = 1e-6) -> FlatPortImage:
         """The image through the port of a pinhole render ``image (H_r, W_r[, C])`` with z-depth ``depth (H_r, W_r)``
         (m, inf = background) and intrinsics ``K_render`` (no skew).
 
-        Raises a one-line ``ValueError`` when a converged hit point lies outside the render (see
-        :meth:`render_spec`).
+        The output's row bands are traced in parallel threads (:mod:`bench.sim.parallel`; every ray is independent,
+        so the result does not depend on the split). Raises a one-line ``ValueError`` when a converged hit point lies
+        outside the render (see :meth:`render_spec`).
         """
         img = np.asarray(image)
         if img.ndim not in (2, 3) or img.shape[0] < 2 or img.shape[1] < 2:
             raise ValueError(f"image: expected (H, W) or (H, W, C), got shape {img.shape}")
         if img.dtype.kind == "f" and not np.all(np.isfinite(img)):
             raise ValueError("image: contains NaN or inf")
-        d = np.asarray(depth, dtype=np.float64)
+        d = np.asarray(depth)
         if d.shape != img.shape[:2]:
             raise ValueError(f"depth: expected shape {img.shape[:2]} (the image's), got {d.shape}")
-        if np.any(np.isnan(d)) or np.any(d <= 0):
+        if d.dtype.kind not in "fiu" or np.isnan(d).any() or (d <= 0).any():
             raise ValueError("depth: must be > 0 (m) or inf, no NaN")
         K_r = check_K(K_render, "K_render")
         if K_r[0, 1] != 0:
             raise ValueError("K_render: the render must have no skew")
         Hr, Wr = d.shape
-        d32 = d.astype(np.float32)
+        d32 = np.ascontiguousarray(d, dtype=np.float32)
         s, W, H = self.supersample, self.width, self.height
-
-        o, w, _ = self.rays("sub")
-        lam, uv, status = self._solve(o.reshape(-1, 3), w.reshape(-1, 3), d32, K_r, max_iterations, tol_rel)
-        hit = status == 0
-        if np.any(hit):
-            u_hit = uv[hit]
-            if u_hit[:, 0].min() < -0.5 or u_hit[:, 1].min() < -0.5 or u_hit[:, 0].max() > Wr - 0.5 \
-                    or u_hit[:, 1].max() > Hr - 0.5:
-                raise ValueError(f"K_render: a {Wr}x{Hr} render does not cover the points the port image sees; "
-                                 "use FlatPortStage.render_spec(z_min)")
-        map_x = uv[:, 0].reshape(H * s, W * s).astype(np.float32)
-        map_y = uv[:, 1].reshape(H * s, W * s).astype(np.float32)
+        if self.background is not None and img.ndim == 3 and self.background.size not in (1, img.shape[2]):
+            raise ValueError(f"background: expected 1 or {img.shape[2]} values, got {self.background.size}")
         src = img.astype(np.float32)
         chans = [src] if src.ndim == 2 or src.shape[2] <= 4 else [src[..., i] for i in range(src.shape[2])]
-        m1, m2 = cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
-        parts = [cv2.remap(c, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) for c in chans]
-        sub = parts[0] if len(parts) == 1 else np.stack(parts, axis=-1)
-        unresolved = (status == 2).reshape(H * s, W * s)
-        if self.background is not None and np.any(unresolved):
-            bg = self.background if sub.ndim == 3 else self.background[:1]
-            if sub.ndim == 3 and bg.size not in (1, sub.shape[2]):
-                raise ValueError(f"background: expected 1 or {sub.shape[2]} values, got {bg.size}")
-            sub[unresolved] = bg if sub.ndim == 3 else bg[0]
-        if s == 1:
-            out = sub
-        elif sub.ndim == 2 or sub.shape[2] <= 4:
-            out = cv2.resize(sub, (W, H), interpolation=cv2.INTER_AREA)
-        else:
-            out = sub.reshape(H, s, W, s, sub.shape[2]).mean(axis=(1, 3), dtype=np.float32)
+        p_sub, p_ctr = self.projection("sub", K_r), self.projection("centre", K_r)
+
+        def band(r0, r1):
+            """Output rows r0..r1: the box-filtered colour, the centre rays' (lam, z) and the sub-ray status."""
+            ps = p_sub.rows(r0 * s, r1 * s)
+            _, u, v, status = _depth_fixed_point(ps, d32, max_iterations, tol_rel)
+            hit = status == 0
+            if hit.any():
+                # the whole band's maps inside the render imply the hits are; otherwise check the hits alone
+                if u.min() < -0.5 or v.min() < -0.5 or u.max() > Wr - 0.5 or v.max() > Hr - 0.5:
+                    u_hit, v_hit = u[hit], v[hit]
+                    if u_hit.min() < -0.5 or v_hit.min() < -0.5 or u_hit.max() > Wr - 0.5 or v_hit.max() > Hr - 0.5:
+                        raise ValueError(f"K_render: a {Wr}x{Hr} render does not cover the points the port image "
+                                         "sees; use FlatPortStage.render_spec(z_min)")
+            m1, m2 = cv2.convertMaps(u, v, cv2.CV_16SC2)
+            parts = [cv2.remap(c, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) for c in chans]
+            sub = parts[0] if len(parts) == 1 else np.stack(parts, axis=-1)
+            unresolved = status == 2
+            if self.background is not None and unresolved.any():
+                bg = self.background if sub.ndim == 3 else self.background[:1]
+                sub[unresolved] = bg if sub.ndim == 3 else bg[0]
+            if s == 1:
+                out = sub
+            elif sub.ndim == 2 or sub.shape[2] <= 4:  # INTER_AREA at an integer factor: the exact block mean
+                out = cv2.resize(sub, (W, r1 - r0), interpolation=cv2.INTER_AREA)
+            else:
+                out = sub.reshape(r1 - r0, s, W, s, sub.shape[2]).mean(axis=(1, 3), dtype=np.float32)
+            pc = p_ctr.rows(r0, r1)
+            lam_c, _, _, st_c = _depth_fixed_point(pc, d32, max_iterations, tol_rel)
+            lam_c = np.where(st_c == 0, lam_c, np.inf)
+            z_c = np.where(np.isfinite(lam_c), pc.o_z + np.where(np.isfinite(lam_c), lam_c, 0) * pc.w_z, np.inf)
+            unres = unresolved.reshape(r1 - r0, s, W, s).sum(axis=(1, 3)).astype(np.int32)
+            return out, lam_c, z_c, unres, int(np.count_nonzero(hit)), int(np.count_nonzero(status != 1))
+
+        res = map_bands(band, band_edges(H))
+        out = np.concatenate([r[0] for r in res]) if len(res) > 1 else res[0][0]
         if img.dtype.kind in "ui":
             info = np.iinfo(img.dtype)
             out = np.clip(np.rint(out), info.min, info.max).astype(img.dtype)
-
-        oc, wc, _ = self.rays("centre")
-        lam_c, _, st_c = self._solve(oc.reshape(-1, 3), wc.reshape(-1, 3), d32, K_r, max_iterations, tol_rel)
-        lam_c = np.where(st_c == 0, lam_c, np.inf).reshape(H, W)
-        z_c = np.where(np.isfinite(lam_c), oc[..., 2] + np.where(np.isfinite(lam_c), lam_c, 0) * wc[..., 2], np.inf)
-        finite = status != 1
-        frac = float(np.count_nonzero(hit) / max(1, np.count_nonzero(finite)))
-        unres = unresolved.reshape(H, s, W, s).sum(axis=(1, 3)).astype(np.int32)
+        lam_c, z_c, unres = (np.concatenate([r[k] for r in res]) for k in (1, 2, 3))
+        frac = float(sum(r[4] for r in res) / max(1, sum(r[5] for r in res)))
         return FlatPortImage(out, z_c, lam_c, frac, unres)
+
+
+# ----------------------------------------------------------------------------------------------------------------------
+# the depth fixed point, vectorised
+# ----------------------------------------------------------------------------------------------------------------------
+_PROJ_CACHE: OrderedDict = OrderedDict()
+#: the fixed point runs over the whole ray grid while more than this fraction of rays is active, then on the
+#: compacted active rays only (gathering costs more than sampling a few converged rays again)
+_DENSE_FRACTION = 0.2
+
+
+@dataclass(frozen=True)
+class _RayProjection:
+    """Where the points of a grid of water rays ``o + lambda w`` project in a pinhole render ``K_r`` (no skew).
+
+    With ``z`` the point's z-coordinate (camera frame), ``lambda = (z - o_z) / w_z`` and the point's normalised image
+    coordinate is ``x = w_x / w_z + (o_x - o_z w_x / w_z) / z`` (exact), so its render pixel is
+
+        ``u(z) = u_inf + a_u / z``,  ``v(z) = v_inf + a_v / z``,
+
+    ``(u_inf, v_inf)`` the pixel of the ray's direction at infinity and ``a = f_r (o_xy - o_z w_xy / w_z)`` (px m).
+    The four fields are computed once per (rays, ``K_r``) in float64 and kept in float32 for the iteration (their
+    rounding, < 1e-4 render px, is far below the 1/32 px bilinear weight quantisation of ``cv2.remap``).
+    """
+
+    u_inf: np.ndarray  # (R, C) float64
+    v_inf: np.ndarray
+    a_u: np.ndarray
+    a_v: np.ndarray
+    o_z: np.ndarray  # (R, C) float64
+    w_z: np.ndarray
+    f32: tuple  # float32 copies of (u_inf, v_inf, a_u, a_v, o_z)
+
+    def rows(self, r0: int, r1: int) -> _RayProjection:
+        """The rays of grid rows ``r0..r1`` (views)."""
+        return _RayProjection(*(a[r0:r1] for a in (self.u_inf, self.v_inf, self.a_u, self.a_v, self.o_z, self.w_z)),
+                              tuple(a[r0:r1] for a in self.f32))
+
+    @classmethod
+    def build(cls, o, w, K_r) -> _RayProjection:
+        rx, ry = w[..., 0] / w[..., 2], w[..., 1] / w[..., 2]
+        u_inf = K_r[0, 0] * rx + K_r[0, 2]
+        v_inf = K_r[1, 1] * ry + K_r[1, 2]
+        a_u = K_r[0, 0] * (o[..., 0] - o[..., 2] * rx)
+        a_v = K_r[1, 1] * (o[..., 1] - o[..., 2] * ry)
+        o_z, w_z = np.ascontiguousarray(o[..., 2]), np.ascontiguousarray(w[..., 2])
+        f32 = tuple(np.ascontiguousarray(a, dtype=np.float32) for a in (u_inf, v_inf, a_u, a_v, o_z))
+        return cls(u_inf, v_inf, a_u, a_v, o_z, w_z, f32)
+
+
+def _remap_points(src, u, v):
+    """Bilinear ``cv2.remap`` of a single-channel float32 image at the points ``(u, v)`` (flat float32 arrays)."""
+    n = u.size
+    cols = 1024
+    rows = -(-n // cols)
+    mu = np.zeros(rows * cols, np.float32)
+    mv = np.zeros(rows * cols, np.float32)
+    mu[:n], mv[:n] = u, v
+    out = cv2.remap(src, mu.reshape(rows, cols), mv.reshape(rows, cols), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1)[:n]
+
+
+def _depth_fixed_point(proj: _RayProjection, depth32, max_iterations: int, tol_rel: float):
+    """The depth fixed point of :class:`FlatPortStage` for a grid of rays: ``(lam, u, v, status)``, each ``(R, C)``.
+
+    In the point's z (see :class:`_RayProjection`) the iteration ``lambda <- (z_r(K_r pi(o + lambda w)) - o_z) / w_z``
+    reads ``z <- z_r(u(z), v(z))``, started from the render depth in the ray's far direction; a ray has converged when
+    ``|dz| <= tol_rel (z - o_z)`` (i.e. ``|d lambda| <= tol_rel lambda``). Each step samples the depth buffer (bilinear,
+    ``cv2.remap``) for the whole grid while many rays are active, then for the remaining rays only. status: 0 converged
+    on a finite surface, 1 background (infinite depth in the far direction), 2 not converged (an occlusion edge) or
+    stepped onto the background. ``(u, v)`` (render px, float32: the maps of ``cv2.remap``, whose rounding, < 1e-4 px,
+    is far below its 1/32 px weight quantisation) is the converged point's pixel for status 0 and the direction at
+    infinity otherwise; ``lam`` (float64) is inf unless status is 0.
+    """
+    u_inf, v_inf, a_u, a_v, o_z = proj.f32
+    shape = u_inf.shape
+    z = cv2.remap(depth32, u_inf, v_inf, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    status = np.full(shape, 2, dtype=np.int8)
+    active = np.isfinite(z)
+    status[~active] = 1
+    n_total = z.size
+    it = 0
+    while it < max_iterations and np.count_nonzero(active) > _DENSE_FRACTION * n_total:  # dense steps
+        it += 1
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = np.float32(1.0) / z
+            z_new = cv2.remap(depth32, u_inf + a_u * inv, v_inf + a_v * inv, cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_REPLICATE)
+            fin = np.isfinite(z_new)
+            conv = active & fin & (np.abs(z_new - z) <= np.float32(tol_rel) * np.abs(z - o_z))
+        np.copyto(z, z_new, where=active & fin)
+        status[conv] = 0
+        active &= fin & ~conv
+    idx = np.flatnonzero(active)
+    zf, sf = z.reshape(-1), status.reshape(-1)
+    if idx.size and it < max_iterations:  # sparse steps on the remaining rays
+        ui, vi, aui, avi, ozi = (a.reshape(-1)[idx] for a in (u_inf, v_inf, a_u, a_v, o_z))
+        zi = zf[idx]
+        for _ in range(it, max_iterations):
+            inv = np.float32(1.0) / zi
+            z_new = _remap_points(depth32, ui + aui * inv, vi + avi * inv)
+            fin = np.isfinite(z_new)
+            conv = fin & (np.abs(z_new - zi) <= np.float32(tol_rel) * np.abs(zi - ozi))
+            zi = np.where(fin, z_new, zi)
+            sf[idx[conv]] = 0
+            keep = fin & ~conv
+            zf[idx] = zi
+            idx, zi, ui, vi, aui, avi, ozi = (a[keep] for a in (idx, zi, ui, vi, aui, avi, ozi))
+            if idx.size == 0:
+                break
+    hit = status == 0
+    inv = np.where(hit, np.float32(1.0) / z, np.float32(0.0))
+    u, v = u_inf + a_u * inv, v_inf + a_v * inv
+    lam = np.where(hit, (z.astype(np.float64) - proj.o_z) / proj.w_z, np.inf)
+    return lam, u, v, status

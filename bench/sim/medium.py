@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from bench.camera.model import check_K
+from bench.sim.parallel import band_edges, map_bands
 
 # ----------------------------------------------------------------------------------------------------------------------
 # parameters
@@ -191,7 +192,11 @@ class Sensor:
 # checks and geometry
 # ----------------------------------------------------------------------------------------------------------------------
 def check_image(image, name="image") -> np.ndarray:
-    """Linear float64 radiance ``(H, W, 3)``: uint8 is divided by 255, floats must be finite and >= 0."""
+    """Linear radiance ``(H, W, 3)``: uint8 is divided by 255 (float64), floats must be finite and >= 0.
+
+    float32 stays float32 (what :func:`apply_medium` computes in: its relative rounding, 6e-8, is 1e-3 electron at
+    full well), other floats become float64.
+    """
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 1 or img.shape[1] < 1:
         raise ValueError(f"{name}: expected an RGB image (H, W, 3), got shape {img.shape}")
@@ -199,8 +204,8 @@ def check_image(image, name="image") -> np.ndarray:
         return img.astype(float) / 255.0
     if img.dtype.kind != "f":
         raise ValueError(f"{name}: expected uint8 or float radiance, got dtype {img.dtype}")
-    img = img.astype(float)
-    if not np.all(np.isfinite(img)) or np.any(img < 0):
+    img = img if img.dtype == np.float32 else img.astype(float)
+    if not np.isfinite(img).all() or (img < 0).any():
         raise ValueError(f"{name}: float radiance must be finite and >= 0")
     return img
 
@@ -298,16 +303,17 @@ def illuminate(image, range_m, cos_theta, light: Light, medium: WaterMedium | No
         Attenuates the outgoing light when ``light.attenuate_outgoing``.
     """
     J = check_image(image)
-    r = check_path(range_m, J.shape[:2], "range_m")
-    c = np.asarray(cos_theta, dtype=float)
-    if c.shape != r.shape or np.any(~np.isfinite(c)) or np.any(c < 0) or np.any(c > 1):
+    dt = J.dtype
+    r = check_path(range_m, J.shape[:2], "range_m").astype(dt, copy=False)
+    c = np.asarray(cos_theta)
+    if c.shape != r.shape or not np.isfinite(c).all() or (c < 0).any() or (c > 1).any():
         raise ValueError(f"cos_theta: expected values in [0, 1] with shape {r.shape}")
     with np.errstate(divide="ignore"):
-        lamp = (light.ref_range_m / r) ** 2 * c**light.beam_exponent
-    lamp = np.where(r > 0, lamp, 0.0)[..., None]
+        lamp = (dt.type(light.ref_range_m) / r) ** 2 * c.astype(dt, copy=False) ** dt.type(light.beam_exponent)
+    lamp = np.where(r > 0, lamp, dt.type(0))[..., None]
     if medium is not None and light.attenuate_outgoing:
-        lamp = lamp * np.exp(-medium.beta_D_per_m * r[..., None])
-    return J * (light.ambient + lamp)
+        lamp = lamp * np.exp(-medium.beta_D_per_m.astype(dt) * r[..., None])
+    return J * (dt.type(light.ambient) + lamp)
 
 
 def attenuate(image, path_m, medium: WaterMedium) -> np.ndarray:
@@ -316,47 +322,72 @@ def attenuate(image, path_m, medium: WaterMedium) -> np.ndarray:
     ``path_m`` is the in-water path length along each pixel's ray (m); inf gives the veiling light ``B_inf``.
     """
     J = check_image(image)
-    r = check_path(path_m, J.shape[:2])[..., None]
-    direct = np.where(np.isinf(r), 0.0, J * np.exp(-medium.beta_D_per_m * np.where(np.isinf(r), 0.0, r)))
-    return direct + medium.B_inf * (1.0 - np.exp(-medium.beta_B_per_m * r))
+    dt = J.dtype
+    r = check_path(path_m, J.shape[:2]).astype(dt, copy=False)[..., None]
+    far = np.isinf(r)
+    direct = np.where(far, dt.type(0), J * np.exp(-medium.beta_D_per_m.astype(dt) * np.where(far, dt.type(0), r)))
+    return direct + medium.B_inf.astype(dt) * (dt.type(1) - np.exp(-medium.beta_B_per_m.astype(dt) * r))
 
 
 def forward_scatter(image, path_m, sigma_px_per_m: float, max_sigma_px: float = 3.0, levels: int = 7):
     """Depth-dependent Gaussian blur ``sigma = min(sigma_px_per_m r, max_sigma_px)`` (px).
 
     The image is blurred at ``levels`` sigmas evenly spaced in ``[0, max]`` and each pixel interpolates linearly
-    between the two levels around its sigma (a zero path leaves a pixel unchanged).
+    between the two levels around its sigma (a zero path leaves a pixel unchanged): the weight of level ``l`` is the
+    hat ``max(0, 1 - |sigma / step - l|)``, so only the levels up to the largest sigma in the image are blurred.
     """
     img = check_image(image)
     r = check_path(path_m, img.shape[:2])
     sigma_px_per_m = _scalar("forward_scatter", "sigma_px_per_m", sigma_px_per_m, 0.0, 100.0)
     max_sigma_px = _scalar("forward_scatter", "max_sigma_px", max_sigma_px, 0.0, 50.0, True)
-    sig = np.minimum(sigma_px_per_m * np.where(np.isinf(r), np.inf, r), max_sigma_px)
+    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 2:
+        raise ValueError(f"levels: expected an integer >= 2, got {levels!r}")
+    with np.errstate(invalid="ignore"):
+        sig = np.minimum(sigma_px_per_m * r, max_sigma_px)
     sig = np.where(np.isnan(sig), 0.0, sig)  # 0 * inf
     if not np.any(sig > 0):
         return img
-    grid = np.linspace(0.0, max_sigma_px, levels)
-    stack = [img] + [cv2.GaussianBlur(img, (0, 0), sigmaX=g, sigmaY=g, borderType=cv2.BORDER_REFLECT) for g in grid[1:]]
-    pos = sig / grid[1]
-    i0 = np.clip(np.floor(pos).astype(int), 0, levels - 2)
-    f = (pos - i0)[..., None]
-    stack = np.stack(stack)
-    rows, cols = np.indices(sig.shape)
-    return (1 - f) * stack[i0, rows, cols] + f * stack[i0 + 1, rows, cols]
+    step = max_sigma_px / (levels - 1)
+    pos = (sig / step).astype(img.dtype)
+    top = min(int(np.ceil(pos.max())), levels - 1)  # the highest level with a non-zero weight
+    out = np.zeros_like(img)
+    for lev in range(top + 1):
+        wgt = np.maximum(img.dtype.type(0), img.dtype.type(1) - np.abs(pos - lev))
+        if not wgt.any():
+            continue
+        g = lev * step
+        blurred = img if lev == 0 else cv2.GaussianBlur(img, (0, 0), sigmaX=g, sigmaY=g,
+                                                        borderType=cv2.BORDER_REFLECT)
+        out += wgt[..., None] * blurred
+    return out
 
 
 def sensor(image, rng: np.random.Generator, spec: Sensor) -> np.ndarray:
     """8-bit image of linear radiance: ``DN = round(gain (Poisson(min(E, full well)) + N(0, read^2)))``.
 
     ``E = image * exposure * full_well_e`` electrons; DN clipped to 0..255; then JPEG if ``spec.jpeg_quality``.
+    Images of at least :data:`bench.sim.parallel.MIN_ROWS` rows are drawn in row bands, in parallel threads, each
+    from its own child generator (``rng.spawn``): the image of a seed is the same on every machine.
     """
     img = check_image(image)
     if not isinstance(rng, np.random.Generator):
         raise ValueError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
-    electrons = np.minimum(img * spec.exposure * spec.full_well_e, spec.full_well_e)
-    e = rng.poisson(electrons).astype(float) + rng.normal(0.0, spec.read_noise_e, img.shape) \
-        if spec.read_noise_e > 0 else rng.poisson(electrons).astype(float)
-    out = np.clip(np.rint(spec.gain_dn_per_e * e), 0, 255).astype(np.uint8)
+    edges = band_edges(img.shape[0])
+    rngs = [rng] if len(edges) == 2 else rng.spawn(len(edges) - 1)
+    scale = spec.exposure * spec.full_well_e
+
+    def band(r0, r1):
+        g = rngs[0] if len(rngs) == 1 else rngs[int(np.searchsorted(edges, r0))]
+        electrons = np.minimum(img[r0:r1] * scale, spec.full_well_e)
+        # electron counts are integers below 1e8 and the read noise a few e-: float32 holds both exactly enough
+        e = g.poisson(electrons).astype(np.float32)
+        if spec.read_noise_e > 0:
+            e += g.normal(0.0, spec.read_noise_e, e.shape).astype(np.float32)
+        e *= np.float32(spec.gain_dn_per_e)
+        return np.clip(np.rint(e), 0, 255).astype(np.uint8)
+
+    parts = map_bands(band, edges)
+    out = parts[0] if len(parts) == 1 else np.concatenate(parts)
     return jpeg(out, spec.jpeg_quality)
 
 
@@ -418,26 +449,38 @@ def apply_medium(image, path_m, rng: np.random.Generator, chain: MediumChain, co
     Returns
     -------
     ndarray (H, W, 3)
-        uint8 when ``chain.sensor`` is set, else linear float64.
+        uint8 when ``chain.sensor`` is set, else linear float64. (A uint8 render is processed in float32.)
     """
-    img = check_image(image)
+    img = np.asarray(image)
+    img = (img.astype(np.float32) * np.float32(1 / 255)) if img.dtype == np.uint8 else check_image(img)
     r = check_path(path_m, img.shape[:2])
+    r_lamp = None
     if chain.light is not None:
         if points_cam is not None:
             r_lamp, cos_theta = lamp_geometry(points_cam, chain.light)
             if r_lamp.shape != r.shape:
                 raise ValueError(f"points_cam: expected shape {r.shape + (3,)}, got {np.shape(points_cam)}")
-            img = illuminate(img, r_lamp, cos_theta, chain.light, chain.medium)
         elif not chain.light.co_located:
             raise ValueError("points_cam: needed for a lamp that is not co-located with the camera (lamp_geometry)")
         elif cos_theta is None:
             raise ValueError("cos_theta: needed for the lamp's beam profile (see cos_beam)")
         else:
-            img = illuminate(img, r, cos_theta, chain.light, chain.medium)
+            r_lamp = r
+    if r_lamp is not None or chain.medium is not None:
+
+        def lit(r0, r1):  # per-pixel stages, in row bands
+            out = img[r0:r1]
+            if r_lamp is not None:
+                out = illuminate(out, r_lamp[r0:r1], np.asarray(cos_theta)[r0:r1], chain.light, chain.medium)
+            if chain.medium is not None:
+                out = attenuate(out, r[r0:r1], chain.medium)
+            return out
+
+        parts = map_bands(lit, band_edges(img.shape[0]))
+        img = parts[0] if len(parts) == 1 else np.concatenate(parts)
     if chain.medium is not None:
-        img = attenuate(img, r, chain.medium)
         if chain.medium.forward_scatter_px_per_m > 0:
             img = forward_scatter(img, r, chain.medium.forward_scatter_px_per_m, chain.max_blur_px)
     if chain.sensor is not None:
         return sensor(img, rng, chain.sensor)
-    return img
+    return img.astype(np.float64)

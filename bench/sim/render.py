@@ -70,37 +70,91 @@ class SceneRenderer:
 
     The offscreen framebuffer of the model (``<visual><global offwidth offheight>``) must be at least that large.
     Depth is the distance along the camera's optical axis (m); pixels that see nothing are ``inf``.
+
+    One OpenGL context, scene and MuJoCo render context per instance, created once and reused for every frame. The
+    depth buffer is converted to metric z exactly as ``mujoco.Renderer`` does (reversed-z, float64 arithmetic on the
+    float32 buffer, rounded to float32). Without multisampling (``<quality offsamples="0"/>``) each frame is
+    rasterised once and colour and depth are read from that pass - bit for bit what ``mujoco.Renderer``'s separate
+    colour and depth passes give (tested). With multisampling the resolved depth of the lit pass would be one of the
+    MSAA samples at edges rather than the pixel centre, so the depth then comes from a second, unlit pass with
+    MuJoCo's segmentation flags (which renders without multisampling), as ``mujoco.Renderer`` does.
     """
 
     def __init__(self, model, camera: str, width: int, height: int):
         import mujoco
 
         self.model, self.camera, self.width, self.height = model, camera, int(width), int(height)
-        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
+        self._con = self._ctx = None
+        cid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+        if cid < 0:
             raise BenchError(f"camera {camera!r}: not in the scene model")
         if model.vis.global_.offwidth < self.width or model.vis.global_.offheight < self.height:
             raise BenchError(f"render size {self.width}x{self.height} exceeds the model's offscreen buffer "
                              f"{model.vis.global_.offwidth}x{model.vis.global_.offheight}")
         try:
-            self._rgb = mujoco.Renderer(model, self.height, self.width)
-            self._depth = mujoco.Renderer(model, self.height, self.width)
+            if mujoco.GLContext is None:
+                raise RuntimeError("MuJoCo found no usable OpenGL backend")
+            self._ctx = mujoco.GLContext(self.width, self.height)
+            self._ctx.make_current()
+            self._con = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
+            mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._con)
+            self._con.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
         except Exception as exc:  # noqa: BLE001 - any GL failure becomes the one-line hint
+            self.close()
             raise _gl_error(exc) from None
-        self._depth.enable_depth_rendering()
+        self._scene = mujoco.MjvScene(model, maxgeom=10000)
+        self._option = mujoco.MjvOption()
+        self._cam = mujoco.MjvCamera()
+        self._cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self._cam.fixedcamid = cid
+        self._rect = mujoco.MjrRect(0, 0, self.width, self.height)
+        self._msaa = int(model.vis.quality.offsamples) > 0  # the framebuffer's samples, fixed at context creation
+        self._rgb = np.empty((self.height, self.width, 3), dtype=np.uint8)
+        self._zbuf = np.empty((self.height, self.width), dtype=np.float32)
         self.zfar = model.vis.map.zfar * model.stat.extent
+        # glFrustum's reversed-z coefficients in float32, as mujoco.Renderer computes them
+        zfar, znear = np.float32(self.zfar), np.float32(model.vis.map.znear * model.stat.extent)
+        c = -(zfar + znear) / (zfar - znear)
+        d = -(np.float32(2) * zfar * znear) / (zfar - znear)
+        self._c, self._d = float(np.float32(-0.5) * c - np.float32(0.5)), float(np.float32(-0.5) * d)
 
     def render(self, data) -> tuple:
         """``(rgb uint8 (H, W, 3), depth float64 (H, W) m)`` for the current ``data`` (after ``mj_forward``)."""
-        self._rgb.update_scene(data, self.camera)
-        rgb = self._rgb.render().copy()
-        self._depth.update_scene(data, self.camera)
-        depth = self._depth.render().astype(np.float64)
+        import mujoco
+
+        if self._con is None:
+            raise RuntimeError("SceneRenderer: render() after close()")
+        self._ctx.make_current()
+        mujoco.mjv_updateScene(self.model, data, self._option, None, self._cam, mujoco.mjtCatBit.mjCAT_ALL,
+                               self._scene)
+        mujoco.mjr_render(self._rect, self._scene, self._con)
+        if not self._msaa:
+            mujoco.mjr_readPixels(self._rgb, self._zbuf, self._rect, self._con)
+        else:
+            mujoco.mjr_readPixels(self._rgb, None, self._rect, self._con)
+            flags = self._scene.flags.copy()
+            self._scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
+            self._scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
+            try:
+                mujoco.mjr_render(self._rect, self._scene, self._con)
+                mujoco.mjr_readPixels(None, self._zbuf, self._rect, self._con)
+            finally:
+                np.copyto(self._scene.flags, flags)
+        rgb = self._rgb[::-1].copy()  # OpenGL rows run bottom-up
+        depth = self._d / (self._zbuf[::-1].astype(np.float64) + self._c)
+        # mujoco.Renderer rounds the metric depth to float32: keep its values bit for bit
+        depth = depth.astype(np.float32).astype(np.float64)
         depth[depth >= 0.99 * self.zfar] = np.inf  # the far plane (float32 depth buffer: ~0.1 % short of zfar)
         return rgb, depth
 
     def close(self) -> None:
-        self._rgb.close()
-        self._depth.close()
+        if self._con is not None:
+            self._ctx.make_current()
+            self._con.free()
+            self._con = None
+        if self._ctx is not None:
+            self._ctx.free()
+            self._ctx = None
 
     def __enter__(self):
         return self
