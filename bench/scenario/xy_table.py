@@ -23,7 +23,7 @@ four alignment methods. The evaluator scores each estimated position against the
 the reference view's, in the table's axes) and prints our four tables beside the thesis's.
 
 Error sources can be switched off one at a time (``sim.*`` keys) and truth can be injected on the evaluator's side
-(``pipeline.camera: true``, ``pipeline.mount_bias: true``, ``pipeline.features: true_projection``); every injection is
+(``pipeline.camera: truth``, ``pipeline.mount_bias: truth``, ``pipeline.features: true_projection``); every injection is
 listed in ``result.json`` (``metrics.truth_injected`` and the ``setup`` table).
 """
 
@@ -71,8 +71,8 @@ THESIS_TABLES = {"table4": (DATA / "thesis_tables_5_8.csv", {"quaternion": 5, "q
 LABELS = {"quaternion": "RANSAC, quaternion", "quaternion_ratio": "RANSAC, quaternion, error-ratio elimination",
           "lms": "RANSAC, LMS", "lms_ratio": "RANSAC, LMS, error-ratio elimination"}
 TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
-CAMERA_CHOICES = ("calibrated", "nominal", "true")
-BIAS_CHOICES = ("estimated", "true", "zero")
+CAMERA_CHOICES = ("calibrated", "nominal", "truth")
+BIAS_CHOICES = ("estimated", "truth", "zero")
 FEATURE_CHOICES = ("sift", "corners", "true_projection")
 
 SCHEMA = {
@@ -101,10 +101,11 @@ SCHEMA = {
         "true_projection_points": (int, 800),   # points on the reference for pipeline.features = true_projection
     },
     "pipeline": {
-        "camera": (str, "calibrated"),          # calibrated (rig views) | nominal (camera.yaml) | true (INJECTED)
+        "camera": (str, "calibrated"),          # calibrated (rig views) | nominal (camera.yaml) | truth (INJECTED)
         "camera_model": (str, "pinhole"),       # heikkila | radial | pinhole (calibration model)
-        "mount_bias": (str, "estimated"),       # estimated (Eq. 197-198 search) | true (INJECTED) | zero
+        "mount_bias": (str, "estimated"),       # estimated (Eq. 197-198 search) | truth (INJECTED) | zero
         "bias_refine": (bool, False),           # finer second pass of the search
+        "bias_depth_statistic": (str, "median"),  # median (robust) | mean (the thesis's average, Eq. 197 search)
         "features": (str, "sift"),              # sift | corners (rig) | true_projection (INJECTED)
         "reference_view": (int, 11),
         "intraocular_mm": (list, [20, 30, 40, 50, 60, 70, 80, 90, 100, 110]),
@@ -146,7 +147,8 @@ def _check(cfg):
     src, s, p = cfg["_file"], cfg["sim"], cfg["pipeline"]
     choices = {"sim.poses": ("table4", "table10"), "sim.reference_object": ("panel", "rig"),
                "pipeline.camera": CAMERA_CHOICES, "pipeline.mount_bias": BIAS_CHOICES,
-               "pipeline.features": FEATURE_CHOICES, "pipeline.camera_model": ("heikkila", "radial", "pinhole")}
+               "pipeline.features": FEATURE_CHOICES, "pipeline.camera_model": ("heikkila", "radial", "pinhole"),
+               "pipeline.bias_depth_statistic": ("median", "mean")}
     for key, allowed in choices.items():
         sec, k = key.split(".")
         if cfg[sec][k] not in allowed:
@@ -461,7 +463,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
             "n_water": optics.port.n_water, "tilt": optics.port.tilt.tolist(),
             "decentre": optics.port.decentre.tolist()}},
         "reference_object": s["reference_object"], "T_table_reference": T_table_ref.tolist(),
-        "reference_corners": ref_obj.features["corners"].tolist() if "corners" in ref_obj.features else None,
+        "reference_corners": ref_obj.features["corners"].tolist() if s["reference_object"] == "rig" else None,
         "panel_size_m": _vec(cfg, "sim.panel_size_m", 2).tolist() if s["reference_object"] == "panel" else None,
         "calibration": {"T_world_rig": T_world_rig.tolist(),
                         "T_world_cam": {f"cal{k + 1:02d}": T.tolist() for k, T in enumerate(T_world_cal)}},
@@ -756,7 +758,7 @@ def run(cfg, out_dir, verbose=True):
     # --- the mount bias and the experiment --------------------------------------------------------------------------
     R0_true = np.array(truth["T_mount_cam"])[:3, :3]
     R0 = None
-    if p["mount_bias"] == "true":
+    if p["mount_bias"] == "truth":
         injected.append("mount_bias")
         R0 = R0_true
     elif p["mount_bias"] == "zero":
@@ -767,7 +769,7 @@ def run(cfg, out_dir, verbose=True):
         map_exclude=tuple(view_name(n) for n in _ints(cfg, "pipeline.map_exclude")),
         map=MapConfig(orientation_tol_deg=p["orientation_tol_deg"], gap_max_m=p["gap_mm"] * 1e-3),
         ransac_iterations=p["ransac_iterations"], d_r_m=p["d_r_mm"] * 1e-3, r_lim=p["r_lim"],
-        bias_refine=p["bias_refine"], seed=cfg["seed"])
+        bias_refine=p["bias_refine"], bias_depth_statistic=p["bias_depth_statistic"], seed=cfg["seed"])
     spec = load_table_spec(ds.root / "table.yaml")
     res = estimate_positions(feats, {n: ds.view(n).table for n in feats}, camera, spec, pc, R0=R0, verbose=verbose)
     timings.update({k: float(v) for k, v in res.timings_s.items()})

@@ -210,7 +210,8 @@ class MountSearchResult:
 
 def search_mount_rotation(reference, views, T_base_mount_ref, T_base_mount, t_mount_cam, grid_y, grid_z,
                           left: int = 0, right: int = -1, coincide_m: float = 0.001, gap_max_m: float = 0.005,
-                          ratio: float = 0.8, orientation_tol_deg: float = 20.0) -> MountSearchResult:
+                          ratio: float = 0.8, orientation_tol_deg: float = 20.0,
+                          depth_statistic: str = "mean", theta_z0_during_y: float = 0.0) -> MountSearchResult:
     """The thesis's search for the mount rotation (section 5.2.2).
 
     Parameters
@@ -230,7 +231,17 @@ def search_mount_rotation(reference, views, T_base_mount_ref, T_base_mount, t_mo
         ``theta_z0`` with the best ``theta_y0`` (the thesis's order), ``theta_x0 = 0``.
     left, right : int
         Indices in ``views`` of the two views whose triangulations must agree in mean depth.
+    depth_statistic : {"mean", "median"}
+        ``"mean"``: the thesis's criterion, the difference of the mean depths of the common points. ``"median"``: the
+        median of the per-point depth differences, which a few false matches that pass the gap filter cannot move
+        (the thesis averaged over "six good keypoint matches"; with all matches, a handful of wrong ones with depth
+        errors of decimetres shifted the mean by millimetres and theta_y0 by 1-2 deg in the x-y table scenario).
+    theta_z0_during_y : float
+        ``theta_z0`` (rad) assumed while ``theta_y0`` is searched (thesis: 0). A second pass with the first pass's
+        ``theta_z0`` removes the coupling of the two searches (a wrong roll tilts the rotation axis of the views).
     """
+    if depth_statistic not in ("mean", "median"):
+        raise ValueError(f"depth_statistic: expected 'mean' or 'median', got {depth_statistic!r}")
     T_bm = _check_stack(T_base_mount, "T_base_mount")
     if len(T_bm) != len(views):
         raise ValueError(f"T_base_mount: {len(T_bm)} poses for {len(views)} views")
@@ -250,13 +261,15 @@ def search_mount_rotation(reference, views, T_base_mount_ref, T_base_mount, t_mo
         return m.i1, tri
 
     def depth_gap(ty):
-        P = poses(ty, 0.0)
+        P = poses(ty, theta_z0_during_y)
         il, tl = triang(left, P[left])
         ir, tr = triang(right, P[right])
         common, al, ar = np.intersect1d(il, ir, return_indices=True)
         ok = tl.valid[al] & tr.valid[ar] & (tl.gap[al] <= gap_max_m) & (tr.gap[ar] <= gap_max_m)
         if ok.sum() == 0:
             return np.inf
+        if depth_statistic == "median":
+            return abs(float(np.median(tl.p1[al][ok, 2] - tr.p1[ar][ok, 2])))
         return abs(float(np.mean(tl.p1[al][ok, 2]) - np.mean(tr.p1[ar][ok, 2])))
 
     def coinciding(ty, tz):
@@ -271,6 +284,6 @@ def search_mount_rotation(reference, views, T_base_mount_ref, T_base_mount, t_mo
     ty = float(gy[np.argmin(cy)])
     cz, med = np.array([coinciding(ty, a) for a in gz]).T
     tz = float(gz[np.lexsort((med, -cz))[0]])
-    msg = (f"theta_y0 = {np.rad2deg(ty):.2f} deg (mean-depth gap {cy.min() * 1e3:.2f} mm), theta_z0 = "
+    msg = (f"theta_y0 = {np.rad2deg(ty):.2f} deg ({depth_statistic}-depth gap {cy.min() * 1e3:.2f} mm), theta_z0 = "
            f"{np.rad2deg(tz):.2f} deg ({int(cz.max())} coinciding rays)")
     return MountSearchResult(0.0, ty, tz, (gy, cy), (gz, cz), msg)

@@ -210,7 +210,11 @@ class PositioningConfig:
     bias_grid_y_deg, bias_grid_z_deg : (start, stop, step)
         Search grids of ``theta_y0`` (thesis steps of 0.5 deg) and ``theta_z0`` (0.1 deg), inclusive.
     bias_refine : bool
-        After the thesis's grids, search again on grids ten times finer around the optimum.
+        After the thesis's search, search ``theta_y0`` again with the ``theta_z0`` found (the thesis searched it with
+        ``theta_z0 = 0``), then both on grids ten times finer around the optimum.
+    bias_depth_statistic : {"median", "mean"}
+        ``theta_y0`` criterion: the median of the per-point depth differences (robust to the few false matches that
+        pass the gap filter) or the thesis's difference of mean depths (it used six hand-verified matches).
     coincide_m : float
         The ``theta_z0`` criterion's coincidence distance (thesis: 1 mm).
     pair_tolerance_m : float
@@ -231,6 +235,7 @@ class PositioningConfig:
     bias_grid_y_deg: tuple = (-12.0, 12.0, 0.5)
     bias_grid_z_deg: tuple = (-5.0, 5.0, 0.1)
     bias_refine: bool = False
+    bias_depth_statistic: str = "median"
     coincide_m: float = 0.001
     pair_tolerance_m: float = 0.001
     seed: int = 0
@@ -346,13 +351,16 @@ def _search_bias(obs, T_table_stage, names, ref, offset, cfg: PositioningConfig,
     gy, gz = np.deg2rad(_grid(cfg.bias_grid_y_deg, "bias_grid_y_deg")), \
         np.deg2rad(_grid(cfg.bias_grid_z_deg, "bias_grid_z_deg"))
     kw = dict(left=left, right=right, coincide_m=cfg.coincide_m, gap_max_m=cfg.map.gap_max_m, ratio=cfg.map.ratio,
-              orientation_tol_deg=cfg.map.orientation_tol_deg)
+              orientation_tol_deg=cfg.map.orientation_tol_deg, depth_statistic=cfg.bias_depth_statistic)
     res = search_mount_rotation(obs[ref], views, T_ref, T_st, offset, gy, gz, **kw)
-    if cfg.bias_refine:
+    if cfg.bias_refine:  # theta_y0 again with the theta_z0 found, then both on grids ten times finer
         sy, sz = gy[1] - gy[0] if len(gy) > 1 else 0.0, gz[1] - gz[0] if len(gz) > 1 else 0.0
+        res = search_mount_rotation(obs[ref], views, T_ref, T_st, offset, gy, [res.theta_z0], **kw,
+                                    theta_z0_during_y=res.theta_z0)
         fy = res.theta_y0 + np.linspace(-sy, sy, 21)
         fz = res.theta_z0 + np.linspace(-sz, sz, 21)
-        res = search_mount_rotation(obs[ref], views, T_ref, T_st, offset, fy, fz, **kw)
+        res = search_mount_rotation(obs[ref], views, T_ref, T_st, offset, fy, fz, **kw,
+                                    theta_z0_during_y=res.theta_z0)
     return res
 
 

@@ -229,3 +229,37 @@ def test_unknown_reference_and_method():
     with pytest.raises(ValueError, match="methods: unknown 'svd'"):
         estimate_positions(feats, {"a": np.zeros(3)}, CAMERA, TableSpec(np.zeros(3)),
                            PositioningConfig(reference="a", methods=("svd",)))
+
+
+def test_bias_search_median_resists_false_matches():
+    """theta_y0 by equal depth against the extreme views: 10 % false matches that pass the gap filter (the wrong
+    point lies on the reference ray, 12 % farther in the left view and nearer in the right one) move the thesis's
+    mean criterion off the truth; the median of the per-point differences stays on it."""
+    from bench.vision.handeye import search_mount_rotation
+
+    commands = lab_table_model().read(table4_commands())
+    R0 = mount_rotation(0.0, 6.0 * DEG, -2.0 * DEG)
+    _, _, T_tc = _scene(commands, np.zeros(3), R0, "p11", n_points=10, seed=4)
+    rng = np.random.default_rng(2)
+    p_ref = rng.uniform([-0.3, -0.2, 0.62], [0.3, 0.2, 0.82], (400, 3))
+    desc = rng.normal(size=(400, 128)).astype(np.float32)
+    false = np.arange(400) < 40
+
+    def obs(name, scale):
+        p = p_ref * np.where(false, scale, 1.0)[:, None]
+        pc = transform_points(invert(T_tc[name]) @ T_tc["p11"], p)
+        x = pc[:, :2] / pc[:, 2:3]
+        return ViewObservation(name, Features(x * 975.0, np.zeros(400), np.ones(400), np.ones(400), desc), x,
+                               np.eye(4))
+
+    names = ["p01", "p06", "p16", "p21"]
+    views = [obs(n, 1.12 if n == "p01" else 0.88 if n == "p21" else 1.0) for n in names]
+    T_st = stage_poses(commands)
+    kw = dict(grid_y=np.arange(0, 12.01, 0.5) * DEG, grid_z=np.arange(-4, 4.01, 0.1) * DEG, left=0, right=3)
+    args = (obs("p11", 1.0), views, T_st[10], T_st[[0, 5, 15, 20]], np.zeros(3))
+    med = search_mount_rotation(*args, depth_statistic="median", **kw)
+    mean = search_mount_rotation(*args, **kw)
+    assert np.rad2deg(med.theta_y0) == pytest.approx(6.0, abs=1e-9), med.message
+    assert abs(np.rad2deg(mean.theta_y0) - 6.0) >= 1.0, mean.message
+    with pytest.raises(ValueError, match="depth_statistic: expected 'mean' or 'median'"):
+        search_mount_rotation(*args, depth_statistic="mode", **kw)
