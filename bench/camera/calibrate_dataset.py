@@ -103,16 +103,20 @@ class DatasetCorners:
     detect_s: float
 
 
-def detect_dataset_corners(root, extractor: str = "thesis") -> DatasetCorners:
+def detect_dataset_corners(root, extractor: str = "thesis", camera=None) -> DatasetCorners:
     """Detect the target of ``target.yaml`` in every view of a dataset with the thesis's or OpenCV's extractor.
 
-    One-line :class:`ConfigError` when the views differ in size or the target is found in no view.
+    ``camera`` (thesis extractor only): a first calibration; the lines are then fitted in ideal pixels
+    (:func:`~bench.camera.corners.extract_corners_thesis`). One-line :class:`ConfigError` when the views differ in
+    size or the target is found in no view.
     """
     t0 = time.perf_counter()
     ds = load_dataset(root)
     geometry = load_target(ds.root / "target.yaml")
     if extractor not in ("thesis", "opencv"):
         raise ValueError(f"extractor: expected 'thesis' or 'opencv', got {extractor!r}")
+    if camera is not None and extractor != "thesis":
+        raise ValueError("camera: only the thesis extractor fits lines in ideal pixels")
     size = None
     Xs, uvs, names, skipped = [], [], [], []
     for v in ds.views:
@@ -122,7 +126,7 @@ def detect_dataset_corners(root, extractor: str = "thesis") -> DatasetCorners:
         elif (img.shape[1], img.shape[0]) != size:
             raise ConfigError(v.image_path, "<size>", f"{img.shape[1]}x{img.shape[0]}, other views are "
                                                       f"{size[0]}x{size[1]}")
-        res = (extract_corners_thesis(img, geometry) if extractor == "thesis" else
+        res = (extract_corners_thesis(img, geometry, camera=camera) if extractor == "thesis" else
                extract_corners_opencv(img, geometry))
         if not res.success:
             skipped.append(f"{v.name}: {res.message}")

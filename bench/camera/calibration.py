@@ -554,6 +554,46 @@ def reprojection_residuals(result: CalibrationResult, object_points, image_point
     return _residual_summary(problem, s)[2]
 
 
+def jackknife_views(object_points, image_points, image_size, model: str = "heikkila", *, k3: bool = False,
+                    fit_skew: bool = False, **kwargs):
+    """Leave-one-view-out (jackknife) standard errors of the intrinsic parameters.
+
+    The formal standard errors of :func:`calibrate_camera` (``sigma^2 (J^T J)^-1``) treat every corner coordinate
+    as an independent error. Corner errors that are correlated within a view - along a board line (aliasing of the
+    rendered or printed edges, JPEG blocks, a warped board) - make them too small; the views themselves are
+    independent, so the spread of the estimate over the calibrations that leave one view out measures the
+    uncertainty without that assumption: ``var = (V - 1) / V sum_i (theta_(i) - mean)^2``.
+
+    Parameters
+    ----------
+    object_points, image_points, image_size, model, k3, fit_skew, **kwargs
+        As for :func:`calibrate_camera`; at least 2 views (a two-plane rig) or 3 (planar targets).
+
+    Returns
+    -------
+    std : ndarray (p,)
+        Jackknife standard errors, order of ``CalibrationResult.parameter_names``; NaN when a leave-one-out
+        calibration fails or there are too few views.
+    estimates : ndarray (V, p)
+        The leave-one-out estimates (NaN rows for failed ones).
+    """
+    Xs, uvs, size = check_views(object_points, image_points, image_size)
+    V = len(Xs)
+    n_par = 4 + int(fit_skew) + len(distortion_names(model, k3))
+    est = np.full((V, n_par), np.nan)
+    if V < 2:
+        return np.full(n_par, np.nan), est
+    for i in range(V):
+        keep = [j for j in range(V) if j != i]
+        r = calibrate_camera([Xs[j] for j in keep], [uvs[j] for j in keep], size, model, k3=k3, fit_skew=fit_skew,
+                             **kwargs)
+        if r.success:
+            est[i] = r.parameters
+    if not np.all(np.isfinite(est)):
+        return np.full(n_par, np.nan), est
+    return np.sqrt((V - 1) / V * np.sum((est - est.mean(axis=0)) ** 2, axis=0)), est
+
+
 def per_view_pinhole(object_points, image_points) -> list[dict]:
     """Table 3: each non-planar view calibrated alone by the DLT (Eq. 55-66) and its chi (Eq. 195-196).
 

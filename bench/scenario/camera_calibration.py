@@ -72,7 +72,7 @@ import yaml
 
 from bench.camera import dlt
 from bench.camera.calibrate_dataset import detect_dataset_corners
-from bench.camera.calibration import calibrate_camera, opencv_reference, per_view_pinhole
+from bench.camera.calibration import calibrate_camera, jackknife_views, opencv_reference, per_view_pinhole
 from bench.camera.heikkila import OPENCV_NAMES, heikkila_covariance, opencv_to_heikkila
 from bench.camera.io import camera_yaml_text, thesis_blocks, write_camera_yaml
 from bench.camera.model import CameraModel, to_pixels
@@ -97,7 +97,8 @@ SCHEMA = {
     "rig": {"distance_mm": (float, 1000.0), "distance_water_mm": (float, 1000.0), "yaw_deg": (float, 10.0),
             "margin_px": (float, 8.0)},
     "views": {"count": (int, 7), "spread": (float, 0.8), "depth_range_mm": (float, 100.0)},
-    "pipeline": {"extractor": (str, "thesis"), "model": (str, "heikkila"), "compare_extractors": (bool, True)},
+    "pipeline": {"extractor": (str, "thesis"), "model": (str, "heikkila"), "refine_corners": (bool, True),
+                 "compare_extractors": (bool, True)},
     "outputs": {"cache": (bool, True), "plots": (bool, True)},
 }
 
@@ -560,6 +561,46 @@ def _opencv_params(K, dist) -> dict:
     return dict(zip(OPENCV_ROWS, [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *np.asarray(dist)[:4]], strict=True))
 
 
+def _K_dist(names, values):
+    """``K, dist`` of a parameter vector in the order of ``CalibrationResult.parameter_names``."""
+    v = dict(zip(names, values, strict=True))
+    K = np.array([[v["fx"], v.get("skew", 0.0), v["cx"]], [0.0, v["fy"], v["cy"]], [0.0, 0.0, 1.0]])
+    dist = np.array([v.get(k, 0.0) for k in ("k1", "k2", "p1", "p2", "k3")])
+    return K, dist
+
+
+def _jackknife(rows, names) -> dict:
+    """Jackknife standard error of each named value over leave-one-view-out estimates (list of dicts)."""
+    V = len(rows)
+    if V < 2:
+        return {n: float("nan") for n in names}
+    out = {}
+    for n in names:
+        a = np.array([r[n] for r in rows], float)
+        out[n] = float(np.sqrt((V - 1) / V * np.sum((a - a.mean()) ** 2))) if np.all(np.isfinite(a)) else float("nan")
+    return out
+
+
+def _parameter_table(names, nominal, true, est, std, jk, opencv, oracle, fitted, nominal_key="nominal") -> dict:
+    """One row per parameter: nominal (or the thesis's), true, estimated, formal and jackknife standard errors,
+    error, z-scores against the truth and against the oracle, OpenCV's estimate, the oracle's."""
+    nan = float("nan")
+    t = {"parameter": list(names), nominal_key: [nominal[n] for n in names], "true": [true[n] for n in names],
+         "estimated": [est[n] for n in names],
+         "std_error": [std[n] if n in fitted else nan for n in names],
+         "jk_std_error": [jk[n] if n in fitted else nan for n in names],
+         "error": [est[n] - true[n] for n in names], "opencv": [opencv[n] for n in names],
+         "oracle": [oracle[n] for n in names]}
+
+    def z(num, den):
+        return [a / b if np.isfinite(b) and b > 0 else nan for a, b in zip(num, den, strict=True)]
+
+    to_oracle = [est[n] - oracle[n] for n in names]
+    t["z"], t["z_jk"] = z(t["error"], t["std_error"]), z(t["error"], t["jk_std_error"])
+    t["z_oracle"], t["z_oracle_jk"] = z(to_oracle, t["std_error"]), z(to_oracle, t["jk_std_error"])
+    return t
+
+
 def _match_corners(uv, uv_true):
     """Nearest true corner of each extracted one: ``(index (N,), distance (N,) px)``."""
     d = np.linalg.norm(uv[:, None, :] - uv_true[None, :, :], axis=2)
@@ -585,21 +626,32 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
     p = cfg["pipeline"]
     model = p["model"]
     det = detect_dataset_corners(ds_dir, p["extractor"])
-    t_detect = time.perf_counter() - t0
     Xs = det.object_points
     uvs = [u.astype(np.float32).astype(float) for u in det.image_points]  # OpenCV takes float32: same points for both
     size = det.image_size
-    if len(det.names) < 1:
-        raise ConfigError(ds_dir, "views", "the rig was found in no view")
+    t_detect = time.perf_counter() - t0
     t1 = time.perf_counter()
     cal = calibrate_camera(Xs, uvs, size, model=model)
-    t_cal = time.perf_counter() - t1
     if not cal.success:
         raise ConfigError(ds_dir, "calibration", cal.message)
+    first_pass = None
+    if p["refine_corners"] and p["extractor"] == "thesis" and model != "pinhole":
+        # second pass: the lines fitted in the ideal pixels of the first calibration (straight there), recalibrate
+        first_pass = (det, uvs)
+        det = detect_dataset_corners(ds_dir, "thesis", camera=cal.camera)
+        Xs = det.object_points
+        uvs = [u.astype(np.float32).astype(float) for u in det.image_points]
+        cal = calibrate_camera(Xs, uvs, size, model=model)
+        if not cal.success:
+            raise ConfigError(ds_dir, "calibration", f"after refining the corners: {cal.message}")
+    t_cal = time.perf_counter() - t1
     t1 = time.perf_counter()
     ref = opencv_reference(Xs, uvs, size, model)
     t_cv = time.perf_counter() - t1
-    per_view = per_view_pinhole(Xs, uvs)
+    # Table 3 is the thesis's procedure: every view alone, pin-hole, on the corners of the thesis's extractor
+    t3_names, t3_uvs = (first_pass[0].names, first_pass[1]) if first_pass is not None else (det.names, uvs)
+    t3_X = first_pass[0].object_points if first_pass is not None else Xs
+    per_view = per_view_pinhole(t3_X, t3_uvs) if cfg["camera"]["preset"] == "air_webcam" else []
     ds = load_dataset(ds_dir)
     nominal = ds.camera()
 
@@ -624,18 +676,13 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
         uv_oracle.append(uv_true_all[name][idx])
     err_all = np.concatenate(err)
     oracle = calibrate_camera(Xs, uv_oracle, size, model=model)
+    if first_pass is not None:
+        e1 = np.concatenate([_match_corners(u, uv_true_all[n])[1] for n, u in zip(first_pass[0].names, first_pass[1],
+                                                                                    strict=True)])
+        first_pass_rms = float(np.sqrt(np.mean(e1**2)))
 
     in_water = medium == "water"
     f_true = np.array(truth["focal_effective_px"])
-    est = _opencv_params(cal.K, cal.dist)
-    std = {k: float("nan") for k in OPENCV_ROWS}
-    for name, s in zip(cal.parameter_names, cal.std, strict=True):
-        std[_CV_KEY.get(name, name)] = float(s)
-    fitted = [k for k in OPENCV_ROWS if np.isfinite(std[k])]  # the parameters the model estimates
-    true_cv = _opencv_params(true_cam.K, true_cam.dist)
-    if in_water:  # no true pin-hole camera: only the paraxial focal lengths are defined
-        true_cv = {k: float("nan") for k in OPENCV_ROWS} | {"fx_px": f_true[0], "fy_px": f_true[1]}
-    orc = _opencv_params(oracle.K, oracle.dist)
     fx_err = (cal.K[0, 0] / f_true[0] - 1) * 100
     fy_err = (cal.K[1, 1] / f_true[1] - 1) * 100
     m = {
@@ -645,71 +692,80 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
         "opencv_focal_err_pct": max(abs(ref.K[0, 0] / f_true[0] - 1), abs(ref.K[1, 1] / f_true[1] - 1)) * 100,
         "corner_rms_px": float(np.sqrt(np.mean(err_all**2))), "corner_max_px": float(err_all.max()),
         "corner_duplicate_matches": float(dup),
+        "corner_rms_px_first_pass": first_pass_rms if first_pass is not None else float("nan"),
         "model_floor_rms_px": oracle.rms_px,
         "oracle_focal_err_pct": max(abs(oracle.K[0, 0] / f_true[0] - 1), abs(oracle.K[1, 1] / f_true[1] - 1)) * 100,
         "views_used": float(len(det.names)), "views_skipped": float(len(det.skipped)),
         "points": float(sum(len(x) for x in Xs)), "sigma_px": cal.sigma_px,
     }
-    for k in OPENCV_ROWS:
-        m[f"err_{k}"] = est[k] - true_cv[k]
-        m[f"std_{k}"] = std[k]
-    intr = {"parameter": list(OPENCV_ROWS), "nominal": list(_opencv_params(nominal.K, nominal.dist).values()),
-            "true": [true_cv[k] for k in OPENCV_ROWS], "estimated": [est[k] for k in OPENCV_ROWS],
-            "std_error": [std[k] for k in OPENCV_ROWS],
-            "error": [est[k] - true_cv[k] for k in OPENCV_ROWS],
-            "opencv": list(_opencv_params(ref.K, ref.dist).values()), "oracle": [orc[k] for k in OPENCV_ROWS]}
-    intr["z"] = [e / s if s > 0 else float("nan") for e, s in zip(intr["error"], intr["std_error"], strict=True)]
-    z_oracle = [(est[k] - orc[k]) / std[k] for k in fitted]
-    tables = {"intrinsics": intr}
 
-    heik = None
+    # --- parameters: estimate, truth, formal and jackknife standard errors, OpenCV, oracle --------------------------
     pitch = true_cam.pixel_pitch
-    if pitch is not None and model == "heikkila" and cal.parameter_names == list(OPENCV_NAMES):
-        h_est = heikkila_thesis_units(opencv_to_heikkila(cal.K, cal.dist, pitch))
-        h_std = _heikkila_std(cal.K, cal.dist, cal.covariance, pitch)
-        h_orc = heikkila_thesis_units(opencv_to_heikkila(oracle.K, oracle.dist, pitch))
-        h_cv = heikkila_thesis_units(opencv_to_heikkila(ref.K, ref.dist, pitch))
+    heikkila_form = pitch is not None and cal.parameter_names == list(OPENCV_NAMES)
+    t1 = time.perf_counter()
+    _, jk_rows = jackknife_views(Xs, uvs, size, model)
+    t_jk = time.perf_counter() - t1
+    rows_cv = [_opencv_params(*_K_dist(cal.parameter_names, r)) for r in jk_rows]
+    nominal_cv = _opencv_params(nominal.K, nominal.dist)
+    true_cv = _opencv_params(true_cam.K, true_cam.dist)
+    if in_water:  # no true pin-hole camera: only the paraxial focal lengths are defined
+        true_cv = {k: float("nan") for k in OPENCV_ROWS} | {"fx_px": f_true[0], "fy_px": f_true[1]}
+    std = {k: float("nan") for k in OPENCV_ROWS}
+    for name, sd in zip(cal.parameter_names, cal.std, strict=True):
+        std[_CV_KEY.get(name, name)] = float(sd)
+    fitted = [k for k in OPENCV_ROWS if np.isfinite(std[k])]  # the parameters the model estimates
+    intr = _parameter_table(list(OPENCV_ROWS), nominal_cv, true_cv, _opencv_params(cal.K, cal.dist), std,
+                            _jackknife(rows_cv, OPENCV_ROWS), _opencv_params(ref.K, ref.dist),
+                            _opencv_params(oracle.K, oracle.dist), fitted)
+    tables = {"intrinsics": intr}
+    score = intr
+    if heikkila_form:
+        names = [r[0] for r in HEIKKILA_ROWS]
+
+        def h_of(K, dist):
+            return heikkila_thesis_units(opencv_to_heikkila(K, dist, pitch))
+
         thesis = thesis_blocks(load_preset(truth["nominal_camera"]))["heikkila_eq75"]
         if in_water:
-            h_true = {name: float("nan") for name, _, _ in HEIKKILA_ROWS}
-            h_true["f_px"], h_true["s_u"] = f_true[1], f_true[0] / f_true[1]
+            h_true = {n: float("nan") for n in names} | {"f_px": f_true[1], "s_u": f_true[0] / f_true[1]}
         else:
-            h_true = heikkila_thesis_units(opencv_to_heikkila(true_cam.K, true_cam.dist, pitch))
-        names = [r[0] for r in HEIKKILA_ROWS]
-        heik = {"parameter": names, "thesis": [thesis[n] for n in names], "true": [h_true[n] for n in names],
-                "estimated": [h_est[n] for n in names], "std_error": [h_std[n] for n in names],
-                "error": [h_est[n] - h_true[n] for n in names], "opencv": [h_cv[n] for n in names],
-                "oracle": [h_orc[n] for n in names]}
-        heik["z"] = [e / s if s > 0 else float("nan") for e, s in zip(heik["error"], heik["std_error"], strict=True)]
-        heik["z_oracle"] = [(h_est[n] - h_orc[n]) / h_std[n] if h_std[n] > 0 else float("nan") for n in names]
-        tables["heikkila"] = heik
-        for n in names:
-            m[f"err_{n}"] = h_est[n] - h_true[n]
-            m[f"std_{n}"] = h_std[n]
-        z, z_oracle = heik["z"], heik["z_oracle"]
-    else:
-        z = [intr["z"][OPENCV_ROWS.index(k)] for k in fitted]
-    m.update({f"heikkila_{k}": v for k, v in _within(z if not in_water else [float("nan")]).items()})
-    m.update({f"oracle_{k}": v for k, v in _within(z_oracle).items()})
-    m["heikkila_n_coeffs"] = float(len(z))
+            h_true = h_of(true_cam.K, true_cam.dist)
+        h_rows = [h_of(*_K_dist(cal.parameter_names, r)) if np.all(np.isfinite(r)) else
+                  {n: float("nan") for n in names} for r in jk_rows]
+        score = tables["heikkila"] = _parameter_table(
+            names, thesis, h_true, h_of(cal.K, cal.dist), _heikkila_std(cal.K, cal.dist, cal.covariance, pitch),
+            _jackknife(h_rows, names), h_of(ref.K, ref.dist), h_of(oracle.K, oracle.dist), names,
+            nominal_key="thesis")
+    m["jackknife_s"] = t_jk
+    for t in (intr, score) if score is not intr else (intr,):
+        for i, n in enumerate(t["parameter"]):
+            m[f"err_{n}"], m[f"std_{n}"], m[f"jk_std_{n}"] = t["error"][i], t["std_error"][i], t["jk_std_error"][i]
+    fit = [i for i, n in enumerate(score["parameter"]) if np.isfinite(score["std_error"][i])]
+    zs = (("heikkila", "z"), ("heikkila_jk", "z_jk"), ("oracle", "z_oracle"), ("oracle_jk", "z_oracle_jk"))
+    for label, key in zs:
+        vals = [score[key][i] for i in fit]
+        if in_water and not label.startswith("oracle"):
+            vals = [float("nan")]  # no true Heikkila camera behind a flat port
+        m.update({f"{label}_{k}": v for k, v in _within(vals).items()})
+    m["heikkila_n_coeffs"] = float(len(fit))
 
-    # --- Table 3: every view calibrated alone (pin-hole, Eq. 55-66, 196) --------------------------------------------
-    cols = ("theta_deg", "alpha_px", "beta_px", "u0_px", "v0_px", "chi_px")
-    t3 = {"picture": [str(k + 1) for k in range(len(per_view))] + ["average"]}
-    for c in cols:
-        vals = [r[c] for r in per_view]
-        t3[c] = vals + [float(np.mean(vals))]
+    # --- Table 3 (the webcam): every view calibrated alone (pin-hole, Eq. 55-66, 196) -------------------------------
     if cfg["camera"]["preset"] == "air_webcam":
+        cols = ("theta_deg", "alpha_px", "beta_px", "u0_px", "v0_px", "chi_px")
+        pictures = [int(n[3:]) if n[:3] == "rig" and n[3:].isdigit() else 0 for n in t3_names]
+        t3 = {"picture": [str(k) for k in pictures] + ["average"]}
         thesis3 = load_table3()
         for c in cols:
-            th = thesis3[c][:7]
-            t3[f"thesis_{c}"] = [th[k] if k < 7 else float("nan") for k in range(len(per_view))] + \
+            vals = [r[c] for r in per_view]
+            t3[c] = vals + [float(np.mean(vals))]
+        for c in cols:
+            t3[f"thesis_{c}"] = [thesis3[c][k - 1] if 1 <= k <= 7 else float("nan") for k in pictures] + \
                 [thesis3[c][7]]
-    tables["table3"] = t3
-    m["table3_alpha_mean_err_pct"] = (t3["alpha_px"][-1] / f_true[0] - 1) * 100
-    m["table3_beta_mean_err_pct"] = (t3["beta_px"][-1] / f_true[1] - 1) * 100
-    m["table3_theta_mean_deg"] = t3["theta_deg"][-1]
-    m["table3_chi_mean_px"] = t3["chi_px"][-1]
+        tables["table3"] = t3
+        m["table3_alpha_mean_err_pct"] = (t3["alpha_px"][-1] / f_true[0] - 1) * 100
+        m["table3_beta_mean_err_pct"] = (t3["beta_px"][-1] / f_true[1] - 1) * 100
+        m["table3_theta_mean_deg"] = t3["theta_deg"][-1]
+        m["table3_chi_mean_px"] = t3["chi_px"][-1]
     views = {"view": list(det.names), "chi_px": [float(v) for v in cal.per_view_rms_px],
              "opencv_chi_px": [float(v) for v in ref.per_view_rms_px],
              "corner_rms_px": [float(np.sqrt(np.mean(e**2))) for e in err]}
@@ -735,9 +791,10 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
     if cfg["outputs"]["plots"]:
         first = ds.view(det.names[0]).image()
         if cfg["camera"]["preset"] == "air_webcam":
-            r44 = _dlt_residuals(Xs[0], uvs[0])
-            plot_residual_vectors(out_dir / "figure44_residuals.png", uvs[0], r44, image=first[..., ::-1],
-                                  title=f"Fig. 44 - {det.names[0]}: pin-hole (DLT) residuals x50",
+            r44 = _dlt_residuals(t3_X[0], t3_uvs[0])
+            plot_residual_vectors(out_dir / "figure44_residuals.png", t3_uvs[0], r44,
+                                  image=ds.view(t3_names[0]).image()[..., ::-1],
+                                  title=f"Fig. 44 - {t3_names[0]}: pin-hole (DLT) residuals x50",
                                   rms_px=per_view[0]["chi_px"])
             artifacts["figure44"] = "figure44_residuals.png"
         plot_residual_vectors(out_dir / "residuals.png", uvs[0], cal.residuals_px[0], image=first[..., ::-1],
@@ -786,14 +843,15 @@ def print_table3(t3):
             print(f"  {name:<7}" + "".join(_fmt(v, 9, prec) for v in t3[prefix + key]))
 
 
-def print_heikkila(h, medium):
-    table = "Table 15 (in water)" if medium == "water" else "Table 9 (in air)"
-    print(f"  Heikkila parameters (Eq. 75-76, k in mm^-n as Heikkila's toolbox) - thesis {table} beside ours")
-    print(f"  {'param':<12}{'thesis':>12}{'true':>12}{'ours':>12}{'std err':>11}{'z':>7}{'OpenCV':>12}{'oracle':>12}")
-    for i, n in enumerate(h["parameter"]):
-        print(f"  {n:<12}" + "".join(_fmt(h[c][i], 12) for c in ("thesis", "true", "estimated"))
-              + _fmt(h["std_error"][i], 11) + _fmt(h["z"][i], 7, 2) + _fmt(h["opencv"][i], 12)
-              + _fmt(h["oracle"][i], 12))
+def print_parameters(t, title, nominal_key):
+    """A parameter table (``tables.heikkila`` or ``tables.intrinsics``) beside the nominal/thesis values."""
+    print(f"  {title}")
+    print(f"  {'param':<12}{nominal_key:>12}{'true':>12}{'ours':>12}{'std err':>11}{'jackknife':>11}{'z':>7}"
+          f"{'z_jk':>7}{'OpenCV':>12}{'oracle':>12}")
+    for i, n in enumerate(t["parameter"]):
+        print(f"  {n:<12}" + "".join(_fmt(t[c][i], 12) for c in (nominal_key, "true", "estimated"))
+              + _fmt(t["std_error"][i], 11) + _fmt(t["jk_std_error"][i], 11) + _fmt(t["z"][i], 7, 2)
+              + _fmt(t["z_jk"][i], 7, 2) + _fmt(t["opencv"][i], 12) + _fmt(t["oracle"][i], 12))
 
 
 def run(cfg, out_dir, verbose=True):
@@ -838,10 +896,17 @@ def _print_summary(cfg, per_medium, metrics):
         if cfg["camera"]["preset"] == "air_webcam":
             print_table3(t["table3"])
         if "heikkila" in t:
-            print_heikkila(t["heikkila"], medium)
+            table = "Table 15 (in water)" if medium == "water" else "Table 9 (in air)"
+            print_parameters(t["heikkila"], f"Heikkila parameters (Eq. 75-76; k in mm^-n, Heikkila's toolbox): thesis "
+                                            f"{table} beside ours", "thesis")
+        else:
+            print_parameters(t["intrinsics"], "multi-view calibration (OpenCV form): nominal (Table 3 average) beside "
+                                              "ours", "nominal")
         for k in ("reproj_rms_px", "opencv_reproj_rms_px", "focal_err_pct", "corner_rms_px",
                   "corner_rms_px_thesis_extractor", "corner_rms_px_opencv_extractor", "model_floor_rms_px",
-                  "heikkila_within_1std", "heikkila_within_2std", "heikkila_within_3std", "oracle_within_2std",
+                  "heikkila_within_1std", "heikkila_within_2std", "heikkila_within_3std",
+                  "heikkila_jk_within_1std", "heikkila_jk_within_2std", "heikkila_jk_within_3std",
+                  "oracle_within_2std", "oracle_jk_within_2std",
                   "table3_alpha_mean_err_pct", "table3_chi_mean_px"):
             if k in m:
                 print(f"  {k:<34} {m[k]:.6g}")
