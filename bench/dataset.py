@@ -2,7 +2,8 @@
 
 A dataset is a folder that a real robot campaign or the simulator writes::
 
-    manifest.yaml   format, kind of campaign, units, the views (name, image file, role, notes)
+    manifest.yaml   format, kind of campaign, units, the views (name, image file, role, notes); a view without an
+                    image file is a frame of joint readings only (e.g. a taught tool pose, role ``task``)
     images/         lossless PNG views named in the manifest
     joints.csv      view, q1_deg ... q6_deg        (joint *readings*, robot campaigns)
     table.csv       view, x_mm, z_mm, rot_deg      (x-y table readings, table campaigns)
@@ -48,7 +49,7 @@ class View:
     """One image of the campaign: its file, role, and the readings taken with it (SI)."""
 
     name: str
-    image_path: Path
+    image_path: Path | None  # None: a frame of readings only (no image)
     role: str = ""
     notes: str = ""
     q: np.ndarray | None = None  # joint readings (rad), (6,)
@@ -61,6 +62,8 @@ class View:
         """
         import cv2
 
+        if self.image_path is None:
+            raise ConfigError(self.name, "image", "this view is a frame of readings only: it has no image")
         if not self.image_path.is_file():
             raise ConfigError(self.image_path, "<file>", f"image of view {self.name!r} not found")
         img = cv2.imread(str(self.image_path), cv2.IMREAD_UNCHANGED)
@@ -232,13 +235,16 @@ def load_dataset(root) -> Dataset:
             raise ConfigError(mpath, f"{where}.name", f"duplicate view {name!r}")
         seen.add(name)
         image = v.get("image")
-        if not isinstance(image, str) or not image:
-            raise ConfigError(mpath, f"{where}.image", "missing")
+        if image is not None and (not isinstance(image, str) or not image):
+            raise ConfigError(mpath, f"{where}.image", f"expected a file name, got {image!r}")
         q = np.deg2rad(joints[name]) if name in joints else None
         t = table.get(name)
         if t is not None:
             t = np.array([t[0] * 1e-3, t[1] * 1e-3, np.deg2rad(t[2])])
-        views.append(View(name, root / image, str(v.get("role", "")), str(v.get("notes", "")), q, t))
+        if image is None and q is None and t is None:
+            raise ConfigError(mpath, f"{where}.image", "missing (a view needs an image or readings)")
+        views.append(View(name, None if image is None else root / image, str(v.get("role", "")),
+                          str(v.get("notes", "")), q, t))
     for src, rows in (("joints.csv", joints), ("table.csv", table)):
         orphan = sorted(set(rows) - seen)
         if orphan:
@@ -321,23 +327,30 @@ class DatasetWriter:
         """Write a text file inside the dataset (e.g. ``camera.yaml``, ``truth/truth.yaml``)."""
         self.path(relative).write_text(text)
 
-    def add_view(self, name: str, image: np.ndarray, q=None, table=None, role: str = "", notes: str = "") -> None:
+    def add_view(self, name: str, image: np.ndarray | None, q=None, table=None, role: str = "",
+                 notes: str = "") -> None:
         """Add a view: ``image`` uint8 RGB (H, W, 3) or grey (H, W), saved as PNG; readings in SI.
 
         ``q`` joint readings (rad, (6,)); ``table`` x-y table readings ``(x m, z m, rotation rad)``.
+        ``image=None`` records a frame of readings only (e.g. a taught tool pose).
         """
         import cv2
 
         if any(v["name"] == name for v in self._views):
             raise ValueError(f"view {name!r}: added twice")
-        image = np.asarray(image)
-        if image.dtype != np.uint8 or image.ndim not in (2, 3):
-            raise ValueError(f"view {name!r}: image must be uint8 (H, W[, 3]), got {image.dtype} {image.shape}")
-        rel = f"images/{name}.png"
-        bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
-        if not cv2.imwrite(str(self.tmp / rel), bgr):
-            raise OSError(f"could not write {self.tmp / rel}")
-        entry = {"name": name, "image": rel}
+        entry = {"name": name}
+        if image is None:
+            if q is None and table is None:
+                raise ValueError(f"view {name!r}: needs an image or readings")
+        else:
+            image = np.asarray(image)
+            if image.dtype != np.uint8 or image.ndim not in (2, 3):
+                raise ValueError(f"view {name!r}: image must be uint8 (H, W[, 3]), got {image.dtype} {image.shape}")
+            rel = f"images/{name}.png"
+            bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
+            if not cv2.imwrite(str(self.tmp / rel), bgr):
+                raise OSError(f"could not write {self.tmp / rel}")
+            entry["image"] = rel
         if role:
             entry["role"] = role
         if notes:

@@ -94,3 +94,26 @@ def test_radians_in_degree_columns_warn(tmp_path, rng):
             w.add_view(f"v{i}", np.zeros((4, 4, 3), np.uint8), q=np.deg2rad(rng.uniform(-1.5, 1.5, 6)))
     with pytest.warns(UserWarning, match="radians written where degrees belong"):
         load_dataset(tmp_path / "rad")
+
+
+def test_frame_of_readings_only(tmp_path, rng):
+    """A taught tool pose: joint readings without an image; asking for its image is a one-line error."""
+    q = rng.uniform(-1.0, 1.5, size=6)
+    with DatasetWriter(tmp_path / "ds", kind="in_situ") as w:
+        w.add_view("v0", np.zeros((4, 4, 3), np.uint8), q=q, role="reference")
+        w.add_view("teach", None, q=q, role="task")
+        with pytest.raises(ValueError, match="needs an image or readings"):
+            w.add_view("empty", None)
+    ds = load_dataset(tmp_path / "ds")
+    teach = ds.view("teach")
+    assert teach.image_path is None and teach.role == "task" and np.abs(teach.q - q).max() < 1e-12
+    with pytest.raises(ConfigError, match="teach: image: this view is a frame of readings only"):
+        teach.image()
+    man = (tmp_path / "ds" / "manifest.yaml").read_text()
+    (tmp_path / "ds" / "joints.csv").write_text("view," + ",".join(f"q{i}_deg" for i in range(1, 7)) + "\n"
+                                                + "v0" + ",0" * 6 + "\n")
+    with pytest.raises(ConfigError, match=r"views\[1\].image: missing \(a view needs an image or readings\)"):
+        load_dataset(tmp_path / "ds")
+    (tmp_path / "ds" / "manifest.yaml").write_text(man.replace("name: teach", "name: teach\n  image: 7"))
+    with pytest.raises(ConfigError, match=r"views\[1\].image: expected a file name"):
+        load_dataset(tmp_path / "ds")

@@ -120,6 +120,8 @@ def detect_dataset_corners(root, extractor: str = "thesis", camera=None) -> Data
     size = None
     Xs, uvs, names, skipped = [], [], [], []
     for v in ds.views:
+        if v.image_path is None:  # a frame of readings only (e.g. a taught tool pose)
+            continue
         img = v.image()
         if size is None:
             size = (img.shape[1], img.shape[0])

@@ -52,6 +52,27 @@ class EncoderModel:
             out = np.round(out / self.resolution_rad) * self.resolution_rad
         return out
 
+    def drive_to(self, q_command, rng: np.random.Generator, direction=None) -> np.ndarray:
+        """True angles the joint servos settle at when commanded to *read* ``q_command (..., n)`` (rad).
+
+        The servo loop stops when the (noisy, quantised) reading equals the command, so the arm ends at
+        ``q_command - offset + direction * backlash / 2`` minus the reading noise, anywhere within half a count of
+        the quantisation step. ``read(drive_to(q))`` returns ``q`` up to that noise.
+        """
+        q = np.asarray(q_command, dtype=float)
+        if not np.all(np.isfinite(q)):
+            raise ValueError("q_command: contains NaN or inf")
+        out = q.copy()
+        if len(self.offset_rad):
+            out = out - np.asarray(self.offset_rad, dtype=float)
+        if self.backlash_rad and direction is not None:
+            out = out + np.sign(np.asarray(direction, dtype=float)) * self.backlash_rad / 2
+        if self.noise_std_rad:
+            out = out - rng.normal(0.0, self.noise_std_rad, size=q.shape)
+        if self.resolution_rad:
+            out = out + rng.uniform(-0.5, 0.5, size=q.shape) * self.resolution_rad
+        return out
+
 
 def motion_directions(q_sequence, tol_rad: float = 1e-12) -> np.ndarray:
     """Sign of each joint's last motion on arrival at every pose of ``q_sequence (m, n)`` (rad): ``(m, n)``.

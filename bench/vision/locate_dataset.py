@@ -5,7 +5,10 @@ moved) and ``locate`` (two views after the base moved), their joint readings, ``
 camera) and ``robot.yaml`` with its ``calibration`` section (identified errors and camera mount; without it the
 nominal model and an identity mount are used, with a warning). Output: ``locate.json`` in ``out`` (and the
 returned :class:`~bench.vision.insitu.LocateResult`): ``T_world_base`` (world = the survey base frame) with its
-covariance, position / rotation standard deviations, inliers, condition number and timings.
+covariance, position / rotation standard deviations, inliers, condition number and timings. Views with role
+``task`` (frames of joint readings taught at the survey parking, e.g. the tool on a valve handle) are re-targeted
+from the located base (:func:`bench.robot.task.retarget_taught_pose`): ``locate.json`` then lists the joint readings
+to command for each (``tasks``).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from bench.fileio import atomic_write_text
 from bench.geometry.transforms import rotation_angle
 from bench.robot.calibration_file import load_calibrated_robot
 from bench.robot.orientation import link5_frame
+from bench.robot.task import retarget_taught_pose
 from bench.vision.features import detect_sift
 from bench.vision.insitu import MapConfig, ViewObservation, build_map, locate, locate_pnp
 
@@ -36,6 +40,22 @@ def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0) -> Vie
     f = detect_sift(img, max_features=max_features)
     x_n = camera.undistort_pixels(f.uv) if len(f) else np.empty((0, 2))
     return ViewObservation(view.name, f, x_n, link5_frame(robot, q, eps) @ T_link5_cam)
+
+
+def _retarget_tasks(ds, robot, eps, T_site_base, q_now) -> dict:
+    """Joint readings to command for every taught ``task`` frame, from the located base (see the module docstring)."""
+    out = {}
+    for v in ds.views:
+        if v.role != "task":
+            continue
+        if v.q is None:
+            raise ConfigError(ds.root / "joints.csv", v.name, "a task frame needs joint readings")
+        q_taught = robot.check_q(v.q, f"joints.csv ({v.name})")
+        r = retarget_taught_pose(robot, eps, q_taught, T_site_base, q_seed=q_now)
+        out[v.name] = {"success": bool(r.success), "message": r.message,
+                       "q_command_deg": np.rad2deg(r.solutions[0]).tolist(),
+                       "position_error_mm": float(r.position_error_m * 1e3)}
+    return out
 
 
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
@@ -91,6 +111,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                        "rotation_deg": float(np.rad2deg(rotation_angle(T[:3, :3]))),
                        "position_std_mm": (std[3:] * 1e3).tolist(), "rotation_std_deg": np.rad2deg(std[:3]).tolist(),
                        "covariance": res.covariance.tolist()})
+        report["tasks"] = _retarget_tasks(ds, robot, eps, res.T_world_base, roles["locate"][0].q)
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
@@ -101,5 +122,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
             p, s = report["position_mm"], report["position_std_mm"]
             print("T_world_base position [mm]: " + ", ".join(f"{v:.2f} ± {e:.2f}" for v, e in zip(p, s, strict=True)))
             print(f"rotation {report['rotation_deg']:.4f} deg (std {np.linalg.norm(report['rotation_std_deg']):.4f})")
+            for name, t in report["tasks"].items():
+                q = ", ".join(f"{v:.3f}" for v in t["q_command_deg"])
+                print(f"task {name}: command q = [{q}] deg" + ("" if t["success"] else f" ({t['message']})"))
         print(res.message)
     return res, report

@@ -52,3 +52,20 @@ def test_bad_parameters():
         EncoderModel().read(np.array([np.nan] * 6), np.random.default_rng(0))
     with pytest.raises(ValueError, match="q_sequence"):
         motion_directions(np.zeros(6))
+
+
+def test_drive_to_is_the_inverse_of_read():
+    """A servo commanded to read q settles where the encoder reads q: read(drive_to(q)) = q up to noise/quantum."""
+    rng = np.random.default_rng(93)
+    q_cmd = rng.uniform(-1, 1, (4000, 6))
+    exact = EncoderModel(offset_rad=(1e-3, -2e-3, 0, 0, 5e-4, 0), backlash_rad=1e-3)
+    d = np.where(rng.uniform(size=q_cmd.shape) < 0.5, 1.0, -1.0)
+    q_true = exact.drive_to(q_cmd, rng, d)
+    assert np.abs(exact.read(q_true, rng, d) - q_cmd).max() < 1e-15  # noise-free: exact inverse
+    assert np.allclose(q_true - q_cmd, -np.array(exact.offset_rad) + d * 5e-4)
+    res, sig = 1e-4, 2e-5
+    enc = EncoderModel(noise_std_rad=sig, resolution_rad=res)
+    err = enc.drive_to(q_cmd, rng) - q_cmd  # noise + uniform quantum: std sqrt(sig^2 + res^2 / 12)
+    assert np.std(err) == pytest.approx(np.sqrt(sig**2 + res**2 / 12), rel=0.05) and abs(err.mean()) < 3e-6
+    with pytest.raises(ValueError, match="q_command"):
+        enc.drive_to([np.inf] * 6, rng)
