@@ -7,8 +7,9 @@ here ``P_1 = p1 + gamma1 d1`` and ``P_2 = p2 + gamma2 d2``. The segment ``P_1 P_
 
 Numerics: Eq. 116's denominator ``d_2121 d_4343 - d_4321^2`` equals ``|d1 x d2|^2`` (Lagrange's identity) and its
 numerator equals ``-((p2 - p1) x d2) . (d1 x d2)``; the cross-product forms used here avoid the cancellation of the
-printed difference of products, which loses all digits for nearly parallel lines. :func:`closest_points_thesis`
-keeps the printed formulas for comparison.
+printed difference of products, which loses all digits for nearly parallel lines. ``gamma2`` follows from
+``gamma1`` by Eq. 117's back-substitution (``P_2`` = the foot of ``P_1`` on line 2), which keeps the segment
+perpendicular to both lines to rounding. :func:`closest_points_thesis` keeps the printed formulas for comparison.
 
 Parallel lines: :func:`closest_points_between_lines` never raises for them. It returns a boolean mask ``parallel``
 (the sine of the angle between the lines below ``parallel_tol``) and, for those entries, the finite fallback
@@ -117,9 +118,12 @@ def closest_points_between_lines(p1, d1, p2, d2, parallel_tol: float = PARALLEL_
     parallel = nn <= (parallel_tol * parallel_tol) * d2121 * d4343
     safe = np.where(parallel, 1.0, nn)
     gamma1 = np.where(parallel, 0.0, _dot(_cross(w, d2), n) / safe)  # Eq. 116
-    gamma2_skew = _dot(_cross(w, d1), n) / safe  # Eq. 117 (the same value, without back-substitution)
-    gamma2 = np.where(parallel, -_dot(w, d2) / d4343, gamma2_skew)  # parallel: foot of p1 on line 2
     c1 = p1 + gamma1[..., None] * d1  # Eq. 107
+    # Eq. 117 by back-substitution: P_2 is the foot of P_1 on line 2 (parallel lines: the foot of p1). Unlike the
+    # independent cross-product formula for gamma2, this keeps the segment perpendicular to both lines to the
+    # rounding of the inputs (|P2 - P1| eps) however nearly parallel they are; the independent form was off by
+    # |P2 - P1| eps / sin(angle) (found by tests/geometry/test_properties.py).
+    gamma2 = _dot(c1 - p2, d2) / d4343
     c2 = p2 + gamma2[..., None] * d2  # Eq. 108
     dist = np.linalg.norm(c1 - c2, axis=-1)
     return ClosestPoints(c1, c2, gamma1, gamma2, dist, parallel)
