@@ -82,7 +82,7 @@ SCHEMA = {
     # error sources, for the error budget: switching one off injects the truth explicitly (evaluator side), e.g.
     # kinematics=perfect gives the pipeline the true errors and mount instead of its calibration
     "sources": {"kinematics": (str, "calibrated"), "camera": (str, "calibrated"), "encoders": (str, "real")},
-    "outputs": {"cache": (bool, True)},
+    "outputs": {"cache": (bool, True), "rerun": (bool, True)},
 }
 SOURCES = {"kinematics": ("calibrated", "perfect"), "camera": ("calibrated", "perfect"),
            "encoders": ("real", "perfect")}
@@ -418,13 +418,16 @@ def _oracle_files(cfg, ds, robot, out_dir):
     return camera_path, robot_path
 
 
-def _score_task(cfg, ds, truth, report, robot) -> dict:
-    """Drive the true arm to the pipeline's commanded readings and measure the tool tip against the true handle."""
+def _score_task(cfg, ds, truth, report, robot):
+    """Drive the true arm to the pipeline's commanded readings and measure the tool tip against the true handle.
+
+    Returns the metrics and the true joint angles reached (``{"compensated": q, "uncompensated": q}``; a missing
+    key: no command)."""
     from bench.sim.encoders import EncoderModel
 
     task = truth.get("task")
     if not task:
-        return {}
+        return {}, {}
     nan = float("nan")
     t = report.get("tasks", {}).get(task["view"])
     enc = EncoderModel(**truth["encoders"])
@@ -433,14 +436,17 @@ def _score_task(cfg, ds, truth, report, robot) -> dict:
     T_wb2 = np.array(truth["T_world_base_locate"])
     p_valve = np.array(task["centre_world"])
 
-    def tip_error(q_cmd):  # the servos settle where the encoders read the command (noise, quantisation)
-        q_true = enc.drive_to(q_cmd, rng)
-        T = T_wb2 @ forward_kinematics(robot, q_true, eps_true)
+    reached = {}
+
+    def tip_error(key, q_cmd):  # the servos settle where the encoders read the command (noise, quantisation)
+        reached[key] = enc.drive_to(q_cmd, rng)
+        T = T_wb2 @ forward_kinematics(robot, reached[key], eps_true)
         return float(np.linalg.norm(transform_points(T, robot.p_ee) - p_valve) * 1e3)
 
-    out = {"valve_tool_err_uncompensated_mm": tip_error(ds.view(task["view"]).q)}
-    out["valve_tool_err_mm"] = tip_error(np.deg2rad(t["q_command_deg"])) if t and t["success"] else nan
-    return out
+    out = {"valve_tool_err_uncompensated_mm": tip_error("uncompensated", ds.view(task["view"]).q)}
+    ok = t and t["success"]
+    out["valve_tool_err_mm"] = tip_error("compensated", np.deg2rad(t["q_command_deg"])) if ok else nan
+    return out, reached
 
 
 # ------------------------------------------------------------------------------------------------ pipeline
@@ -508,11 +514,12 @@ def run(cfg, out_dir, verbose=True):
     lab = calibrate_lab(ds, robot, cfg, out_dir / "calibrated")
     camera_path, robot_path = _oracle_files(cfg, ds, robot, out_dir)
     p = cfg["pipeline"]
+    details = {}
     res, report = locate_dataset(ds_dir, out_dir, method=p["method"], seed=cfg["seed"],
                                  config=MapConfig(), verbose=False, camera_path=camera_path,
                                  robot_path=robot_path, refine=p["refine"],
                                  ransac=dict(iterations=p["ransac_iterations"], d_r=p["d_r_mm"] * 1e-3,
-                                             r_lim=p["r_lim"]))
+                                             r_lim=p["r_lim"]), details=details)
 
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
     truth = yaml.safe_load((ds_dir / "truth" / "truth.yaml").read_text())
@@ -531,7 +538,8 @@ def run(cfg, out_dir, verbose=True):
         metrics["base_rot_std_deg"] = float(np.rad2deg(np.linalg.norm(std[:3])))
     else:
         metrics["base_pos_err_mm"] = metrics["base_rot_err_deg"] = float("nan")
-    metrics.update(_score_task(cfg, ds, truth, report, robot))
+    task_metrics, reached = _score_task(cfg, ds, truth, report, robot)
+    metrics.update(task_metrics)
     cam_true = np.array(truth["camera_K_effective"])
     metrics["focal_err_pct"] = float(abs(lab["camera"].K[0, 0] / cam_true[0, 0] - 1) * 100)
     metrics["reproj_rms_px"] = float(lab["camera"].rms_px)
@@ -552,9 +560,17 @@ def run(cfg, out_dir, verbose=True):
     table = {"quantity": list(rows), "error": [metrics.get(k, float("nan")) for k in rows.values()]}
     sources = {"source": list(SOURCES), "setting": [cfg["sources"][k] for k in SOURCES]}
     write_table_csv(out_dir / "errors.csv", table)
+    artifacts = {"dataset": "dataset", "locate": "locate.json", "calibrated_camera": "calibrated/camera.yaml",
+                 "calibrated_robot": "calibrated/robot.yaml", "errors": "errors.csv"}
+    if cfg["outputs"]["rerun"]:
+        from bench.scenario.in_situ_recording import record_in_situ
+
+        t_rr = time.perf_counter()
+        record_in_situ(out_dir / "recording.rrd", cfg, ds, truth, lab, res, report, details, reached, metrics)
+        timings["rerun_s"] = time.perf_counter() - t_rr
+        artifacts["recording"] = "recording.rrd"
     path = write_result(out_dir, cfg["name"], cfg["seed"], metrics, {"errors": table, "sources": sources}, timings,
-                        {"dataset": "dataset", "locate": "locate.json", "calibrated_camera": "calibrated/camera.yaml",
-                         "calibrated_robot": "calibrated/robot.yaml"})
+                        artifacts)
     if verbose:
         print(f"{cfg['name']} (seed {cfg['seed']}): {res.message}")
         for k in ("base_pos_err_mm", "base_rot_err_deg", "base_pos_std_mm", "valve_tool_err_mm",

@@ -60,11 +60,13 @@ def _retarget_tasks(ds, robot, eps, T_site_base, q_now) -> dict:
 
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
                    seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine: bool = True,
-                   ransac: dict | None = None):
+                   ransac: dict | None = None, details: dict | None = None):
     """Build the map from the survey views and locate the base from the two ``locate`` views.
 
     ``camera_path`` / ``robot_path`` replace the dataset's own files (e.g. the results of an earlier calibration);
-    ``ransac`` passes ``iterations``, ``d_r`` (m), ``r_lim`` to :func:`~bench.vision.insitu.locate`.
+    ``ransac`` passes ``iterations``, ``d_r`` (m), ``r_lim`` to :func:`~bench.vision.insitu.locate`. A ``details``
+    dict, if given, receives the intermediate objects (``map``, ``observations``, ``camera``, ``robot``, ``eps``,
+    ``T_link5_cam``) for inspection and visualisation.
     Returns ``(LocateResult, report dict)``; writes ``out/locate.json`` when ``out`` is given.
     """
     t0 = time.perf_counter()
@@ -101,6 +103,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         res = locate(kmap, a, obs[roles["locate"][1].name], config, method=method, rng=seed, refine=refine,
                      **(ransac or {}))
     res.timings_s.update({"detect_s": t_detect, "map_s": t_map, "pipeline_total_s": time.perf_counter() - t0})
+    if details is not None:
+        details.update(map=kmap, observations=obs, camera=camera, robot=robot, eps=eps, T_link5_cam=T_link5_cam)
     report = {"dataset": str(ds.root), "success": res.success, "message": res.message, "map_points": len(kmap),
               "map_stats": kmap.stats, "n_matches": res.n_matches, "inliers": res.n_inliers,
               "condition": res.condition, "method": "pnp" if pnp else method, "timings_s": res.timings_s}

@@ -1,0 +1,154 @@
+"""rerun recordings of scenario runs: one ``.rrd`` per run, and a reader that loads one back.
+
+A :class:`Recording` wraps a ``rerun.RecordingStream`` that writes to a file (to a temporary name first, renamed into
+place by :meth:`Recording.close`, so an interrupted run leaves no half-written recording under the final name). Its
+methods take the bench's own conventions and do the conversion to rerun in one place:
+
+* transforms are ``T_world_x`` 4 x 4 matrices (m), logged as ``Transform3D`` on the entity (children inherit them);
+* cameras use OpenCV's optical frame (x right, y down, z forward): ``Pinhole(camera_xyz=RDF)`` with the pinhole
+  ``K`` and the resolution, so the frustum and the image sit where the camera looked;
+* images are the dataset's PNG files (``EncodedImage``: the recording stays small), keypoints ``Points2D`` on them;
+* point sets take a boolean ``inliers`` mask (green inliers, red outliers);
+* numbers that vary over a sweep axis or a view index go on a named sequence timeline (``Scalars``).
+
+Open the file with ``rerun runs/<run>/recording.rrd`` (the viewer ships with rerun-sdk). :func:`load_entities` reads
+a recording back with rerun's own reader (``rerun.chunk.RrdReader``) as ``{entity: {component: [values]}}`` - the
+tests use it to check what a run logged.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+GREEN = (40, 200, 60)
+RED = (230, 40, 40)
+GREY = (170, 170, 170)
+
+
+class Recording:
+    """A rerun recording written to ``path`` (see the module docstring).
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.rrd`` file to write (its folder is created).
+    application_id : str
+        rerun application id (the scenario name).
+    recording_id : str
+        Identifies the run (e.g. ``"<scenario>-seed<N>"``).
+    """
+
+    def __init__(self, path, application_id: str, recording_id: str):
+        import rerun as rr
+
+        self.rr = rr
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        self.stream = rr.RecordingStream(application_id, recording_id=recording_id)
+        self.stream.save(str(self._tmp))
+        self.stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+
+    # --- time ---------------------------------------------------------------------------------------------------------
+    def set_time(self, timeline: str, value: int | float) -> None:
+        """Subsequent non-static logs happen at ``value`` on the sequence timeline ``timeline``."""
+        self.stream.set_time(timeline, sequence=int(value))
+
+    # --- geometry -----------------------------------------------------------------------------------------------------
+    def frame(self, entity: str, T_world_x, axis_length: float = 0.1, static: bool = False) -> None:
+        """Pose of a frame (4 x 4, m) with its axes drawn ``axis_length`` long."""
+        T = np.asarray(T_world_x, dtype=float)
+        self.stream.log(entity, self.rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]),
+                        self.rr.TransformAxes3D(axis_length), static=static)
+
+    def camera(self, entity: str, T_world_cam, K, size, image_png=None, keypoints_uv=None, static: bool = False,
+               plane_distance: float = 0.15) -> None:
+        """A camera (OpenCV optical frame) at ``T_world_cam`` with intrinsics ``K`` (3 x 3) and ``size`` (w, h).
+
+        ``image_png``: path of the image it took (shown in the frustum); ``keypoints_uv (N, 2)``: points on it (px).
+        """
+        T = np.asarray(T_world_cam, dtype=float)
+        rr = self.rr
+        self.stream.log(entity, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=static)
+        self.stream.log(entity, rr.Pinhole(image_from_camera=np.asarray(K, dtype=float), resolution=list(size),
+                                           camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=plane_distance),
+                        static=static)
+        if image_png is not None:
+            self.stream.log(f"{entity}/image", rr.EncodedImage(path=str(image_png)), static=static)
+        if keypoints_uv is not None and len(keypoints_uv):
+            self.stream.log(f"{entity}/image/keypoints", rr.Points2D(np.asarray(keypoints_uv, dtype=float), radii=1.5,
+                                                                     colors=[GREEN]), static=static)
+
+    def points(self, entity: str, p, inliers=None, color=GREY, radius: float = 0.004, static: bool = False) -> None:
+        """3D points ``p (N, 3)`` (m); with a boolean ``inliers`` mask, inliers green and outliers red."""
+        p = np.asarray(p, dtype=float).reshape(-1, 3)
+        if inliers is None:
+            colors = [color] * len(p)
+        else:
+            colors = np.where(np.asarray(inliers, dtype=bool)[:, None], GREEN, RED).astype(np.uint8)
+        self.stream.log(entity, self.rr.Points3D(p, colors=colors, radii=radius), static=static)
+
+    def lines(self, entity: str, strips, color=GREY, radius: float = 0.006, static: bool = False) -> None:
+        """Polylines: a list of ``(k, 3)`` arrays (m)."""
+        self.stream.log(entity, self.rr.LineStrips3D([np.asarray(s, dtype=float) for s in strips], colors=[color],
+                                                     radii=radius), static=static)
+
+    # --- numbers and text ---------------------------------------------------------------------------------------------
+    def scalar(self, entity: str, value: float) -> None:
+        """A number at the current time (set :meth:`set_time` first); NaN is logged as a gap."""
+        self.stream.log(entity, self.rr.Scalars(float(value)))
+
+    def text(self, entity: str, markdown: str) -> None:
+        """A static markdown note (e.g. the run's summary)."""
+        self.stream.log(entity, self.rr.TextDocument(markdown, media_type=self.rr.MediaType.MARKDOWN), static=True)
+
+    def close(self) -> Path:
+        """Flush, close and move the file to its final name; returns the path."""
+        self.stream.flush()
+        self.stream.disconnect()
+        os.replace(self._tmp, self.path)
+        return self.path
+
+    def abort(self) -> None:
+        """Close and delete the temporary file (the run failed)."""
+        try:
+            self.stream.disconnect()
+        finally:
+            self._tmp.unlink(missing_ok=True)
+
+    def __enter__(self) -> Recording:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+        return False
+
+
+def arm_strip(T_world_frames) -> np.ndarray:
+    """The arm as a polyline through the origins of its frames ``(..., k, 4, 4)`` -> ``(k, 3)``."""
+    return np.asarray(T_world_frames, dtype=float)[..., :3, 3]
+
+
+def load_entities(path) -> dict:
+    """Read a recording back with rerun's reader: ``{entity_path: {component: [row values]}}``.
+
+    Component names are rerun's (``"Transform3D:translation"``, ``"Points3D:positions"``, ``"Scalars:scalars"``,
+    ...); each value is what one logged row holds (a list for batches). Rows of an entity are in the file's order.
+    """
+    from rerun.chunk import RrdReader
+
+    out: dict = {}
+    for chunk in RrdReader(str(path)).stream().to_chunks():
+        batch = chunk.to_record_batch()
+        comps = out.setdefault(chunk.entity_path, {})
+        for name in batch.schema.names:
+            if name.startswith("rerun.controls") or ":" not in name:
+                continue
+            comps.setdefault(name, []).extend(batch.column(name).to_pylist())
+    return out
