@@ -750,6 +750,7 @@ def extract_corners_thesis(image, board_geometry=(7, 7), initial_P=None, outer_c
     """
     geometry = _as_geometry(board_geometry)
     gray = check_image(image)
+    ideal = None if camera is None else _IdealDomain(camera, gray.shape[::-1])
     method = "thesis: NMS + k-means lines"
     if initial_P is not None:
         Hs = _plane_homographies_from_P(geometry, _check_P(initial_P))
@@ -777,8 +778,7 @@ def extract_corners_thesis(image, board_geometry=(7, 7), initial_P=None, outer_c
         return r <= c[0] <= w - 1 - r and r <= c[1] <= h - 1 - r
 
     to_image = None
-    if camera is not None:
-        ideal = _IdealDomain(camera, (w, h))
+    if ideal is not None:
         edges, Hs = ideal.edges(edges), [ideal.homography(geometry, plane, H) for plane, H in
                                          zip(geometry.planes, Hs, strict=True)]
         inside, to_image = ideal.window_inside, ideal.to_image
@@ -809,7 +809,7 @@ def extract_corners_thesis(image, board_geometry=(7, 7), initial_P=None, outer_c
             iters = max(iters, it)
     n = geometry.n_corners
     uv = np.array(uv_all)
-    if to_image is not None:
+    if to_image is not None and not failed:
         uv = to_image(uv)
     if failed:
         more = "..." if len(failed) > 10 else ""

@@ -246,3 +246,26 @@ def test_real_webcam_calibration_no_worse_than_opencv(tmp_path):
                                 image=cv2.imread(files[0]), rms_px=ours.per_view_rms_px[0])
     assert png.stat().st_size > 10_000
 
+
+
+def test_jackknife_views_matches_formal_errors_for_independent_noise_and_exceeds_them_for_correlated():
+    """Independent corner noise: the leave-one-view-out spread agrees with sigma^2 (J^T J)^-1 (within the scatter of
+    a 6-view jackknife); an error shared by all corners of a view (each view's image scaled about its centre, as a
+    mis-rendered or warped board would be) is invisible to the formal errors but not to the jackknife."""
+    rng = np.random.default_rng(31)
+    K = np.array([[820.0, 0, 318.0], [0, 815.0, 243.0], [0, 0, 1]])
+    dist = np.array([-0.2, 0.08, 1e-3, -5e-4, 0.0])
+    Xs, uvs, _ = random_views(rng, K, dist, rig_points(4), 6)
+    noisy = [uv + rng.normal(0, 0.05, uv.shape) for uv in uvs]
+    res = cal.calibrate_camera(Xs, noisy, SIZE)
+    jk, est = cal.jackknife_views(Xs, noisy, SIZE)
+    assert est.shape == (6, 8) and np.all(np.isfinite(jk))
+    ratio = jk / res.std
+    assert 0.5 < np.exp(np.mean(np.log(ratio))) < 2.0 and np.all((ratio > 0.25) & (ratio < 4.0)), ratio
+    scaled = [(uv - uv.mean(0)) * (1 + rng.normal(0, 3e-3)) + uv.mean(0) + rng.normal(0, 0.02, uv.shape)
+              for uv in uvs]
+    res2 = cal.calibrate_camera(Xs, scaled, SIZE)
+    jk2, _ = cal.jackknife_views(Xs, scaled, SIZE)
+    assert np.all(jk2[:2] > 2.5 * res2.std[:2])  # fx, fy: the per-view scale errors are focal-length errors (3x)
+    one, _ = cal.jackknife_views(Xs[:1], uvs[:1], SIZE)
+    assert np.all(np.isnan(one))

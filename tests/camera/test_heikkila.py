@@ -104,3 +104,28 @@ def test_bad_heikkila_parameters():
         opencv_to_heikkila(K, dist)
     with pytest.raises(ValueError, match="pixel_pitch: needed"):
         heikkila_of(load_preset("underwater_in_air").replace(pixel_pitch=None))
+
+
+def test_heikkila_jacobian_and_covariance():
+    """The derivative of the OpenCV -> Heikkila map against central differences; the covariance is J C J^T."""
+    from bench.camera.heikkila import heikkila_covariance, heikkila_jacobian, opencv_to_heikkila
+
+    cam = load_preset("underwater_in_air")
+    x0 = np.r_[cam.fx, cam.fy, cam.cx, cam.cy, cam.dist[:4]]
+
+    def h(x):
+        K = np.array([[x[0], 0, x[2]], [0, x[1], x[3]], [0, 0, 1]])
+        p = opencv_to_heikkila(K, np.r_[x[4:], 0.0])
+        return np.array([p.s_u, p.f, p.u0, p.v0, p.k1, p.k2, p.p1, p.p2])
+
+    J = heikkila_jacobian(cam.K, cam.dist)
+    Jn = np.empty((8, 8))
+    for i in range(8):
+        e = np.zeros(8)
+        e[i] = 1e-6 * max(abs(x0[i]), 1e-3)
+        Jn[:, i] = (h(x0 + e) - h(x0 - e)) / (2 * e[i])
+    assert np.allclose(J, Jn, rtol=1e-7, atol=0)
+    C = np.diag(np.r_[0.1, 0.1, 0.05, 0.05, 1e-4, 1e-3, 1e-5, 1e-5]) ** 2
+    assert np.allclose(heikkila_covariance(cam.K, cam.dist, C), J @ C @ J.T)
+    with pytest.raises(ValueError, match="cov_opencv"):
+        heikkila_covariance(cam.K, cam.dist, np.eye(4))
