@@ -40,7 +40,18 @@ from bench.vision.features import (
     orientation_filter,
 )
 from bench.vision.ransac import ransac_absolute_orientation
-from bench.vision.triangulation import triangulate_midpoint
+from bench.vision.triangulation import required_baseline, triangulate_midpoint
+
+#: Baseline checks (Eq. 123 / 199, 1 px disparity error). A locate pair whose baseline is below
+#: ``required_baseline(z, f, d_r)`` - a 1 px disparity error moves a triangulated 2p point by more than the RANSAC
+#: distance d_r at the matches' median depth z - is used with a WARNING in the message: its 3D points are coarser than
+#: the consensus test assumes, and the pose rests on the refinement (measured on synthetic data at 1.1 m, 0.3 px:
+#: 50 mm -> 0.6 mm error, 5 mm -> 2 mm, 2 mm -> 26 mm with the refinement, 540 mm without). Below
+#: ``BASELINE_FAIL_RATIO * z / f`` a 1 px disparity error is as large as the depth itself: no depth information, the
+#: pair is refused. The survey gets the same warning against the map's neighbour distance d_n.
+BASELINE_FAIL_RATIO = 1.0
+#: Condition number of the final pose problem above which the message carries a WARNING (both locate variants).
+WARN_CONDITION = 1e4
 
 
 @dataclass(frozen=True)
@@ -183,6 +194,10 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
         nv.append(int(good.sum()))
         spread.append(float(np.sqrt(np.mean(np.sum((p[good] - mean) ** 2, axis=1)))))
     stats["map_points"] = len(keep)
+    # survey geometry for the baseline check (Eq. 199): the widest reference-to-view baseline and the map's depth
+    stats["survey_baseline_m"] = float(max(np.linalg.norm((invert(T_world_ref) @ np.asarray(v.T_base_cam, float))
+                                                          [:3, 3]) for v in surrounding))
+    stats["median_depth_m"] = float(np.median(np.array(P)[:, 2])) if P else float("nan")
     idx = np.array(keep, dtype=int)
     return KeypointMap(np.array(P).reshape(-1, 3), np.array(Pstar).reshape(-1, 3), reference.features.subset(idx),
                        np.array(nv, dtype=int), np.array(spread), T_world_ref, stats)
@@ -222,6 +237,30 @@ class LocateResult:
     p2: np.ndarray | None = None  # their 2p estimates (camera-a frame)
 
 
+def baseline_check(baseline_m: float, depth_m: float, focal_px: float, resolution_m: float) -> tuple:
+    """Is a stereo baseline long enough at a depth (Eq. 123, 199, 1 px disparity error)?
+
+    Returns ``(level, message)``: ``"ok"``; ``"warn"`` when ``baseline_m < required_baseline(depth_m, focal_px,
+    resolution_m)``; ``"fail"`` when ``baseline_m < BASELINE_FAIL_RATIO * depth_m / focal_px`` (a 1 px disparity
+    error is a depth error as large as the depth). ``message`` states the figures.
+    """
+    if not (np.isfinite(depth_m) and depth_m > 0 and focal_px > 0 and resolution_m > 0):
+        return "ok", ""
+    need = float(required_baseline(depth_m, focal_px, resolution_m))  # Eq. 199
+    dz = depth_m**2 / (focal_px * max(baseline_m, 1e-300))  # Eq. 123, |dz| for ds = 1 px
+    text = (f"baseline {baseline_m * 1e3:.3g} mm at depth {depth_m:.3g} m: 1 px of disparity is {dz * 1e3:.3g} mm "
+            f"of depth (Eq. 123); Eq. 199 needs {need * 1e3:.3g} mm for {resolution_m * 1e3:.3g} mm")
+    if baseline_m < BASELINE_FAIL_RATIO * depth_m / focal_px:
+        return "fail", text
+    return ("warn", text) if baseline_m < need else ("ok", text)
+
+
+def _survey_warning(kmap: KeypointMap, focal_px: float, cfg: MapConfig) -> str:
+    level, text = baseline_check(kmap.stats.get("survey_baseline_m", np.inf), kmap.stats.get("median_depth_m", np.nan),
+                                 focal_px, cfg.neighbour_m)
+    return "" if level == "ok" else f"; WARNING survey {text} (d_n): map depths are coarse"
+
+
 def _failure(msg, n_matches=0, timings=None):
     nan = np.full((4, 4), np.nan)
     return LocateResult(False, msg, nan, nan, np.full((6, 6), np.nan), np.nan, n_matches, 0, timings or {})
@@ -246,7 +285,8 @@ def _base_covariance(cov_ref_a, T_world_ref, T_ref_a, T_base_a):
 
 def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, config: MapConfig | None = None,
            method: str = "svd", d_r: float = 0.020, iterations: int = 100, adaptive: bool = False,
-           r_lim: float | None = 0.1, rng=None, max_condition: float = 1e6, refine: bool = True) -> LocateResult:
+           r_lim: float | None = 0.1, rng=None, max_condition: float = 1e6, refine: bool = True,
+           focal_px: float = 1000.0) -> LocateResult:
     """Base pose from two new views (Eq. 165-166 + section 3.8 + link 5).
 
     Parameters
@@ -263,6 +303,9 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
         After the thesis's alignment, minimise the reprojection error of the inlier map points in both views over
         the 6 pose parameters (:func:`refine_pose`); the reported covariance is that of this final least-squares
         problem. Without it, the alignment's own first-order covariance is reported.
+    focal_px : float
+        Focal length (px) of the camera: converts the 1 px disparity error of the baseline checks (Eq. 123, 199;
+        see :data:`BASELINE_FAIL_RATIO`) to normalized units.
 
     Returns
     -------
@@ -296,6 +339,13 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
     if len(p1) < 3:
         return _failure(f"only {len(p1)} of {len(i_map)} matches triangulate within {cfg.gap_max_m * 1e3:g} mm",
                         len(i_map), timings)
+    # depth: the matched map points' median depth in the reference view (a depth triangulated from a short pair is
+    # itself unreliable); the locate views look at the same scene
+    level, text = baseline_check(baseline, float(np.median(kmap.p_ref[i_map[ok], 2])), focal_px, d_r)  # Eq. 123, 199
+    if level == "fail":
+        return _failure(f"no depth from the locate pair: {text}", len(p1), timings)
+    warning = f"; WARNING locate pair {text} (d_r): 2p is coarser than the RANSAC distance" if level == "warn" else ""
+    warning += _survey_warning(kmap, focal_px, cfg)
     res = ransac_absolute_orientation(p1, p2, d_r=d_r, iterations=iterations, adaptive=adaptive, method=method,
                                       r_lim=r_lim, rng=rng, max_condition=max_condition)
     timings["align_s"] = time.perf_counter() - t0 - timings["match_s"] - timings["triangulate_s"]
@@ -321,7 +371,8 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
     timings["total_s"] = time.perf_counter() - t0
     T_world_base = kmap.T_world_ref @ T_ref_a @ invert(T_base_a)
     cov = _base_covariance(cov_ref_a, kmap.T_world_ref, T_ref_a, T_base_a)
-    if cond > 1e4:
+    msg += warning
+    if cond > WARN_CONDITION:
         msg += f"; WARNING ill-conditioned point spread (condition {cond:.3g})"
     return LocateResult(True, msg, T_world_base, T_ref_a, cov, cond, len(p1), int(res.inliers.sum()), timings,
                         res.inliers, p1, p2)
@@ -350,58 +401,101 @@ def _proj_jac(X):
     return x, J
 
 
-def refine_pose(p_ref, x_a, x_b, T_a_b, T_ref_a0, iterations: int = 20) -> RefineResult:
-    """Minimise the reprojection error of map points in two views over the pose ``T_ref_a`` (Gauss-Newton).
+def _left_exp(delta):
+    """``[[exp([w]x), v], [0, 1]]`` for ``delta = (w, v)``: the left perturbation ``T <- D T`` (:func:`refine_pose`)."""
+    w, v = delta[:3], delta[3:]
+    theta = np.linalg.norm(w)
+    K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    R = np.eye(3) + (np.sin(theta) / theta * K + (1 - np.cos(theta)) / theta**2 * K @ K if theta > 1e-12 else K)
+    D = np.eye(4)
+    D[:3, :3], D[:3, 3] = R, v
+    return D
 
-    Estimated: ``T_ref_a`` (6 parameters, a left perturbation of ``T_a_ref``). Fixed: the map points ``p_ref (N, 3)``
-    and the relative pose ``T_a_b`` of the two views (arm kinematics). Residuals: ``x_a - pi(T_a_ref p)`` and
-    ``x_b - pi(T_b_a T_a_ref p)`` in normalized coordinates. Covariance ``s^2 (J^T J)^-1`` with ``s^2`` from the
-    residuals, mapped to a left rotation vector and translation of ``T_ref_a`` in the reference frame.
+
+def pose_reprojection(T_a_ref, T_b_a, p_ref):
+    """Projections of map points in views a and b and their derivative w.r.t. a left perturbation of ``T_a_ref``.
+
+    Parameters
+    ----------
+    T_a_ref : ndarray (4, 4)
+        Pose of the reference frame in camera a (the estimate).
+    T_b_a : ndarray (4, 4)
+        Camera a in camera b (fixed, from the kinematics).
+    p_ref : ndarray (N, 3)
+        Map points in the reference camera frame (m).
+
+    Returns
+    -------
+    u : ndarray (2N, 2)
+        Normalized projections, view a's N rows then view b's.
+    J : ndarray (4N, 6)
+        ``d u / d(w, v)`` for ``T_a_ref <- [[exp([w]x), v], [0, 1]] T_a_ref`` (rows as ``u.ravel()``).
+    z_min : float
+        The smallest depth of a point in either camera (m); ``<= 0`` means a point is behind a camera.
     """
-    p_ref, x_a, x_b = (np.asarray(v, dtype=float) for v in (p_ref, x_a, x_b))
     n = len(p_ref)
-    if n < 3:
-        return RefineResult(False, f"{n} points (need >= 3)", T_ref_a0, np.full((6, 6), np.nan), np.nan, np.inf, 0)
-    T_b_a = invert(np.asarray(T_a_b, float))
-    T_a_ref = invert(np.asarray(T_ref_a0, float))
-    it = 0
-    for it in range(1, iterations + 1):
-        Xa = transform_points(T_a_ref, p_ref)
-        Xb = transform_points(T_b_a, Xa)
-        if np.any(Xa[:, 2] <= 0) or np.any(Xb[:, 2] <= 0):
-            return RefineResult(False, "points behind a camera", T_ref_a0, np.full((6, 6), np.nan), np.nan, np.inf,
-                                it)
-        ua, Ja = _proj_jac(Xa)
-        ub, Jb = _proj_jac(Xb)
-        skew = np.zeros((n, 3, 3))
-        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -Xa[:, 2], Xa[:, 1], -Xa[:, 0]
-        skew -= np.swapaxes(skew, 1, 2)
-        dX = np.concatenate([-skew, np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)  # d Xa / d(w, v)
-        J = np.concatenate([Ja @ dX, Jb @ (T_b_a[:3, :3] @ dX)], axis=0).reshape(-1, 6)
-        r = np.concatenate([x_a - ua, x_b - ub], axis=0).ravel()
-        N = J.T @ J
-        delta = np.linalg.solve(N, J.T @ r)
-        w, v = delta[:3], delta[3:]
-        theta = np.linalg.norm(w)
-        K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-        R = np.eye(3) + (np.sin(theta) / theta * K + (1 - np.cos(theta)) / theta**2 * K @ K if theta > 1e-12 else K)
-        D = np.eye(4)
-        D[:3, :3], D[:3, 3] = R, v
-        T_a_ref = D @ T_a_ref
-        if np.abs(delta).max() < 1e-13:
-            break
     Xa = transform_points(T_a_ref, p_ref)
-    r = np.concatenate([x_a - _proj_jac(Xa)[0], x_b - _proj_jac(transform_points(T_b_a, Xa))[0]]).ravel()
-    s2 = float(r @ r) / max(len(r) - 6, 1)
-    cov_a = s2 * np.linalg.inv(N)  # left perturbation of T_a_ref, in frame a
-    # T_ref_a = T_a_ref^-1: a left perturbation (w, v) of T_a_ref is, for T_ref_a, the left perturbation
-    # w_ref = -R_ref_a w, v_ref = -R_ref_a v + [w_ref]x t_ref_a ... built as a Jacobian:
-    T_ref_a = invert(T_a_ref)
+    Xb = transform_points(T_b_a, Xa)
+    ua, Ja = _proj_jac(Xa)
+    ub, Jb = _proj_jac(Xb)
+    skew = np.zeros((n, 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -Xa[:, 2], Xa[:, 1], -Xa[:, 0]
+    skew -= np.swapaxes(skew, 1, 2)  # [Xa]x
+    dX = np.concatenate([-skew, np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)  # d Xa / d(w, v)
+    J = np.concatenate([Ja @ dX, Jb @ (T_b_a[:3, :3] @ dX)], axis=0).reshape(-1, 6)
+    return np.concatenate([ua, ub], axis=0), J, float(min(Xa[:, 2].min(), Xb[:, 2].min()))
+
+
+def inverse_perturbation_jacobian(T_ref_a):
+    """``M (6, 6)``: a left perturbation ``(w, v)`` of ``T_a_ref = T_ref_a^-1`` is the left perturbation ``M (w, v)``
+    of ``T_ref_a`` (``(D T_a_ref)^-1 = Ad(T_ref_a) D^-1 T_ref_a``): ``w' = -R w``, ``v' = -R v - [t]x R w``."""
     R, t = T_ref_a[:3, :3], T_ref_a[:3, 3]
     M = np.zeros((6, 6))
     M[:3, :3] = -R
     M[3:, 3:] = -R
     M[3:, :3] = -np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ R
+    return M
+
+
+def refine_pose(p_ref, x_a, x_b, T_a_b, T_ref_a0, iterations: int = 20) -> RefineResult:
+    """Minimise the reprojection error of map points in two views over the pose ``T_ref_a`` (Gauss-Newton).
+
+    Estimated: ``T_ref_a`` (6 parameters, a left perturbation of ``T_a_ref``). Fixed: the map points ``p_ref (N, 3)``
+    and the relative pose ``T_a_b`` of the two views (arm kinematics). Residuals: ``x_a - pi(T_a_ref p)`` and
+    ``x_b - pi(T_b_a T_a_ref p)`` in normalized coordinates (:func:`pose_reprojection`). Covariance
+    ``s^2 (J^T J)^-1`` with ``s^2`` from the residuals, mapped to a left rotation vector and translation of
+    ``T_ref_a`` in the reference frame (:func:`inverse_perturbation_jacobian`).
+    """
+    p_ref, x_a, x_b = (np.asarray(v, dtype=float) for v in (p_ref, x_a, x_b))
+    n = len(p_ref)
+    nan6 = np.full((6, 6), np.nan)
+    if n < 3:
+        return RefineResult(False, f"{n} points (need >= 3)", T_ref_a0, nan6, np.nan, np.inf, 0)
+    T_b_a = invert(np.asarray(T_a_b, float))
+    T_a_ref = invert(np.asarray(T_ref_a0, float))
+    x_ab = np.concatenate([x_a, x_b], axis=0)
+    it = 0
+    for it in range(1, iterations + 1):
+        u, J, z_min = pose_reprojection(T_a_ref, T_b_a, p_ref)
+        if z_min <= 0:
+            return RefineResult(False, "points behind a camera", T_ref_a0, nan6, np.nan, np.inf, it)
+        r = (x_ab - u).ravel()
+        N = J.T @ J
+        cond = float(np.linalg.cond(N))
+        if not cond < 1e14:
+            return RefineResult(False, f"singular normal matrix (condition {cond:.3g})", T_ref_a0, nan6, np.nan,
+                                cond, it)
+        delta = np.linalg.solve(N, J.T @ r)
+        T_a_ref = _left_exp(delta) @ T_a_ref
+        if np.abs(delta).max() < 1e-13:
+            break
+    u, J, _ = pose_reprojection(T_a_ref, T_b_a, p_ref)
+    N = J.T @ J
+    r = (x_ab - u).ravel()
+    s2 = float(r @ r) / max(len(r) - 6, 1)
+    cov_a = s2 * np.linalg.inv(N)  # left perturbation of T_a_ref, in frame a
+    T_ref_a = invert(T_a_ref)
+    M = inverse_perturbation_jacobian(T_ref_a)
     return RefineResult(True, "ok", T_ref_a, M @ cov_a @ M.T, float(np.sqrt(np.mean(r**2))), float(np.linalg.cond(N)),
                         it)
 
@@ -460,5 +554,8 @@ def locate_pnp(kmap: KeypointMap, view_a: ViewObservation, config: MapConfig | N
     cov = Jw @ cov_rt @ Jw.T
     err = np.linalg.norm((img[inl] - proj.reshape(-1, 2)), axis=1)
     msg = f"PnP: {len(inl)} of {len(m)} matches kept, rms {np.sqrt(np.mean(err**2)) * focal_px:.2f} px"
+    msg += _survey_warning(kmap, focal_px, cfg)
+    if cond > WARN_CONDITION:
+        msg += f"; WARNING ill-conditioned point spread (condition {cond:.3g})"
     return LocateResult(True, msg, T_world_base, T_ref_a, cov, cond, len(m), len(inl),
                         {"total_s": time.perf_counter() - t0}, None, obj[inl], transform_points(T_a_ref, obj[inl]))

@@ -142,6 +142,22 @@ def reprojection_residuals(T_ref_cams, x_n, p_ref):
     return np.asarray(x_n, float) - pc[..., :2] / pc[..., 2:3]
 
 
+def reprojection_jacobian(T_ref_cams, p_ref):
+    """Projections ``proj(p) (V, N, 2)`` of points ``p_ref (N, 3)`` and their Jacobian ``d proj / d p (V, N, 2, 3)``.
+
+    ``d proj / d p = (1 / z) [I2 | -proj] R^T`` for a camera-frame point ``(x, y, z) = R^T (p - t)``; the residual
+    ``x_n - proj(p)`` has the opposite sign. Points at or behind a camera (``z <= 0``) give NaN.
+    """
+    T = _check_poses(T_ref_cams, "T_ref_cams")
+    P = _projections(T)
+    pc = np.einsum("vij,nj->vni", P[..., :3], np.asarray(p_ref, dtype=float)) + P[:, None, :, 3]
+    z = pc[..., 2:3]
+    z = np.where(z > 0.0, z, np.nan)
+    proj = pc[..., :2] / z
+    Jp = np.concatenate([np.broadcast_to(np.eye(2), proj.shape + (2,)), -proj[..., None]], axis=-1)
+    return proj, np.einsum("vnab,vbc->vnac", Jp / z[..., None], P[..., :3])
+
+
 def triangulate_optimal(T_ref_cams, x_n, p0=None, iterations: int = 10):
     """Minimum-reprojection-error triangulation (Gauss-Newton on each point), V >= 2 views.
 
@@ -156,32 +172,45 @@ def triangulate_optimal(T_ref_cams, x_n, p0=None, iterations: int = 10):
     Returns
     -------
     p_ref : ndarray (N, 3)
+        NaN for points that cannot be triangulated: a degenerate linear start (zero baseline, parallel rays), a
+        start or a result not in front of every camera, or a singular normal matrix (condition > 1e12: rays too
+        close to parallel for the depth to be determined).
     rms : ndarray (N,)
-        RMS reprojection residual per point (normalized units; times the focal length gives pixels).
+        RMS reprojection residual per point (normalized units; times the focal length gives pixels); NaN where
+        ``p_ref`` is.
     """
     T = _check_poses(T_ref_cams, "T_ref_cams")
-    x = np.asarray(x_n, dtype=float)
-    p = triangulate_linear(T, x) if p0 is None else np.array(p0, dtype=float)
-    P = _projections(T)
+    x = _homog(x_n)[..., :2]
+    if T.ndim != 3 or x.ndim != 3 or x.shape[0] != T.shape[0] or T.shape[0] < 2:
+        raise ValueError(f"expected T_ref_cams (V, 4, 4) and x_n (V, N, 2) with V >= 2, got {T.shape}, "
+                         f"{np.shape(x_n)}")
+    if p0 is None:
+        p = triangulate_linear(T, x)
+    else:
+        p = np.array(p0, dtype=float)
+        if p.shape != (x.shape[1], 3):
+            raise ValueError(f"p0: expected shape ({x.shape[1]}, 3), got {p.shape}")
     ok = np.all(np.isfinite(p), axis=1)
     for _ in range(iterations):
-        pc = np.einsum("vij,nj->vni", P[..., :3], np.where(ok[:, None], p, 0.0)) + P[:, None, :, 3]
-        z = pc[..., 2:3]
-        r = x - pc[..., :2] / z  # (V, N, 2)
-        # d(proj)/dp = (1/z) [I2 | -xy] R^T ; J (V, N, 2, 3)
-        Jp = np.concatenate([np.broadcast_to(np.eye(2), r.shape + (2,)), -(pc[..., :2] / z)[..., None]], axis=-1)
-        J = np.einsum("vnab,vbc->vnac", Jp / z[..., None], P[..., :3])
+        proj, J = reprojection_jacobian(T, np.where(ok[:, None], p, 0.0))
+        ok &= np.all(np.isfinite(proj), axis=(0, 2))  # a point at or behind a camera cannot be refined
+        r = np.where(ok[None, :, None], x - proj, 0.0)  # (V, N, 2)
+        J = np.where(ok[None, :, None, None], J, 0.0)
         H = np.einsum("vnai,vnaj->nij", J, J)
-        g = np.einsum("vnai,vna->ni", J, r)
-        good = ok & (np.linalg.cond(H) < 1e12)
+        g = np.einsum("vnai,vna->ni", J, r)  # r = x - proj, so the step is +H^-1 J^T r
+        cond = np.full(len(p), np.inf)
+        cond[ok] = np.linalg.cond(H[ok]) if np.any(ok) else cond[ok]
+        ok &= cond < 1e12
         dp = np.zeros_like(p)
-        dp[good] = np.linalg.solve(H[good], g[good][..., None])[..., 0]
-        p = np.where(good[:, None], p + dp, p)
-        if np.all(np.abs(dp[good]) < 1e-14 * (1 + np.abs(p[good]))):
+        dp[ok] = np.linalg.solve(H[ok], g[ok][..., None])[..., 0]
+        p = np.where(ok[:, None], p + dp, p)
+        if np.all(np.abs(dp[ok]) < 1e-14 * (1 + np.abs(p[ok]))):
             break
-    res = reprojection_residuals(T, x, np.where(ok[:, None], p, 0.0))
-    rms = np.sqrt(np.mean(np.sum(res**2, axis=-1), axis=0))
-    rms[~ok] = np.nan
+    proj, _ = reprojection_jacobian(T, np.where(ok[:, None], p, 0.0))
+    ok &= np.all(np.isfinite(proj), axis=(0, 2))
+    p[~ok] = np.nan
+    rms = np.full(len(p), np.nan)
+    rms[ok] = np.sqrt(np.mean(np.sum((x - proj)[:, ok] ** 2, axis=-1), axis=0))
     return p, rms
 
 

@@ -1,8 +1,11 @@
 """Section 3.9 on synthetic observations: arm kinematics + projected points, no rendering."""
 
+import re
+
 import numpy as np
 import pytest
 
+from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, invert, rot_z, rotation_angle, transform_points
 from bench.robot.model import random_errors
 from bench.sim.views import camera_frames, look_at_configuration, surrounding_eyes
@@ -32,7 +35,7 @@ def _observe(name, p_world, desc, T_world_cam, T_base_cam_reading, rng, sigma=0.
     return ViewObservation(name, f, x[keep], T_base_cam_reading)
 
 
-def _campaign(ta40, rng, eps, sigma=0.0, outliers=0.0, base_motion=None):
+def _campaign(ta40, rng, eps, sigma=0.0, outliers=0.0, base_motion=None, locate_baseline=0.15):
     T_world_base1 = np.eye(4)  # the survey base frame is the site frame
     T_ref = camera_frames(ta40, Q_REF, T_LINK5_CAM, eps)
     target = T_ref[:3, 3] + 1.1 * T_ref[:3, 2]
@@ -48,7 +51,7 @@ def _campaign(ta40, rng, eps, sigma=0.0, outliers=0.0, base_motion=None):
                                                                                            [0.08, -0.05, 0.02]))
     target_b2 = transform_points(invert(T_world_base2), target)
     loc = []
-    for k, off in enumerate([[0.0, 0.0], [0.15, 0.0]]):
+    for k, off in enumerate([[0.0, 0.0], [locate_baseline, 0.0]]):
         eye = surrounding_eyes(T_ref, [off])[0]
         sol = look_at_configuration(ta40, eye, target_b2, T_LINK5_CAM, eps=eps, q_seed=Q_REF)
         assert sol.success
@@ -67,7 +70,7 @@ def test_noise_free_map_and_base_are_exact(ta40):
     assert np.abs(np.sort(p_map_world, axis=0) - np.sort(p_world, axis=0)).max() <= 1e-9
     for method in ("svd", "horn", "rodrigues"):
         res = locate(kmap, loc[0], loc[1], method=method, rng=1)
-        assert res.success, res.message
+        assert res.success and "WARNING" not in res.message, res.message  # 150 mm: Eq. 199 needs 60 mm
         assert np.abs(res.T_world_base - T_true).max() <= 1e-9
     pnp = locate_pnp(kmap, loc[0])
     assert pnp.success and np.abs(pnp.T_world_base - T_true).max() <= 1e-8
@@ -112,6 +115,25 @@ def test_failures_are_results(ta40):
         build_map(views[0], [])
 
 
+def test_short_locate_baseline_is_warned_and_no_baseline_refused(ta40):
+    """Eq. 123 / 199 at the map's depth (1.1 m) and f = 1000 px: 60 mm give 20 mm (d_r) of depth per pixel of
+    disparity. 5 mm: a pose, with a WARNING naming the figures (the refinement keeps it to a few mm); 0.5 mm: one
+    pixel of disparity is 2.4 m of depth, refused. Without the check the 0.5 mm pair failed only by luck of RANSAC,
+    and a 2 mm pair returned a 26 mm error silently."""
+    for b, ok in ((0.005, True), (0.0005, False)):
+        rng = np.random.default_rng(46)
+        views, loc, _, T_true = _campaign(ta40, rng, None, sigma=0.3e-3, locate_baseline=b)
+        kmap = build_map(views[0], views[1:])
+        res = locate(kmap, loc[0], loc[1], rng=3)
+        assert res.success == ok, res.message
+        if ok:
+            pattern = r"WARNING locate pair baseline 5 mm at depth 1\.1\d* m: .* Eq\. 199 needs 6\d"
+            assert re.search(pattern, res.message), res.message
+            assert np.linalg.norm(res.T_world_base[:3, 3] - T_true[:3, 3]) < 10e-3
+        else:
+            assert res.message.startswith("no depth from the locate pair: baseline 0.5 mm")
+
+
 def test_refine_pose_converges_quadratically_from_a_perturbed_start():
     from bench.vision.insitu import refine_pose
 
@@ -125,3 +147,36 @@ def test_refine_pose_converges_quadratically_from_a_perturbed_start():
     rp = refine_pose(p_ref, Xa[:, :2] / Xa[:, 2:], Xb[:, :2] / Xb[:, 2:], T_a_b, start)
     assert rp.success and np.abs(rp.T_ref_a - T_ref_a).max() <= 1e-12 and rp.iterations <= 6  # Gauss-Newton, exact J
     assert not refine_pose(p_ref[:2], Xa[:2, :2], Xb[:2, :2], T_a_b, start).success
+
+
+def _left_log(T_new, T):
+    """``(w, v)`` of the left perturbation ``D = T_new T^-1``."""
+    from bench.geometry.quaternion import matrix_to_rotation_vector
+
+    D = T_new @ invert(T)
+    return np.concatenate([matrix_to_rotation_vector(D[:3, :3]), D[:3, 3]])
+
+
+def test_refine_pose_jacobians_against_central_differences():
+    """The Gauss-Newton Jacobian of :func:`refine_pose` (projections w.r.t. a left perturbation of ``T_a_ref``, both
+    views) and the map of that perturbation to one of ``T_ref_a`` (used for the covariance) are the derivatives."""
+    from bench.vision.insitu import _left_exp, inverse_perturbation_jacobian, pose_reprojection
+
+    rng = np.random.default_rng(45)
+    p_ref = np.column_stack([rng.uniform(-0.4, 0.4, 12), rng.uniform(-0.3, 0.3, 12), rng.uniform(0.9, 1.3, 12)])
+    T_ref_a = homogeneous(rotation_vector_to_matrix(0.7 * np.array([0.2, -1.0, 0.3])), [0.05, -0.02, 0.01])
+    T_b_a = invert(homogeneous(rot_z(-2 * DEG), [0.15, 0.01, -0.02]))
+    T_a_ref = invert(T_ref_a)
+    u, J, z_min = pose_reprojection(T_a_ref, T_b_a, p_ref)
+    assert z_min > 0.5 and u.shape == (24, 2) and J.shape == (48, 6)
+    h = 1e-6
+    M = inverse_perturbation_jacobian(T_ref_a)
+    for k in range(6):
+        e = np.zeros(6)
+        e[k] = h
+        up = pose_reprojection(_left_exp(e) @ T_a_ref, T_b_a, p_ref)[0]
+        um = pose_reprojection(_left_exp(-e) @ T_a_ref, T_b_a, p_ref)[0]
+        assert np.abs((up - um).ravel() / (2 * h) - J[:, k]).max() <= 1e-8 * np.abs(J).max()
+        dp = _left_log(invert(_left_exp(e) @ T_a_ref), T_ref_a)
+        dm = _left_log(invert(_left_exp(-e) @ T_a_ref), T_ref_a)
+        assert np.abs((dp - dm) / (2 * h) - M[:, k]).max() <= 1e-8

@@ -85,6 +85,10 @@ def test_degenerate_geometry():
     assert not par.valid.any() and np.all(np.isfinite(par.gap))
     lin = triangulate_linear(np.stack([np.eye(4), np.eye(4)]), np.stack([x, np.array([[0.0, 0.0]])]))
     assert np.isnan(lin).all()
+    # regression: zero baseline raised LinAlgError ("SVD did not converge") in triangulate_optimal
+    for p0 in (None, [[0.1, 0.0, 1.0]]):
+        p, rms = triangulate_optimal(np.stack([np.eye(4), np.eye(4)]), np.stack([x, x]), p0=p0)
+        assert np.isnan(p).all() and np.isnan(rms).all()
     behind = triangulate_midpoint(np.eye(4), np.array([[0.1, 0.0]]), shifted, np.array([[0.2, 0.0]]))
     assert not behind.valid.any()  # rays diverge: the closest points lie behind the cameras
     with pytest.raises(ValueError, match="x_n"):
