@@ -161,7 +161,15 @@ def numeric_identifiability(
     -------
     Reduction
         With ``singular_values`` of the scaled ``J_t``.
+
+    Raises
+    ------
+    ValueError
+        When every row of ``J_t`` is independent (too few poses: the rank then counts the rows, not the identifiable
+        errors; 2 poses gave "rank 6" for the TA-40's 25).
     """
+    if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
+        raise ValueError(f"n_poses: expected a positive integer, got {n_poses!r}")
     q = robot.random_configurations(rng, n_poses)
     J = stacked_jacobian(robot, q, rows=rows)
     reach = max(float(np.sum(np.abs(robot.a)) + np.sum(np.abs(robot.d))), 1e-3)
@@ -170,6 +178,11 @@ def numeric_identifiability(
     sv = np.linalg.svd(Js, compute_uv=False)
     tol = rel_tol * sv[0] * max(Js.shape)
     rank = int(np.sum(sv > tol))
+    if rank >= Js.shape[0]:
+        per_pose = Js.shape[0] // n_poses
+        raise ValueError(f"n_poses: {n_poses} poses give {Js.shape[0]} rows and all are independent, so the rank "
+                         f"counts the rows, not the identifiable errors; use at least "
+                         f"{Js.shape[1] // per_pose + 1} poses ({Js.shape[1]} parameters)")
     if preferred is None:
         _, _, piv = scipy.linalg.qr(Js, pivoting=True, mode="economic")
         order = list(piv)

@@ -9,6 +9,15 @@ Fixed: the nominal DH parameters and the eliminated errors (zero). Measurements:
 * :func:`identify_iterative` - Levenberg-Marquardt (Gauss-Newton with adaptive damping) on the exact model.
 
 Solvers return an :class:`IdentificationResult` and never raise on non-convergence or rank deficiency.
+
+Consistency with the stated noise (:func:`chi2_check`): with ``sigma`` the measurements' standard deviation, the
+weighted residual sum ``chi2 = sum (r / sigma)^2`` of a correct model follows a chi-square distribution with
+``dof = 3 m - p`` degrees of freedom. The result reports ``chi2_per_dof`` (1 on average). Outside the central 99.8 %
+of that distribution the message carries a WARNING (above: model error, e.g. the linearised model on exact data, or
+``sigma`` too small - the covariance is then optimistic; below: ``sigma`` overstated or noise-free data - the
+covariance is pessimistic). Above :data:`CHI2_FAIL` (residuals 100 times ``sigma``) the fit explains nothing at the
+stated noise - points in mm where metres belong, the wrong robot, another frame - and the result is
+``success=False`` with the estimate withheld (NaN).
 """
 
 from __future__ import annotations
@@ -17,11 +26,15 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.stats
 
 from bench.robot.identifiability import Reduction
 from bench.robot.jacobian import identification_jacobian
 from bench.robot.kinematics import ee_position
 from bench.robot.model import Robot
+
+#: Reduced chi-square ``chi2 / dof`` above which an identification is refused (residual RMS > 100 sigma).
+CHI2_FAIL = 1e4
 
 
 @dataclass
@@ -45,6 +58,9 @@ class IdentificationResult:
     iterations : int
     cost : float
         Half the weighted sum of squared residuals.
+    chi2_per_dof : float
+        ``2 cost / (3 m - p)``: 1 on average when the model fits to the stated ``sigma`` (see :func:`chi2_check`);
+        NaN without redundancy.
     """
 
     success: bool
@@ -57,6 +73,7 @@ class IdentificationResult:
     iterations: int
     cost: float
     timings_s: dict = field(default_factory=dict)
+    chi2_per_dof: float = float("nan")
 
     @property
     def std(self) -> np.ndarray:
@@ -69,6 +86,54 @@ def _failure(reduction: Reduction, message: str) -> IdentificationResult:
     nan = np.full(p, np.nan)
     return IdentificationResult(False, message, np.full(reduction.M.shape[1], np.nan), nan, np.full((p, p), np.nan),
                                 np.nan, np.inf, 0, np.nan)
+
+
+def chi2_check(cost: float, n_rows: int, n_params: int, points=None, robot: Robot | None = None) -> tuple:
+    """Consistency of a weighted least-squares fit with its stated noise (module docstring).
+
+    Returns ``(level, chi2_per_dof, note)`` with ``level`` one of ``"ok"``, ``"warn"`` (outside the central 99.8 % of
+    the chi-square distribution with ``n_rows - n_params`` dof) and ``"fail"`` (``chi2_per_dof > CHI2_FAIL``);
+    ``note`` is the sentence for the result message. With ``points`` and ``robot`` a failure also says when the
+    points lie beyond ten times the arm's reach (mm given where metres belong?).
+    """
+    dof = n_rows - n_params
+    if dof <= 0 or not np.isfinite(cost):
+        return "ok", float("nan"), ""
+    red = 2.0 * cost / dof
+    hi = scipy.stats.chi2.ppf(0.999, dof) / dof
+    lo = scipy.stats.chi2.ppf(0.001, dof) / dof
+    if red > CHI2_FAIL:
+        note = (f"residuals inconsistent with sigma: chi2/dof = {red:.3g} (residual RMS {np.sqrt(red):.3g} sigma; "
+                f"refused above {CHI2_FAIL:.0e})")
+        if points is not None and robot is not None:
+            reach = float(np.sum(np.abs(robot.a)) + np.sum(np.abs(robot.d)))
+            far = float(np.median(np.linalg.norm(points, axis=-1)))
+            if far > 10 * reach:
+                note += f"; the points lie {far:.3g} m from the base, the arm reaches {reach:.3g} m: mm given as m?"
+            else:
+                note += ": wrong units of sigma, wrong robot or points in another frame?"
+        return "fail", red, note
+    if red > hi:
+        return "warn", red, (f"WARNING chi2/dof = {red:.3g} > {hi:.3g} (99.9 %): residuals exceed sigma (model error "
+                             "or sigma too small); the covariance is optimistic")
+    if red < lo:
+        return "warn", red, (f"WARNING chi2/dof = {red:.3g} < {lo:.3g} (0.1 %): residuals below sigma (sigma "
+                             "overstated, or noise-free data); the covariance is pessimistic")
+    return "ok", red, ""
+
+
+def _checked(res: IdentificationResult, reduction: Reduction, n_rows: int, points, robot) -> IdentificationResult:
+    """Apply :func:`chi2_check` to a solved result: a failure withholds the estimate, a warning goes in the message."""
+    level, red, note = chi2_check(res.cost, n_rows, len(reduction.kept), points, robot)
+    if level == "fail":
+        out = _failure(reduction, f"{note} ({res.message})")
+        out.chi2_per_dof, out.cost, out.residual_rms, out.iterations = red, res.cost, res.residual_rms, res.iterations
+        out.timings_s = res.timings_s
+        return out
+    res.chi2_per_dof = red
+    if note:
+        res.message += "; " + note
+    return res
 
 
 def _check_inputs(robot: Robot, q, points, sigma, reduction: Reduction):
@@ -143,9 +208,10 @@ def identify_linear(robot: Robot, q, points, reduction: Reduction, sigma=1.0, ep
     eps[reduction.kept] += x
     res = dX - G @ x
     cost = 0.5 * float(np.sum((res * w) ** 2))
-    return IdentificationResult(True, "linear least squares (Eq. 14)", eps, eps[reduction.kept], cov,
-                                float(np.sqrt(np.mean(res**2))), float(cond), 1, cost,
-                                {"identification": time.perf_counter() - t0})
+    out = IdentificationResult(True, "linear least squares (Eq. 14)", eps, eps[reduction.kept], cov,
+                               float(np.sqrt(np.mean(res**2))), float(cond), 1, cost,
+                               {"identification": time.perf_counter() - t0})
+    return _checked(out, reduction, dX.size, points, robot)
 
 
 def identify_iterative(robot: Robot, q, points, reduction: Reduction, sigma=1.0, eps0=None, form="exact",
@@ -205,5 +271,6 @@ def identify_iterative(robot: Robot, q, points, reduction: Reduction, sigma=1.0,
         return _failure(reduction, "reduced Jacobian is rank deficient at the solution")
     msg = f"Levenberg-Marquardt on the {form} model: " + ("converged" if converged else
                                                           f"stopped after {max_iter} iterations without converging")
-    return IdentificationResult(converged, msg, eps, eps[reduction.kept], cov, float(np.sqrt(np.mean(r**2))),
-                                float(cond), it, cost, {"identification": time.perf_counter() - t0})
+    out = IdentificationResult(converged, msg, eps, eps[reduction.kept], cov, float(np.sqrt(np.mean(r**2))),
+                               float(cond), it, cost, {"identification": time.perf_counter() - t0})
+    return _checked(out, reduction, r.size, points, robot)

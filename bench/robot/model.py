@@ -100,6 +100,37 @@ def _number(src, field, value):
     return float(value)
 
 
+def _check_units(source, joints, arr) -> None:
+    """Plausibility of the units in the robot file (one-line :class:`ConfigError` naming the field).
+
+    * ``alpha_deg`` / ``theta_offset_deg`` equal to +-pi/2 or +-pi *in radians* (within 2e-3: 1.5708, 1.571, 3.1416,
+      3.14): a twist or offset of 1.57 or 3.14 degrees does not occur in a nominal model; the degree value is given.
+    * every joint limit within +-2 pi: radians (a manipulator whose every joint moves less than 6.3 degrees either
+      way is not one).
+    * a non-zero ``a_mm`` / ``d_mm`` below 1 mm beside a link of 100 mm or more, or a whole arm shorter than 10 mm:
+      metres (a nominal dimension below 1 mm is below the tolerance that the calibration identifies as an error).
+    """
+    for i, j in enumerate(joints):
+        for key in ("alpha_deg", "theta_offset_deg"):
+            v = float(j.get(key, 0.0))
+            if any(abs(abs(v) - r) < 2e-3 for r in (np.pi / 2, np.pi)):
+                raise ConfigError(source, f"joints[{i}].{key}", f"{v:g} looks like radians ({np.rad2deg(v):.1f} deg); "
+                                                                "the key is in degrees")
+    limits = np.concatenate([arr["lo"], arr["hi"]])  # rad, from the *_deg values
+    if np.all(np.abs(np.rad2deg(limits)) <= 2 * np.pi + 1e-3) and np.abs(np.rad2deg(limits)).max() > 1.0:
+        raise ConfigError(source, "joints[0].min_deg", "every joint limit lies within +-2 pi: radians given where "
+                                                      "degrees belong?")
+    lengths = np.abs(np.concatenate([arr["a"], arr["d"]])) * 1e3  # mm
+    names = [f"joints[{i}].a_mm" for i in range(len(arr["a"]))] + [f"joints[{i}].d_mm" for i in range(len(arr["d"]))]
+    if 0.0 < lengths.sum() < 10.0:
+        raise ConfigError(source, names[int(np.argmax(lengths))], f"the arm is {lengths.sum():.4g} mm long in all: "
+                                                                  "metres given where mm belong?")
+    for name, v in zip(names, lengths, strict=True):
+        if 0.0 < v < 1.0 and lengths.max() >= 100.0:
+            raise ConfigError(source, name, f"{v:g} mm beside links of {lengths.max():g} mm: metres given where mm "
+                                            "belong?")
+
+
 def robot_from_dict(data: dict, source: str = "<robot>") -> Robot:
     """Build a :class:`Robot` from the parsed YAML mapping, validating every field (units in key names)."""
     if not isinstance(data, dict):
@@ -152,6 +183,7 @@ def robot_from_dict(data: dict, source: str = "<robot>") -> Robot:
         raise ConfigError(source, "ee_point_mm", "expected a list of 3 numbers (mm, in the last frame)")
     p_ee = np.array([_number(source, f"ee_point_mm[{k}]", v) for k, v in enumerate(p)]) * 1e-3
     arr = {k: np.array(v, dtype=float) for k, v in cols.items()}
+    _check_units(source, joints, arr)
     return Robot(str(data["name"]), tuple(names), arr["a"], arr["d"], arr["alpha"], arr["off"], arr["lo"], arr["hi"],
                  p_ee)
 

@@ -121,6 +121,17 @@ def _check_values(cfg):
         raise ConfigError(src, "identifiability.off_axis_point_mm", "expected 3 numbers (mm)")
 
 
+def _check_pose_counts(cfg, n_params):
+    """Every identification needs at least ``n_params / 3`` poses (3 equations per tracker point)."""
+    need = -(-n_params // 3)
+    for key in ("linear.n_poses", "realistic.n_poses", "pose_selection.n_poses"):
+        sec, k = key.split(".")
+        n = cfg[sec][k]
+        if n < need:
+            raise ConfigError(cfg["_file"], key, f"{n} poses give {3 * n} equations for {n_params} identifiable "
+                                                 f"errors; need at least {need}")
+
+
 def _rms_mm(a, b):
     return float(1e3 * np.sqrt(np.mean(np.sum((a - b) ** 2, axis=-1))))
 
@@ -159,17 +170,23 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     # 1. identifiability ---------------------------------------------------------------------------------
     t0 = time.perf_counter()
     red = closed_form_reduction(robot)
-    num = numeric_identifiability(robot, rng, cfg["identifiability"]["n_poses"], preferred=red.kept)
-    num_free = numeric_identifiability(robot, rng, cfg["identifiability"]["n_poses"])
-    off = robot.with_ee_point(np.asarray(cfg["identifiability"]["off_axis_point_mm"], dtype=float) * 1e-3)
-    num_off = numeric_identifiability(off, rng, cfg["identifiability"]["n_poses"])
+    _check_pose_counts(cfg, len(red.kept))
+    try:
+        num = numeric_identifiability(robot, rng, cfg["identifiability"]["n_poses"], preferred=red.kept)
+        num_free = numeric_identifiability(robot, rng, cfg["identifiability"]["n_poses"])
+        off = robot.with_ee_point(np.asarray(cfg["identifiability"]["off_axis_point_mm"], dtype=float) * 1e-3)
+        num_off = numeric_identifiability(off, rng, cfg["identifiability"]["n_poses"])
+        red_off = closed_form_reduction(off)
+    except ValueError as exc:
+        key = "identifiability.n_poses" if str(exc).startswith("n_poses") else "identifiability.off_axis_point_mm"
+        raise ConfigError(cfg["_file"], key, str(exc).removeprefix("n_poses: ")) from None
     metrics.update({
         "n_identifiable_closed_form": len(red.kept),
         "rank_numeric": num.rank,
         "closed_vs_numeric_same_columns": float(np.array_equal(num.kept, red.kept)),
         "closed_vs_numeric_map_max_abs_diff": float(np.abs(num.M - red.M).max()),
         "rank_numeric_off_axis_point": num_off.rank,
-        "n_identifiable_closed_form_off_axis_point": len(closed_form_reduction(off).kept),
+        "n_identifiable_closed_form_off_axis_point": len(red_off.kept),
     })
     names = error_names(robot.n + 1)
     tables["merges"] = {
@@ -212,6 +229,8 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     p_ho = ee_position(robot, q_ho, eps_true)
     metrics["heldout_rms_mm_uncalibrated"] = _rms_mm(ee_position(robot, q_ho), p_ho)
     clean = identify_iterative(robot, q_id, p_id, red, sigma=sigma)
+    if not np.all(np.isfinite(clean.eps)):
+        raise ConfigError(cfg["_file"], "realistic", f"noise-free identification failed: {clean.message}")
     metrics["heldout_rms_mm_noise_free_exact"] = _rms_mm(ee_position(robot, q_ho, clean.eps), p_ho)
     metrics["iterations_noise_free_exact"] = clean.iterations
     noisy_pts = p_id + rng.normal(scale=sigma, size=p_id.shape)

@@ -64,3 +64,13 @@ def test_point_at_frame_origin_is_refused_by_closed_form(ta40, rng):
     with pytest.raises(ValueError, match="numeric_identifiability"):
         closed_form_reduction(robot)
     assert numeric_identifiability(robot, rng).rank == 21
+
+
+def test_numeric_rank_refuses_too_few_poses(ta40):
+    """2 poses used to report 'rank 6' for the TA-40's 25 identifiable errors: the rank counted the rows."""
+    for n in (2, 8):
+        with pytest.raises(ValueError, match=f"n_poses: {n} poses give {3 * n} rows .* at least 15 poses"):
+            numeric_identifiability(ta40, np.random.default_rng(0), n)
+    assert numeric_identifiability(ta40, np.random.default_rng(0), 9).rank == 25  # 27 rows suffice
+    with pytest.raises(ValueError, match="positive integer"):
+        numeric_identifiability(ta40, np.random.default_rng(0), 0)

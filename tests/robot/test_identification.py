@@ -88,3 +88,25 @@ def test_bad_measurements(ta40, red, rng):
         identify_linear(ta40, q, ee_position(ta40, q), red, sigma=-1.0)
     with pytest.raises(ValueError, match="shape"):
         identify_linear(ta40, q, ee_position(ta40, q)[:-1], red)
+
+
+def test_chi2_consistency_check(ta40, red, rng):
+    """Points in mm where metres belong are refused (they were accepted as success=True by the linear solver and
+    reported as 'not converged' by the iterative one); model error and overstated sigma are warned; consistent
+    noisy data gives chi2/dof ~ 1 and no warning."""
+    eps = _truth(rng)
+    sigma = 5e-5
+    q = ta40.random_configurations(rng, 60)
+    p = ee_position(ta40, q, eps) + rng.normal(scale=sigma, size=(60, 3))
+    for f in (identify_linear, identify_iterative):
+        bad = f(ta40, q, p * 1e3, red, sigma=sigma)
+        assert not bad.success and "mm given as m?" in bad.message and np.all(np.isnan(bad.eps))
+        assert bad.chi2_per_dof > 1e4
+    good = identify_iterative(ta40, q, p, red, sigma=sigma)
+    assert good.success and "WARNING" not in good.message and 0.7 < good.chi2_per_dof < 1.3
+    lin = identify_linear(ta40, q, p, red, sigma=sigma)  # the linearised model on exact data: model error
+    assert lin.success and "WARNING chi2/dof" in lin.message and "optimistic" in lin.message
+    over = identify_iterative(ta40, q, p, red, sigma=100 * sigma)  # sigma overstated (e.g. mm given as um)
+    assert over.success and "pessimistic" in over.message and over.chi2_per_dof < 1e-3
+    mixed = identify_linear(ta40, q, p[::-1], red, sigma=sigma)  # readings and points paired wrongly
+    assert not mixed.success and "refused" in mixed.message and "another frame?" in mixed.message

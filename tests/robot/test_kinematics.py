@@ -108,3 +108,36 @@ def test_malformed_robot_file_names_the_field(data, field):
         robot_from_dict(data, "robot.yaml")
     assert info.value.field == field
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(
+    "edit, field, match",
+    [
+        (("joints[1]", "a_mm", 0.753), "joints[1].a_mm", "metres given where mm belong"),  # 753 mm in metres
+        (("joints[3]", "alpha_deg", -1.5708), "joints[3].alpha_deg", "looks like radians"),
+        (("joints[0]", "alpha_deg", 1.571), "joints[0].alpha_deg", "looks like radians"),
+        (("joints[2]", "theta_offset_deg", 3.1416), "joints[2].theta_offset_deg", "looks like radians"),
+        ("metres", "joints[1].a_mm", "metres given where mm belong"),  # every length in metres
+        ("radian limits", "joints[0].min_deg", "radians given where degrees belong"),
+    ],
+)
+def test_wrong_units_in_the_robot_file_are_refused(edit, field, match):
+    """Values in the wrong unit under a unit-keyed name (audit: loaded silently before)."""
+    import yaml
+
+    from bench.robot.model import default_robot_path
+
+    data = yaml.safe_load(default_robot_path().read_text())
+    if edit == "metres":
+        for j in data["joints"]:
+            j["a_mm"], j["d_mm"] = j["a_mm"] * 1e-3, j["d_mm"] * 1e-3
+    elif edit == "radian limits":
+        for j in data["joints"]:
+            j["min_deg"], j["max_deg"] = np.deg2rad(j["min_deg"]), np.deg2rad(j["max_deg"])
+    else:
+        where, key, value = edit
+        data["joints"][int(where[7])][key] = value
+    with pytest.raises(ConfigError, match=match) as info:
+        robot_from_dict(data, "ta40.yaml")
+    assert info.value.field == field and "\n" not in str(info.value)
+    robot_from_dict(yaml.safe_load(default_robot_path().read_text()), "ta40.yaml")  # the real file passes
