@@ -129,6 +129,47 @@ class ArmScene:
             tmp.replace(self.cache_dir / f"{key}.png")
         return img
 
+    # --- truth geometry of a view (for checks; the pipeline never sees it) ------------------------------------------
+    def camera_pose(self, q_true) -> np.ndarray:
+        """True ``T_world_cam`` (OpenCV optical frame, the lens centre) at true joint angles ``q_true`` (rad)."""
+        import mujoco
+
+        from bench.sim.camera import camera_pose_cv
+
+        self.data.qpos[self.qadr] = q_true
+        mujoco.mj_forward(self.model, self.data)
+        return camera_pose_cv(self.model, self.data, "link5_camera")
+
+    def pixel_points(self, q_true) -> np.ndarray:
+        """The scene point ``(H, W, 3)`` (m, camera frame) seen by each pixel centre's ray at ``q_true``; inf for the
+        background. Renders the depth again (not cached): through the port the point is ``o + lambda w`` of the pixel
+        centre's water ray (:attr:`~bench.sim.flatport.FlatPortImage.water_path`), in air the lens ray at the
+        pixel's depth."""
+        self.camera_pose(q_true)
+        if self._renderer is None:
+            self._renderer = SceneRenderer(self.model, "link5_camera", self.spec.width, self.spec.height)
+        rgb, depth = self._renderer.render(self.data)
+        if self.port is None:
+            _, z = self.stage.apply(rgb, self.spec.K, depth)
+            rays = self._rays / self._rays[..., 2:3]
+            pts = rays * z[..., None]
+        else:
+            out = self.stage.apply(rgb, depth, self.spec.K)
+            o, w, _ = self.stage.rays("centre")
+            pts = o + np.where(np.isfinite(out.water_path), out.water_path, 0.0)[..., None] * w
+        return np.where(np.all(np.isfinite(pts), axis=-1, keepdims=True), pts, np.inf)
+
+    def project(self, p_cam) -> np.ndarray:
+        """Pixels ``(..., 2)`` of camera-frame points ``p_cam (..., 3)`` through the lens (and the port); NaN where
+        a point cannot be imaged."""
+        from bench.sim.flatport import project_flatport
+
+        p = np.asarray(p_cam, dtype=float)
+        if self.port is None:
+            return self.camera.project(p)
+        x_n = project_flatport(p, self.port)
+        return self.camera.project(np.concatenate([x_n, np.ones(x_n.shape[:-1] + (1,))], axis=-1))
+
     def close(self):
         if self._renderer is not None:
             self._renderer.close()
@@ -139,3 +180,50 @@ def _pixel_grid(camera: CameraModel) -> np.ndarray:
     """Pixel centres ``(H, W, 2)`` of the camera's image."""
     u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
     return np.stack([u, v], axis=-1)
+
+
+def keypoint_reliability(scene: ArmScene, q_a, q_b, image_a, image_b, tol_px: float = 2.0) -> dict:
+    """How many SIFT keypoints two views of ``scene`` share, and how many of their matches are true.
+
+    The pipeline's detector and matcher (:func:`bench.vision.features.detect_sift`, Lowe's ratio test, mutual) run
+    on ``image_a`` and ``image_b`` (rendered at true joint angles ``q_a``, ``q_b``); each keypoint of view a is
+    carried to 3D with the truth (the point its pixel sees, :meth:`ArmScene.pixel_points`, bilinearly interpolated
+    where all four neighbours see the same surface within 1 cm) and projected into view b through the true camera
+    poses and optics (:meth:`ArmScene.project`). A match is true when it lies within ``tol_px`` of that projection.
+
+    Returns
+    -------
+    dict
+        ``keypoints_a``, ``keypoints_b``, ``matches``, ``true_matches``, ``true_positive_rate`` (of the matches with
+        a known truth), ``median_error_px`` (of the true matches).
+    """
+    import cv2
+
+    from bench.geometry.transforms import invert, transform_points
+    from bench.vision.features import detect_sift, match_descriptors
+
+    fa, fb = detect_sift(image_a), detect_sift(image_b)
+    m = match_descriptors(fa, fb, mutual=True) if len(fa) and len(fb) else None
+    out = {"keypoints_a": len(fa), "keypoints_b": len(fb), "matches": 0 if m is None else len(m)}
+    if m is None or len(m) == 0:
+        return {**out, "true_matches": 0, "true_positive_rate": float("nan"), "median_error_px": float("nan")}
+    pts = scene.pixel_points(q_a)
+    T_a, T_b = scene.camera_pose(q_a), scene.camera_pose(q_b)
+    uv = fa.uv[m.i1].astype(np.float32)
+    chans = [cv2.remap(np.where(np.isfinite(pts[..., k]), pts[..., k], 1e6).astype(np.float32), uv[:, :1],
+                       uv[:, 1:], cv2.INTER_LINEAR) for k in range(3)]
+    p_a = np.concatenate(chans, axis=1).astype(float)
+    # reject keypoints on depth edges (the four neighbours see surfaces more than 1 cm apart): no single truth
+    u0, v0 = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+    u0 = np.clip(u0, 0, pts.shape[1] - 2)
+    v0 = np.clip(v0, 0, pts.shape[0] - 2)
+    nb = np.stack([pts[v0, u0], pts[v0, u0 + 1], pts[v0 + 1, u0], pts[v0 + 1, u0 + 1]], axis=1)
+    with np.errstate(invalid="ignore"):
+        known = np.all(np.isfinite(nb), axis=(1, 2)) & (np.ptp(nb[..., 2], axis=1) < 0.01)
+    p_b = transform_points(invert(T_b) @ T_a, p_a[known])
+    err = np.linalg.norm(scene.project(p_b) - fb.uv[m.i2[known]], axis=1)
+    err = np.where(np.isfinite(err), err, np.inf)
+    true = err <= tol_px
+    return {**out, "true_matches": int(true.sum()), "true_positive_rate": float(true.mean()) if known.any() else
+            float("nan"), "median_error_px": float(np.median(err[true])) if true.any() else float("nan"),
+            "matches_with_truth": int(known.sum())}

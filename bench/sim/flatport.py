@@ -417,7 +417,9 @@ class FlatPortStage:
     same camera centre: starting from the render depth in the ray's far direction ``w``, the fixed-point iteration
     ``lambda <- (z_r(K_render pi(o + lambda w)) - o_z) / w_z`` makes the point's z equal to the render depth where
     the point projects. It contracts fast because the origins ``o`` are a few cm off the centre (the parallax per
-    metre of ``lambda`` is small); it stops at ``|d lambda| <= tol_rel lambda``. The RGB is then sampled bilinearly
+    metre of ``lambda`` is small); it stops at ``|d lambda| <= tol_rel lambda`` or, for the sub-rays that only
+    sample the colour, when the sample point moves by less than ``tol_px`` render px (0.001 px by default, 30 times
+    below the 1/32 px resolution of ``cv2.remap``'s weights). The RGB is then sampled bilinearly
     at the converged render pixel and the ``s x s`` samples are averaged.
 
     Residual approximations (documented, measured in the tests): the depth buffer is interpolated bilinearly in z
@@ -544,7 +546,8 @@ class FlatPortStage:
         lam, u, v, status = _depth_fixed_point(proj, np.asarray(depth32, np.float32), max_iterations, tol_rel)
         return lam.ravel(), np.stack([u.ravel(), v.ravel()], -1).astype(float), status.ravel()
 
-    def apply(self, image, depth, K_render, *, max_iterations: int = 12, tol_rel: float = 1e-6) -> FlatPortImage:
+    def apply(self, image, depth, K_render, *, max_iterations: int = 12, tol_rel: float = 1e-6,
+              tol_px: float = 1e-3) -> FlatPortImage:
         """The image through the port of a pinhole render ``image (H_r, W_r[, C])`` with z-depth ``depth (H_r, W_r)``
         (m, inf = background) and intrinsics ``K_render`` (no skew).
 
@@ -577,7 +580,7 @@ class FlatPortStage:
         def band(r0, r1):
             """Output rows r0..r1: the box-filtered colour, the centre rays' (lam, z) and the sub-ray status."""
             ps = p_sub.rows(r0 * s, r1 * s)
-            _, u, v, status = _depth_fixed_point(ps, d32, max_iterations, tol_rel)
+            _, u, v, status = _depth_fixed_point(ps, d32, max_iterations, tol_rel, tol_px)
             hit = status == 0
             if hit.any():
                 # the whole band's maps inside the render imply the hits are; otherwise check the hits alone
@@ -645,7 +648,7 @@ class _RayProjection:
     a_v: np.ndarray
     o_z: np.ndarray  # (R, C) float64
     w_z: np.ndarray
-    f32: tuple  # float32 copies of (u_inf, v_inf, a_u, a_v, o_z)
+    f32: tuple  # float32 copies of (u_inf, v_inf, a_u, a_v, o_z) and max(|a_u|, |a_v|)
 
     def rows(self, r0: int, r1: int) -> _RayProjection:
         """The rays of grid rows ``r0..r1`` (views)."""
@@ -660,8 +663,18 @@ class _RayProjection:
         a_u = K_r[0, 0] * (o[..., 0] - o[..., 2] * rx)
         a_v = K_r[1, 1] * (o[..., 1] - o[..., 2] * ry)
         o_z, w_z = np.ascontiguousarray(o[..., 2]), np.ascontiguousarray(w[..., 2])
-        f32 = tuple(np.ascontiguousarray(a, dtype=np.float32) for a in (u_inf, v_inf, a_u, a_v, o_z))
+        f32 = tuple(np.ascontiguousarray(a, dtype=np.float32)
+                    for a in (u_inf, v_inf, a_u, a_v, o_z, np.maximum(np.abs(a_u), np.abs(a_v))))
         return cls(u_inf, v_inf, a_u, a_v, o_z, w_z, f32)
+
+
+def _converged(z, z_new, o_z, a_max, tol_rel, tol_px):
+    """``|dz| <= tol_rel |z - o_z|``, or the sample point moved by at most ``tol_px`` render px (when > 0)."""
+    dz = np.abs(z_new - z)
+    conv = dz <= np.float32(tol_rel) * np.abs(z - o_z)
+    if tol_px > 0:  # |du| = |a_u| |1/z_new - 1/z| = |a_u| |dz| / (z z_new)
+        conv |= a_max * dz <= np.float32(tol_px) * z * z_new
+    return conv
 
 
 def _remap_points(src, u, v):
@@ -677,19 +690,21 @@ def _remap_points(src, u, v):
     return out.reshape(-1)[:n]
 
 
-def _depth_fixed_point(proj: _RayProjection, depth32, max_iterations: int, tol_rel: float):
+def _depth_fixed_point(proj: _RayProjection, depth32, max_iterations: int, tol_rel: float, tol_px: float = 0.0):
     """The depth fixed point of :class:`FlatPortStage` for a grid of rays: ``(lam, u, v, status)``, each ``(R, C)``.
 
-    In the point's z (see :class:`_RayProjection`) the iteration ``lambda <- (z_r(K_r pi(o + lambda w)) - o_z) / w_z``
-    reads ``z <- z_r(u(z), v(z))``, started from the render depth in the ray's far direction; a ray has converged when
-    ``|dz| <= tol_rel (z - o_z)`` (i.e. ``|d lambda| <= tol_rel lambda``). Each step samples the depth buffer (bilinear,
-    ``cv2.remap``) for the whole grid while many rays are active, then for the remaining rays only. status: 0 converged
-    on a finite surface, 1 background (infinite depth in the far direction), 2 not converged (an occlusion edge) or
-    stepped onto the background. ``(u, v)`` (render px, float32: the maps of ``cv2.remap``, whose rounding, < 1e-4 px,
-    is far below its 1/32 px weight quantisation) is the converged point's pixel for status 0 and the direction at
-    infinity otherwise; ``lam`` (float64) is inf unless status is 0.
+    In the point's z (see :class:`_RayProjection`) the iteration ``lambda <- (z_r(K_r pi(o + lambda w)) - o_z) /
+    w_z`` reads ``z <- z_r(u(z), v(z))``, started from the render depth in the ray's far direction; a ray has
+    converged when ``|dz| <= tol_rel (z - o_z)`` (i.e. ``|d lambda| <= tol_rel lambda``) or, with ``tol_px > 0``,
+    when its sample point moves by at most ``tol_px`` render px (``max(|a_u|, |a_v|) |d(1/z)| <= tol_px``). Each
+    step samples the depth buffer (bilinear, ``cv2.remap``) for the whole grid while many rays are active, then for
+    the remaining rays only. status: 0 converged on a finite surface, 1 background (infinite depth in the far
+    direction), 2 not converged (an occlusion edge) or stepped onto the background. ``(u, v)`` (render px, float32:
+    the maps of ``cv2.remap``, whose rounding, < 1e-4 px, is far below its 1/32 px weight quantisation) is the
+    converged point's pixel for status 0 and the direction at infinity otherwise; ``lam`` (float64) is inf unless
+    status is 0.
     """
-    u_inf, v_inf, a_u, a_v, o_z = proj.f32
+    u_inf, v_inf, a_u, a_v, o_z, a_max = proj.f32
     shape = u_inf.shape
     z = cv2.remap(depth32, u_inf, v_inf, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     status = np.full(shape, 2, dtype=np.int8)
@@ -704,25 +719,25 @@ def _depth_fixed_point(proj: _RayProjection, depth32, max_iterations: int, tol_r
             z_new = cv2.remap(depth32, u_inf + a_u * inv, v_inf + a_v * inv, cv2.INTER_LINEAR,
                               borderMode=cv2.BORDER_REPLICATE)
             fin = np.isfinite(z_new)
-            conv = active & fin & (np.abs(z_new - z) <= np.float32(tol_rel) * np.abs(z - o_z))
+            conv = active & fin & _converged(z, z_new, o_z, a_max, tol_rel, tol_px)
         np.copyto(z, z_new, where=active & fin)
         status[conv] = 0
         active &= fin & ~conv
     idx = np.flatnonzero(active)
     zf, sf = z.reshape(-1), status.reshape(-1)
     if idx.size and it < max_iterations:  # sparse steps on the remaining rays
-        ui, vi, aui, avi, ozi = (a.reshape(-1)[idx] for a in (u_inf, v_inf, a_u, a_v, o_z))
+        ui, vi, aui, avi, ozi, ami = (a.reshape(-1)[idx] for a in (u_inf, v_inf, a_u, a_v, o_z, a_max))
         zi = zf[idx]
         for _ in range(it, max_iterations):
             inv = np.float32(1.0) / zi
             z_new = _remap_points(depth32, ui + aui * inv, vi + avi * inv)
             fin = np.isfinite(z_new)
-            conv = fin & (np.abs(z_new - zi) <= np.float32(tol_rel) * np.abs(zi - ozi))
+            conv = fin & _converged(zi, z_new, ozi, ami, tol_rel, tol_px)
             zi = np.where(fin, z_new, zi)
             sf[idx[conv]] = 0
             keep = fin & ~conv
             zf[idx] = zi
-            idx, zi, ui, vi, aui, avi, ozi = (a[keep] for a in (idx, zi, ui, vi, aui, avi, ozi))
+            idx, zi, ui, vi, aui, avi, ozi, ami = (a[keep] for a in (idx, zi, ui, vi, aui, avi, ozi, ami))
             if idx.size == 0:
                 break
     hit = status == 0

@@ -168,6 +168,18 @@ class Sensor:
         Standard deviation of the Gaussian read noise (electrons).
     jpeg_quality : int
         0 = lossless 8-bit output, 1..100 = JPEG re-encoding with ``cv2.imencode`` at that quality.
+    auto_exposure_target : float
+        0 (default): manual exposure, ``exposure`` is used as given. In (0, 1]: automatic exposure, as machine-vision
+        and ROV cameras run it (the camera adjusts its exposure time per frame until the mean grey value reaches a
+        target given as a fraction of the maximum: e.g. FLIR Spinnaker's "target grey value", 50 % -> a histogram
+        mean of 128 DN at 8 bit; Basler's "Exposure Auto" adjusts the exposure time within limits to a target
+        brightness): each image is metered - the mean Rec. 601 luma ``0.299 R + 0.587 G + 0.114 B`` of its linear
+        radiance over the whole frame (average metering) - and exposed with
+        ``exposure = min(auto_exposure_target / mean, auto_exposure_max)``, so that its mean signal is the target
+        fraction of full well. The exposure *time* changes (more electrons, less relative shot noise), not the gain.
+    auto_exposure_max : float
+        Longest exposure the automatic exposure may choose (in units of ``exposure = 1``; the limit a moving ROV
+        camera has against motion blur).
     """
 
     full_well_e: float = 10000.0
@@ -175,6 +187,8 @@ class Sensor:
     gain_dn_per_e: float = 255.0 / 10000.0
     read_noise_e: float = 5.0
     jpeg_quality: int = 0
+    auto_exposure_target: float = 0.0
+    auto_exposure_max: float = 16.0
 
     def __post_init__(self):
         object.__setattr__(self, "full_well_e", _scalar("sensor", "full_well_e", self.full_well_e, 1.0, 1e8))
@@ -186,6 +200,20 @@ class Sensor:
         if isinstance(q, bool) or not isinstance(q, (int, np.integer)) or not 0 <= q <= 100:
             raise ValueError(f"sensor: jpeg_quality: expected an integer in 0..100 (0 = off), got {q!r}")
         object.__setattr__(self, "jpeg_quality", int(q))
+        object.__setattr__(self, "auto_exposure_target",
+                           _scalar("sensor", "auto_exposure_target", self.auto_exposure_target, 0.0, 1.0))
+        object.__setattr__(self, "auto_exposure_max",
+                           _scalar("sensor", "auto_exposure_max", self.auto_exposure_max, 0.0, 1e6, True))
+
+    def exposure_for(self, image) -> float:
+        """The exposure used for linear radiance ``image (H, W, 3)``: ``exposure``, or the automatic exposure."""
+        if self.auto_exposure_target == 0:
+            return self.exposure
+        luma = float(np.tensordot(np.asarray(image), np.array([0.299, 0.587, 0.114], np.float32), axes=([-1], [0]))
+                     .mean(dtype=np.float64))
+        if luma <= self.auto_exposure_target / self.auto_exposure_max:
+            return self.auto_exposure_max
+        return self.auto_exposure_target / luma
 
 
 # ----------------------------------------------------------------------------------------------------------------------
@@ -365,16 +393,17 @@ def forward_scatter(image, path_m, sigma_px_per_m: float, max_sigma_px: float = 
 def sensor(image, rng: np.random.Generator, spec: Sensor) -> np.ndarray:
     """8-bit image of linear radiance: ``DN = round(gain (Poisson(min(E, full well)) + N(0, read^2)))``.
 
-    ``E = image * exposure * full_well_e`` electrons; DN clipped to 0..255; then JPEG if ``spec.jpeg_quality``.
-    Images of at least :data:`bench.sim.parallel.MIN_ROWS` rows are drawn in row bands, in parallel threads, each
-    from its own child generator (``rng.spawn``): the image of a seed is the same on every machine.
+    ``E = image * exposure * full_well_e`` electrons (``exposure`` from :meth:`Sensor.exposure_for`: the given one or
+    the automatic exposure); DN clipped to 0..255; then JPEG if ``spec.jpeg_quality``. Images of at least
+    :data:`bench.sim.parallel.MIN_ROWS` rows are drawn in row bands, in parallel threads, each from its own child
+    generator (``rng.spawn``): the image of a seed is the same on every machine.
     """
     img = check_image(image)
     if not isinstance(rng, np.random.Generator):
         raise ValueError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
     edges = band_edges(img.shape[0])
     rngs = [rng] if len(edges) == 2 else rng.spawn(len(edges) - 1)
-    scale = spec.exposure * spec.full_well_e
+    scale = spec.exposure_for(img) * spec.full_well_e
 
     def band(r0, r1):
         g = rngs[0] if len(rngs) == 1 else rngs[int(np.searchsorted(edges, r0))]

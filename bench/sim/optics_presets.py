@@ -7,7 +7,8 @@ the lens:
 * ``underwater_in_air`` - the underwater camera's housing in air (§5.3, Table 9): the glass slab only
   (``n_water = n_air``, it shifts rays laterally), sensor noise;
 * ``underwater_in_water`` - the same housing submerged (§5.5, Table 15): flat port into sea water, ``coastal`` water,
-  a co-located lamp, sensor noise.
+  a co-located lamp, sensor noise, automatic exposure (the lamp and the water make the scene's brightness depend on
+  the range; a camera on an ROV exposes for the scene, see :class:`bench.sim.medium.Sensor`).
 
 ``lens_camera`` is the camera *inside* the housing (used by :class:`bench.sim.flatport.FlatPortStage` as its lens,
 its distortion applied in ray space before the port); ``nominal_camera`` is the specification the pipeline is given
@@ -44,6 +45,13 @@ _HOUSING = {"lens_to_glass_mm": 20.0, "glass_thickness_mm": 12.0, "n_air": N_AIR
 _SENSOR = {"full_well_e": 10000.0, "exposure": 1.0, "gain_dn_per_e": 255.0 / 10000.0, "read_noise_e": 5.0,
            "jpeg_quality": 0}
 
+#: the submerged camera exposes automatically (the ROV camera's auto exposure): the mean grey value of each frame is
+#: brought to 40 % of full scale (102 DN at 8 bit; FLIR's "target grey value" and Basler's "target brightness" are of
+#: this kind; 40 % rather than 50 % keeps the white tags and the dial faces under the lamp below saturation, < 1 % of
+#: the pixels of a panel view at 0.7-1.0 m), by exposure times up to 8x the reference (3 stops: the lamp's range
+#: fall-off and the water's attenuation between 0.7 and 1.3 m of standoff are about 1-2 stops)
+_SENSOR_AUTO = {**_SENSOR, "auto_exposure_target": 0.4, "auto_exposure_max": 8.0}
+
 #: The presets as unit-keyed dicts (``port``/``water``/``light``/``sensor`` may be None = absent).
 PRESET_CONFIGS = {
     "air_webcam": {"nominal_camera": "air_webcam", "lens_camera": "air_webcam", "port": None, "water": None,
@@ -55,14 +63,15 @@ PRESET_CONFIGS = {
                             "light": {"ref_range_m": 1.0, "beam_exponent": 2.0, "ambient": 0.15,
                                       "attenuate_outgoing": True, "position_m": [0.0, 0.0, 0.0],
                                       "axis": [0.0, 0.0, 1.0]},
-                            "sensor": _SENSOR},
+                            "sensor": _SENSOR_AUTO},
 }
 
 _TOP = ("nominal_camera", "lens_camera", "port", "water", "light", "sensor")
 _PORT_KEYS = ("lens_to_glass_mm", "glass_thickness_mm", "n_air", "n_glass", "n_water", "tilt_deg", "decentre_mm")
 _WATER_KEYS = ("preset", "beta_D_per_m", "beta_B_per_m", "B_inf", "forward_scatter_px_per_m")
 _LIGHT_KEYS = ("ref_range_m", "beam_exponent", "ambient", "attenuate_outgoing", "position_m", "axis")
-_SENSOR_KEYS = ("full_well_e", "exposure", "gain_dn_per_e", "read_noise_e", "jpeg_quality")
+_SENSOR_KEYS = ("full_well_e", "exposure", "gain_dn_per_e", "read_noise_e", "jpeg_quality", "auto_exposure_target",
+                "auto_exposure_max")
 
 
 @dataclass(frozen=True)
@@ -212,10 +221,13 @@ def _sensor(sec, source):
     q = sec.get("jpeg_quality", 0)
     if isinstance(q, bool) or not isinstance(q, (int, np.integer)) or not 0 <= q <= 100:
         raise ConfigError(source, "sensor.jpeg_quality", f"expected an integer in 0..100 (0 = off), got {q!r}")
+    auto = {k: _get(sec, "sensor", k, source, lo=lo, lo_open=lo_open, hi=hi)
+            for k, lo, lo_open, hi in (("auto_exposure_target", 0.0, False, 1.0), ("auto_exposure_max", 0.0, True, 1e6))
+            if k in sec}  # optional: manual exposure without them
     return Sensor(full_well_e=_get(sec, "sensor", "full_well_e", source, lo=1.0, hi=1e8),
                   exposure=_get(sec, "sensor", "exposure", source, lo=0.0, lo_open=True, hi=1e6),
                   gain_dn_per_e=_get(sec, "sensor", "gain_dn_per_e", source, lo=0.0, lo_open=True, hi=1e3),
-                  read_noise_e=_get(sec, "sensor", "read_noise_e", source, lo=0.0, hi=1e6), jpeg_quality=int(q))
+                  read_noise_e=_get(sec, "sensor", "read_noise_e", source, lo=0.0, hi=1e6), jpeg_quality=int(q), **auto)
 
 
 def optics_from_config(cfg: dict, source: str = "optics", name: str = "custom") -> OpticsPreset:

@@ -128,6 +128,36 @@ def test_renderer_supersampling_is_a_box_filter_of_the_fine_render(scene, render
     assert np.array_equal(depth, depth_f.reshape(H, 3, W, 3).min(axis=(1, 3)))
 
 
+@pytest.mark.parametrize("samples", [0, 4])
+def test_scene_renderer_equals_mujoco_renderer_bit_for_bit(scene, samples):
+    """One reused context and (without MSAA) a single pass give exactly mujoco.Renderer's colour and depth passes."""
+    import copy
+
+    from bench.sim.render import SceneRenderer
+
+    model = copy.copy(scene.model)
+    model.vis.quality.offsamples = samples
+    data = mujoco.MjData(model)
+    data.qpos[:6] = scene.q
+    rgb_r, depth_r = mujoco.Renderer(model, 240, 320), mujoco.Renderer(model, 240, 320)
+    depth_r.enable_depth_rendering()
+    try:
+        with SceneRenderer(model, "link5_camera", 320, 240) as r:
+            for dq in (0.0, 0.05):  # the context is reused: a second pose renders just as well
+                data.qpos[:6] = scene.q + dq
+                mujoco.mj_forward(model, data)
+                rgb, depth = r.render(data)
+                rgb_r.update_scene(data, "link5_camera")
+                depth_r.update_scene(data, "link5_camera")
+                ref_depth = depth_r.render().astype(np.float64)
+                ref_depth[ref_depth >= 0.99 * r.zfar] = np.inf
+                assert np.array_equal(rgb, rgb_r.render()) and np.array_equal(depth, ref_depth)
+                assert np.isinf(depth).any() and np.isfinite(depth).any()
+    finally:
+        rgb_r.close()
+        depth_r.close()
+
+
 def test_mount_bias_is_eq197_in_the_nominal_optical_frame():
     T = camera_mount_with_bias(NOMINAL_T_LINK5_CAM, 0.01, -0.02, 0.03, [0.001, 0.002, -0.003])
     dT = invert(NOMINAL_T_LINK5_CAM) @ T

@@ -234,3 +234,53 @@ def test_jpeg_quality_100_beats_30_in_size_and_psnr():
     assert size[100] > 1.5 * size[30] and quality[100] > quality[30] + 5.0
     with pytest.raises(ValueError, match="quality"):
         encode_jpeg(img, 0)
+
+
+def test_auto_exposure_brings_the_mean_to_the_target_within_its_limit():
+    rng = np.random.default_rng(16)
+    img = _texture(rng, 96, 128) * 0.2  # a dark frame: mean luma ~0.095
+    luma = float((img @ [0.299, 0.587, 0.114]).mean())
+    manual = Sensor(read_noise_e=0.0)
+    auto = Sensor(read_noise_e=0.0, auto_exposure_target=0.4, auto_exposure_max=16.0)
+    assert manual.exposure_for(img) == 1.0
+    assert auto.exposure_for(img) == pytest.approx(0.4 / luma, rel=1e-6)
+    out = sensor(img, np.random.default_rng(1), auto).astype(float)
+    mean_luma_dn = float((out @ [0.299, 0.587, 0.114]).mean())
+    assert abs(mean_luma_dn - 0.4 * 255) <= 0.5  # the frame's mean grey value is the target (noise averages out)
+    # the exposure time scales the electrons, not the gain: relative shot noise falls as 1/sqrt(exposure)
+    flat = np.full((100, 100, 3), 0.05)
+    dn = sensor(flat, np.random.default_rng(2), auto).astype(float)
+    e = dn.mean() / auto.gain_dn_per_e
+    assert e == pytest.approx(0.4 * auto.full_well_e, rel=0.01)
+    assert dn.std() == pytest.approx(np.sqrt(auto.gain_dn_per_e**2 * e + 1 / 12), rel=0.05)
+    # limited: a very dark frame gets the longest exposure, a black one too (no division by zero)
+    capped = Sensor(read_noise_e=0.0, auto_exposure_target=0.4, auto_exposure_max=2.0)
+    assert capped.exposure_for(img) == 2.0 and capped.exposure_for(np.zeros((4, 4, 3))) == 2.0
+    with pytest.raises(ValueError, match="auto_exposure_target"):
+        Sensor(auto_exposure_target=1.5)
+    with pytest.raises(ValueError, match="auto_exposure_max"):
+        Sensor(auto_exposure_target=0.4, auto_exposure_max=0.0)
+
+
+def test_row_bands_do_not_change_the_chain_but_the_sensor_draws_per_band(monkeypatch):
+    """The per-pixel stages are split into row bands run in threads: the noise-free chain is the same for any split;
+    the noise of a seed is fixed by the (fixed) number of bands."""
+    from bench.sim import parallel
+
+    rng = np.random.default_rng(17)
+    img = _texture(rng, 96, 64)
+    r = rng.uniform(0.5, 2.0, (96, 64))
+    c = rng.uniform(0.5, 1.0, (96, 64))
+    chain = MediumChain(medium=water_preset("coastal"), light=Light(ambient=0.2))
+    noisy = MediumChain(medium=water_preset("coastal"), light=Light(ambient=0.2), sensor=Sensor())
+    two = apply_medium(img, r, np.random.default_rng(0), chain, c)
+    two_noisy = apply_medium(img, r, np.random.default_rng(0), noisy, c)
+    monkeypatch.setattr(parallel, "N_BANDS", 1)
+    one = apply_medium(img, r, np.random.default_rng(0), chain, c)
+    assert np.array_equal(one, two)
+    np.testing.assert_allclose(two, forward_scatter(attenuate(illuminate(img, r, c, chain.light, chain.medium), r,
+                                                              chain.medium), r, 0.4, 3.0), rtol=1e-5, atol=1e-6)
+    monkeypatch.setattr(parallel, "N_BANDS", 2)
+    monkeypatch.setattr(parallel, "_POOL", None)
+    monkeypatch.setattr(parallel.os, "cpu_count", lambda: 1)  # one core: the bands run one after the other
+    assert np.array_equal(apply_medium(img, r, np.random.default_rng(0), noisy, c), two_noisy)

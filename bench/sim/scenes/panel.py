@@ -43,6 +43,11 @@ from bench.sim.scenes.base import (
 )
 
 PX_PER_M_BACKPLATE = 1700.0  # backplate texture density (~3x a 640 px view of the whole panel at 1 m)
+#: surface detail of the backplate (see :func:`bench.sim.scenes.textures.surface_detail`; assumed densities for a
+#: panel some months after installation): paint chips and hard growth per m^2, bolt spacing along the plate seams
+CHIPS_PER_M2 = 400.0
+HARD_GROWTH_PER_M2 = 600.0
+BOLT_PITCH_MM = 90.0
 FRAME_WIDTH_M = 0.06
 FRAME_DEPTH_M = 0.07  # the frame's front face is at z = FRAME_DEPTH_M - PLATE_THICKNESS_M
 PLATE_THICKNESS_M = 0.02
@@ -128,9 +133,16 @@ def manifold_panel(rng: np.random.Generator, width_m=1.2, height_m=0.8, texture_
 
     paint = [(130, 110, 60), (60, 90, 110), (110, 115, 112), (40, 120, 200)][int(rng.integers(0, 4))]
     plate = tx.painted_metal(rng, (th_px, tw_px), color=paint, wear=0.45, rust=0.45, growth=0.35, bolts=False)
+    seams = []
     for k in range(1, 3):  # welded seams / plate joints
         x = int(tw_px * k / 3 + rng.integers(-20, 20))
         cv2.line(plate, (x, 0), (x, th_px), (40, 40, 40), 3, cv2.LINE_AA)
+        seams.append(x)
+    # millimetre-to-centimetre detail (paint chips, hard growth, bolted seams) from a child generator, so that the
+    # caller's stream (scenario geometry drawn after the panel) does not depend on it
+    detail_rng = rng.spawn(1)[0] if getattr(rng.bit_generator, "seed_seq", None) is not None else rng
+    tx.surface_detail(detail_rng, plate, PX_PER_M_BACKPLATE / 1e3, chips_per_m2=CHIPS_PER_M2,
+                      growth_per_m2=HARD_GROWTH_PER_M2, bolt_pitch_mm=BOLT_PITCH_MM, seams_x_px=seams)
     band_y = to_px(0, -h / 2 + fw + 0.03)[1]
     band = tx.hazard_stripes((int(0.03 * PX_PER_M_BACKPLATE), tw_px), stripe_px=int(0.025 * PX_PER_M_BACKPLATE))
     plate[band_y - band.shape[0]:band_y] = band

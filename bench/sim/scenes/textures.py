@@ -152,6 +152,103 @@ def painted_metal(rng: np.random.Generator, shape, color=PANEL_GREY, wear=0.35, 
     return np.clip(out.astype(np.float32) + grain, 0, 255).astype(np.uint8)
 
 
+def surface_detail(rng: np.random.Generator, img, px_per_mm: float, chips_per_m2: float = 400.0,
+                   growth_per_m2: float = 600.0, bolt_pitch_mm: float = 0.0, seams_x_px=()):
+    """Small, sharp, irregular detail of a structure that has been subsea for a while, drawn in place on ``img``.
+
+    What SIFT finds on a real panel seen from 0.5-1.5 m are blob- and corner-like marks a few millimetres to a few
+    centimetres across, each of a different shape. Sizes are physical (``px_per_mm`` of the texture), so the marks
+    keep their size whatever the texture resolution:
+
+    * paint chips from tool and ROV contact: irregular polygons of 3-9 mm radius exposing primer, bare steel or
+      rust, with a dark rim (``chips_per_m2``);
+    * hard marine growth and calcareous deposits (cathodic protection precipitates off-white calcium carbonate;
+      barnacles and tube worms settle within months - the densities of hard fouling on North Sea structures are of
+      the order of hundreds to thousands per m^2): off-white and grey-green ellipses of 2-7 mm radius, a third of
+      them with a dark centre (barnacles), a quarter with a short curved tube worm (``growth_per_m2``);
+    * optionally hex bolt heads along plate seams (columns ``seams_x_px``, every ``bolt_pitch_mm``), each with its
+      own rust halo, head orientation and wear.
+
+    The counts are the stated assumptions of the bench, not a survey of a particular site.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    img : ndarray (H, W, 3) uint8, BGR
+        Modified in place and returned.
+    px_per_mm : float
+        Texture resolution (texture px per mm on the face).
+    chips_per_m2, growth_per_m2 : float
+        Densities (per m^2 of face).
+    bolt_pitch_mm : float
+        Bolt spacing along the seams (0: no bolts).
+    seams_x_px : sequence of int
+        Texture columns of the vertical seams that carry bolts.
+    """
+    h, w = _check_shape(img.shape[:2])
+    if not (np.isfinite(px_per_mm) and px_per_mm > 0):
+        raise ValueError(f"px_per_mm: expected a positive number, got {px_per_mm!r}")
+    area_m2 = h * w / (px_per_mm * 1e3) ** 2
+    mm = float(px_per_mm)
+    primer = [(70, 70, 150), (120, 120, 118), BARE_STEEL, RUST, (40, 60, 95)]
+    for _ in range(int(round(chips_per_m2 * area_m2))):
+        c = np.array([rng.uniform(0, w), rng.uniform(0, h)])
+        r = rng.uniform(3.0, 9.0) * mm
+        n = int(rng.integers(5, 10))
+        ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+        rad = r * rng.uniform(0.45, 1.0, n)
+        poly = np.round(c + np.stack([rad * np.cos(ang), rad * np.sin(ang)], -1)).astype(np.int32)
+        colour = primer[int(rng.integers(0, len(primer)))]
+        cv2.fillPoly(img, [poly], tuple(int(v) for v in colour), cv2.LINE_AA)
+        cv2.polylines(img, [poly], True, DARK_RUST, max(1, int(round(0.6 * mm))), cv2.LINE_AA)
+    shells = [GROWTH_WHITE, (175, 185, 180), (150, 170, 160), (205, 200, 190)]
+    for _ in range(int(round(growth_per_m2 * area_m2))):
+        c = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        a = rng.uniform(2.0, 7.0) * mm
+        axes = (max(1, int(round(a))), max(1, int(round(a * rng.uniform(0.55, 1.0)))))
+        ang = float(rng.uniform(0, 180))
+        cv2.ellipse(img, c, axes, ang, 0, 360, (60, 70, 65), -1, cv2.LINE_AA)  # dark base plate / shadow
+        inner = (max(1, int(0.8 * axes[0])), max(1, int(0.8 * axes[1])))
+        shade = shells[int(rng.integers(0, len(shells)))]
+        cv2.ellipse(img, c, inner, ang, 0, 360, shade, -1, cv2.LINE_AA)
+        u = rng.random()
+        if u < 1 / 3:  # barnacle: dark operculum
+            cv2.ellipse(img, c, (max(1, inner[0] // 3), max(1, inner[1] // 3)), ang, 0, 360, (45, 50, 50), -1,
+                        cv2.LINE_AA)
+        elif u < 1 / 3 + 1 / 4:  # tube worm: a short curved calcareous tube
+            t = np.linspace(0, 1, 12)
+            bend = rng.uniform(-1.5, 1.5)
+            length = rng.uniform(6.0, 18.0) * mm
+            th = rng.uniform(0, 2 * np.pi) + bend * t
+            pts = np.cumsum(np.stack([np.cos(th), np.sin(th)], -1) * length / len(t), axis=0) + np.array(c)
+            cv2.polylines(img, [np.round(pts).astype(np.int32)], False, shade, max(1, int(round(1.2 * mm))),
+                          cv2.LINE_AA)
+    if bolt_pitch_mm > 0:
+        pitch = bolt_pitch_mm * mm
+        r = max(3, int(round(7.0 * mm)))
+        for x in seams_x_px:
+            for y in np.arange(0.5 * pitch, h - 0.25 * pitch, pitch):
+                cx, cy = int(round(x + rng.uniform(-1, 1) * 0.1 * r)), int(round(y))
+                # a rust run below the bolt (its own length), blended into a local window of the texture
+                ax = (int(1.3 * r), int(r * rng.uniform(1.5, 3.5)))
+                x0, x1 = max(0, cx - ax[0] - 1), min(w, cx + ax[0] + 2)
+                y0, y1 = max(0, cy + r - ax[1] - 1), min(h, cy + r + ax[1] + 2)
+                if x1 > x0 and y1 > y0:
+                    halo = np.zeros((y1 - y0, x1 - x0), np.uint8)
+                    cv2.ellipse(halo, (cx - x0, cy + r - y0), ax, 0, 0, 360, 255, -1)
+                    win = img[y0:y1, x0:x1]
+                    sel = halo > 0
+                    win[sel] = (0.5 * win[sel] + 0.5 * np.asarray(RUST)).astype(np.uint8)
+                cv2.circle(img, (cx + r // 4, cy + r // 4), r, (30, 30, 30), -1, cv2.LINE_AA)
+                grey = int(rng.uniform(120, 175))
+                cv2.circle(img, (cx, cy), r, (grey, grey, grey), -1, cv2.LINE_AA)
+                a = float(rng.uniform(0, np.pi / 3))
+                hexagon = np.array([[cx + 0.75 * r * np.cos(a + k * np.pi / 3),
+                                     cy + 0.75 * r * np.sin(a + k * np.pi / 3)] for k in range(6)], np.int32)
+                cv2.polylines(img, [hexagon], True, (60, 60, 60), max(1, r // 4), cv2.LINE_AA)
+    return img
+
+
 def _bolt_rows(img, rng):
     """Shaded bolt heads along the four edges (in place)."""
     h, w = img.shape[:2]
