@@ -222,9 +222,10 @@ class OpticsCamera:
     """A MuJoCo camera rendered through the optics chain of a preset, cached on disk by content hash.
 
     The same stages as :class:`bench.sim.campaign.ArmScene` (which renders the arm's link-5 camera): supersampled
-    pinhole render -> lens stage (in air) or lens + flat port, -> medium and sensor chain -> 8-bit RGB. ``xml``,
-    ``assets`` are a composed scene containing the camera ``name`` placed with :func:`mujoco_camera_xml` at this
-    object's ``spec``; :meth:`render` takes a function that sets the state of ``MjData`` and a key that determines it.
+    pinhole render -> lens stage (in air) or lens + flat port -> medium and sensor chain -> 8-bit RGB.
+    ``make_xml(spec)`` returns ``(xml, assets)`` of a composed scene holding the MuJoCo camera ``name`` made by
+    :func:`~bench.sim.camera.mujoco_camera_xml` for the render ``spec`` (its K and size); :meth:`render` takes a
+    function that sets the state of ``MjData`` and a key that determines that state.
     """
 
     def __init__(self, make_xml, lens: CameraModel, optics, supersample: int, cache_dir=None, name="cam",
