@@ -37,11 +37,82 @@ from bench.errors import ConfigError
 
 FORMAT = "insitu-bench-dataset/1"
 KINDS = ("in_situ", "camera_calibration", "xy_table", "kinematic")
+#: View roles that the in-situ pipeline poses through the arm kinematics: each needs a row in ``joints.csv``.
+POSED_ROLES = ("reference", "surround", "locate", "task")
 JOINT_COLUMNS = tuple(f"q{i}_deg" for i in range(1, 7))
 TABLE_COLUMNS = ("x_mm", "z_mm", "rot_deg")
 TRACKER_COLUMNS = ("x_mm", "y_mm", "z_mm")
 _MANIFEST_KEYS = {"format", "kind", "units", "name", "notes", "views", "camera", "robot", "created_by"}
+#: Largest image decoded (pixels): 100 Mpx, beyond any camera the bench or a subsea system uses, so a forged or
+#: corrupt header (e.g. 20000 x 20000) is refused from its first bytes instead of allocating gigabytes.
+MAX_IMAGE_PIXELS = 100_000_000
+#: Largest image file of a format whose header is not read here (bytes).
+MAX_IMAGE_BYTES = 512 * 2**20
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 _VIEW_KEYS = {"name", "image", "role", "notes"}
+
+
+def image_header(path: Path):
+    """``(format, width, height)`` from the first bytes of a PNG or JPEG file, ``None`` for other formats.
+
+    One-line :class:`ConfigError` for an empty file, a PNG without a valid IHDR or cut short (no IEND chunk at the
+    end), a JPEG without a frame header. Reads a few bytes, never the image data.
+    """
+    size = path.stat().st_size
+    if size == 0:
+        raise ConfigError(path, "<file>", "empty file")
+    with path.open("rb") as f:
+        head = f.read(32)
+        if head.startswith(_PNG_SIGNATURE):
+            if len(head) < 24 or head[12:16] != b"IHDR":
+                raise ConfigError(path, "<header>", "PNG without an IHDR chunk: corrupt")
+            f.seek(max(size - 4096, 0))
+            if _PNG_IEND not in f.read():
+                raise ConfigError(path, "<file>", "PNG cut short (no IEND chunk at the end): truncated or corrupt")
+            return "png", int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+        if head.startswith(b"\xff\xd8"):
+            f.seek(2)
+            while True:  # walk the marker segments to the frame header (SOF0..SOF15 but DHT, JPG, DAC)
+                marker = f.read(4)
+                if len(marker) < 4 or marker[0] != 0xFF:
+                    raise ConfigError(path, "<header>", "JPEG without a frame header: corrupt or truncated")
+                kind, length = marker[1], int.from_bytes(marker[2:4], "big")
+                if 0xC0 <= kind <= 0xCF and kind not in (0xC4, 0xC8, 0xCC):
+                    sof = f.read(5)
+                    if len(sof) < 5:
+                        raise ConfigError(path, "<header>", "JPEG frame header cut short")
+                    return "jpeg", int.from_bytes(sof[3:5], "big"), int.from_bytes(sof[1:3], "big")
+                f.seek(length - 2, 1)
+    if path.suffix.lower() in (".png", ".jpg", ".jpeg"):
+        raise ConfigError(path, "<header>", f"not a {path.suffix[1:].upper()} file (wrong signature): corrupt")
+    return None
+
+
+def check_image_file(path: Path, expected_size=None) -> None:
+    """Refuse, from the header alone, an image file that is empty, corrupt, huge, or not of ``expected_size``.
+
+    Limits: :data:`MAX_IMAGE_PIXELS`; a PNG/JPEG file larger than 8 bytes per pixel plus 1 MB (more than 16-bit RGBA
+    stored raw) is not an image of the size its header claims; other formats up to :data:`MAX_IMAGE_BYTES`.
+    """
+    hdr = image_header(path)
+    size = path.stat().st_size
+    if hdr is None:
+        if size > MAX_IMAGE_BYTES:
+            raise ConfigError(path, "<file>", f"{size / 2**20:.0f} MB: larger than any image the bench reads "
+                                              f"({MAX_IMAGE_BYTES / 2**20:.0f} MB)")
+        return
+    fmt, w, h = hdr
+    if w <= 0 or h <= 0:
+        raise ConfigError(path, "<header>", f"{fmt.upper()} header gives a {w}x{h} image: corrupt")
+    if w * h > MAX_IMAGE_PIXELS:
+        raise ConfigError(path, "<size>", f"{fmt.upper()} header claims {w}x{h} = {w * h / 1e6:.0f} Mpx, more than "
+                                          f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpx: refused before decoding")
+    if expected_size is not None and (w, h) != tuple(expected_size):
+        raise ConfigError(path, "<size>", f"image is {w}x{h}, the camera file says {expected_size[0]}x"
+                                          f"{expected_size[1]}")
+    if size > 8 * w * h + 2**20:
+        raise ConfigError(path, "<file>", f"{size / 2**20:.1f} MB for a {w}x{h} image: not an image of that size")
 
 
 @dataclass(frozen=True)
@@ -66,6 +137,10 @@ class View:
             raise ConfigError(self.name, "image", "this view is a frame of readings only: it has no image")
         if not self.image_path.is_file():
             raise ConfigError(self.image_path, "<file>", f"image of view {self.name!r} not found")
+        try:
+            check_image_file(self.image_path, expected_size)
+        except ConfigError as exc:
+            raise ConfigError(exc.source, exc.field, f"image of view {self.name!r}: {exc.problem}") from None
         img = cv2.imread(str(self.image_path), cv2.IMREAD_UNCHANGED)
         if img is None or img.size == 0:
             raise ConfigError(self.image_path, "<file>", f"image of view {self.name!r} is empty or not readable")
@@ -144,8 +219,14 @@ def _read_csv(path: Path, key: str, columns) -> dict:
             unitless = col.rsplit("_", 1)[0]
             hint = " (give the unit in the column name)" if unitless in header else ""
             raise ConfigError(path, col, f"missing column{hint}; header is {', '.join(header)}")
+    extra = [c for c in header if c not in (key, *columns)]
+    if extra:
+        raise ConfigError(path, extra[0], f"unknown column (expected {', '.join((key, *columns))})")
     out = {}
     for i, row in enumerate(reader, start=2):
+        if None in row or any(v is None for v in row.values()):
+            n = len(header) + len(row.get(None) or []) - sum(v is None for v in row.values())
+            raise ConfigError(path, f"line {i}", f"{n} values for the {len(header)} columns of the header")
         name = (row.get(key) or "").strip()
         if not name:
             raise ConfigError(path, f"line {i}", f"empty {key!r}")
@@ -173,6 +254,18 @@ def _check_degrees(path: Path, rows: dict, columns) -> None:
     if angles.size >= 18 and np.abs(angles).max() <= np.pi + 1e-6 and np.abs(angles).max() > 0.5:
         warnings.warn(f"{path}: every angle lies within +-pi although the columns are *_deg: "
                       "were radians written where degrees belong?", stacklevel=3)
+
+
+def _require_degrees(path: Path, rows: dict, columns) -> None:
+    """:func:`_check_degrees` with its warning made an error: a dataset's readings are the pipeline's input, and a
+    campaign whose every joint reading lies within +-3.14 deg is not one (radians written as degrees)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _check_degrees(path, rows, columns)
+    if caught:
+        raise ConfigError(path, f"{columns[0]} ... {columns[-1]}", "every reading lies within +-pi although the "
+                                                                   "columns are *_deg: radians written where degrees "
+                                                                   "belong?")
 
 
 def load_dataset(root) -> Dataset:
@@ -217,7 +310,7 @@ def load_dataset(root) -> Dataset:
 
     joints = _read_csv(root / "joints.csv", "view", JOINT_COLUMNS) if (root / "joints.csv").is_file() else {}
     if joints:
-        _check_degrees(root / "joints.csv", joints, JOINT_COLUMNS)
+        _require_degrees(root / "joints.csv", joints, JOINT_COLUMNS)
     table = _read_csv(root / "table.csv", "view", TABLE_COLUMNS) if (root / "table.csv").is_file() else {}
 
     views, seen = [], set()
@@ -245,6 +338,11 @@ def load_dataset(root) -> Dataset:
             raise ConfigError(mpath, f"{where}.image", "missing (a view needs an image or readings)")
         views.append(View(name, None if image is None else root / image, str(v.get("role", "")),
                           str(v.get("notes", "")), q, t))
+    if kind == "in_situ":
+        unposed = [v for v in views if v.role in POSED_ROLES and v.q is None]
+        if unposed:
+            raise ConfigError(root / "joints.csv", unposed[0].name, f"no joint readings for this view (role "
+                                                                    f"{unposed[0].role!r} is posed by the arm)")
     for src, rows in (("joints.csv", joints), ("table.csv", table)):
         orphan = sorted(set(rows) - seen)
         if orphan:
@@ -254,7 +352,7 @@ def load_dataset(root) -> Dataset:
     if (root / "tracker.csv").is_file():
         rows = _read_csv(root / "tracker.csv", "point", TRACKER_COLUMNS + JOINT_COLUMNS)
         arr = np.array(list(rows.values()))
-        _check_degrees(root / "tracker.csv", {k: r[3:] for k, r in rows.items()}, JOINT_COLUMNS)
+        _require_degrees(root / "tracker.csv", {k: r[3:] for k, r in rows.items()}, JOINT_COLUMNS)
         tracker = {"point": list(rows), "p": arr[:, :3] * 1e-3, "q": np.deg2rad(arr[:, 3:])}
 
     def _opt_path(key):

@@ -78,7 +78,7 @@ def test_bad_images_are_named(tmp_path, rng):
     ds = load_dataset(tmp_path / "ds")
     (tmp_path / "ds" / "images" / "v1.png").write_bytes(b"\x89PNG truncated")
     (tmp_path / "ds" / "images" / "v2.png").unlink()
-    with pytest.raises(ConfigError, match="v1.png: <file>: image of view 'v1' is empty or not readable"):
+    with pytest.raises(ConfigError, match="v1.png: <header>: image of view 'v1': not a PNG file"):
         ds.view("v1").image()
     with pytest.raises(ConfigError, match="v2.png: <file>: image of view 'v2' not found"):
         ds.view("v2").image()
@@ -88,11 +88,11 @@ def test_bad_images_are_named(tmp_path, rng):
         ds.view("v7")
 
 
-def test_radians_in_degree_columns_warn(tmp_path, rng):
+def test_radians_in_degree_columns_are_refused(tmp_path, rng):
     with DatasetWriter(tmp_path / "rad", kind="in_situ") as w:
         for i in range(4):  # a writer that forgot the conversion: degree columns holding radians
             w.add_view(f"v{i}", np.zeros((4, 4, 3), np.uint8), q=np.deg2rad(rng.uniform(-1.5, 1.5, 6)))
-    with pytest.warns(UserWarning, match="radians written where degrees belong"):
+    with pytest.raises(ConfigError, match=r"joints.csv: q1_deg \.\.\. q6_deg: every reading .* radians written"):
         load_dataset(tmp_path / "rad")
 
 

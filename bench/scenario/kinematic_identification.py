@@ -132,6 +132,14 @@ def _check_pose_counts(cfg, n_params):
                                                  f"errors; need at least {need}")
 
 
+def validate(cfg: dict) -> None:
+    """Check every value of a loaded scenario without running it (``bench sweep`` does, per grid point)."""
+    _check_values(cfg)
+    base = Path(cfg["_file"]).parent
+    robot = load_robot(base / cfg["robot"])
+    _check_pose_counts(cfg, len(closed_form_reduction(robot).kept))
+
+
 def _rms_mm(a, b):
     return float(1e3 * np.sqrt(np.mean(np.sum((a - b) ** 2, axis=-1))))
 

@@ -9,6 +9,9 @@
   partial or duplicate row; the next ``bench sweep`` with the same arguments skips the finished run ids.
 * Backends: ``local`` (a process pool, default ``os.cpu_count()`` workers) and ``ray`` (the same work function as
   Ray tasks, on a local instance or ``--address`` of a cluster; needs the ``cluster`` extra).
+* Every grid point is validated before any run starts: the schema (unknown keys, types) and, for kinds whose module
+  offers ``validate(cfg)``, the kind's value checks (a negative noise, too few poses) - a bad value in the grid is a
+  one-line error and nothing is run or written.
 * At the end: a summary table (median and spread per grid point and metric) as CSV and a plot per metric against
   the first swept key.
 """
@@ -224,10 +227,13 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
         raise ConfigError(scenario, "<file>", "not found")
     if backend not in ("local", "ray"):
         raise ConfigError("--backend", backend, "expected 'local' or 'ray'")
-    from bench.scenario.runner import load_scenario
+    from bench.scenario.runner import kind_module, load_scenario
 
     for overrides, seed in grid(params, seeds[:1]):  # validate every value before launching anything
-        load_scenario(scenario, seed, [f"{k}={json.dumps(v)}" for k, v in {**fixed, **overrides}.items()])
+        cfg = load_scenario(scenario, seed, [f"{k}={json.dumps(v)}" for k, v in {**fixed, **overrides}.items()])
+        module = kind_module(cfg["kind"])
+        if hasattr(module, "validate"):  # the kind's own value checks (ranges, units), where it offers them
+            module.validate(cfg)
     out = Path(out)
     store = SweepStore(out / "sweep.sqlite")
     text = scenario.read_text()

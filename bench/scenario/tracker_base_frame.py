@@ -103,6 +103,11 @@ def _check_values(cfg, robot):
     return q_start, spans, sigmas
 
 
+def validate(cfg: dict) -> None:
+    """Check every value of a loaded scenario without running it (``bench sweep`` does, per grid point)."""
+    _check_values(cfg, load_robot(Path(cfg["_file"]).parent / cfg["robot"]))
+
+
 def _estimate(robot, m):
     return base_frame_from_arcs(m.arc1_tracker, m.arc2_tracker, m.q1_during_arc2, m.q1_arc1, m.q2_arc2, robot)
 
