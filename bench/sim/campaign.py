@@ -29,8 +29,9 @@ from bench.sim.scenes.base import compose, place
 
 #: Version of the image chain's algorithms, part of every render's cache key: bump it when a change of the code
 #: (not of a parameter, which the key already holds) changes the images. 2: sensor noise drawn per row band from
-#: child generators (``bench.sim.parallel``).
-IMAGE_CHAIN_VERSION = 2
+#: child generators (``bench.sim.parallel``); 3: flat-port colour sub-rays stop at a 0.001 px step; 4: shot noise of
+#: bright pixels drawn from its normal limit (``bench.sim.medium.SHOT_NOISE_NORMAL_ABOVE_E``).
+IMAGE_CHAIN_VERSION = 4
 
 
 class ArmScene:

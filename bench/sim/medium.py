@@ -390,13 +390,22 @@ def forward_scatter(image, path_m, sigma_px_per_m: float, max_sigma_px: float = 
     return out
 
 
+#: Shot noise of pixels collecting at least this many electrons is drawn from its normal limit: Poisson(E) + N(0, r^2)
+#: -> N(E, E + r^2) in one draw (4x faster than numpy's Poisson sampler). The difference of the two distributions is
+#: the Poisson skewness E^-1/2 <= 0.032 here: their CDFs differ by at most ~0.066 / sqrt(E) <= 0.002 (the first
+#: Edgeworth term), while one DN holds ~40 e- at the default gain - not measurable in any image statistic (tested
+#: against exact Poisson draws). Darker pixels get exact Poisson counts.
+SHOT_NOISE_NORMAL_ABOVE_E = 1000.0
+
+
 def sensor(image, rng: np.random.Generator, spec: Sensor) -> np.ndarray:
     """8-bit image of linear radiance: ``DN = round(gain (Poisson(min(E, full well)) + N(0, read^2)))``.
 
     ``E = image * exposure * full_well_e`` electrons (``exposure`` from :meth:`Sensor.exposure_for`: the given one or
     the automatic exposure); DN clipped to 0..255; then JPEG if ``spec.jpeg_quality``. Images of at least
     :data:`bench.sim.parallel.MIN_ROWS` rows are drawn in row bands, in parallel threads, each from its own child
-    generator (``rng.spawn``): the image of a seed is the same on every machine.
+    generator (``rng.spawn``): the image of a seed is the same on every machine. Shot noise above
+    :data:`SHOT_NOISE_NORMAL_ABOVE_E` electrons is drawn from its normal limit.
     """
     img = check_image(image)
     if not isinstance(rng, np.random.Generator):
@@ -407,11 +416,14 @@ def sensor(image, rng: np.random.Generator, spec: Sensor) -> np.ndarray:
 
     def band(r0, r1):
         g = rngs[0] if len(rngs) == 1 else rngs[int(np.searchsorted(edges, r0))]
-        electrons = np.minimum(img[r0:r1] * scale, spec.full_well_e)
         # electron counts are integers below 1e8 and the read noise a few e-: float32 holds both exactly enough
-        e = g.poisson(electrons).astype(np.float32)
-        if spec.read_noise_e > 0:
-            e += g.normal(0.0, spec.read_noise_e, e.shape).astype(np.float32)
+        lam = np.minimum(img[r0:r1] * scale, spec.full_well_e).astype(np.float32)
+        z = g.standard_normal(lam.shape, dtype=np.float32)
+        read = np.float32(spec.read_noise_e)
+        e = lam + np.sqrt(lam + read * read) * z  # shot + read noise, normal limit
+        low = lam < SHOT_NOISE_NORMAL_ABOVE_E
+        if low.any():  # exact Poisson counts (z, independent of them, is the read noise)
+            e[low] = g.poisson(lam[low]).astype(np.float32) + read * z[low]
         e *= np.float32(spec.gain_dn_per_e)
         return np.clip(np.rint(e), 0, 255).astype(np.uint8)
 

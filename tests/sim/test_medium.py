@@ -284,3 +284,32 @@ def test_row_bands_do_not_change_the_chain_but_the_sensor_draws_per_band(monkeyp
     monkeypatch.setattr(parallel, "_POOL", None)
     monkeypatch.setattr(parallel.os, "cpu_count", lambda: 1)  # one core: the bands run one after the other
     assert np.array_equal(apply_medium(img, r, np.random.default_rng(0), noisy, c), two_noisy)
+
+
+def test_normal_limit_of_bright_shot_noise_matches_exact_poisson_counts():
+    """Above SHOT_NOISE_NORMAL_ABOVE_E electrons the sensor draws N(E, E + r^2) instead of Poisson(E) + N(0, r^2):
+    the DN histograms of the two agree (two-sample chi-square) at the threshold, where the skew is largest."""
+    from scipy.stats import chi2_contingency
+
+    from bench.sim.medium import SHOT_NOISE_NORMAL_ABOVE_E
+
+    def p_same(a, b):
+        lo, hi = int(min(a.min(), b.min())), int(max(a.max(), b.max()))
+        table = np.array([np.bincount(x.astype(int) - lo, minlength=hi - lo + 1) for x in (a, b)])
+        return chi2_contingency(table[:, table.sum(axis=0) >= 20])[1]  # bins with enough counts
+
+    spec = Sensor(full_well_e=10000.0, gain_dn_per_e=0.1, read_noise_e=5.0)  # 10 e- per DN: the shape shows
+    rng = np.random.default_rng(22)
+    for e_mean in (SHOT_NOISE_NORMAL_ABOVE_E, 2000.0):
+        img = np.full((300, 400, 3), e_mean / spec.full_well_e)
+        fast = sensor(img, np.random.default_rng(21), spec).ravel().astype(float)
+        exact = np.clip(np.rint(spec.gain_dn_per_e * (rng.poisson(e_mean, fast.size)
+                                                      + rng.normal(0, spec.read_noise_e, fast.size))), 0, 255)
+        p = p_same(fast, exact)
+        print(f"sensor at {e_mean:.0f} e-: normal limit vs exact Poisson, chi-square p = {p:.3f}")
+        assert p > 1e-3
+        assert abs(fast.mean() - exact.mean()) <= 5 * np.sqrt(2 * exact.var() / fast.size)
+        # the comparison can see a wrong spread: a 5 % larger standard deviation is rejected
+        wrong = np.clip(np.rint(spec.gain_dn_per_e * rng.normal(e_mean, 1.05 * np.sqrt(e_mean + 25.0), fast.size)),
+                        0, 255)
+        assert p_same(fast, wrong) < 1e-3
