@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bench.errors import ConfigError
@@ -43,33 +44,69 @@ def test_unknown_key_fails_before_any_run(tmp_path):
     assert not (tmp_path / "sw" / "runs").exists()
 
 
+def _check_store(db):
+    """The store after a kill: intact (SQLite integrity), one row per run id, every row finished and complete."""
+    con = sqlite3.connect(db)
+    try:
+        assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        assert con.execute("SELECT COUNT(*) = COUNT(DISTINCT run_id) FROM runs").fetchone()[0] == 1
+    except sqlite3.OperationalError:  # killed before the table was created
+        return {}
+    finally:
+        con.close()
+    rows = {r[0]: r for r in _rows(db)}
+    for r in rows.values():
+        assert r[3] == "done" and len(json.loads(r[4])) > 5
+    return rows
+
+
 def test_sigkill_resume_keeps_every_finished_row_once(tmp_path):
+    """Issue 6: a sweep killed with SIGKILL at random moments (>= 10 times) resumes with every finished row intact
+    and none duplicated. The kill moments are drawn (seeded) over a launch's whole life - interpreter start, store
+    creation, workers computing, rows committing, the final summary - and every fourth kill lands right after a
+    row appeared (a commit just finished while the other worker is mid-run)."""
     out = tmp_path / "sw"
-    cmd = [sys.executable, "-m", "bench", "sweep", str(SCENARIO), "--param", "noise.default_sigma_mm=0.02,0.05,0.1",
-           "--seeds", "2", "--workers", "2", "--out", str(out), *SMALL_ARGS]
+    db = out / "sweep.sqlite"
+    tiny = {**SMALL, "monte_carlo.trials": 2, "arcs.n_points": 6}
+    cmd = [sys.executable, "-m", "bench", "sweep", str(SCENARIO), "--param",
+           "noise.default_sigma_mm=0.02,0.05,0.1,0.2", "--seeds", "3", "--workers", "2", "--out", str(out),
+           *[a for k, v in tiny.items() for a in ("--set", f"{k}={json.dumps(v)}")]]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    kills = 0
-    for _ in range(3):  # kill as soon as a new row has landed, three times
-        before = len(_rows(out / "sweep.sqlite")) if (out / "sweep.sqlite").exists() else 0
+    rng = np.random.default_rng(20261122)
+    seen, kills, launches = {}, 0, 0
+    while kills < 10 and launches < 30:
+        launches += 1
+        before = len(seen)
+        after_row = launches % 4 == 0
+        delay = rng.uniform(0.3, 4.0)
         proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                 start_new_session=True)
         t0 = time.time()
-        while proc.poll() is None and time.time() - t0 < 120:
-            if (out / "sweep.sqlite").exists() and len(_rows(out / "sweep.sqlite")) > before:
+        while proc.poll() is None:
+            grown = after_row and db.exists() and len(_rows(db)) > before
+            if grown or (not after_row and time.time() - t0 >= delay) or time.time() - t0 > 60:
                 os.killpg(proc.pid, signal.SIGKILL)
                 kills += 1
                 break
-            time.sleep(0.05)
+            time.sleep(0.02)
         proc.wait()
-    snapshot = {r[0]: r for r in _rows(out / "sweep.sqlite")}
-    assert kills >= 1 and 0 < len(snapshot) < 6
+        rows = _check_store(db) if db.exists() else {}
+        for rid, row in seen.items():  # every row finished before this kill is untouched
+            assert rows.get(rid) == row
+        seen = rows
+    assert kills >= 10, f"only {kills} kills in {launches} launches"
+    assert 0 < len(seen) < 12
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    rows = _rows(out / "sweep.sqlite")
-    ids = [r[0] for r in rows]
-    assert len(rows) == 6 and len(set(ids)) == 6 and all(r[3] == "done" for r in rows)
-    for rid, row in snapshot.items():  # rows finished before the kills are untouched
-        assert next(r for r in rows if r[0] == rid) == row
+    rows = _check_store(db)
+    assert len(rows) == 12 and len(_rows(db)) == 12
+    for rid, row in seen.items():
+        assert rows[rid] == row
+    for r in rows.values():  # each row's result file is complete
+        con = sqlite3.connect(db)
+        path = con.execute("SELECT result_path FROM runs WHERE run_id = ?", (r[0],)).fetchone()[0]
+        con.close()
+        assert json.loads(Path(path).read_text())["metrics"] == json.loads(r[4])
     assert (out / "summary.csv").is_file()
 
 
