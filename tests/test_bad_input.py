@@ -45,6 +45,7 @@ def test_the_good_dataset_is_located(good_dataset, tmp_path, capsys):
     assert main(["locate", str(root), "--out", str(tmp_path / "out")]) == 0, capsys.readouterr().err
     rep = json.loads((tmp_path / "out" / "locate.json").read_text())
     assert rep["success"] and np.linalg.norm(np.array(rep["T_world_base"])[:3, 3] - truth["T_world_base"][:3, 3]) < 5e-3
+    assert "WARNING" not in rep["message"], rep["message"]  # survey and locate baselines pass Eq. 199 at f = 800 px
 
 
 # ------------------------------------------------------------------------------------------------ mutations

@@ -101,7 +101,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         res = locate_pnp(kmap, a, config, focal_px=camera.fx)
     else:
         res = locate(kmap, a, obs[roles["locate"][1].name], config, method=method, rng=seed, refine=refine,
-                     **(ransac or {}))
+                     focal_px=camera.fx, **(ransac or {}))  # focal: the baseline checks' 1 px (Eq. 123, 199)
     res.timings_s.update({"detect_s": t_detect, "map_s": t_map, "pipeline_total_s": time.perf_counter() - t0})
     if details is not None:
         details.update(map=kmap, observations=obs, camera=camera, robot=robot, eps=eps, T_link5_cam=T_link5_cam)

@@ -66,7 +66,7 @@ def write_planar_dataset(root, robot, base_motion, seed: int = 0, locate_baselin
     ex, ey = T_ref[:3, 0], T_ref[:3, 1]
     origin = target - 0.5 * PANEL_M[0] * ex - 0.5 * PANEL_M[1] * ey
     views = [("ref", "reference", Q_REF, T_ref)]
-    offsets = [[0.12, 0], [-0.12, 0], [0, 0.12], [0, -0.12], [0.09, 0.09]]
+    offsets = [[0.16, 0], [-0.16, 0], [0, 0.16], [0, -0.16], [0.12, 0.12]]  # Eq. 199: 151 mm for d_n at f = 800
     for k, eye in enumerate(surrounding_eyes(T_ref, offsets)):
         sol = look_at_configuration(robot, eye, target, T_LINK5_CAM, q_seed=Q_REF)
         assert sol.success, sol.message
