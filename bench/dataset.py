@@ -25,6 +25,7 @@ import csv
 import io
 import os
 import shutil
+import sys
 import tempfile
 import warnings
 from dataclasses import dataclass, field
@@ -115,6 +116,31 @@ def check_image_file(path: Path, expected_size=None) -> None:
         raise ConfigError(path, "<file>", f"{size / 2**20:.1f} MB for a {w}x{h} image: not an image of that size")
 
 
+def _imread_capturing_stderr(path: Path):
+    """``cv2.imread`` with what the decoder libraries print on file descriptor 2 captured.
+
+    libpng reports a corrupt file (``libpng error: IDAT: CRC error``, without a newline) straight to stderr, which
+    would run into the one-line error; the text is returned instead (and passed on to stderr unchanged when the image
+    decoded after all).
+    """
+    import cv2
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        tmp.seek(0)
+        said = tmp.read().decode(errors="replace").strip()
+    if said and img is not None:
+        os.write(2, (said + "\n").encode())
+    return img, said
+
+
 @dataclass(frozen=True)
 class View:
     """One image of the campaign: its file, role, and the readings taken with it (SI)."""
@@ -141,9 +167,10 @@ class View:
             check_image_file(self.image_path, expected_size)
         except ConfigError as exc:
             raise ConfigError(exc.source, exc.field, f"image of view {self.name!r}: {exc.problem}") from None
-        img = cv2.imread(str(self.image_path), cv2.IMREAD_UNCHANGED)
+        img, said = _imread_capturing_stderr(self.image_path)
         if img is None or img.size == 0:
-            raise ConfigError(self.image_path, "<file>", f"image of view {self.name!r} is empty or not readable")
+            why = f" ({said.splitlines()[-1]})" if said else ""
+            raise ConfigError(self.image_path, "<file>", f"image of view {self.name!r} is empty or not readable{why}")
         if img.dtype != np.uint8:
             raise ConfigError(self.image_path, "<file>", f"expected an 8-bit image, got {img.dtype}")
         if img.ndim == 3:

@@ -65,6 +65,14 @@ def _huge_header(p):
                   + _png_chunk(b"IEND", b""))
 
 
+def _corrupt_idat(p):
+    """Valid header and end, 40 bytes of the compressed data overwritten: libpng's CRC check fails."""
+    b = bytearray(p.read_bytes())
+    i = b.index(b"IDAT")
+    b[i + 20:i + 60] = b"x" * 40
+    p.write_bytes(bytes(b))
+
+
 def _sparse(p, size, head=b"", tail=b""):
     """A ``size``-byte file (sparse: no disk or memory used for the hole)."""
     with p.open("wb") as f:
@@ -130,6 +138,8 @@ LOCATE_CASES = [
     ("empty image", lambda r: (r / "images" / "s0.png").write_bytes(b""), 2, r"s0.png: <file>: .*'s0': empty file"),
     ("corrupt image", lambda r: (r / "images" / "s1.png").write_bytes(np.random.default_rng(0).bytes(5000)), 2,
      r"s1.png: <header>: .*not a PNG file"),
+    ("corrupt image data", lambda r: _corrupt_idat(r / "images" / "s1.png"), 2,
+     r"s1.png: <file>: .*not readable \(libpng error: IDAT: .+\)$"),
     ("truncated image", lambda r: (r / "images" / "s2.png").write_bytes((r / "images" / "s2.png").read_bytes()[:9000]),
      2, r"s2.png: <file>: .*PNG cut short"),
     ("huge image header", lambda r: _huge_header(r / "images" / "s3.png"), 2,
