@@ -61,7 +61,6 @@ contract names hold the in-water calibration (section 5.5: the camera as it goes
 from __future__ import annotations
 
 import csv
-import hashlib
 import json
 import sys
 import time
@@ -200,11 +199,11 @@ class TableRigScene:
     """The camera on the x-y table photographing the two-plane rig, through the optics of a preset.
 
     One MuJoCo model: the table of :func:`bench.sim.scenes.xy_table.xy_table` with the camera in its mount body and
-    the rig as a mocap body (its pose set per view). A view is a supersampled pinhole render (RGB + depth) -> the lens
-    stage (:class:`~bench.sim.distortion.DistortionStage`) or lens + flat port
-    (:class:`~bench.sim.flatport.FlatPortStage`) -> medium and sensor (:func:`~bench.sim.medium.apply_medium`), the
-    chain of :class:`bench.sim.campaign.ArmScene`, and cached the same way: by a content hash of the model, the
-    optics, the table joints, the rig pose and the noise seed, so a sweep never renders a view twice.
+    the rig as a mocap body (its pose set per view). The views are rendered by
+    :class:`bench.scenario.xy_table.OpticsCamera` (the x-y table scenario's camera: supersampled pinhole render ->
+    lens stage or lens + flat port -> medium and sensor, the chain of :class:`bench.sim.campaign.ArmScene`), cached
+    on disk by a content hash of the model, the optics, the table joints, the rig pose and the noise seed, so a sweep
+    never renders a view twice.
 
     Parameters
     ----------
@@ -212,8 +211,6 @@ class TableRigScene:
         The TRUE lens camera (inside the housing when ``optics.port`` is set).
     optics : OpticsPreset
         Port (or None) and the medium/sensor chain.
-    table : SceneObject
-        The table without camera (:func:`~bench.sim.scenes.xy_table.xy_table` is called here with the camera).
     table_model : TableModel
     rig : SceneObject
         :func:`~bench.sim.scenes.rig.calibration_rig`.
@@ -227,107 +224,54 @@ class TableRigScene:
 
     def __init__(self, camera: CameraModel, optics, table_model, rig, supersample: int, cache_dir=None,
                  z_min: float = 0.3):
-        import mujoco
-
+        from bench.scenario.xy_table import OpticsCamera
         from bench.sim.camera import mujoco_camera_xml
-        from bench.sim.campaign import _pixel_grid
-        from bench.sim.distortion import DistortionStage
-        from bench.sim.flatport import FlatPortStage
-        from bench.sim.medium import cos_beam
         from bench.sim.scenes.base import SceneObject, compose
         from bench.sim.scenes.xy_table import xy_table
 
-        self.camera, self.port, self.chain = camera, optics.port, optics.chain
-        if self.port is None:
-            self.stage = DistortionStage(camera, supersample)
-            self.spec = self.stage.render_spec()
-        else:
-            self.stage = FlatPortStage(camera.K, camera.size, self.port, supersample, lens=camera)
-            self.spec = self.stage.render_spec(z_min)
-        self._rays = camera.unproject(_pixel_grid(camera), normalize=False)
-        self._cos = cos_beam(self._rays)
-        cam_xml = mujoco_camera_xml(self.CAMERA, self.spec.K, self.spec.width, self.spec.height, np.eye(4))
-        table = xy_table(table_model, cam_xml)
-        self.T_world_table = table.features["T_world_table"]
-        rig_body = SceneObject(f"{rig.name}_mocap", f'<body name="{rig.name}_mocap" mocap="true">\n'
-                               f"{rig.worldbody_xml}</body>\n", rig.asset_xml, dict(rig.files), rig.features)
-        xml, assets = compose([table, rig_body], offscreen=(self.spec.width, self.spec.height),
-                              center=self.T_world_table[:3, 3], extent=3.0)
-        self.model = mujoco.MjModel.from_xml_string(xml, assets=assets)
-        self.data = mujoco.MjData(self.model)
+        def make_xml(spec):
+            cam_xml = mujoco_camera_xml(self.CAMERA, spec.K, spec.width, spec.height, np.eye(4))
+            table = xy_table(table_model, cam_xml)
+            self.T_world_table = table.features["T_world_table"]
+            rig_body = SceneObject(f"{rig.name}_mocap", f'<body name="{rig.name}_mocap" mocap="true">\n'
+                                   f"{rig.worldbody_xml}</body>\n", rig.asset_xml, dict(rig.files), rig.features)
+            return compose([table, rig_body], offscreen=(spec.width, spec.height), center=self.T_world_table[:3, 3],
+                           extent=3.0)
+
+        self.optics_camera = OpticsCamera(make_xml, camera, optics, supersample, cache_dir, self.CAMERA, z_min)
+        self.model, self.data = self.optics_camera.model, self.optics_camera.data
+        self.render_s = self.optics_camera.render_s
         self._mocap = self.model.body_mocapid[self.model.body(f"{rig.name}_mocap").id]
         self._qadr = {n: self.model.jnt_qposadr[self.model.joint(n).id] for n in table_model.joint_names}
-        h = hashlib.sha256(xml.encode())
-        for k in sorted(assets):
-            h.update(k.encode())
-            h.update(hashlib.sha256(assets[k]).digest())
-        h.update(np.ascontiguousarray(camera.K).tobytes())
-        h.update(np.ascontiguousarray(camera.dist).tobytes())
-        h.update(repr((camera.width, camera.height, supersample, self.chain, self.port)).encode())
-        self._key = h.hexdigest()
-        self.cache_dir = Path(cache_dir) if cache_dir else None
-        self._renderer = None
-        self.render_s: list = []
+
+    def _set_state(self, qpos: dict, T_world_rig):
+        from bench.geometry.quaternion import matrix_to_quaternion
+
+        def set_state(model, data):
+            for name, adr in self._qadr.items():
+                data.qpos[adr] = qpos[name]
+            data.mocap_pos[self._mocap] = T_world_rig[:3, 3]
+            data.mocap_quat[self._mocap] = matrix_to_quaternion(T_world_rig[:3, :3])
+        return set_state
 
     def pose(self, qpos: dict, T_world_rig):
         """Set the table joints (``TableRun.qpos`` of one view) and the rig pose; returns the true ``T_world_cam``."""
         import mujoco
 
-        from bench.geometry.quaternion import matrix_to_quaternion
         from bench.sim.camera import camera_pose_cv
 
-        for name, adr in self._qadr.items():
-            self.data.qpos[adr] = qpos[name]
-        self.data.mocap_pos[self._mocap] = T_world_rig[:3, 3]
-        self.data.mocap_quat[self._mocap] = matrix_to_quaternion(T_world_rig[:3, :3])
+        self._set_state(qpos, T_world_rig)(self.model, self.data)
         mujoco.mj_forward(self.model, self.data)
         return camera_pose_cv(self.model, self.data, self.CAMERA)
 
     def render(self, qpos: dict, T_world_rig, seed: int):
         """``(image uint8 (H, W, 3), T_world_cam (4, 4))`` of one view (from the cache when rendered before)."""
-        import cv2
-
-        from bench.sim.medium import apply_medium, path_length_m
-        from bench.sim.render import SceneRenderer
-
         T_world_cam = self.pose(qpos, T_world_rig)
-        h = hashlib.sha256(self._key.encode())
-        h.update(np.round(np.array([qpos[n] for n in sorted(qpos)], float), 12).tobytes())
-        h.update(np.round(np.asarray(T_world_rig, float), 12).tobytes())
-        h.update(str(seed).encode())
-        key = h.hexdigest()[:32]
-        if self.cache_dir is not None:
-            path = self.cache_dir / f"{key}.png"
-            if path.is_file():
-                img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-                if img is not None:
-                    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB), T_world_cam
-        t0 = time.perf_counter()
-        if self._renderer is None:
-            self._renderer = SceneRenderer(self.model, self.CAMERA, self.spec.width, self.spec.height)
-        rgb, depth = self._renderer.render(self.data)
-        if self.port is None:
-            img, z = self.stage.apply(rgb, self.spec.K, depth)
-            water = path_length_m(z, self._rays)
-        else:
-            out = self.stage.apply(rgb, depth, self.spec.K)
-            img, water = out.image, out.water_path
-        img = apply_medium(img, water, np.random.default_rng(seed), self.chain,
-                           self._cos if self.chain.light is not None else None)
-        if img.dtype != np.uint8:
-            img = np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
-        self.render_s.append(time.perf_counter() - t0)
-        if self.cache_dir is not None:
-            self.cache_dir.mkdir(parents=True, exist_ok=True)
-            tmp = self.cache_dir / f".{key}.{time.time_ns()}.png"
-            cv2.imwrite(str(tmp), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-            tmp.replace(self.cache_dir / f"{key}.png")
-        return img, T_world_cam
+        key = np.concatenate([[qpos[n] for n in sorted(qpos)], np.ravel(T_world_rig)])
+        return self.optics_camera.render(self._set_state(qpos, T_world_rig), key, seed), T_world_cam
 
     def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        self.optics_camera.close()
 
 
 def project_true(camera: CameraModel, port, p_cam) -> np.ndarray:
