@@ -61,13 +61,16 @@ def vision_and_render(repeats: int) -> dict:
         scene = ArmScene(robot, None, np.eye(4), NOMINAL_T_LINK5_CAM, load_preset(optics.lens_camera), [panel], 2,
                          optics.chain, None, port=optics.port)
         frame = scene.render(q, 0)  # warm-up: maps and rays built once
-        times = []
+        times, cpu = [], []
         for k in range(max(3, repeats // 4)):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             scene.render(q + 1e-4 * k, k)
             times.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)  # all threads of the process (renderer, bands): load-independent
         scene.close()
         out[f"render_fps_{name}"] = 1.0 / statistics.median(times)
+        out[f"render_cpu_ms_{name}"] = 1e3 * statistics.median(cpu)
+        out[f"panel_sift_keypoints_{name}"] = float(len(detect_sift(frame)))
         img = frame if img is None else img
     out["render_fps"] = out["render_fps_air_webcam"]
     out["sift_640x480_s"] = median_time(lambda: detect_sift(img), repeats)

@@ -22,6 +22,15 @@ MIN_ROWS = 64
 _POOL: ThreadPoolExecutor | None = None
 
 
+def _forget_pool() -> None:
+    """In a forked child the pool's threads do not exist: start a new pool there (a sweep forks its workers)."""
+    global _POOL
+    _POOL = None
+
+
+os.register_at_fork(after_in_child=_forget_pool)
+
+
 def _pool() -> ThreadPoolExecutor | None:
     global _POOL
     workers = min(N_BANDS, os.cpu_count() or 1)
@@ -43,7 +52,11 @@ def band_edges(n_rows: int, multiple: int = 1) -> np.ndarray:
 
 
 def map_bands(fn, edges) -> list:
-    """``[fn(r0, r1) for each band]``, the bands run in parallel threads; exceptions propagate."""
+    """``[fn(r0, r1) for each band]``, the bands run in parallel threads; exceptions propagate.
+
+    The calling thread runs the first band itself, so ``fn`` must not call :func:`map_bands` (a pool thread waiting
+    for the pool could wait forever).
+    """
     bands = list(zip(edges[:-1].tolist(), edges[1:].tolist(), strict=True))
     pool = _pool()
     if pool is None or len(bands) == 1:
