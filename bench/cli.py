@@ -31,6 +31,16 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
     sw.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
     sw.add_argument("--out", default=None, help="sweep folder (default runs/sweep-<scenario name>)")
+    bu = sub.add_parser("budget", help="error budget: re-run with one error source switched off at a time")
+    bu.add_argument("scenario", help="scenario YAML file (a kind that declares its error sources)")
+    bu.add_argument("--seeds", type=int, default=10, help="seeds per variant (default 10)")
+    bu.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    bu.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="a fixed override for every run")
+    bu.add_argument("--backend", choices=("local", "ray"), default="local")
+    bu.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
+    bu.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
+    bu.add_argument("--out", default=None, help="budget folder (default runs/budget-<scenario name>)")
     sim = sub.add_parser("sim", help="simulator commands")
     simsub = sim.add_subparsers(dest="sim_command", required=True)
     rend = simsub.add_parser("render", help="simulate a scenario's campaign and write its dataset (with truth/)")
@@ -146,6 +156,23 @@ def _sweep(args) -> None:
         print(f"failed: {e}")
 
 
+def _budget(args) -> None:
+    from pathlib import Path
+
+    from bench.scenario.budget import run_budget
+    from bench.scenario.sweep import parse_set
+
+    if args.seeds < 1:
+        raise BenchError(f"--seeds: must be >= 1, got {args.seeds}")
+    fixed = dict(parse_set(item) for item in args.overrides)
+    out = args.out or str(Path("runs") / f"budget-{Path(args.scenario).stem}")
+    res = run_budget(args.scenario, list(range(args.seed, args.seed + args.seeds)), out, args.backend, args.address,
+                     args.workers, fixed=fixed)
+    for k, v in res["metrics"].items():
+        print(f"  {k:<44} {v:.4g}")
+    print(f"wrote {res['result']}")
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
@@ -156,6 +183,8 @@ def main(argv=None) -> int:
                               verbose=not args.quiet)
         elif args.command == "sweep":
             _sweep(args)
+        elif args.command == "budget":
+            _budget(args)
         elif args.command == "sim":
             _sim_render(args)
         elif args.command == "calibrate-camera":

@@ -81,11 +81,20 @@ SCHEMA = {
                  "ransac_iterations": (int, 100), "d_r_mm": (float, 20.0), "r_lim": (float, 0.1)},
     # error sources, for the error budget: switching one off injects the truth explicitly (evaluator side), e.g.
     # kinematics=perfect gives the pipeline the true errors and mount instead of its calibration
-    "sources": {"kinematics": (str, "calibrated"), "camera": (str, "calibrated"), "encoders": (str, "real")},
+    "sources": {"kinematics": (str, "calibrated"), "camera": (str, "calibrated"), "encoders": (str, "real"),
+                "features": (str, "sift")},
+    # the Cramér-Rao bound of the base pose and a Monte Carlo of the ideal estimator (in_situ_bound)
+    "bound": {"enabled": (bool, True), "mc_trials": (int, 30)},
     "outputs": {"cache": (bool, True), "rerun": (bool, True)},
 }
 SOURCES = {"kinematics": ("calibrated", "perfect"), "camera": ("calibrated", "perfect"),
-           "encoders": ("real", "perfect")}
+           "encoders": ("real", "perfect"), "features": ("sift", "perfect")}
+# bench budget: the overrides that make each error source perfect (issue: perfect features, perfect optics model -
+# the same camera model in simulator and pipeline -, perfect kinematics, perfect encoders)
+BUDGET = {"features": {"sources.features": "perfect"}, "optics_model": {"sources.camera": "perfect"},
+          "kinematics": {"sources.kinematics": "perfect"}, "encoders": {"sources.encoders": "perfect"}}
+BUDGET_METRICS = ["base_pos_err_mm", "base_rot_err_deg", "valve_tool_err_mm"]
+BUDGET_FIXED = {"outputs.rerun": False, "bound.enabled": False}
 
 DEG = np.pi / 180
 TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
@@ -360,6 +369,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
             "T_link5_cam": mount_true.tolist(),
             "T_link5_cam_nominal": mount_nominal.tolist(),
             "camera_K": true_cam.K.tolist(), "camera_dist": true_cam.dist.tolist(),
+            "image_size": [int(true_cam.width), int(true_cam.height)],
             "camera_K_effective": (np.diag([mag, mag, 1.0]) @ true_cam.K).tolist(),
             "T_world_rig": T_world_rig.tolist(), "T_world_panel": T_world_panel.tolist(),
             "views": {name: {"role": role, "T_world_base": T_wb.tolist(), "q_true": q.tolist()}
@@ -375,6 +385,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                                                "T_world_ee": task["T_world_ee"].tolist(),
                                                "q_true": task["q_true"].tolist()},
             "encoders": {"noise_std_rad": enc.noise_std_rad, "resolution_rad": enc.resolution_rad},
+            "port": None if port is None else {"d0": port.d0, "t": port.t, "n_air": port.n_air,
+                                               "n_glass": port.n_glass, "n_water": port.n_water,
+                                               "tilt": port.tilt.tolist(), "decentre": port.decentre.tolist()},
         }
         w.write_text("truth/truth.yaml", yaml.safe_dump(truth, sort_keys=False))
         checks = kinematics_check(robot, eps, np.array([v[3] for v in views]))
@@ -416,6 +429,77 @@ def _oracle_files(cfg, ds, robot, out_dir):
         camera_path = write_camera_yaml(oracle / "camera.yaml", cam.replace(
             K=np.array(truth["camera_K_effective"]), dist=np.array(truth["camera_dist"]), name="ORACLE: true camera"))
     return camera_path, robot_path
+
+
+def _true_optics(truth):
+    """The true lens (CameraModel), port (FlatPort or None) and the central camera equivalent to both."""
+    from bench.sim.flatport import FlatPort
+
+    nominal = load_preset("air_webcam")  # only for the image size and the model name
+    size = truth.get("image_size", [nominal.width, nominal.height])
+    lens = nominal.replace(K=np.array(truth["camera_K"]), dist=np.array(truth["camera_dist"]), width=size[0],
+                           height=size[1], name="true lens")
+    port = truth.get("port")
+    port = None if port is None else FlatPort(**{k: np.array(v) if isinstance(v, list) else v
+                                                 for k, v in port.items()})
+    central = lens.replace(K=np.array(truth["camera_K_effective"]), name="true central camera")
+    return lens, port, central
+
+
+def _true_camera_poses(robot, truth) -> dict:
+    eps, mount = np.array(truth["errors"]), np.array(truth["T_link5_cam"])
+    return {n: np.array(v["T_world_base"]) @ link5_frame(robot, np.array(v["q_true"]), eps) @ mount
+            for n, v in truth["views"].items()}
+
+
+def _perfect_features(cfg, robot, truth):
+    """``features_fn`` for ``sources.features = perfect``: exact projections of 1500 fixed points on the panel face
+    through the true optics, with exact correspondences (see :mod:`bench.scenario.in_situ_bound`)."""
+    from bench.scenario.in_situ_bound import ideal_features, panel_points, true_projector
+
+    lens, port, _ = _true_optics(truth)
+    project = true_projector(lens, port)
+    X = panel_points(truth["panel_corners_world"], 1500, np.random.default_rng([cfg["seed"], 11]))
+    poses = _true_camera_poses(robot, truth)
+    return lambda view: ideal_features(X, poses[view.name], project, lens.size)
+
+
+def _bound(cfg, robot, truth, lab, details, ransac) -> dict:
+    """Measured keypoint noise, the Cramér-Rao bound of the base pose and the ideal estimator's Monte Carlo."""
+    from bench.scenario.in_situ_bound import crb_base_pose, keypoint_sigma_px, mc_ideal_estimator, true_projector
+    from bench.sim.encoders import EncoderModel
+
+    lens, port, central = _true_optics(truth)
+    poses = _true_camera_poses(robot, truth)
+    obs = details["observations"]
+    kmap = details["map"]
+    ref = [n for n in obs if truth["views"][n]["role"] == "reference"][0]
+    surround = [n for n in obs if truth["views"][n]["role"] == "surround"]
+    loc = [n for n in obs if truth["views"][n]["role"] == "locate"][:2]
+    sigma_px, n_sigma = keypoint_sigma_px(obs[ref], [obs[n] for n in surround], poses, central,
+                                          true_projector(lens, port))
+    out = {"keypoint_sigma_px": sigma_px, "keypoint_sigma_matches": float(n_sigma)}
+    if not np.isfinite(sigma_px) or sigma_px <= 0:
+        return out
+    T_wb1 = np.array(truth["T_world_base_survey"])
+    T_site_b2 = invert(T_wb1) @ np.array(truth["T_world_base_locate"])
+    X_site = transform_points(kmap.T_world_ref, kmap.p_ref)  # the features the pipeline found (linearisation)
+    names = [ref, *surround, *loc]
+    views = [(np.array(truth["views"][n]["q_true"]), n in loc) for n in names]
+    enc = truth["encoders"]
+    sigma_enc = float(np.sqrt(enc["noise_std_rad"] ** 2 + enc["resolution_rad"] ** 2 / 12)) or 1e-9
+    ident = lab["identification"]
+    kept = closed_form_reduction(robot).kept
+    eps_true, mount = np.array(truth["errors"]), np.array(truth["T_link5_cam"])
+    crb = crb_base_pose(robot, eps_true, kept, ident.covariance, mount, central.project, T_site_b2, views, X_site,
+                        central.size, sigma_px, sigma_enc)
+    mc = mc_ideal_estimator(robot, eps_true, kept, ident.covariance, mount, central, T_site_b2, views, names, X_site,
+                            sigma_px, EncoderModel(**enc), np.random.default_rng([cfg["seed"], 13]),
+                            cfg["bound"]["mc_trials"], cfg["pipeline"]["method"], ransac)
+    out.update({"base_pos_bound_mm": crb["pos_bound_m"] * 1e3, "base_rot_bound_deg": np.rad2deg(crb["rot_bound_rad"]),
+                "base_pos_bound_mc_mm": mc["pos_rms_m"] * 1e3, "base_rot_bound_mc_deg": np.rad2deg(mc["rot_rms_rad"]),
+                "bound_observations": float(crb["observations"])})
+    return out
 
 
 def _score_task(cfg, ds, truth, report, robot):
@@ -495,7 +579,7 @@ def calibrate_lab(ds, robot, cfg, out):
     write_calibrated_robot(out / "robot.yaml", ds.robot_path, robot, eps_hat, he.T_mount_cam,
                            notes=f"identified from {len(ds.tracker['q'])} tracker points; mount from {len(used)} rig "
                                  "views (AX = XB)")
-    return {"eps": eps_hat, "camera": cal, "mount": he, "rig_views_used": len(used),
+    return {"eps": eps_hat, "identification": ident, "camera": cal, "mount": he, "rig_views_used": len(used),
             "timings": {"arm_calibration_s": t_arm, "camera_calibration_s": t_cam,
                         "mount_calibration_s": time.perf_counter() - t0 - t_arm - t_cam}}
 
@@ -514,15 +598,16 @@ def run(cfg, out_dir, verbose=True):
     lab = calibrate_lab(ds, robot, cfg, out_dir / "calibrated")
     camera_path, robot_path = _oracle_files(cfg, ds, robot, out_dir)
     p = cfg["pipeline"]
+    truth = yaml.safe_load((ds_dir / "truth" / "truth.yaml").read_text())  # the evaluator's
+    features_fn = _perfect_features(cfg, robot, truth) if cfg["sources"]["features"] == "perfect" else None
     details = {}
+    ransac = dict(iterations=p["ransac_iterations"], d_r=p["d_r_mm"] * 1e-3, r_lim=p["r_lim"])
     res, report = locate_dataset(ds_dir, out_dir, method=p["method"], seed=cfg["seed"],
                                  config=MapConfig(), verbose=False, camera_path=camera_path,
-                                 robot_path=robot_path, refine=p["refine"],
-                                 ransac=dict(iterations=p["ransac_iterations"], d_r=p["d_r_mm"] * 1e-3,
-                                             r_lim=p["r_lim"]), details=details)
+                                 robot_path=robot_path, refine=p["refine"], ransac=ransac, details=details,
+                                 features_fn=features_fn)
 
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
-    truth = yaml.safe_load((ds_dir / "truth" / "truth.yaml").read_text())
     T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
     metrics = dict(checks)
     metrics["map_points"] = float(report["map_points"])
@@ -540,6 +625,15 @@ def run(cfg, out_dir, verbose=True):
         metrics["base_pos_err_mm"] = metrics["base_rot_err_deg"] = float("nan")
     task_metrics, reached = _score_task(cfg, ds, truth, report, robot)
     metrics.update(task_metrics)
+    if cfg["bound"]["enabled"] and "map" in details and len(details["map"]) >= 3:
+        t_b = time.perf_counter()
+        metrics.update(_bound(cfg, robot, truth, lab, details, ransac))
+        metrics["bound_s"] = time.perf_counter() - t_b
+        for q in ("pos", "rot"):  # efficiency of this run: bound / achieved (over seeds: RMS bound / RMS error)
+            b, e = metrics.get(f"base_{q}_bound_{'mm' if q == 'pos' else 'deg'}"), metrics.get(
+                f"base_{q}_err_{'mm' if q == 'pos' else 'deg'}")
+            if b is not None and e is not None and e > 0:
+                metrics[f"base_{q}_efficiency"] = b / e
     cam_true = np.array(truth["camera_K_effective"])
     metrics["focal_err_pct"] = float(abs(lab["camera"].K[0, 0] / cam_true[0, 0] - 1) * 100)
     metrics["reproj_rms_px"] = float(lab["camera"].rms_px)

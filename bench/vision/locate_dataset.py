@@ -31,13 +31,18 @@ from bench.vision.features import detect_sift
 from bench.vision.insitu import MapConfig, ViewObservation, build_map, locate, locate_pnp
 
 
-def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0) -> ViewObservation:
-    """Detect SIFT in a dataset view, normalise its keypoints, and pose it through the calibrated kinematics."""
-    img = view.image(expected_size=camera.size)
+def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0, features_fn=None) -> ViewObservation:
+    """Detect SIFT in a dataset view, normalise its keypoints, and pose it through the calibrated kinematics.
+
+    ``features_fn(view) -> Features`` replaces the SIFT detector (e.g. an evaluator's ideal features); default SIFT.
+    """
     q = robot.check_q(view.q, f"joints.csv ({view.name})")
     if np.any(q < robot.q_min - 1e-9) or np.any(q > robot.q_max + 1e-9):
         raise ConfigError("joints.csv", view.name, "joint readings outside the joint limits")
-    f = detect_sift(img, max_features=max_features)
+    if features_fn is None:
+        f = detect_sift(view.image(expected_size=camera.size), max_features=max_features)
+    else:
+        f = features_fn(view)
     x_n = camera.undistort_pixels(f.uv) if len(f) else np.empty((0, 2))
     return ViewObservation(view.name, f, x_n, link5_frame(robot, q, eps) @ T_link5_cam)
 
@@ -60,13 +65,14 @@ def _retarget_tasks(ds, robot, eps, T_site_base, q_now) -> dict:
 
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
                    seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine: bool = True,
-                   ransac: dict | None = None, details: dict | None = None):
+                   ransac: dict | None = None, details: dict | None = None, features_fn=None):
     """Build the map from the survey views and locate the base from the two ``locate`` views.
 
     ``camera_path`` / ``robot_path`` replace the dataset's own files (e.g. the results of an earlier calibration);
     ``ransac`` passes ``iterations``, ``d_r`` (m), ``r_lim`` to :func:`~bench.vision.insitu.locate`. A ``details``
     dict, if given, receives the intermediate objects (``map``, ``observations``, ``camera``, ``robot``, ``eps``,
-    ``T_link5_cam``) for inspection and visualisation.
+    ``T_link5_cam``) for inspection and visualisation. ``features_fn`` replaces the SIFT detector (see
+    :func:`observe`).
     Returns ``(LocateResult, report dict)``; writes ``out/locate.json`` when ``out`` is given.
     """
     t0 = time.perf_counter()
@@ -92,7 +98,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         raise ConfigError(ds.root / "manifest.yaml", "views", f"expected {1 if pnp else 2} views with role 'locate', "
                                                               f"found {len(roles['locate'])}")
     roles["locate"] = roles["locate"][: 1 if pnp else 2]
-    obs = {v.name: observe(v, camera, robot, eps, T_link5_cam) for r in roles.values() for v in r}
+    obs = {v.name: observe(v, camera, robot, eps, T_link5_cam, features_fn=features_fn)
+           for r in roles.values() for v in r}
     t_detect = time.perf_counter() - t0
     kmap = build_map(obs[roles["reference"][0].name], [obs[v.name] for v in roles["surround"]], config)
     t_map = time.perf_counter() - t0 - t_detect

@@ -14,7 +14,7 @@ from bench.scenario.runner import load_scenario, run_scenario_file  # noqa: E402
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO = ROOT / "scenarios" / "ta40_in_situ_manifold.yaml"
 SMOKE = ["camera.supersample=1", "lab.rig_views=7", "lab.tracker_poses=60", "outputs.cache=false",
-         "survey.offsets_mm=[[130, 0], [-130, 0], [0, 130], [0, -130]]"]
+         "survey.offsets_mm=[[130, 0], [-130, 0], [0, 130], [0, -130]]", "bound.mc_trials=4"]
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +36,10 @@ def test_smoke_accuracy(smoke_run):
     # smoke-size campaign: the full-size targets (2 mm, 0.05 deg over 20 seeds) are `make reproduce`'s business
     assert m["base_pos_err_mm"] < 10 and m["base_rot_err_deg"] < 0.3
     assert m["base_pos_err_mm"] < 5 * m["base_pos_std_mm"] + 1.0  # consistent with the reported uncertainty
+    # the bound: measured SIFT noise is sub-pixel; the ideal estimator cannot beat the Cramér-Rao bound by much
+    assert 0.005 < m["keypoint_sigma_px"] < 1.0 and m["keypoint_sigma_matches"] > 100
+    assert 0 < m["base_pos_bound_mm"] < m["base_pos_bound_mc_mm"] * 3 and 0 < m["base_rot_bound_deg"]
+    assert m["base_pos_efficiency"] == pytest.approx(m["base_pos_bound_mm"] / m["base_pos_err_mm"])
     # the taught valve task: re-targeted from the located base it lands within millimetres; replayed blindly it misses
     assert m["valve_tool_err_mm"] < 3.0 and m["valve_tool_err_uncompensated_mm"] > 10 * m["valve_tool_err_mm"]
     assert set(res) == {"scenario", "seed", "metrics", "tables", "timings_s", "artifacts"}
@@ -120,3 +124,13 @@ def test_recording_loads_back_with_the_run_s_values(smoke_run):
     assert int(np.sum(colors == green)) == m["inliers"]
     assert "/world/task/valve" in e and "/world/task/arm_compensated" in e and "/summary" in e
     assert len(e["/world/arm/true"]["LineStrips3D:strips"]) == len(views)
+
+
+def test_every_error_source_off_is_exact(tmp_path):
+    """The budget's floor: perfect features, optics model, kinematics and encoders leave no error at all (the whole
+    chain - survey map, RANSAC, alignment, refinement, task re-targeting - is exact on exact data)."""
+    perfect = [f"sources.{k}=perfect" for k in ("features", "camera", "kinematics", "encoders")]
+    path = run_scenario_file(SCENARIO, out=tmp_path / "run", seed=3, verbose=False, quiet=True,
+                             overrides=SMOKE + perfect + ["bound.enabled=false", "outputs.rerun=false"])
+    m = json.loads(Path(path).read_text())["metrics"]
+    assert m["base_pos_err_mm"] < 1e-6 and m["base_rot_err_deg"] < 1e-7 and m["valve_tool_err_mm"] < 1e-6

@@ -1,0 +1,128 @@
+"""``bench budget``: which error source ate the accuracy? The scenario re-run with one source switched off at a time.
+
+A scenario kind declares its error sources in ``BUDGET`` (``{source: {key: value}}``, the overrides that make that
+source perfect - e.g. ``sources.features: perfect``), the metrics to budget in ``BUDGET_METRICS`` and the overrides
+that every budget run takes in ``BUDGET_FIXED`` (e.g. no rerun recording). For every variant - all sources real
+(``full``), each source perfect in turn, and all perfect (``none``, the floor) - a resumable sweep over the same seeds
+runs in ``DIR/<variant>/`` (:mod:`bench.scenario.sweep`; renders are shared through the cache). Then, per metric,
+with RMS over seeds::
+
+    budget_<source> = sqrt(max(0, RMS_full^2 - RMS_without_source^2))
+
+the part of the final error that the source explains (errors of independent sources add in quadrature; the sum of
+the budgets' squares next to ``RMS_full^2`` shows how far that holds). The primary metric's budgets are reported as
+``budget_<source>_<unit>`` (``budget_features_mm`` ...), the others as ``budget_<source>_<metric>``.
+``DIR/result.json`` (the result contract), ``budget.csv`` and ``budget.png`` (a bar chart) are written.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from bench.errors import ConfigError
+from bench.scenario.results import write_result, write_table_csv
+
+
+def _rms(values) -> float:
+    v = np.array([x for x in values if x is not None and np.isfinite(x)], dtype=float)
+    return float(np.sqrt(np.mean(v**2))) if len(v) else float("nan")
+
+
+def run_budget(scenario, seeds: list, out, backend: str = "local", address=None, workers=None,
+               fixed: dict | None = None, progress: bool = True) -> dict:
+    """Run (or resume) the budget of ``scenario`` over ``seeds``; returns ``{"result": path, "metrics": {...}}``."""
+    from bench.scenario.runner import kind_module
+    from bench.scenario.schema import load_yaml
+    from bench.scenario.sweep import run_sweep
+
+    scenario = Path(scenario)
+    kind = load_yaml(scenario).get("kind")
+    module = kind_module(kind, scenario)
+    if not hasattr(module, "BUDGET"):
+        raise ConfigError(scenario, "kind", f"scenario kind {kind!r} declares no error sources to budget")
+    sources = module.BUDGET
+    metrics = module.BUDGET_METRICS
+    variants = {"full": {}, **{s: dict(o) for s, o in sources.items()},
+                "none": {k: v for o in sources.values() for k, v in o.items()}}
+    out = Path(out)
+    rows = {}
+    for name, overrides in variants.items():
+        if progress:
+            print(f"variant {name}: {overrides or 'every source real'}")
+        base = {**getattr(module, "BUDGET_FIXED", {}), **(fixed or {}), **overrides}
+        res = run_sweep(scenario, [], seeds, out / name, backend, address, workers, progress=progress, fixed=base)
+        done = _rows(out / name / "sweep.sqlite")
+        rows[name] = done
+        if res["errors"] and progress:
+            print(f"  {len(res['errors'])} runs failed, e.g. {res['errors'][0]}")
+    table, budget_table, result_metrics = budget_from_rows(rows, list(sources), metrics)
+    write_table_csv(out / "variants.csv", table)
+    write_table_csv(out / "budget.csv", budget_table)
+    plot = _plot(budget_table, metrics, table, out / "budget.png", scenario.stem)
+    path = write_result(out, f"budget:{scenario.stem}", int(seeds[0]) if seeds else 0, result_metrics,
+                        {"variants": table, "budget": budget_table}, {},
+                        {"variants": "variants.csv", "budget": "budget.csv", "plot": Path(plot).name,
+                         **{f"sweep_{v}": f"{v}/sweep.sqlite" for v in variants}})
+    return {"result": str(path), "metrics": result_metrics, "table": budget_table}
+
+
+def budget_from_rows(rows: dict, sources: list, metrics: list) -> tuple:
+    """The budget from finished runs: ``rows = {variant: [{"metrics": {...}}, ...]}`` with variants ``full``, each
+    source and ``none``; returns ``(variants table, budget table, result metrics)`` (see the module docstring)."""
+    variants = ["full", *sources, "none"]
+    table = {"variant": variants, "runs": [len(rows[v]) for v in variants]}
+    for m in metrics:
+        table[f"rms_{m}"] = [_rms(r["metrics"].get(m) for r in rows[v]) for v in variants]
+    result_metrics = {}
+    primary, unit = metrics[0], metrics[0].rsplit("_", 1)[-1]
+    budget_table = {"source": list(sources)}
+    for m in metrics:
+        full = table[f"rms_{m}"][0]
+        col = []
+        for i, s in enumerate(sources, start=1):
+            without = table[f"rms_{m}"][i]
+            ok = np.isfinite(full) and np.isfinite(without)
+            col.append(float(np.sqrt(max(0.0, full**2 - without**2))) if ok else float("nan"))
+            result_metrics[f"budget_{s}_{unit}" if m == primary else f"budget_{s}_{m}"] = col[-1]
+        budget_table[f"budget_{m}"] = col
+        result_metrics[f"rms_full_{m}"] = full
+        result_metrics[f"rms_floor_{m}"] = table[f"rms_{m}"][-1]
+        result_metrics[f"budget_quadrature_sum_{m}"] = float(np.sqrt(np.nansum(np.square(col))))
+    return table, budget_table, result_metrics
+
+
+def _rows(store_path) -> list:
+    import sqlite3
+
+    db = sqlite3.connect(store_path)
+    try:
+        cur = db.execute("SELECT metrics FROM runs WHERE status = 'done'")
+        return [{"metrics": json.loads(r[0] or "{}")} for r in cur]
+    finally:
+        db.close()
+
+
+def _plot(budget_table, metrics, table, path, title) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(metrics), figsize=(4.2 * len(metrics), 3.6), squeeze=False)
+    for ax, m in zip(axes[0], metrics, strict=True):
+        vals = budget_table[f"budget_{m}"]
+        ax.bar(budget_table["source"], vals, color="tab:blue")
+        full = table[f"rms_{m}"][0]
+        ax.axhline(full, color="k", lw=1, ls="--", label=f"RMS, all sources ({full:.3g})")
+        ax.set_ylabel(f"share of {m} (quadrature)")
+        ax.tick_params(axis="x", rotation=30)
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3, axis="y")
+    fig.suptitle(f"error budget: {title}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return str(path)

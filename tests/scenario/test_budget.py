@@ -1,0 +1,43 @@
+"""bench budget: the quadrature arithmetic, exactly, and a kind without error sources refused in one line."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.errors import ConfigError
+from bench.scenario.budget import budget_from_rows, run_budget
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _rows(values, metric="err_mm"):
+    return [{"metrics": {metric: v}} for v in values]
+
+
+def test_independent_sources_add_in_quadrature():
+    """Two independent sources of RMS 3 and 4: all real gives RMS 5; switching one off leaves the other."""
+    rng = np.random.default_rng(5)
+    a, b = rng.normal(size=20000), rng.normal(size=20000)
+    a, b = 3 * a / np.sqrt(np.mean(a**2)), 4 * b / np.sqrt(np.mean(b**2))
+    b -= a * np.mean(a * b) / np.mean(a * a)  # exactly uncorrelated samples
+    b *= 4 / np.sqrt(np.mean(b**2))
+    rows = {"full": _rows(a + b), "x": _rows(b), "y": _rows(a), "none": _rows(np.zeros(3))}
+    table, budget, metrics = budget_from_rows(rows, ["x", "y"], ["err_mm"])
+    assert table["rms_err_mm"][0] == pytest.approx(5.0, rel=1e-12)
+    assert metrics["budget_x_mm"] == pytest.approx(3.0, rel=1e-12)  # what switching x off removed
+    assert metrics["budget_y_mm"] == pytest.approx(4.0, rel=1e-12)
+    assert metrics["budget_quadrature_sum_err_mm"] == pytest.approx(5.0, rel=1e-12)
+    assert metrics["rms_floor_err_mm"] == 0.0 and budget["source"] == ["x", "y"]
+
+
+def test_a_source_that_does_not_matter_gets_zero_and_failed_runs_are_skipped():
+    rows = {"full": _rows([1.0, 1.0, None]), "x": _rows([1.0, 1.0, float("nan")]), "none": _rows([0.0])}
+    _, _, metrics = budget_from_rows(rows, ["x"], ["err_mm"])
+    assert metrics["budget_x_mm"] == 0.0  # never negative, even if switching x off made it no better
+
+
+def test_kind_without_sources_is_a_one_line_error(tmp_path):
+    with pytest.raises(ConfigError, match="declares no error sources to budget"):
+        run_budget(ROOT / "scenarios" / "tracker_base_frame.yaml", [0], tmp_path / "b", progress=False)
+    assert not (tmp_path / "b").exists()
