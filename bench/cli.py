@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from bench.errors import BenchError
@@ -203,6 +204,12 @@ def main(argv=None) -> int:
         return 0
     except BenchError as exc:
         print(f"bench: error: {exc}", file=sys.stderr)
+        return 2
+    except (ValueError, OSError) as exc:  # bad input caught by a library check: one line, not a traceback
+        if os.environ.get("BENCH_DEBUG"):
+            raise
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"bench: error: {msg} (BENCH_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("bench: interrupted", file=sys.stderr)

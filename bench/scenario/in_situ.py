@@ -108,7 +108,8 @@ def _vec(cfg, key, n):
     return np.array(v, dtype=float)
 
 
-def _check(cfg):
+def validate(cfg) -> None:
+    """Value checks beyond the schema (one-line ConfigError naming the key); also run by ``bench sweep`` up front."""
     src = cfg["_file"]
     for key in ("camera.supersample", "lab.tracker_poses", "lab.rig_views", "survey.directions",
                 "site.parking_attempts"):
@@ -238,7 +239,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     from bench.sim.scenes.rig import calibration_rig
     from bench.sim.views import look_at
 
-    _check(cfg)
+    validate(cfg)
     t0 = time.perf_counter()
     rng = np.random.default_rng(cfg["seed"])
     robot = load_robot(Path(cfg["_file"]).parent / cfg["robot"])
@@ -586,7 +587,7 @@ def calibrate_lab(ds, robot, cfg, out):
 
 def run(cfg, out_dir, verbose=True):
     """Render (cached) the campaign, run the pipeline on the dataset, score against the truth, write result.json."""
-    _check(cfg)
+    validate(cfg)
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
     ds_dir = out_dir / "dataset"

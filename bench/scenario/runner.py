@@ -39,10 +39,18 @@ def load_scenario(path, seed=None, overrides=()) -> dict:
 def run_scenario_file(path, out=None, seed=None, overrides=(), verbose=True, quiet=False):
     """Run one scenario; returns the path of ``result.json`` (``quiet``: print nothing, e.g. in sweep workers)."""
     cfg = load_scenario(path, seed, overrides)
-    out_dir = Path(out) if out else Path("runs") / cfg["name"]
-    out_dir.mkdir(parents=True, exist_ok=True)
     module = kind_module(cfg["kind"])
-    result_path = module.run(cfg, out_dir, verbose=verbose)
+    if hasattr(module, "validate"):  # the kind's value checks, before anything is created
+        module.validate(cfg)
+    out_dir = Path(out) if out else Path("runs") / cfg["name"]
+    created = not out_dir.exists()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        result_path = module.run(cfg, out_dir, verbose=verbose)
+    except BaseException:
+        if created and not any(out_dir.iterdir()):  # a failed run leaves no empty folder behind
+            out_dir.rmdir()
+        raise
     if verbose:
         print(f"wrote {result_path}")
     elif not quiet:

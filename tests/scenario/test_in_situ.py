@@ -134,3 +134,13 @@ def test_every_error_source_off_is_exact(tmp_path):
                              overrides=SMOKE + perfect + ["bound.enabled=false", "outputs.rerun=false"])
     m = json.loads(Path(path).read_text())["metrics"]
     assert m["base_pos_err_mm"] < 1e-6 and m["base_rot_err_deg"] < 1e-7 and m["valve_tool_err_mm"] < 1e-6
+
+
+def test_bad_value_leaves_no_output_folder(tmp_path, capsys):
+    from bench.cli import main
+
+    out = tmp_path / "never"
+    assert main(["run", str(SCENARIO), "--out", str(out), "--set", "lab.tracker_sigma_mm=-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "lab.tracker_sigma_mm: must be > 0" in err[0]
+    assert not out.exists()
