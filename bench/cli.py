@@ -153,6 +153,8 @@ def _sweep(args) -> None:
     print(f"{res['rows']} finished runs in {res['store']}; summary {res['summary']}")
     for p in res["plots"]:
         print(f"plot {p}")
+    if res.get("recording"):
+        print(f"rerun recording {res['recording']}")
     for e in res["errors"]:
         print(f"failed: {e}")
 

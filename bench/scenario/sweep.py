@@ -283,12 +283,48 @@ def summarise(rows: list, keys: list, out: Path) -> dict:
                 (np.nan,) * 5
             for s, v in zip(("median", "q25", "q75", "min", "max"), stats, strict=True):
                 table[f"{m}_{s}"].append(float(v))
+        for m, b in _bound_pairs(metrics):  # efficiency: RMS bound / RMS achieved error over the seeds
+            err = np.array([r["metrics"][m] for r in rs if r["metrics"].get(m) is not None], dtype=float)
+            bnd = np.array([r["metrics"][b] for r in rs if r["metrics"].get(b) is not None], dtype=float)
+            eff = np.sqrt(np.mean(bnd**2)) / np.sqrt(np.mean(err**2)) if len(err) and len(bnd) else np.nan
+            table.setdefault(f"{m}_rms", []).append(float(np.sqrt(np.mean(err**2))) if len(err) else np.nan)
+            table.setdefault(f"{b}_rms", []).append(float(np.sqrt(np.mean(bnd**2))) if len(bnd) else np.nan)
+            table.setdefault(f"{m}_efficiency", []).append(float(eff))
     write_table_csv(out / "summary.csv", table)
-    plots = []
+    plots, recording = [], None
     if keys and metrics and all(_is_number(v) for v in table[keys[0]]):
         plots = _plot(table, keys, metrics, out)
+        recording = _record(table, keys, metrics, out)
     return {"store": str(out / "sweep.sqlite"), "summary": str(out / "summary.csv"), "plots": plots,
-            "rows": len(rows), "table": table}
+            "recording": recording, "rows": len(rows), "table": table}
+
+
+def _bound_pairs(metrics) -> list:
+    """``(error metric, its bound)`` pairs by name: ``x_err_y`` and ``x_bound_y`` (e.g. ``base_pos_err_mm``)."""
+    names = set(metrics)
+    return [(m, m.replace("_err_", "_bound_", 1)) for m in metrics if "_err_" in m
+            and m.replace("_err_", "_bound_", 1) in names]
+
+
+def _record(table, keys, metrics, out) -> str:
+    """``sweep.rrd``: the median of every metric (and its bound) over the first swept key, in rerun."""
+    from bench.scenario.recording import Recording
+
+    key = keys[0]
+    xs = table[key]
+    integer = all(float(v).is_integer() for v in xs)
+    others = list(zip(*(table[k] for k in keys[1:]), strict=True)) if len(keys) > 1 else [()] * len(xs)
+    with Recording(out / "sweep.rrd", "bench sweep", f"sweep-{out.name}") as rec:
+        rec.text("summary", f"# sweep over {key}\n\nmedian over seeds of every metric; timeline `{key}`"
+                            + ("" if integer else " (grid index; the value is logged as `sweep/value`)"))
+        for i, (x, other) in enumerate(zip(xs, others, strict=True)):
+            rec.set_time(key, int(x) if integer else i)
+            if not integer:
+                rec.scalar("sweep/value", x)
+            suffix = "/".join(f"{k}={v}" for k, v in zip(keys[1:], other, strict=True))
+            for m in metrics:
+                rec.scalar(f"metrics/{m}" + (f"/{suffix}" if suffix else ""), table[f"{m}_median"][i])
+    return str(out / "sweep.rrd")
 
 
 def _sort_key(v):
@@ -308,6 +344,7 @@ def _plot(table, keys, metrics, out):
     x = np.array(table[keys[0]], dtype=float)
     others = list(zip(*(table[k] for k in keys[1:]), strict=True)) if len(keys) > 1 else [()] * len(x)
     paths = []
+    bounds = dict(_bound_pairs(metrics))
     for m in metrics:
         fig, ax = plt.subplots(figsize=(6, 4))
         for label in sorted(set(others), key=str):
@@ -318,8 +355,12 @@ def _plot(table, keys, metrics, out):
             lo = np.array(table[f"{m}_q25"])[sel][idx]
             hi = np.array(table[f"{m}_q75"])[sel][idx]
             name = ", ".join(f"{k}={v}" for k, v in zip(keys[1:], label, strict=True)) or "median"
-            ax.plot(xs, med, "o-", label=name)
-            ax.fill_between(xs, lo, hi, alpha=0.2)
+            line, = ax.plot(xs, med, "o-", label=name)
+            ax.fill_between(xs, lo, hi, alpha=0.2, color=line.get_color())
+            bound = bounds.get(m)
+            if bound:  # the lower bound from the simulation's noise, beside the achieved error
+                ax.plot(xs, np.array(table[f"{bound}_median"])[sel][idx], "--", color=line.get_color(),
+                        label=f"{name}: bound ({bound})")
         ax.set_xlabel(keys[0])
         ax.set_ylabel(m)
         ax.set_title(f"{m}: median and interquartile range over seeds")

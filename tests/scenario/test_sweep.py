@@ -122,3 +122,23 @@ def test_ray_backend_gives_the_same_rows(tmp_path):
 
     a, b = accuracy(tmp_path / "local" / "sweep.sqlite"), accuracy(tmp_path / "ray" / "sweep.sqlite")
     assert a == b and all(len(m) > 5 for m in a.values())
+
+
+def test_summary_efficiency_bound_on_plots_and_recording(tmp_path):
+    """summarise: RMS-based efficiency of every (x_err_y, x_bound_y) pair, and sweep.rrd holds the medians over the
+    swept key (read back with rerun's reader)."""
+    from bench.scenario.recording import load_entities
+    from bench.scenario.sweep import summarise
+
+    rows = []
+    for d in (20, 50):
+        for err, bound in ((3.0, 1.0), (4.0, 2.0), (5.0, 1.0)):
+            rows.append({"params": {"d_mm": d}, "metrics": {"pos_err_mm": err * 20 / d, "pos_bound_mm": bound}})
+    res = summarise(rows, ["d_mm"], tmp_path)
+    t = res["table"]
+    assert t["d_mm"] == [20, 50] and t["pos_err_mm_median"] == [4.0, 1.6]
+    assert t["pos_err_mm_efficiency"][0] == pytest.approx(np.sqrt(2.0) / np.sqrt(50 / 3))
+    e = load_entities(res["recording"])
+    assert [v[0] for v in e["/metrics/pos_err_mm"]["Scalars:scalars"]] == pytest.approx([4.0, 1.6])
+    assert [v[0] for v in e["/metrics/pos_bound_mm"]["Scalars:scalars"]] == pytest.approx([1.0, 1.0])
+    assert (tmp_path / "sweep_pos_err_mm.png").is_file()
