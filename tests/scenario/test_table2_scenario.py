@@ -53,6 +53,9 @@ def test_realistic_case_is_plausible(smoke_result):
     assert 5 < m["heldout_rms_mm_uncalibrated"] < 100
     assert m["heldout_rms_mm_calibrated"] < 0.1  # sigma = 0.05 mm; the benchmark reports the exact figure
     assert 0.5 < m["mc_std_ratio_median"] < 1.5
+    # the Cramér-Rao bound of the held-out error: LM reaches it (10 draws: the RMS of 10 is within ~25 %)
+    assert 0.015 < m["heldout_rms_bound_mm"] < 0.05
+    assert 0.7 < m["mc_heldout_efficiency"] < 1.3
     assert m["link5_rot_err_range_deg"] < 1e-9 < m["ee_rot_err_range_deg"]
 
 
