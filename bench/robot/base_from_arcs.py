@@ -412,6 +412,112 @@ def base_frame_accuracy(arc1_tracker, arc2_tracker, q1_during_arc2, q1_arc1, q2_
     raise ValueError(f"method: expected 'linear' or 'monte_carlo', got {method!r}")
 
 
+def _circle_basis(normal):
+    """Orthonormal in-plane axes ``(u, v)`` with ``u x v = normal``."""
+    a = np.eye(3)[int(np.argmin(np.abs(normal)))]
+    u = np.cross(normal, a)
+    u /= np.linalg.norm(u)
+    return u, np.cross(normal, u)
+
+
+def _arc_points(theta, basis, phi):
+    """Points of a circle: ``theta = (c (3), tilt (2), r, [phi0])``, tilt rotating the plane about u and v."""
+    u0, v0, n0 = basis
+    c, (a, b), r = theta[:3], theta[3:5], theta[5]
+    R = Rotation.from_rotvec(a * u0 + b * v0).as_matrix()
+    u, v = R @ u0, R @ v0
+    ph = phi + (theta[6] if len(theta) > 6 else 0.0)
+    return c + r * (np.cos(ph)[:, None] * u + np.sin(ph)[:, None] * v)
+
+
+def base_frame_bound(arc1_tracker, arc2_tracker, q1_during_arc2, q1_arc1, q2_arc2, robot: Robot, sigma_m: float,
+                     *, readings: bool = True, step: float = 1e-7) -> BaseFrameAccuracy:
+    """Cramér-Rao bound of the base frame from two tracker arcs with noise ``sigma_m`` (m, per axis).
+
+    Measurement model: the points of arc k lie on a circle (centre, plane tilt, radius: 6 parameters) at angles
+    ``phi_i``; the base frame is a function of the two circles (the axes through their centres, Eq. 45 and 107-117,
+    and the joint-1 reading for x0), so by the invariance of maximum likelihood its bound is ``G I^-1 G^T`` with
+    ``I`` the circles' Fisher information (the angles eliminated as nuisance parameters) and ``G`` the derivative of
+    :func:`base_frame_from_arcs` on exact arcs with respect to the circle parameters (central differences, ``step``).
+
+    ``readings=True``: the joint readings along the arcs give every angle up to one unknown offset per arc (the
+    information a simulation with exact encoders holds; the circle fit of section 2.9 does not use it);
+    ``readings=False``: the angles are free (geometry alone - the information the circle fit uses). Evaluated at the
+    fitted circles of the measured arcs (at the truth in a simulation: pass the noise-free arcs).
+
+    Returns
+    -------
+    BaseFrameAccuracy
+        ``method`` ``"cramer_rao"`` (readings) or ``"cramer_rao_geometry"``; covariance of
+        :func:`pose_deviation` ``[dt, dphi]``.
+    """
+    if not (isinstance(sigma_m, (int, float)) and np.isfinite(sigma_m) and sigma_m > 0):
+        raise ValueError(f"sigma_m: expected a tracker noise > 0 (m), got {sigma_m!r}")
+    ref = base_frame_from_arcs(arc1_tracker, arc2_tracker, q1_during_arc2, q1_arc1, q2_arc2, robot)
+    if not ref.success:
+        raise ValueError(f"arc1_tracker, arc2_tracker: the base frame cannot be estimated ({ref.message})")
+    thetas, bases, phis, infos = [], [], [], []
+    for pts, circle, q in ((arc1_tracker, ref.circle1, q1_arc1), (arc2_tracker, ref.circle2, q2_arc2)):
+        u, v = _circle_basis(circle.normal)
+        basis = (u, v, circle.normal)
+        d = np.asarray(pts, float) - circle.center
+        phi = np.arctan2(d @ v, d @ u)
+        if readings:  # angles = readings (sign as the arc turns) + one offset
+            sgn = np.sign(np.polyfit(np.asarray(q, float), np.unwrap(phi), 1)[0]) or 1.0
+            phi_fixed = sgn * (np.asarray(q, float) - q[0])
+            offset = float(np.mean(np.unwrap(phi) - phi_fixed))
+            theta = np.r_[circle.center, 0.0, 0.0, circle.radius, offset]
+        else:
+            phi_fixed, theta = np.unwrap(phi), np.r_[circle.center, 0.0, 0.0, circle.radius]
+        # Fisher information of (theta, free angles): J^T J / sigma^2, then the angles' Schur complement
+        n_th = len(theta)
+        cols = []
+        for k in range(n_th):
+            e = np.zeros(n_th)
+            e[k] = step
+            cols.append(((_arc_points(theta + e, basis, phi_fixed) - _arc_points(theta - e, basis, phi_fixed))
+                         / (2 * step)).ravel())
+        J = np.array(cols).T
+        if not readings:  # d p_i / d phi_i: tangent of the circle at each point, rows of point i only
+            t = np.zeros((3 * len(phi_fixed), len(phi_fixed)))
+            p_plus = _arc_points(theta, basis, phi_fixed + step)
+            p_minus = _arc_points(theta, basis, phi_fixed - step)
+            for i in range(len(phi_fixed)):
+                t[3 * i:3 * i + 3, i] = (p_plus[i] - p_minus[i]) / (2 * step)
+            J = np.hstack([J, t])
+        info = J.T @ J / sigma_m**2
+        A, B, C = info[:n_th, :n_th], info[:n_th, n_th:], info[n_th:, n_th:]
+        infos.append(A - B @ np.linalg.solve(C, B.T) if B.shape[1] else A)
+        thetas.append(theta)
+        bases.append(basis)
+        phis.append(phi_fixed)
+
+    def frame(th1, th2):
+        a1 = _arc_points(th1, bases[0], phis[0])
+        a2 = _arc_points(th2, bases[1], phis[1])
+        r = base_frame_from_arcs(a1, a2, q1_during_arc2, q1_arc1, q2_arc2, robot)
+        if not r.success:
+            raise ValueError(f"step: perturbing the circles by {step:g} breaks the fit ({r.message})")
+        return r.T_tracker_base
+
+    T0 = frame(*thetas)
+    n1 = len(thetas[0])
+    x0 = np.concatenate(thetas)
+    G = np.empty((6, len(x0)))
+    for k in range(len(x0)):
+        devs = []
+        for sgn in (1.0, -1.0):
+            x = x0.copy()
+            x[k] += sgn * step
+            devs.append(pose_deviation(frame(x[:n1], x[n1:]), T0))
+        G[:, k] = (devs[0] - devs[1]) / (2 * step)
+    cov_theta = np.zeros((len(x0), len(x0)))
+    cov_theta[:n1, :n1] = np.linalg.inv(infos[0])
+    cov_theta[n1:, n1:] = np.linalg.inv(infos[1])
+    cov = G @ cov_theta @ G.T
+    return _accuracy_from_cov(0.5 * (cov + cov.T), "cramer_rao" if readings else "cramer_rao_geometry")
+
+
 def true_axes(robot: Robot, eps, T_tracker_base, q1_during_arc2: float, form: str = "exact"):
     """The actual joint-1 and joint-2 axes of an arm with errors ``eps`` (Eq. 10), in tracker coordinates.
 

@@ -27,6 +27,7 @@ from bench.errors import ConfigError
 from bench.geometry.transforms import homogeneous, random_transform, rot_z, rotation_angle
 from bench.robot.base_from_arcs import (
     base_frame_accuracy,
+    base_frame_bound,
     base_frame_from_arcs,
     pose_deviation,
     simulate_arcs,
@@ -119,8 +120,9 @@ def _errors(T_est, T_ref):
 
 def _cell(robot, clean, T_true, sigma, trials, rng):
     """Monte Carlo over tracker noise for one (sigma, span) cell; linear prediction at the clean arcs."""
-    pred = base_frame_accuracy(clean.arc1_tracker, clean.arc2_tracker, clean.q1_during_arc2, clean.q1_arc1,
-                               clean.q2_arc2, robot, sigma)
+    args = (clean.arc1_tracker, clean.arc2_tracker, clean.q1_during_arc2, clean.q1_arc1, clean.q2_arc2, robot, sigma)
+    pred = base_frame_accuracy(*args)
+    bound, geometry = base_frame_bound(*args), base_frame_bound(*args, readings=False)
     pos, rot, failed = [], [], 0
     for _ in range(trials):
         r = base_frame_from_arcs(clean.arc1_tracker + rng.normal(scale=sigma, size=clean.arc1_tracker.shape),
@@ -142,6 +144,8 @@ def _cell(robot, clean, T_true, sigma, trials, rng):
         "rot_err_deg_rms": float(np.sqrt(np.mean(rot**2))) if rot.size else nan,
         "predicted_pos_std_mm": 1e3 * pred.pos_std_m,
         "predicted_rot_std_deg": float(np.rad2deg(pred.rot_std_rad)),
+        "pos_bound_mm": 1e3 * bound.pos_std_m, "rot_bound_deg": float(np.rad2deg(bound.rot_std_rad)),
+        "pos_bound_geometry_mm": 1e3 * geometry.pos_std_m,
     }
 
 
@@ -190,6 +194,14 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     metrics["base_pos_err_mm_median"] = default_cell["pos_err_mm_median"]
     metrics["base_rot_err_deg_median"] = default_cell["rot_err_deg_median"]
     metrics["pos_rms_over_predicted"] = default_cell["pos_err_mm_rms"] / default_cell["predicted_pos_std_mm"]
+    # Cramér-Rao (base_frame_bound): with the joint readings along the arcs (all the simulation's information), and
+    # from the geometry alone (what the circle fit uses); efficiency = bound / RMS over the Monte Carlo
+    metrics["base_pos_bound_mm"] = default_cell["pos_bound_mm"]
+    metrics["base_rot_bound_deg"] = default_cell["rot_bound_deg"]
+    metrics["base_pos_bound_geometry_mm"] = default_cell["pos_bound_geometry_mm"]
+    metrics["base_pos_efficiency"] = default_cell["pos_bound_mm"] / default_cell["pos_err_mm_rms"]
+    metrics["base_rot_efficiency"] = default_cell["rot_bound_deg"] / default_cell["rot_err_deg_rms"]
+    metrics["base_pos_efficiency_geometry"] = default_cell["pos_bound_geometry_mm"] / default_cell["pos_err_mm_rms"]
     metrics["rot_rms_over_predicted"] = default_cell["rot_err_deg_rms"] / default_cell["predicted_rot_std_deg"]
     timings["default_campaign"] = time.perf_counter() - t0
 
@@ -197,7 +209,7 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     t0 = time.perf_counter()
     cols = ["sigma_mm", "span_deg", "n_trials", "n_failed", "pos_err_mm_median", "pos_err_mm_rms",
             "rot_err_deg_median", "rot_err_deg_rms", "predicted_pos_std_mm", "predicted_rot_std_deg",
-            "pos_rms_over_predicted"]
+            "pos_rms_over_predicted", "pos_bound_mm", "pos_bound_geometry_mm", "rot_bound_deg"]
     table = {c: [] for c in cols}
     for span in spans:
         clean_s = simulate_arcs(robot, T_true, q_start, np.deg2rad(span), np.deg2rad(span), n, eps_01_free)
@@ -242,9 +254,9 @@ def plot_accuracy(table: dict, path) -> str:
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     sig, span = np.asarray(table["sigma_mm"]), np.asarray(table["span_deg"])
-    panels = [("pos_err_mm", "predicted_pos_std_mm", "base origin error (mm)"),
-              ("rot_err_deg", "predicted_rot_std_deg", "base rotation error (deg)")]
-    for ax, (obs, pred, label) in zip(axes, panels, strict=True):
+    panels = [("pos_err_mm", "predicted_pos_std_mm", "pos_bound_mm", "base origin error (mm)"),
+              ("rot_err_deg", "predicted_rot_std_deg", "rot_bound_deg", "base rotation error (deg)")]
+    for ax, (obs, pred, bound, label) in zip(axes, panels, strict=True):
         for k, s in enumerate(sorted(set(span.tolist()))):
             sel = span == s
             order = np.argsort(sig[sel])
@@ -253,6 +265,7 @@ def plot_accuracy(table: dict, path) -> str:
             ax.plot(x, np.asarray(table[obs + "_rms"])[sel][order], "o-", color=color, label=f"{s:g} deg: MC RMS")
             ax.plot(x, np.asarray(table[obs + "_median"])[sel][order], "s:", color=color, ms=3, lw=0.8)
             ax.plot(x, np.asarray(table[pred])[sel][order], "--", color=color, lw=1.2, label=f"{s:g} deg: predicted")
+            ax.plot(x, np.asarray(table[bound])[sel][order], ":", color=color, lw=2.0, label=f"{s:g} deg: bound")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("tracker noise sigma per axis (mm)")
@@ -260,7 +273,7 @@ def plot_accuracy(table: dict, path) -> str:
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=7, ncol=2)
     fig.suptitle("Base frame from joint-1/joint-2 arcs (section 2.9): Monte Carlo RMS (o), median (s), "
-                 "linear prediction (--)", fontsize=10)
+                 "linear prediction (--), Cramér-Rao bound with the joint readings (:)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
