@@ -28,6 +28,10 @@ reproduce: $(STAMP)
 	$(BIN)/bench run scenarios/table2_kinematic_identification.yaml --out $(OUT)/table2 --set monte_carlo.seeds=500
 	$(BIN)/bench run scenarios/tracker_base_frame.yaml --out $(OUT)/tracker_base_frame
 	$(BIN)/bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds 20 --out $(OUT)/sweep-insitu
+	$(BIN)/bench run scenarios/xy_table_webcam.yaml --out $(OUT)/xy_table_webcam
+	$(BIN)/bench run scenarios/xy_table_underwater.yaml --out $(OUT)/xy_table_underwater
+	$(BIN)/bench sweep scenarios/xy_table_webcam.yaml --seeds 20 --out $(OUT)/sweep-xy_table_webcam
+	$(BIN)/bench sweep scenarios/xy_table_underwater.yaml --seeds 20 --out $(OUT)/sweep-xy_table_underwater
 
 benchmark: $(STAMP)
 	$(BIN)/python tools/benchmark.py --out $(OUT)/benchmark.json
