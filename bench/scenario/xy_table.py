@@ -182,6 +182,29 @@ def _check(cfg):
     _ints(cfg, "pipeline.map_exclude")
 
 
+def _positions(cfg, n_rows: int) -> list:
+    """The pose numbers of ``sim.positions`` (all ``n_rows`` when empty), sorted; they must hold the reference."""
+    numbers = list(range(1, n_rows + 1))
+    chosen = _ints(cfg, "sim.positions") or numbers
+    bad = [n for n in chosen if n not in numbers]
+    if bad:
+        raise ConfigError(cfg["_file"], "sim.positions", f"pose {bad[0]} is not in {cfg['sim']['poses']} "
+                                                         f"(1..{n_rows})")
+    if cfg["pipeline"]["reference_view"] not in chosen:
+        raise ConfigError(cfg["_file"], "pipeline.reference_view",
+                          f"pose {cfg['pipeline']['reference_view']} is not among sim.positions")
+    return sorted(set(chosen))
+
+
+def validate(cfg) -> None:
+    """The kind's value checks (choices, ranges, pose numbers), before anything is created (runner, sweeps)."""
+    from bench.sim.scenes.xy_table import TABLE4_CSV, TABLE10_CSV, load_pose_table
+
+    _check(cfg)
+    path = TABLE4_CSV if cfg["sim"]["poses"] == "table4" else TABLE10_CSV
+    _positions(cfg, len(load_pose_table(path)["position"]))
+
+
 def _campaign(cfg, rng):
     """``(pose numbers, TableModel, TableRun)``: the chosen poses of Table 4 / 10 in the order visited, the table
     (random positioning errors unless ``sim.table_errors`` is false) and what it did (truth and readings)."""
@@ -196,15 +219,7 @@ def _campaign(cfg, rng):
 
     s = cfg["sim"]
     commands = table4_commands() if s["poses"] == "table4" else table10_commands()
-    numbers = list(range(1, len(commands) + 1))
-    chosen = _ints(cfg, "sim.positions") or numbers
-    bad = [n for n in chosen if n not in numbers]
-    if bad:
-        raise ConfigError(cfg["_file"], "sim.positions", f"pose {bad[0]} is not in {s['poses']} (1..{len(numbers)})")
-    if cfg["pipeline"]["reference_view"] not in chosen:
-        raise ConfigError(cfg["_file"], "pipeline.reference_view",
-                          f"pose {cfg['pipeline']['reference_view']} is not among sim.positions")
-    chosen = sorted(set(chosen))
+    chosen = _positions(cfg, len(commands))
     errors = random_table_errors(rng) if s["table_errors"] else NO_ERRORS
     model = (lab_table_model if s["poses"] == "table4" else underwater_table_model)(errors)
     return chosen, model, model.run(commands[np.array(chosen) - 1])

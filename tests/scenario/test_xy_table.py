@@ -12,7 +12,7 @@ import yaml
 pytest.importorskip("mujoco")
 
 from bench.errors import ConfigError  # noqa: E402
-from bench.scenario.runner import load_scenario, run_scenario_file  # noqa: E402
+from bench.scenario.runner import run_scenario_file  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 WEBCAM = ROOT / "scenarios" / "xy_table_webcam.yaml"
@@ -135,9 +135,7 @@ def test_truth_injection_is_labelled(tmp_path):
     ("pipeline.features=corners", "pipeline.features: corners need the rig as reference object"),
 ])
 def test_bad_scenario_keys_are_one_line_errors(override, message, tmp_path):
+    """Schema and value checks (the kind's validate()) fail before anything is rendered or created."""
     with pytest.raises(ConfigError, match=message) as exc:
-        cfg = load_scenario(WEBCAM, overrides=[override])
-        from bench.scenario.xy_table import render
-
-        render(cfg, tmp_path / "ds", verbose=False)
-    assert "\n" not in str(exc.value)
+        run_scenario_file(WEBCAM, out=tmp_path / "run", overrides=[override], verbose=False, quiet=True)
+    assert "\n" not in str(exc.value) and not (tmp_path / "run").exists()
