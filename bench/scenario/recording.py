@@ -39,9 +39,11 @@ class Recording:
         rerun application id (the scenario name).
     recording_id : str
         Identifies the run (e.g. ``"<scenario>-seed<N>"``).
+    world : {"z_up", "opencv"}
+        Axes of ``world``: z up (a site, MuJoCo's world) or OpenCV's x right, y down, z forward (the x-y table).
     """
 
-    def __init__(self, path, application_id: str, recording_id: str):
+    def __init__(self, path, application_id: str, recording_id: str, world: str = "z_up"):
         import rerun as rr
 
         self.rr = rr
@@ -50,7 +52,10 @@ class Recording:
         self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
         self.stream = rr.RecordingStream(application_id, recording_id=recording_id)
         self.stream.save(str(self._tmp))
-        self.stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        coords = {"z_up": rr.ViewCoordinates.RIGHT_HAND_Z_UP, "opencv": rr.ViewCoordinates.RDF}
+        if world not in coords:
+            raise ValueError(f"world: expected one of {', '.join(coords)}, got {world!r}")
+        self.stream.log("world", coords[world], static=True)
 
     # --- time ---------------------------------------------------------------------------------------------------------
     def set_time(self, timeline: str, value: int | float) -> None:

@@ -119,7 +119,7 @@ SCHEMA = {
         "d_r_mm": (float, 20.0),
         "r_lim": (float, 0.1),
     },
-    "outputs": {"cache": (bool, True), "plots": (bool, True)},
+    "outputs": {"cache": (bool, True), "plots": (bool, True), "rerun": (bool, True)},
 }
 
 
@@ -834,6 +834,11 @@ def run(cfg, out_dir, verbose=True):
                  "setup": "setup.csv"}
     if cfg["outputs"]["plots"] and summary["d_mm"]:
         artifacts["plot"] = plot_tables(summary, s["poses"], out_dir / "position_error_vs_intraocular.png")
+    if cfg["outputs"]["rerun"]:
+        from bench.scenario.xy_table_recording import record_xy_table
+
+        record_xy_table(out_dir / "recording.rrd", cfg, ds, truth, res, camera, summary, metrics)
+        artifacts["recording"] = "recording.rrd"
     path = write_result(out_dir, cfg["name"], cfg["seed"], metrics,
                         {"position_error_vs_intraocular": summary, "combinations": rows, "setup": setup}, timings,
                         artifacts)

@@ -139,3 +139,19 @@ def test_bad_scenario_keys_are_one_line_errors(override, message, tmp_path):
     with pytest.raises(ConfigError, match=message) as exc:
         run_scenario_file(WEBCAM, out=tmp_path / "run", overrides=[override], verbose=False, quiet=True)
     assert "\n" not in str(exc.value) and not (tmp_path / "run").exists()
+
+
+def test_recording_loads_back(webcam):
+    """The run's .rrd (table frame) holds every view's true and estimated camera, the estimates and the error over
+    the intraocular distance, equal to the result's table."""
+    from bench.scenario.recording import load_entities
+
+    out, res = webcam
+    e = load_entities(out / res["artifacts"]["recording"])
+    t = res["tables"]["position_error_vs_intraocular"]
+    rows = [i for i, m in enumerate(t["method"]) if m == "lms_ratio"]
+    logged = [v[0] for v in e["/plots/err_z_mm/lms_ratio"]["Scalars:scalars"]]
+    assert logged == pytest.approx([t["err_z_mm"][i] for i in rows])
+    views = [k for k in e if k.startswith("/world/views/") and k.endswith("/true")]
+    assert len(views) == len([k for k in e if k.startswith("/world/views/") and k.endswith("/estimated")]) > 5
+    assert "/world/estimates/lms_ratio" in e and "/world/reference" in e

@@ -1,0 +1,67 @@
+"""The rerun recording of an ``xy_table`` run, in the table frame (OpenCV axes: x right, y down, z forward).
+
+Entities: ``world/reference`` (the reference object's outline or corners, true); per view (timeline ``view``)
+``world/views/<view>/true`` (the camera at its true pose, frustum, image) and ``world/views/<view>/estimated`` (the
+pose from the readings, the nominal table and the estimated mount rotation R0); ``world/estimates/<method>`` - the
+estimated positions of every pair's camera (anchored at the true reference camera) and ``world/estimates/true`` the
+true ones; ``plots/err_<axis>_mm/<method>`` - the RMS error over the combinations on the timeline ``d_mm`` (the
+sweep axis of Tables 5-8 / 11-14, thesis values beside as ``plots/thesis_err_<axis>_mm/<method>``); ``summary``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.geometry.transforms import transform_points
+from bench.scenario.recording import GREY, Recording
+
+COLOURS = {"quaternion": (230, 120, 40), "quaternion_ratio": (240, 190, 40), "lms": (60, 120, 230),
+           "lms_ratio": (40, 200, 60)}
+
+
+def _outline(truth):
+    T = np.array(truth["T_table_reference"])
+    if truth.get("reference_corners") is not None:
+        return None, transform_points(T, np.array(truth["reference_corners"]))
+    w, h = truth["panel_size_m"]
+    c = np.array([[-w / 2, -h / 2, 0], [w / 2, -h / 2, 0], [w / 2, h / 2, 0], [-w / 2, h / 2, 0], [-w / 2, -h / 2, 0]])
+    return transform_points(T, c), None
+
+
+def record_xy_table(path, cfg, ds, truth, result, camera, summary, metrics):
+    """Write the recording of one run (see the module docstring); returns its path."""
+    K_true = np.array(truth["camera_K"])
+    size = tuple(int(v) for v in truth["camera_size"])
+    T_true = {n: np.array(T) for n, T in truth["T_table_cam"].items()}
+    with Recording(path, cfg["name"], f"{cfg['name']}-seed{cfg['seed']}", world="opencv") as rec:
+        outline, corners = _outline(truth)
+        if outline is not None:
+            rec.lines("world/reference", [outline], color=(200, 200, 200), static=True)
+        else:
+            rec.points("world/reference", corners, radius=0.003, static=True)
+        views = [v for v in ds.views if v.name in T_true]
+        for n, v in enumerate(views):
+            rec.set_time("view", n)
+            rec.camera(f"world/views/{v.name}/true", T_true[v.name], K_true, size, v.image_path, plane_distance=0.05)
+            if v.name in result.T_table_cam:
+                rec.camera(f"world/views/{v.name}/estimated", result.T_table_cam[v.name], camera.K, size,
+                           plane_distance=0.05)
+        ref = [v.name for v in views if v.role == "reference"] or [views[0].name]
+        c_ref = T_true[ref[0]][:3, 3]
+        est = {}
+        for c in result.combinations:
+            if c.success:
+                est.setdefault(c.method, []).append(c_ref + c.p_table)
+        for m, pts in est.items():
+            rec.points(f"world/estimates/{m}", np.array(pts), color=COLOURS.get(m, GREY), radius=0.002, static=True)
+        rec.points("world/estimates/true", np.array([T[:3, 3] for T in T_true.values()]), radius=0.003, static=True)
+        for i, (d, m) in enumerate(zip(summary["d_mm"], summary["method"], strict=True)):
+            rec.set_time("d_mm", int(round(d)))
+            for ax in "xyz":
+                rec.scalar(f"plots/err_{ax}_mm/{m}", summary[f"err_{ax}_mm"][i])
+                if f"thesis_err_{ax}_mm" in summary and summary[f"thesis_err_{ax}_mm"][i] is not None:
+                    rec.scalar(f"plots/thesis_err_{ax}_mm/{m}", summary[f"thesis_err_{ax}_mm"][i])
+        rows = "\n".join(f"| {k} | {v:.6g} |" for k, v in sorted(metrics.items()) if isinstance(v, float))
+        rec.text("summary", f"# {cfg['name']} (seed {cfg['seed']})\n\n{result.message}\n\n| metric | value |\n"
+                            f"|---|---|\n{rows}\n")
+    return path
