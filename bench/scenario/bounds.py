@@ -1,0 +1,328 @@
+"""Cramér-Rao bounds of camera localisation from pixels - one implementation for every scenario that finds camera
+poses from features (evaluator side: reads the truth). Used by :mod:`bench.scenario.in_situ_bound` (the TA-40's base
+pose) and :mod:`bench.scenario.xy_table_bound` (the x-y table's camera positions).
+
+* :func:`true_projector` - pixels of camera-frame points through the *true* optics (lens, and the flat port where
+  there is one): what a perfect feature detector would report.
+* :func:`ideal_features` - exact projections of a fixed set of 3D points with a unique descriptor per point (perfect
+  correspondences), optionally with Gaussian pixel noise.
+* :func:`keypoint_sigma_px` - SIFT localisation noise measured against the truth (distance from the true epipolar
+  curves); :func:`point_sigma_px` - the same for features whose true projections are known (target corners).
+* :class:`MultiViewModel` - the pixels of M 3D points in V views whose camera poses are a function of parameter
+  blocks, each block either shared by all views (a base pose, arm errors) or one per view (joint or table readings);
+  its Jacobian by block central differences: a shared block's coordinate ``c`` at once for every row, a per-view
+  block's coordinate ``c`` of every view at once (the rows of view ``v`` depend on its own parameters only), point
+  coordinate ``c`` of every point at once (the rows of point ``m`` depend on that point only).
+* :func:`reduced_information` - the Fisher information of every observed (view, point) pixel (Gaussian noise,
+  ``sigma_px`` per image axis) with the 3D points eliminated point by point (each point's 3 x 3 block: the Schur
+  complement that bundle adjustment calls the reduced camera system; every point is a free nuisance parameter).
+* :func:`crb` - that information plus the priors of the nuisance parameters (encoders, an identification, a table's
+  readout), inverted: the bound on the covariance of any unbiased estimator of the parameters, or of a function
+  ``g`` of them (``G C G^T``, ``G`` its Jacobian by :func:`function_jacobian`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.camera.model import CameraModel
+from bench.geometry.transforms import invert, transform_points
+from bench.vision.features import Features
+from bench.vision.insitu import MapConfig, ViewObservation, reference_matches
+
+DESCRIPTOR_SEED = 20061  # fixed: the same 3D point has the same descriptor in every view and every draw
+
+
+# ------------------------------------------------------------------------------------------------ the true optics
+
+
+def true_projector(camera: CameraModel, port=None):
+    """``project(p_cam (..., 3)) -> uv (..., 2)`` through the lens ``camera`` and, if given, the flat ``port``."""
+    if port is None:
+        return camera.project
+    from bench.sim.flatport import project_flatport
+
+    def project(p_cam):
+        x_n = project_flatport(p_cam, port)
+        return camera.project(np.concatenate([x_n, np.ones(x_n.shape[:-1] + (1,))], axis=-1))
+
+    return project
+
+
+def ideal_features(p_world, T_world_cam, project, size, noise_px: float = 0.0, rng=None) -> Features:
+    """Exact projections of ``p_world (M, 3)`` seen by a camera at ``T_world_cam`` (only those inside the image).
+
+    Point ``j`` always gets descriptor ``j`` (a fixed random unit vector), orientation 0 and size 10 px, so the
+    pipeline's ratio test and orientation filter match exactly the same 3D point in every view. Rows of
+    ``p_world`` that are NaN (points a view does not see) are left out of that view and keep the indices of the
+    others.
+    """
+    p_world = np.asarray(p_world, dtype=float)
+    seen = np.all(np.isfinite(p_world), axis=1)
+    uv = np.full((len(p_world), 2), np.nan)
+    uv[seen] = project(transform_points(invert(T_world_cam), p_world[seen]))
+    w, h = size
+    ok = np.all(np.isfinite(uv), axis=1)
+    ok[ok] = (uv[ok, 0] > 0) & (uv[ok, 0] < w - 1) & (uv[ok, 1] > 0) & (uv[ok, 1] < h - 1)
+    idx = np.flatnonzero(ok)
+    desc = np.random.default_rng(DESCRIPTOR_SEED).normal(size=(len(p_world), 128)).astype(np.float32)
+    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
+    uv = uv[idx]
+    if noise_px > 0:
+        uv = uv + rng.normal(0.0, noise_px, uv.shape)
+    n = len(idx)
+    return Features(uv, np.zeros(n), np.full(n, 10.0), np.ones(n), desc[idx] * 512)
+
+
+# ------------------------------------------------------------------------------------------------ measured noise
+
+
+def _epipolar_curve(uv_ref, T_ref_k, unproject_ref, project_k, depths):
+    """The image in view k of the true rays through ``uv_ref`` (N, 2), sampled at ``depths``: (N, D, 2) px."""
+    rays = unproject_ref(uv_ref)  # (N, 3) directions in the reference camera frame (central approximation)
+    pts = rays[:, None, :] * depths[None, :, None]  # (N, D, 3)
+    return project_k(transform_points(invert(T_ref_k), pts))
+
+
+def keypoint_sigma_px(reference: ViewObservation, views: list, T_world_cam_true: dict, camera_true: CameraModel,
+                      project, depth_range=(0.2, 3.0), config: MapConfig | None = None, matches=None) -> tuple:
+    """Measured SIFT localisation noise (px, 1-sigma per image axis) and the number of matches it is based on.
+
+    The distance of each matched keypoint from the *true* epipolar curve of its reference keypoint (rays through the
+    true optics and true camera poses), robust standard deviation over all matches, divided by sqrt(2) (both
+    keypoints of a pair are noisy). ``T_world_cam_true`` maps view names to true camera poses; ``camera_true``
+    back-projects the reference keypoints (in water the central equivalent, an approximation of the port's rays
+    good to a fraction of a pixel over the short epipolar segments involved); ``project`` maps into the other views
+    through the true optics. ``matches`` (one :class:`~bench.vision.features.Matches` per view, as
+    :func:`~bench.vision.insitu.reference_matches` gives them) saves matching again.
+    """
+    depths = np.geomspace(*depth_range, 400)
+    d_all = []
+    T_wr = T_world_cam_true[reference.name]
+    matches = reference_matches(reference, views, config) if matches is None else matches
+    for view, m in zip(views, matches, strict=True):
+        if len(m) == 0:
+            continue
+        T_ref_k = invert(T_wr) @ T_world_cam_true[view.name]
+        curve = _epipolar_curve(reference.features.uv[m.i1], T_ref_k, camera_true.unproject, project, depths)
+        p = view.features.uv[m.i2][:, None, :]
+        a, b = curve[:, :-1], curve[:, 1:]
+        ab = b - a
+        t = np.clip(np.sum((p - a) * ab, axis=-1) / np.maximum(np.sum(ab * ab, axis=-1), 1e-12), 0, 1)
+        dist = np.linalg.norm(a + t[..., None] * ab - p, axis=-1)
+        d_all.append(np.nanmin(dist, axis=1))
+    if not d_all:
+        return float("nan"), 0
+    d = np.concatenate(d_all)
+    d = d[np.isfinite(d) & (d < 5.0)]  # gross mismatches are not localisation noise
+    # the distance is |n . (e_k - g e_ref)|: a half-normal of sigma * sqrt(1 + g^2) ~ sigma sqrt(2)
+    return float(np.median(d) / 0.6745 / np.sqrt(2)), int(len(d))
+
+
+def point_sigma_px(uv_detected, uv_true, gross_px: float = 5.0) -> tuple:
+    """Localisation noise (px, 1-sigma per image axis) of features whose true projections are known (target corners):
+    robust standard deviation (1.4826 MAD about the median) of the detected minus the true pixels over both axes,
+    gross errors (> ``gross_px``) left out; returns ``(sigma_px, bias_px (2,), n)``."""
+    r = np.asarray(uv_detected, float) - np.asarray(uv_true, float)
+    r = r[np.all(np.isfinite(r), axis=1)]
+    r = r[np.linalg.norm(r, axis=1) < gross_px]
+    if len(r) < 2:
+        return float("nan"), np.full(2, np.nan), int(len(r))
+    med = np.median(r, axis=0)
+    return float(1.4826 * np.median(np.abs(r - med))), med, int(len(r))
+
+
+# ------------------------------------------------------------------------------------------------ the bound
+
+
+@dataclass(frozen=True)
+class Block:
+    """A block of parameters of a :class:`MultiViewModel`: ``size`` coordinates shared by all views, or ``size`` per
+    view (``per_view``); ``step`` is the central-difference step of its coordinates (their unit: m, rad)."""
+
+    name: str
+    size: int
+    per_view: bool = False
+    step: float = 1e-7
+
+
+class MultiViewModel:
+    """Pixels of M 3D points in V views whose camera poses are a function of parameter blocks.
+
+    Parameter vector layout (the columns of :meth:`jacobian` and of the information): the blocks in order (a per-view
+    block view by view), then the points (``3 m + c``).
+
+    Parameters
+    ----------
+    camera_poses : callable
+        ``camera_poses(*values) -> T_world_cam (V, 4, 4)``, ``values`` one array per block (shared: ``(size,)``; per
+        view: ``(V, size)``): the model's kinematics.
+    blocks : list of Block
+    values0 : list of ndarray
+        The linearisation point, one array per block.
+    X0 : ndarray (M, 3)
+        The points (world frame).
+    project : callable
+        Camera-frame points (..., 3) -> pixels (..., 2).
+    size : (w, h)
+        Image size: an observation exists where the point projects inside the image (``vis``), unless ``vis`` (V, M)
+        is given.
+    """
+
+    point_step = 1e-6
+
+    def __init__(self, camera_poses, blocks, values0, X0, project, size, vis=None):
+        self.camera_poses = camera_poses
+        self.blocks = list(blocks)
+        self.values0 = [np.asarray(v, dtype=float) for v in values0]
+        self.X0 = np.asarray(X0, dtype=float)
+        self.project = project
+        self.n_views = len(self.camera_poses(*self.values0))
+        offsets, n = [], 0
+        for b in self.blocks:
+            offsets.append(n)
+            n += b.size * (self.n_views if b.per_view else 1)
+        self.offsets, self.n_params = offsets, n
+        uv = self.pixels(*self.values0, self.X0)
+        w, h = size
+        inside = np.all(np.isfinite(uv), axis=-1) & (uv[..., 0] > 0) & (uv[..., 0] < w - 1) & \
+            (uv[..., 1] > 0) & (uv[..., 1] < h - 1)
+        self.vis = inside if vis is None else inside & np.asarray(vis, bool)
+
+    def column(self, block: str, coordinate: int, view: int = 0) -> int:
+        """Column of ``coordinate`` of ``block`` (of ``view`` for a per-view block) in the parameter vector."""
+        i = [b.name for b in self.blocks].index(block)
+        b = self.blocks[i]
+        return self.offsets[i] + (view * b.size if b.per_view else 0) + coordinate
+
+    def pixels(self, *args) -> np.ndarray:
+        """``pixels(*values, X)`` -> (V, M, 2)."""
+        *values, X = args
+        T_cam_world = np.linalg.inv(self.camera_poses(*values))
+        p_cam = np.einsum("vij,mj->vmi", T_cam_world[:, :3, :3], X) + T_cam_world[:, None, :3, 3]
+        return self.project(p_cam)
+
+    def _perturbations(self, values):
+        """``(block index, coordinate, values + e, values - e, step)`` for every block coordinate (all views at once
+        for a per-view block)."""
+        for i, b in enumerate(self.blocks):
+            for c in range(b.size):
+                e = np.zeros_like(values[i])
+                e[..., c] = b.step
+                plus, minus = list(values), list(values)
+                plus[i], minus[i] = values[i] + e, values[i] - e
+                yield i, c, plus, minus, b.step
+
+    def jacobian_blocks(self, *args) -> tuple:
+        """``jacobian_blocks(*values, X)`` -> ``(J_par (V, M, 2, n_params), J_pts (V, M, 2, 3))``: d pixels / d
+        parameters and d pixels of point m / d point m, by central differences in blocks (class docstring)."""
+        *values, X = args
+        V, M = self.n_views, len(X)
+        J = np.zeros((V, M, 2, self.n_params))
+        for i, c, plus, minus, h in self._perturbations(values):
+            d = (self.pixels(*plus, X) - self.pixels(*minus, X)) / (2 * h)
+            b = self.blocks[i]
+            if b.per_view:  # rows of view v depend on the parameters of view v only
+                for v in range(V):
+                    J[v, :, :, self.offsets[i] + v * b.size + c] = d[v]
+            else:
+                J[..., self.offsets[i] + c] = d
+        Jp = np.zeros((V, M, 2, 3))
+        for c in range(3):  # rows of point m depend on X_m only
+            dX = np.zeros_like(X)
+            dX[:, c] = h = self.point_step
+            Jp[..., c] = (self.pixels(*values, X + dX) - self.pixels(*values, X - dX)) / (2 * h)
+        return J, Jp
+
+    def jacobian(self, *args) -> np.ndarray:
+        """``jacobian(*values, X)``: the dense Jacobian (2 V M, n_params + 3 M), rows ``(view, point, axis)``."""
+        J, Jp = self.jacobian_blocks(*args)
+        V, M = J.shape[:2]
+        out = np.zeros((V, M, 2, self.n_params + 3 * M))
+        out[..., :self.n_params] = J
+        for m in range(M):
+            out[:, m, :, self.n_params + 3 * m:self.n_params + 3 * m + 3] = Jp[:, m]
+        return out.reshape(2 * V * M, -1)
+
+    def prior_information(self, priors: dict) -> np.ndarray:
+        """The priors' information matrix (n_params, n_params) from ``{block name: information}``: a (size, size)
+        matrix (a per-view block: the same for every view) or (V, size, size) per view; other blocks are free."""
+        info = np.zeros((self.n_params, self.n_params))
+        for name, P in priors.items():
+            i = [b.name for b in self.blocks].index(name)
+            b, off = self.blocks[i], self.offsets[i]
+            P = np.asarray(P, dtype=float)
+            if not b.per_view:
+                info[off:off + b.size, off:off + b.size] += P
+                continue
+            P = np.broadcast_to(P, (self.n_views, b.size, b.size))
+            for v in range(self.n_views):
+                s = slice(off + v * b.size, off + (v + 1) * b.size)
+                info[s, s] += P[v]
+        return info
+
+
+def reduced_information(model: MultiViewModel, sigma_px: float) -> tuple:
+    """Fisher information of every observed pixel (``model.vis``; Gaussian, ``sigma_px`` per axis) on the model's
+    parameters with every point a free nuisance parameter, eliminated point by point (Schur complement of its 3 x 3
+    block). Points seen in fewer than two views carry no information and are left out.
+
+    Returns ``(information (n_params, n_params), observations, points)``: the numbers of (view, point) observations
+    and of points used.
+    """
+    J, Jp = model.jacobian_blocks(*model.values0, model.X0)
+    vis = model.vis
+    use = vis.sum(axis=0) >= 2
+    w = vis[:, use][..., None, None].astype(float)
+    J, Jp = J[:, use] * w, Jp[:, use] * w
+    A = np.einsum("vmai,vmaj->ij", J, J)
+    B = np.einsum("vmai,vmak->mik", J, Jp)  # (M, n, 3)
+    C = np.einsum("vmak,vmal->mkl", Jp, Jp)  # (M, 3, 3), invertible for a point seen in >= 2 views
+    BCinv = np.einsum("mik,mkl->mil", B, np.linalg.inv(C))
+    info = (A - np.einsum("mik,mjk->ij", BCinv, B)) / sigma_px**2
+    return 0.5 * (info + info.T), int(vis[:, use].sum()), int(use.sum())
+
+
+def crb(model: MultiViewModel, sigma_px: float, priors: dict, G=None) -> dict:
+    """The Cramér-Rao bound: ``cov`` = inverse of (the pixels' reduced information + the priors' information).
+
+    ``priors`` as :meth:`MultiViewModel.prior_information`; the sum must be positive definite (every parameter
+    observed by the pixels or by a prior). With ``G`` (k, n_params), the bound on a function ``g`` of the
+    parameters (``G = dg/dtheta``, :func:`function_jacobian`): ``cov_g = G cov G^T``.
+
+    Returns
+    -------
+    dict
+        ``cov`` (n_params, n_params), ``cov_g`` (k, k) when ``G`` is given, ``observations``, ``points``.
+    """
+    info, n_obs, n_pts = reduced_information(model, sigma_px)
+    info = info + model.prior_information(priors)
+    cov = np.linalg.inv(info)
+    cov = 0.5 * (cov + cov.T)
+    out = {"cov": cov, "observations": n_obs, "points": n_pts}
+    if G is not None:
+        G = np.atleast_2d(G)
+        out["cov_g"] = G @ cov @ G.T
+    return out
+
+
+def function_jacobian(model: MultiViewModel, g) -> np.ndarray:
+    """``G = d g(*values) / d parameters`` (k, n_params) at the linearisation point, by central differences with the
+    blocks' steps (a per-view block view by view)."""
+    values = model.values0
+    g0 = np.atleast_1d(g(*values))
+    G = np.zeros((len(g0), model.n_params))
+    for i, b in enumerate(model.blocks):
+        for v in range(model.n_views if b.per_view else 1):
+            for c in range(b.size):
+                e = np.zeros_like(values[i])
+                if b.per_view:
+                    e[v, c] = b.step
+                else:
+                    e[c] = b.step
+                plus, minus = list(values), list(values)
+                plus[i], minus[i] = values[i] + e, values[i] - e
+                G[:, model.column(b.name, c, v)] = (np.atleast_1d(g(*plus)) - np.atleast_1d(g(*minus))) / (2 * b.step)
+    return G
