@@ -196,7 +196,8 @@ def keypoint_reliability(scene: ArmScene, q_a, q_b, image_a, image_b, tol_px: fl
     -------
     dict
         ``keypoints_a``, ``keypoints_b``, ``matches``, ``true_matches``, ``true_positive_rate`` (of the matches with
-        a known truth), ``median_error_px`` (of the true matches).
+        a known truth), ``median_error_px`` (of the true matches), ``matches_with_truth`` and ``error_px`` (the
+        distance of each of those matches from the truth, px).
     """
     import cv2
 
@@ -227,4 +228,4 @@ def keypoint_reliability(scene: ArmScene, q_a, q_b, image_a, image_b, tol_px: fl
     true = err <= tol_px
     return {**out, "true_matches": int(true.sum()), "true_positive_rate": float(true.mean()) if known.any() else
             float("nan"), "median_error_px": float(np.median(err[true])) if true.any() else float("nan"),
-            "matches_with_truth": int(known.sum())}
+            "matches_with_truth": int(known.sum()), "error_px": err}

@@ -42,7 +42,11 @@ def test_underwater_panel_at_1m_has_hundreds_of_true_keypoints(underwater):
     scene, q_b = underwater
     img_a, img_b = scene.render(Q, 1), scene.render(q_b, 2)
     res = keypoint_reliability(scene, Q, q_b, img_a, img_b, tol_px=2.0)
-    print("underwater panel at 1 m:", {k: round(v, 3) if isinstance(v, float) else v for k, v in res.items()})
+    print("underwater panel at 1 m:", {k: round(v, 3) if isinstance(v, float) else v for k, v in res.items()
+                                        if k != "error_px"})
+    # false matches a few mm from the truth survive a 20 mm RANSAC and pull a least-squares refinement: few
+    near = (res["error_px"] > 2.0) & (res["error_px"] < 15.0)
+    assert near.sum() <= 0.05 * res["matches"]
     assert min(res["keypoints_a"], res["keypoints_b"]) >= 400
     assert res["true_matches"] >= 250 and res["true_positive_rate"] >= 0.9
     # sub-pixel agreement with the truth (OpenCV's SIFT puts keypoints 0.25 px right of and below the feature;

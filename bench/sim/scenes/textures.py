@@ -164,8 +164,10 @@ def surface_detail(rng: np.random.Generator, img, px_per_mm: float, chips_per_m2
       rust, with a dark rim (``chips_per_m2``);
     * hard marine growth and calcareous deposits (cathodic protection precipitates off-white calcium carbonate;
       barnacles and tube worms settle within months - the densities of hard fouling on North Sea structures are of
-      the order of hundreds to thousands per m^2): off-white and grey-green ellipses of 2-7 mm radius, a third of
-      them with a dark centre (barnacles), a quarter with a short curved tube worm (``growth_per_m2``);
+      the order of hundreds to thousands per m^2): off-white to grey-green irregular shells of 2-7 mm radius on a
+      dark base, half of them in touching clusters of 2-6, 40 % with a dark operculum (barnacles), a quarter with a
+      curved tube worm (``growth_per_m2``). Every mark has its own outline: identical marks would give SIFT
+      descriptors that match the wrong neighbour a few millimetres away;
     * optionally hex bolt heads along plate seams (columns ``seams_x_px``, every ``bolt_pitch_mm``), each with its
       own rust halo, head orientation and wear.
 
@@ -201,28 +203,42 @@ def surface_detail(rng: np.random.Generator, img, px_per_mm: float, chips_per_m2
         colour = primer[int(rng.integers(0, len(primer)))]
         cv2.fillPoly(img, [poly], tuple(int(v) for v in colour), cv2.LINE_AA)
         cv2.polylines(img, [poly], True, DARK_RUST, max(1, int(round(0.6 * mm))), cv2.LINE_AA)
-    shells = [GROWTH_WHITE, (175, 185, 180), (150, 170, 160), (205, 200, 190)]
-    for _ in range(int(round(growth_per_m2 * area_m2))):
-        c = (int(rng.integers(0, w)), int(rng.integers(0, h)))
-        a = rng.uniform(2.0, 7.0) * mm
-        axes = (max(1, int(round(a))), max(1, int(round(a * rng.uniform(0.55, 1.0)))))
-        ang = float(rng.uniform(0, 180))
-        cv2.ellipse(img, c, axes, ang, 0, 360, (60, 70, 65), -1, cv2.LINE_AA)  # dark base plate / shadow
-        inner = (max(1, int(0.8 * axes[0])), max(1, int(0.8 * axes[1])))
+    shells = [GROWTH_WHITE, (175, 185, 180), (150, 170, 160), (205, 200, 190), (120, 150, 140)]
+
+    def blob(centre, radius, n_min=7, n_max=12, jag=(0.6, 1.0)):
+        """An irregular closed outline: every mark its own shape (identical marks would make ambiguous matches)."""
+        n = int(rng.integers(n_min, n_max + 1))
+        ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+        rad = radius * rng.uniform(*jag, n)
+        return np.round(np.asarray(centre) + np.stack([rad * np.cos(ang), rad * np.sin(ang)], -1)).astype(np.int32)
+
+    n_growth = int(round(growth_per_m2 * area_m2))
+    centres = []
+    while len(centres) < n_growth:  # about half of the hard growth settles in clusters of 2-6 (touching shells)
+        c = np.array([rng.uniform(0, w), rng.uniform(0, h)])
+        k = 1 if rng.random() < 0.5 else int(rng.integers(2, 7))
+        for _ in range(min(k, n_growth - len(centres))):
+            centres.append(c + rng.normal(0, 6.0 * mm, 2) * (k > 1))
+    for c in centres:
+        r = rng.uniform(2.0, 7.0) * mm
+        outline = blob(c, r)
+        rim = (int(rng.uniform(30, 80)),) * 3
+        cv2.fillPoly(img, [outline], rim, cv2.LINE_AA)  # dark base plate / shadow
+        shell = np.round(c + (outline - c) * rng.uniform(0.7, 0.9)).astype(np.int32)
         shade = shells[int(rng.integers(0, len(shells)))]
-        cv2.ellipse(img, c, inner, ang, 0, 360, shade, -1, cv2.LINE_AA)
+        cv2.fillPoly(img, [shell], shade, cv2.LINE_AA)
         u = rng.random()
-        if u < 1 / 3:  # barnacle: dark operculum
-            cv2.ellipse(img, c, (max(1, inner[0] // 3), max(1, inner[1] // 3)), ang, 0, 360, (45, 50, 50), -1,
-                        cv2.LINE_AA)
-        elif u < 1 / 3 + 1 / 4:  # tube worm: a short curved calcareous tube
+        if u < 0.4:  # barnacle: a dark, irregular operculum off the shell's centre
+            oc = c + rng.uniform(-0.2, 0.2, 2) * r
+            cv2.fillPoly(img, [blob(oc, rng.uniform(0.2, 0.4) * r, 4, 6, (0.5, 1.0))],
+                         (int(rng.uniform(30, 70)),) * 3, cv2.LINE_AA)
+        elif u < 0.65:  # tube worm: a curved calcareous tube leaving the shell
             t = np.linspace(0, 1, 12)
-            bend = rng.uniform(-1.5, 1.5)
-            length = rng.uniform(6.0, 18.0) * mm
-            th = rng.uniform(0, 2 * np.pi) + bend * t
-            pts = np.cumsum(np.stack([np.cos(th), np.sin(th)], -1) * length / len(t), axis=0) + np.array(c)
-            cv2.polylines(img, [np.round(pts).astype(np.int32)], False, shade, max(1, int(round(1.2 * mm))),
-                          cv2.LINE_AA)
+            th = rng.uniform(0, 2 * np.pi) + rng.uniform(-2.0, 2.0) * t
+            length = rng.uniform(6.0, 20.0) * mm
+            pts = np.cumsum(np.stack([np.cos(th), np.sin(th)], -1) * length / len(t), axis=0) + c
+            cv2.polylines(img, [np.round(pts).astype(np.int32)], False, shade,
+                          max(1, int(round(rng.uniform(0.8, 1.6) * mm))), cv2.LINE_AA)
     if bolt_pitch_mm > 0:
         pitch = bolt_pitch_mm * mm
         r = max(3, int(round(7.0 * mm)))
