@@ -4,6 +4,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= runs
+SEEDS ?= 20
+BUDGET_SEEDS ?= 10
 # Headless rendering through Mesa's EGL (Debian: libegl1 libgl1-mesa-dri).
 export MUJOCO_GL ?= egl
 
@@ -27,11 +29,17 @@ test: $(STAMP)
 reproduce: $(STAMP)
 	$(BIN)/bench run scenarios/table2_kinematic_identification.yaml --out $(OUT)/table2 --set monte_carlo.seeds=500
 	$(BIN)/bench run scenarios/tracker_base_frame.yaml --out $(OUT)/tracker_base_frame
-	$(BIN)/bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds 20 --out $(OUT)/sweep-insitu
+	$(BIN)/bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-insitu
+	$(BIN)/bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-insitu-underwater \
+		--set camera.preset=underwater_in_water
+	$(BIN)/bench budget scenarios/ta40_in_situ_manifold.yaml --seeds $(BUDGET_SEEDS) --seed 1 --out $(OUT)/budget-insitu
 	$(BIN)/bench run scenarios/xy_table_webcam.yaml --out $(OUT)/xy_table_webcam
 	$(BIN)/bench run scenarios/xy_table_underwater.yaml --out $(OUT)/xy_table_underwater
-	$(BIN)/bench sweep scenarios/xy_table_webcam.yaml --seeds 20 --out $(OUT)/sweep-xy_table_webcam
-	$(BIN)/bench sweep scenarios/xy_table_underwater.yaml --seeds 20 --out $(OUT)/sweep-xy_table_underwater
+	$(BIN)/bench sweep scenarios/xy_table_webcam.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-xy_table_webcam
+	$(BIN)/bench sweep scenarios/xy_table_underwater.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-xy_table_underwater
+	$(BIN)/bench run scenarios/camera_calibration_webcam.yaml --out $(OUT)/camera_calibration_webcam
+	$(BIN)/bench run scenarios/camera_calibration_underwater.yaml --out $(OUT)/camera_calibration_underwater
+	$(BIN)/python tools/results_report.py --runs $(OUT)
 
 benchmark: $(STAMP)
 	$(BIN)/python tools/benchmark.py --out $(OUT)/benchmark.json

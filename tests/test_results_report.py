@@ -1,0 +1,48 @@
+"""tools/results_report.py: the README's results block and docs/results.md come from the runs, nothing by hand."""
+
+import importlib.util
+import json
+import sqlite3
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _tool():
+    spec = importlib.util.spec_from_file_location("results_report", ROOT / "tools" / "results_report.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_report_from_runs_replaces_only_its_block(tmp_path):
+    runs = tmp_path / "runs"
+    (runs / "table2").mkdir(parents=True)
+    (runs / "table2" / "result.json").write_text(json.dumps({"metrics": {
+        "max_abs_reduced_error_linear": 2e-14, "mc_heldout_rms_mm_rms": 0.0264, "heldout_rms_bound_mm": 0.0266,
+        "mc_seeds": 500}, "tables": {}, "timings_s": {}}))
+    sweep = runs / "sweep-insitu"
+    sweep.mkdir()
+    db = sqlite3.connect(sweep / "sweep.sqlite")
+    db.execute("CREATE TABLE runs (params TEXT, seed INT, status TEXT, metrics TEXT, result_path TEXT)")
+    for seed, err in enumerate([1.0, 2.0, 3.0]):
+        db.execute("INSERT INTO runs VALUES (?, ?, 'done', ?, NULL)",
+                   ("{}", seed, json.dumps({"base_pos_err_mm": err, "base_rot_err_deg": err / 100,
+                                            "valve_tool_err_mm": err / 4, "base_pos_bound_mm": 1.0,
+                                            "base_rot_bound_deg": 0.01})))
+    db.commit()
+    db.close()
+    readme = tmp_path / "README.md"
+    readme.write_text("# x\n\nbefore\n\n<!-- results:begin -->\nold\n<!-- results:end -->\n\nafter\n")
+    tool = _tool()
+    assert tool.main(["--runs", str(runs), "--docs", str(tmp_path / "docs"), "--readme", str(readme)]) == 0
+    text = readme.read_text()
+    assert text.startswith("# x\n\nbefore\n\n<!-- results:begin -->")
+    assert text.endswith("<!-- results:end -->\n\nafter\n")
+    assert "old" not in text and "0.0264 RMS over 500 draws (bound 0.0266)" in text
+    assert "2 mm / 0.02° / 0.5 mm" in text  # medians of the three seeds
+    doc = (tmp_path / "docs" / "results.md").read_text()
+    assert "Efficiency (RMS bound / RMS error over the seeds): pos: 0.46" in doc  # 1 / sqrt(14 / 3)
+    assert "Not run yet" in doc and "xy_table_webcam" in doc
+    tool.main(["--runs", str(runs), "--docs", str(tmp_path / "docs"), "--readme", str(readme)])
+    assert readme.read_text() == text  # idempotent

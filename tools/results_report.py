@@ -1,0 +1,305 @@
+"""``make reproduce``'s last step: the results section of the README and ``docs/results.md``, generated from runs.
+
+Reads what ``make reproduce`` wrote under ``--runs`` (each part optional; a missing part is listed as not run) and
+writes ``docs/results.md`` (every table, the thesis's numbers beside ours, targets beside measurements, figures
+copied to ``docs/figures/``) and the block between ``<!-- results:begin -->`` and ``<!-- results:end -->`` in the
+README (the headline figures). Nothing here is typed by hand: re-run ``make reproduce`` to refresh it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sqlite3
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
+
+
+def _load(path):
+    p = Path(path)
+    return json.loads(p.read_text()) if p.is_file() else None
+
+
+def _fmt(v, digits=3):
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return "—"
+    if isinstance(v, (int, np.integer)) or (isinstance(v, float) and v.is_integer() and abs(v) < 1e6):
+        return f"{int(v)}"
+    return f"{v:.{digits}g}"
+
+
+def _table(header, rows) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def _sweep_runs(folder) -> list:
+    """Metrics and result paths of the finished runs of a sweep folder."""
+    db = Path(folder) / "sweep.sqlite"
+    if not db.is_file():
+        return []
+    con = sqlite3.connect(db)
+    try:
+        rows = con.execute("SELECT params, seed, metrics, result_path FROM runs WHERE status = 'done'").fetchall()
+    finally:
+        con.close()
+    return [{"params": json.loads(p), "seed": s, "metrics": json.loads(m or "{}"), "result": r} for p, s, m, r in rows]
+
+
+def _stats(values):
+    v = np.array([x for x in values if x is not None and np.isfinite(x)], dtype=float)
+    if not len(v):
+        return {"n": 0}
+    return {"n": len(v), "median": float(np.median(v)), "q25": float(np.percentile(v, 25)),
+            "q75": float(np.percentile(v, 75)), "max": float(v.max()), "rms": float(np.sqrt(np.mean(v**2)))}
+
+
+class Report:
+    def __init__(self, runs: Path, docs: Path):
+        self.runs, self.docs = runs, docs
+        self.figures = docs / "figures"
+        self.md: list[str] = []
+        self.headline: list[list[str]] = []  # [what, measured, target, thesis]
+        self.missing: list[str] = []
+
+    def figure(self, src, name, caption) -> None:
+        src = Path(src)
+        if not src.is_file():
+            return
+        self.figures.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, self.figures / name)
+        self.md.append(f"![{caption}](figures/{name})\n\n*{caption}*\n")
+
+    def head(self, what, measured, target="", thesis="") -> None:
+        self.headline.append([what, measured, target, thesis])
+
+    # --- sections ----------------------------------------------------------------------------------------------------
+    def table2(self):
+        r = _load(self.runs / "table2" / "result.json")
+        if r is None:
+            self.missing.append("Table 2 (`runs/table2`)")
+            return
+        m = r["metrics"]
+        self.md.append("## Table 2 and the lab calibration of the arm\n\n`bench run "
+                       "scenarios/table2_kinematic_identification.yaml --set monte_carlo.seeds=500`\n")
+        rows = [["max abs error of ε̇, noise-free linear (Eq. 14)", _fmt(m.get("max_abs_reduced_error_linear")),
+                 "≤ 1e-9"],
+                ["held-out RMS, noise-free, exact model iterated (mm)", _fmt(m.get("heldout_rms_mm_noise_free_exact")),
+                 "≤ 1e-6"],
+                ["held-out RMS, σ = 0.05 mm, this draw (mm)", _fmt(m.get("heldout_rms_mm_calibrated")), "≤ 0.03"],
+                ["held-out RMS over the Monte Carlo, RMS (mm)", _fmt(m.get("mc_heldout_rms_mm_rms")), ""],
+                ["Cramér-Rao bound of the held-out RMS (mm)", _fmt(m.get("heldout_rms_bound_mm")), ""],
+                ["efficiency, bound / Monte Carlo RMS", _fmt(m.get("mc_heldout_efficiency")), ""],
+                ["predicted / Monte Carlo std of ε̇ (median, min, max)",
+                 f"{_fmt(m.get('mc_std_ratio_median'))}, {_fmt(m.get('mc_std_ratio_min'))}, "
+                 f"{_fmt(m.get('mc_std_ratio_max'))}", "within ±20 %"],
+                ["held-out RMS, O1-selected vs random poses (mm)",
+                 f"{_fmt(m.get('heldout_rms_mm_selected_poses_median'))} vs "
+                 f"{_fmt(m.get('heldout_rms_mm_random_poses_median'))}", "selected better"],
+                ["identification of 100 poses (s)", _fmt(m.get("identification_s")), "≤ 0.02 (benchmark)"]]
+        self.md.append(_table(["figure", "measured", "target"], rows) + "\n")
+        self.head("Table 2: held-out RMS after calibration, σ = 0.05 mm (mm)",
+                  f"{_fmt(m.get('mc_heldout_rms_mm_rms'))} RMS over {_fmt(m.get('mc_seeds'))} draws "
+                  f"(bound {_fmt(m.get('heldout_rms_bound_mm'))})", "≤ 0.03", "")
+        self.figure(self.runs / "table2" / "figures_36_39.png", "figures_36_39.png",
+                    "End effector vs link 5 after calibration (thesis Figures 36-39)")
+
+    def tracker(self):
+        r = _load(self.runs / "tracker_base_frame" / "result.json")
+        if r is None:
+            self.missing.append("tracker base frame (`runs/tracker_base_frame`)")
+            return
+        t = r["tables"]["base_accuracy_vs_noise"]
+        self.md.append("## Base frame from tracker arcs (§2.9)\n\n`bench run scenarios/tracker_base_frame.yaml`\n")
+        rows = [[_fmt(t["sigma_mm"][i]), _fmt(t["span_deg"][i]), _fmt(t["pos_err_mm_rms"][i]),
+                 _fmt(t["predicted_pos_std_mm"][i]), _fmt(t.get("pos_bound_mm", [None] * 99)[i]),
+                 _fmt(t["rot_err_deg_rms"][i]), _fmt(t.get("rot_bound_deg", [None] * 99)[i])]
+                for i in range(len(t["sigma_mm"]))]
+        self.md.append(_table(["σ (mm)", "arc (°)", "origin RMS (mm)", "fit's prediction (mm)",
+                               "bound with readings (mm)", "rotation RMS (°)", "rotation bound (°)"], rows) + "\n")
+        self.figure(self.runs / "tracker_base_frame" / "base_accuracy_vs_noise.png", "tracker_base_accuracy.png",
+                    "Base frame accuracy vs tracker noise and arc span, with the Cramér-Rao bound")
+
+    def insitu(self, folder="sweep-insitu", title="TA-40 in situ, air camera (`make demo`'s scenario)"):
+        runs = _sweep_runs(self.runs / folder)
+        if not runs:
+            self.missing.append(f"{title} (`runs/{folder}`)")
+            return
+        keys = [("base_pos_err_mm", "≤ 2"), ("base_rot_err_deg", "≤ 0.05"), ("valve_tool_err_mm", "≤ 3"),
+                ("insitu_solve_s", "≤ 0.3"), ("map_points", ""), ("inliers", ""), ("base_pos_bound_mm", ""),
+                ("base_rot_bound_deg", ""), ("base_pos_bound_mc_mm", ""), ("keypoint_sigma_px", ""),
+                ("valve_tool_err_uncompensated_mm", ""), ("panel_sift_keypoints", ""), ("arm_heldout_rms_mm", ""),
+                ("mount_rot_err_deg", ""), ("parking_attempts", "")]
+        rows, st = [], {}
+        for k, target in keys:
+            st[k] = _stats(r["metrics"].get(k) for r in runs)
+            s = st[k]
+            if s["n"]:
+                rows.append([f"`{k}`", _fmt(s["median"]), f"{_fmt(s['q25'])} – {_fmt(s['q75'])}", _fmt(s["max"]),
+                             target])
+        n = len(runs)
+        self.md.append(f"## {title}\n\n`bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds {n}` "
+                       f"(folder `{folder}`): median, interquartile range and worst over {n} seeds\n")
+        self.md.append(_table(["metric", "median", "IQR", "max", "target (median)"], rows) + "\n")
+        eff = []
+        for q, unit in (("pos", "mm"), ("rot", "deg")):
+            e, b = st.get(f"base_{q}_err_{unit}", {}), st.get(f"base_{q}_bound_{unit}", {})
+            if e.get("n") and b.get("n"):
+                eff.append(f"{q}: {b['rms'] / e['rms']:.2f}")
+        if eff:
+            self.md.append(f"Efficiency (RMS bound / RMS error over the seeds): {', '.join(eff)} (target ≥ 0.75).\n")
+        self.head(f"{title}: base position / rotation, valve tool tip (median of {n})",
+                  f"{_fmt(st['base_pos_err_mm'].get('median'))} mm / {_fmt(st['base_rot_err_deg'].get('median'))}° "
+                  f"/ {_fmt(st['valve_tool_err_mm'].get('median'))} mm",
+                  "≤ 2 mm / ≤ 0.05° / ≤ 3 mm", "")
+        if eff:
+            self.head(f"{title}: efficiency (RMS bound / RMS error)", ", ".join(eff), "≥ 0.75", "")
+
+    def budget(self, folder="budget-insitu", title="Error budget of the in-situ localisation"):
+        r = _load(self.runs / folder / "result.json")
+        if r is None:
+            self.missing.append(f"{title} (`runs/{folder}`)")
+            return
+        b, v = r["tables"]["budget"], r["tables"]["variants"]
+        cols = [c for c in b if c.startswith("budget_")]
+        self.md.append(f"## {title}\n\n`bench budget` (folder `{folder}`): RMS over "
+                       f"{_fmt(v['runs'][0])} seeds with every source real, with one switched off, with all off\n")
+        self.md.append(_table(["variant", "runs"] + [c.replace("rms_", "RMS ") for c in v if c.startswith("rms_")],
+                              [[v["variant"][i], _fmt(v["runs"][i])] + [_fmt(v[c][i]) for c in v
+                                                                        if c.startswith("rms_")]
+                               for i in range(len(v["variant"]))]) + "\n")
+        self.md.append("Share of the final error each source explains, `sqrt(RMS_full² − RMS_without²)`:\n")
+        self.md.append(_table(["source"] + [c.replace("budget_", "") for c in cols],
+                              [[b["source"][i]] + [_fmt(b[c][i]) for c in cols] for i in range(len(b["source"]))])
+                       + "\n")
+        self.figure(self.runs / folder / "budget.png", f"{folder}.png", title)
+        top = int(np.nanargmax(np.array(b[cols[0]], dtype=float)))
+        full = r["metrics"].get("rms_full_" + cols[0][7:])
+        self.head(f"{title}: dominant source of `{cols[0][7:]}`",
+                  f"{b['source'][top]} ({_fmt(b[cols[0]][top])} of {_fmt(full)})")
+
+    def xy_table(self, name, thesis_tables):
+        run = _load(self.runs / name / "result.json")
+        runs = _sweep_runs(self.runs / f"sweep-{name}")
+        if run is None and not runs:
+            self.missing.append(f"{name} (`runs/{name}`, `runs/sweep-{name}`)")
+            return
+        self.md.append(f"## {name}: thesis Tables {thesis_tables}\n")
+        per = {}
+        for r in runs:  # every seed's table: RMS over the pair combinations per (d, method)
+            res = _load(r["result"]) if r["result"] else None
+            if not res:
+                continue
+            t = res["tables"]["position_error_vs_intraocular"]
+            for i, (d, m) in enumerate(zip(t["d_mm"], t["method"], strict=True)):
+                for ax in "xyz":
+                    per.setdefault((m, d, ax), []).append(t[f"err_{ax}_mm"][i])
+                per.setdefault((m, d, "thesis"), [t.get(f"thesis_err_{a}_mm", [None] * 999)[i] for a in "xyz"])
+        if per:
+            ds = sorted({d for (_, d, _) in per})
+            self.md.append(f"Median over {len(runs)} seeds (`bench sweep scenarios/{name}.yaml --seeds "
+                           f"{len(runs)}`) of the RMS position error over the pair combinations, ours (thesis), mm:\n")
+            for m in ("quaternion", "quaternion_ratio", "lms", "lms_ratio"):
+                if (m, ds[0], "x") not in per:
+                    continue
+                rows = []
+                for ax in "xyz":
+                    rows.append([f"error {ax}"] + [
+                        f"{_fmt(np.median(per[(m, d, ax)]), 2)} ({_fmt(per[(m, d, 'thesis')]['xyz'.index(ax)], 3)})"
+                        for d in ds])
+                self.md.append(f"**{m}**\n\n" + _table(["d_o (mm)"] + [_fmt(d) for d in ds], rows) + "\n")
+            if ("lms_ratio", 100.0, "x") in per:
+                med = [np.median(per[("lms_ratio", 100.0, ax)]) for ax in "xyz"]
+                q75 = [np.percentile(per[("lms_ratio", 100.0, ax)], 75) for ax in "xyz"]
+                th = per[("lms_ratio", 100.0, "thesis")]
+                self.head(f"{name}: LMS + error ratio at d = 100 mm, x / y / z (median of {len(runs)}; 75 %)",
+                          " / ".join(_fmt(v, 2) for v in med) + " mm (" + " / ".join(_fmt(v, 2) for v in q75) + ")",
+                          "≤ 1.0 mm" if "webcam" in name else "≤ 2.0 mm", " / ".join(_fmt(v) for v in th) + " mm")
+            if ("lms_ratio", 20.0, "x") in per:
+                med = [np.median(per[("lms_ratio", 20.0, ax)]) for ax in "xyz"]
+                th = per[("lms_ratio", 20.0, "thesis")]
+                self.head(f"{name}: LMS + error ratio at d = 20 mm (median of {len(runs)})",
+                          " / ".join(_fmt(v, 2) for v in med) + " mm", "≤ 5 mm",
+                          " / ".join(_fmt(v) for v in th) + " mm")
+        if run is not None:
+            tot = run["timings_s"].get("total_s")
+            if tot is not None and "webcam" in name:
+                self.head(f"{name}: one full run, renders cached (s)", _fmt(tot), "≤ 60", "")
+            self.figure(self.runs / name / "position_error_vs_intraocular.png", f"{name}.png",
+                        f"{name}: RMS position error vs intraocular distance, ours and the thesis's (dashed)")
+
+    def camera(self, name):
+        r = _load(self.runs / name / "result.json")
+        if r is None:
+            self.missing.append(f"{name} (`runs/{name}`)")
+            return
+        m, t = r["metrics"], r["tables"]
+        self.md.append(f"## {name}\n\n`bench run scenarios/{name}.yaml`\n")
+        keys = [k for k in ("reproj_rms_px", "opencv_reproj_rms_px", "focal_err_pct", "corner_rms_px",
+                            "heikkila_within_1_se", "heikkila_within_2_se", "focal_ratio_water_air",
+                            "thesis_focal_ratio_water_air") if k in m]
+        self.md.append(_table(["metric", "value"], [[f"`{k}`", _fmt(m[k], 4)] for k in keys]) + "\n")
+        for tname in ("table3", "heikkila"):
+            if tname in t:
+                cols = list(t[tname])
+                rows = list(zip(*[[_fmt(v, 4) if not isinstance(v, str) else v for v in t[tname][c]] for c in cols],
+                                strict=True))
+                self.md.append(f"**{tname}**\n\n" + _table(cols, rows) + "\n")
+        if "reproj_rms_px" in m:
+            self.head(f"{name}: reprojection RMS (px), OpenCV on the same corners, focal error (%)",
+                      f"{_fmt(m['reproj_rms_px'], 3)}, {_fmt(m.get('opencv_reproj_rms_px'), 3)}, "
+                      f"{_fmt(m.get('focal_err_pct'), 3)}", "≤ 0.1 px and ≤ OpenCV; ≤ 0.1 %" if "webcam" in name
+                      else "")
+        for png in sorted((self.runs / name).glob("*.png")):
+            self.figure(png, f"{name}_{png.name}", f"{name}: {png.stem.replace('_', ' ')}")
+
+    # --- output -----------------------------------------------------------------------------------------------------
+    def write(self, readme: Path) -> None:
+        head = _table(["what", "measured", "target", "thesis"], self.headline) if self.headline else ""
+        missing = ("\n\nNot run yet (`make reproduce` runs them): " + "; ".join(self.missing) + ".") \
+            if self.missing else ""
+        doc = ("# Results (generated by `make reproduce`; do not edit)\n\n" + head + missing + "\n\n"
+               + "\n".join(self.md))
+        self.docs.mkdir(parents=True, exist_ok=True)
+        (self.docs / "results.md").write_text(doc)
+        text = readme.read_text()
+        block = (f"{BEGIN}\n*Generated by `make reproduce` (`tools/results_report.py`); every table and figure is in "
+                 f"[docs/results.md](docs/results.md).*\n\n{head}{missing}\n{END}")
+        if BEGIN in text and END in text:
+            text = text[:text.index(BEGIN)] + block + text[text.index(END) + len(END):]
+        else:
+            text = text.rstrip("\n") + "\n\n## Results\n\n" + block + "\n"
+        readme.write_text(text)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", default="runs", help="the folder make reproduce wrote (default runs)")
+    ap.add_argument("--docs", default=str(ROOT / "docs"))
+    ap.add_argument("--readme", default=str(ROOT / "README.md"))
+    args = ap.parse_args(argv)
+    rep = Report(Path(args.runs), Path(args.docs))
+    rep.table2()
+    rep.tracker()
+    rep.insitu()
+    rep.insitu("sweep-insitu-underwater", "TA-40 in situ, underwater camera (`camera.preset=underwater_in_water`)")
+    rep.budget()
+    rep.xy_table("xy_table_webcam", "5-8")
+    rep.xy_table("xy_table_underwater", "11-14")
+    rep.camera("camera_calibration_webcam")
+    rep.camera("camera_calibration_underwater")
+    rep.write(Path(args.readme))
+    print(f"wrote {Path(args.docs) / 'results.md'} and the results block of {args.readme}"
+          + (f"; not run: {len(rep.missing)} parts" if rep.missing else ""), file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
