@@ -201,7 +201,7 @@ class MultiViewModel:
         """``pixels(*values, X)`` -> (V, M, 2)."""
         *values, X = args
         T_cam_world = np.linalg.inv(self.camera_poses(*values))
-        p_cam = np.einsum("vij,mj->vmi", T_cam_world[:, :3, :3], X) + T_cam_world[:, None, :3, 3]
+        p_cam = np.matmul(X, np.swapaxes(T_cam_world[:, :3, :3], 1, 2)) + T_cam_world[:, None, :3, 3]  # (V, M, 3)
         return self.project(p_cam)
 
     def _perturbations(self, values):
@@ -264,40 +264,46 @@ class MultiViewModel:
         return info
 
 
-def reduced_information(model: MultiViewModel, sigma_px: float) -> tuple:
+def reduced_information(model: MultiViewModel, sigma_px: float, jacobians=None) -> tuple:
     """Fisher information of every observed pixel (``model.vis``; Gaussian, ``sigma_px`` per axis) on the model's
     parameters with every point a free nuisance parameter, eliminated point by point (Schur complement of its 3 x 3
-    block). Points seen in fewer than two views carry no information and are left out.
+    block). Points seen in fewer than two views carry no information and are left out. ``jacobians``: the model's
+    :meth:`~MultiViewModel.jacobian_blocks` at its linearisation point, when the caller has them (assembled from
+    blocks shared between models).
 
     Returns ``(information (n_params, n_params), observations, points)``: the numbers of (view, point) observations
     and of points used.
     """
-    J, Jp = model.jacobian_blocks(*model.values0, model.X0)
+    J, Jp = model.jacobian_blocks(*model.values0, model.X0) if jacobians is None else jacobians
     vis = model.vis
     use = vis.sum(axis=0) >= 2
     w = vis[:, use][..., None, None].astype(float)
     J, Jp = J[:, use] * w, Jp[:, use] * w
-    A = np.einsum("vmai,vmaj->ij", J, J)
-    B = np.einsum("vmai,vmak->mik", J, Jp)  # (M, n, 3)
-    C = np.einsum("vmak,vmal->mkl", Jp, Jp)  # (M, 3, 3), invertible for a point seen in >= 2 views
-    BCinv = np.einsum("mik,mkl->mil", B, np.linalg.inv(C))
-    info = (A - np.einsum("mik,mjk->ij", BCinv, B)) / sigma_px**2
+    V, M, _, n = J.shape
+    Jm = J.transpose(1, 0, 2, 3).reshape(M, 2 * V, n)  # rows of point m
+    Pm = Jp.transpose(1, 0, 2, 3).reshape(M, 2 * V, 3)
+    A = Jm.reshape(-1, n).T @ Jm.reshape(-1, n)
+    B = np.swapaxes(Jm, 1, 2) @ Pm  # (M, n, 3)
+    C = np.swapaxes(Pm, 1, 2) @ Pm  # (M, 3, 3), invertible for a point seen in >= 2 views
+    BCinv = B @ np.linalg.inv(C)
+    info = (A - BCinv.transpose(1, 0, 2).reshape(n, -1) @ B.transpose(1, 0, 2).reshape(n, -1).T) / sigma_px**2
     return 0.5 * (info + info.T), int(vis[:, use].sum()), int(use.sum())
 
 
-def crb(model: MultiViewModel, sigma_px: float, priors: dict, G=None) -> dict:
+def crb(model: MultiViewModel, sigma_px: float, priors: dict, G=None, jacobians=None) -> dict:
     """The Cramér-Rao bound: ``cov`` = inverse of (the pixels' reduced information + the priors' information).
 
     ``priors`` as :meth:`MultiViewModel.prior_information`; the sum must be positive definite (every parameter
     observed by the pixels or by a prior). With ``G`` (k, n_params), the bound on a function ``g`` of the
-    parameters (``G = dg/dtheta``, :func:`function_jacobian`): ``cov_g = G cov G^T``.
+    parameters (``G = dg/dtheta``, :func:`function_jacobian`): ``cov_g = G cov G^T``. ``jacobians`` as for
+    :func:`reduced_information`.
 
     Returns
     -------
     dict
         ``cov`` (n_params, n_params), ``cov_g`` (k, k) when ``G`` is given, ``observations``, ``points``.
     """
-    info, n_obs, n_pts = reduced_information(model, sigma_px)
+    info, n_obs, n_pts = reduced_information(model, sigma_px, jacobians)
     info = info + model.prior_information(priors)
     cov = np.linalg.inv(info)
     cov = 0.5 * (cov + cov.T)

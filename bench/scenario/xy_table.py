@@ -48,6 +48,7 @@ from bench.camera.presets import load_preset
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
+from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.schema import required
 from bench.vision.features import Features
@@ -91,6 +92,7 @@ SCHEMA = {
         "reference_distance_mm": (float, 700.0),
         "panel_size_m": (list, [0.8, 0.6]),
         "table_errors": (bool, True),           # random positioning errors of the table (false: exact table)
+        "table_readout": (str, "steps"),        # steps (the step the table is at) | exact (the carriage's position)
         "mount_bias_deg": (list, [0.3, 6.2, -1.8]),        # true theta_x0, theta_y0, theta_z0 (Eq. 197)
         "camera_centre_error_mm": (list, [0.5, 0.3, 1.0]),  # true camera centre minus the nominal one (support)
         "focal_error_pct": (float, 1.5),        # true intrinsics vs the nominal camera file (uniform +-)
@@ -119,8 +121,20 @@ SCHEMA = {
         "d_r_mm": (float, 20.0),
         "r_lim": (float, 0.1),
     },
+    # the Cramér-Rao bound of every estimate and a Monte Carlo of the ideal estimator (xy_table_bound)
+    "bound": {"enabled": (bool, True), "mc_trials": (int, 2), "mc_intraocular_mm": (list, [50, 100])},
     "outputs": {"cache": (bool, True), "plots": (bool, True), "rerun": (bool, True)},
 }
+
+# the error budget (bench budget): each source switched off in turn; the primary metric first
+BUDGET = {"features": {"pipeline.features": "true_projection"},
+          "optics_model": {"pipeline.camera": "truth", "sim.port": False},
+          "kinematics": {"sim.table_errors": False, "pipeline.mount_bias": "truth",
+                         "sim.camera_centre_error_mm": [0.0, 0.0, 0.0]},
+          "encoders": {"sim.table_readout": "exact"}}
+BUDGET_METRICS = ["lms_ratio_err_pos_at_100_mm", "lms_ratio_err_x_mm_at_100", "lms_ratio_err_y_mm_at_100",
+                  "lms_ratio_err_z_mm_at_100"]
+BUDGET_FIXED = {"outputs.plots": False, "outputs.rerun": False, "bound.enabled": False}
 
 
 # ------------------------------------------------------------------------------------------------ configuration
@@ -148,7 +162,7 @@ def _check(cfg):
     choices = {"sim.poses": ("table4", "table10"), "sim.reference_object": ("panel", "rig"),
                "pipeline.camera": CAMERA_CHOICES, "pipeline.mount_bias": BIAS_CHOICES,
                "pipeline.features": FEATURE_CHOICES, "pipeline.camera_model": ("heikkila", "radial", "pinhole"),
-               "pipeline.bias_depth_statistic": ("median", "mean")}
+               "pipeline.bias_depth_statistic": ("median", "mean"), "sim.table_readout": ("steps", "exact")}
     for key, allowed in choices.items():
         sec, k = key.split(".")
         if cfg[sec][k] not in allowed:
@@ -175,6 +189,11 @@ def _check(cfg):
     d = p["intraocular_mm"]
     if not d or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in d):
         raise ConfigError(src, "pipeline.intraocular_mm", f"expected positive distances (mm), got {d!r}")
+    d = cfg["bound"]["mc_intraocular_mm"]
+    if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in d):
+        raise ConfigError(src, "bound.mc_intraocular_mm", f"expected positive distances (mm), got {d!r}")
+    if cfg["bound"]["mc_trials"] < 0:
+        raise ConfigError(src, "bound.mc_trials", f"must be >= 0, got {cfg['bound']['mc_trials']}")
     _vec(cfg, "sim.mount_bias_deg", 3)
     _vec(cfg, "sim.camera_centre_error_mm", 3)
     _vec(cfg, "sim.panel_size_m", 2)
@@ -461,13 +480,17 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     cal_scene.close()
 
     # --- truth ------------------------------------------------------------------------------------------------------
+    # the readings: the step the table is at (its controller's display, quantised to the resolution; the carriage is
+    # off it by the positioning errors) or, sim.table_readout = exact, where the carriage truly is along each axis
+    readings = run.true if s["table_readout"] == "exact" else run.read
     T_table_cam = run.T_table_mount @ T_mount_cam
     centre_err = np.linalg.norm(T_table_cam[:, :3, 3] - run.T_table_mount_nominal[:, :3, 3], axis=1)
     truth = {
         "units": "SI (m, rad)",
         "poses": s["poses"], "positions": numbers,
         "table_errors": {k: float(v) for k, v in errors.__dict__.items()},
-        "commanded": run.commanded.tolist(), "read": run.read.tolist(), "true_joints": run.true.tolist(),
+        "commanded": run.commanded.tolist(), "steps": run.read.tolist(), "read": readings.tolist(),
+        "true_joints": run.true.tolist(), "table_readout": s["table_readout"],
         "T_table_mount": run.T_table_mount.tolist(),
         "T_mount_cam": T_mount_cam.tolist(),
         "mount_bias_deg": _vec(cfg, "sim.mount_bias_deg", 3).tolist(),
@@ -501,7 +524,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         for k in range(len(cal_poses)):
             w.add_view(f"cal{k + 1:02d}", images[f"cal{k + 1:02d}"], role="calibration")
         for i, num in enumerate(numbers):
-            w.add_view(view_name(num), images[view_name(num)], table=run.read[i], role="table",
+            w.add_view(view_name(num), images[view_name(num)], table=readings[i], role="table",
                        notes=f"{s['poses']} position {num}")
         w.write_text("camera.yaml", camera_yaml_text(nominal_cam))
         w.write_text("table.yaml", spec_yaml)
@@ -537,14 +560,18 @@ def calibrate_from_rig_views(ds, model: str):
     return cal, len(Xs)
 
 
-def _project_true(p_cam, lens: CameraModel, port) -> np.ndarray:
-    """Exact pixels of camera-frame points through the true optics (lens, and the housing's port if any)."""
-    if port is None:
-        return lens.project(p_cam)
-    from bench.sim.flatport import project_flatport
+def true_optics(truth: dict) -> tuple:
+    """EVALUATOR SIDE: ``(lens, port)`` - the true lens (a :class:`CameraModel`) and the housing's flat port (None
+    without one) from ``truth.yaml``; :func:`bench.scenario.bounds.true_projector` projects through both."""
+    from bench.sim.flatport import FlatPort
 
-    x_n = project_flatport(p_cam, port)
-    return lens.project(np.concatenate([x_n, np.ones(x_n.shape[:-1] + (1,))], axis=-1))
+    lens = CameraModel(int(truth["camera_size"][0]), int(truth["camera_size"][1]), np.array(truth["camera_K"]),
+                       np.array(truth["camera_dist"]), name="true lens")
+    pd = truth["optics"]["port"]
+    port = None if pd is None else FlatPort(d0=pd["d0"], t=pd["t"], n_air=pd["n_air"], n_glass=pd["n_glass"],
+                                            n_water=pd["n_water"], tilt=np.array(pd["tilt"]),
+                                            decentre=np.array(pd["decentre"]))
+    return lens, port
 
 
 def true_projection_features(truth: dict, names, n_points: int, rng) -> dict:
@@ -554,15 +581,9 @@ def true_projection_features(truth: dict, names, n_points: int, rng) -> dict:
     inside its outline) with random unit descriptors (occlusion by the valves is ignored). Points outside an image
     or behind the camera are left out of that view. Removes detection noise and false matches.
     """
-    from bench.sim.flatport import FlatPort
-
     T_tr = np.array(truth["T_table_reference"])
-    lens = CameraModel(int(truth["camera_size"][0]), int(truth["camera_size"][1]), np.array(truth["camera_K"]),
-                       np.array(truth["camera_dist"]))
-    pd = truth["optics"]["port"]
-    port = None if pd is None else FlatPort(d0=pd["d0"], t=pd["t"], n_air=pd["n_air"], n_glass=pd["n_glass"],
-                                            n_water=pd["n_water"], tilt=np.array(pd["tilt"]),
-                                            decentre=np.array(pd["decentre"]))
+    lens, port = true_optics(truth)
+    project = true_projector(lens, port)
     if truth["reference_corners"] is not None:
         p_obj = np.array(truth["reference_corners"])
         ids = np.arange(len(p_obj))
@@ -579,7 +600,7 @@ def true_projection_features(truth: dict, names, n_points: int, rng) -> dict:
         p_cam = transform_points(invert(np.array(truth["T_table_cam"][n])), p_table)
         front = p_cam[:, 2] > 0.05
         uv = np.full((len(p_cam), 2), np.nan)
-        uv[front] = _project_true(p_cam[front], lens, port)
+        uv[front] = project(p_cam[front])
         ok = front & np.all(np.isfinite(uv), axis=1) & lens.in_image(np.nan_to_num(uv, nan=-1e9))
         k = np.count_nonzero(ok)
         out[n] = Features(uv[ok], np.zeros(k), np.full(k, 4.0), np.ones(k), desc[ok])
@@ -623,7 +644,7 @@ def score(result, truth: dict, reference: str, methods) -> tuple:
             rows[f"true_{ax}_mm"].append(float(true[i]))
             rows[f"err_{ax}_mm"].append(float(est[i] - true[i]))
     summary = {k: [] for k in ("d_mm", "method", "combinations", "failed", "err_x_mm", "err_y_mm", "err_z_mm",
-                               "mean_baseline_mm")}
+                               "err_pos_mm", "mean_baseline_mm")}
     d_all = np.array(rows["d_mm"], float)
     meth = np.array(rows["method"], object)
     ok = np.array(rows["success"], bool)
@@ -640,6 +661,7 @@ def score(result, truth: dict, reference: str, methods) -> tuple:
             summary["failed"].append(int(np.count_nonzero(sel & ~ok)))
             for i, ax in enumerate("xyz"):
                 summary[f"err_{ax}_mm"].append(float(rms[i]))
+            summary["err_pos_mm"].append(float(np.sqrt(np.sum(rms**2))))  # 3D RMS over the combinations
             summary["mean_baseline_mm"].append(float(base[sel].mean()) if sel.any() else float("nan"))
     return rows, summary
 
@@ -695,18 +717,114 @@ def plot_tables(summary: dict, poses: str, path) -> str:
             ax.plot(d, np.array(summary[f"err_{a}_mm"])[sel], "o-", color=colors[a], ms=4, label=f"{a} (ours)")
             ax.plot(d, np.array(summary[f"thesis_err_{a}_mm"])[sel], "s--", color=colors[a], ms=3, alpha=0.55,
                     label=f"{a} (thesis)")
+            if f"bound_{a}_mm" in summary:  # the Cramér-Rao bound and the ideal estimator's Monte Carlo
+                ax.plot(d, np.array(summary[f"bound_{a}_mm"])[sel], ":", color=colors[a], lw=1.6,
+                        label=f"{a} bound (CRB)")
+                ax.plot(d, np.array(summary[f"bound_mc_{a}_mm"])[sel], "x", color=colors[a], ms=6,
+                        label=f"{a} ideal estimator (MC)")
+        if "eq123_z_mm" in summary:
+            ax.plot(d, np.array(summary["eq123_z_mm"])[sel], "-.", color=colors["z"], lw=1, alpha=0.8,
+                    label="z: Eq. 123 (disparity sqrt(2) sigma, / sqrt(inliers))")
         ax.set_yscale("log")
         ax.set_title(f"Table {numbers[m]}: {LABELS[m]}", fontsize=10)
         ax.set_ylabel("RMS position error (mm)")
         ax.grid(alpha=0.3, which="both")
     for ax in axes[1]:
         ax.set_xlabel("intraocular distance d_o (mm)")
-    axes[0, 0].legend(fontsize=7, ncol=2)
-    fig.suptitle(f"x-y table positioning error vs intraocular distance ({figs}); dashed: the thesis")
+    axes[0, 0].legend(fontsize=6, ncol=2)
+    fig.suptitle(f"x-y table positioning error vs intraocular distance ({figs}); dashed: the thesis"
+                 + ("; dotted: the Cramér-Rao bound" if "bound_x_mm" in summary else ""))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path).name
+
+
+# ------------------------------------------------------------------------------------------------ the bound
+
+
+def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose) -> tuple:
+    """EVALUATOR SIDE: measured feature noise, the Cramér-Rao bound of every estimate, a Monte Carlo of the ideal
+    estimator and Eq. 123's stereo depth error (:mod:`bench.scenario.xy_table_bound`).
+
+    Returns ``(metrics, columns)``: ``columns`` per intraocular distance (``d_mm`` and the bound's columns of the
+    position-error table, mm and deg).
+    """
+    from dataclasses import replace
+
+    from bench.scenario.xy_table_bound import (
+        TableKinematics,
+        experiment_bounds,
+        map_points,
+        mc_ideal_positions,
+        measured_sigma_px,
+        model_poses,
+    )
+    from bench.vision.triangulation import stereo_sensitivity
+    from bench.vision.xy_table_positioning import TableSpec, map_view_names
+
+    p, b = cfg["pipeline"], cfg["bound"]
+    ref = pc.reference
+    lens, port = true_optics(truth)
+    project = true_projector(lens, port)
+    T_true = {n: np.array(T) for n, T in truth["T_table_cam"].items()}
+    kind = "corners" if p["features"] == "corners" else "sift"
+    sigma, n_sigma = measured_sigma_px(res, kind, T_true, lens, project, truth, ref, pc.map)
+    read_err = np.array(truth["true_joints"]) - np.array(truth["read"])  # the carriage minus its reading
+    metrics = {"keypoint_sigma_px": sigma, "keypoint_sigma_matches": float(n_sigma),
+               "table_reading_rms_mm": float(np.sqrt(np.mean(read_err[:, :2] ** 2)) * 1e3),
+               "table_reading_rms_deg": float(np.rad2deg(np.sqrt(np.mean(read_err[:, 2] ** 2))))}
+    if not np.isfinite(sigma) or sigma < 1e-3:  # exact features: nothing for the pixels to bound
+        return metrics, {"d_mm": []}
+    kin = TableKinematics(truth, [view_name(n) for n in truth["positions"]])
+    T_model = model_poses(kin)
+    metrics["bound_pose_check_mm"] = float(max(np.abs(T_model[n][:3, 3] - T_true[n][:3, 3]).max()
+                                               for n in T_true) * 1e3)  # the bound's table model = the simulator's
+    names = list(res.observations)
+    centres = np.stack([res.T_table_cam[n][:3, 3] for n in names])
+    X, seen = map_points(res, ref, T_model[ref], map_view_names(names, centres, ref, (), pc.map_min_baseline_m,
+                                                                  pc.map_exclude))
+    bounds = experiment_bounds(res, kin, pc, X, seen, project, lens.size, sigma, verbose)
+    cols = {k: [] for k in ("d_mm", "bound_x_mm", "bound_y_mm", "bound_z_mm", "bound_pos_mm", "bound_rot_deg",
+                            "bound_mc_x_mm", "bound_mc_y_mm", "bound_mc_z_mm", "bound_mc_pos_mm", "eq123_z_mm")}
+    # the Monte Carlo: the thesis's estimator (LMS + error ratio) on ideal features, true lens, R0 and centre
+    mc = {}
+    d_mc = [float(d) for d in b["mc_intraocular_mm"] if float(d) in res.pairs]
+    if b["mc_trials"] > 0 and d_mc:
+        T_mc = np.array(truth["T_mount_cam"])
+        spec_true = TableSpec(np.array(truth["camera_offset_m"]) + T_mc[:3, 3], spec.travel_m, spec.resolution_m,
+                              spec.resolution_rad)
+        mc = mc_ideal_positions(kin, X, seen, lens, spec_true, T_mc[:3, :3],
+                                replace(pc, methods=("lms_ratio",), intraocular_mm=tuple(d_mc)), sigma,
+                                np.random.default_rng([cfg["seed"], 17]), b["mc_trials"],
+                                table_errors=bool(cfg["sim"]["table_errors"]))
+        metrics["bound_mc_failures"] = float(mc.pop("failures"))
+    z_ref = float(np.median(transform_points(invert(T_model[ref]), X)[:, 2]))
+    K = lens.K
+    for d in sorted(res.pairs):
+        got = [v for (dd, _, _), v in bounds.items() if dd == d]
+        if not got:
+            continue
+        var = np.mean([np.diag(v["cov_pos"]) for v in got], axis=0)
+        cols["d_mm"].append(float(d))
+        for i, ax in enumerate("xyz"):
+            cols[f"bound_{ax}_mm"].append(float(np.sqrt(var[i]) * 1e3))
+        cols["bound_pos_mm"].append(float(np.sqrt(var.sum()) * 1e3))
+        cols["bound_rot_deg"].append(float(np.rad2deg(np.sqrt(np.mean([np.trace(v["cov_rot"]) for v in got])))))
+        e = mc.get(round(d, 6))
+        rms = np.sqrt(np.mean(e**2, axis=0)) * 1e3 if e is not None and len(e) else np.full(3, np.nan)
+        for i, ax in enumerate("xyz"):
+            cols[f"bound_mc_{ax}_mm"].append(float(rms[i]))
+        cols["bound_mc_pos_mm"].append(float(np.sqrt(np.sum(rms**2))))
+        # Eq. 123: depth error of one point for a disparity error sqrt(2) sigma, averaged over the pair's inliers
+        n_in = [c.inliers for c in res.combinations if c.success and c.method == "lms_ratio" and
+                abs(c.d_m * 1e3 - d) < 1e-6]
+        dz = stereo_sensitivity(K[0, 2], K[1, 2], K[0, 2], K[1, 2], K[0, 0], K[1, 1], d * 1e-3, z_ref,
+                                np.sqrt(2) * sigma)[2]
+        cols["eq123_z_mm"].append(float(abs(dz) / np.sqrt(np.median(n_in)) * 1e3) if n_in else float("nan"))
+    metrics["bound_points"] = float(len(X))
+    metrics["bound_observations_median"] = float(np.median([v["observations"] for v in bounds.values()]))
+    return metrics, cols
 
 
 # ------------------------------------------------------------------------------------------------ run
@@ -811,14 +929,37 @@ def run(cfg, out_dir, verbose=True):
         metrics["map_points_median"] = float(np.median([c.map_points for c in ok]))
         metrics["pairs_3d_median"] = float(np.median([c.pairs_3d for c in ok]))
         metrics["inliers_median"] = float(np.median([c.inliers for c in ok]))
+    if cfg["bound"]["enabled"] and res.success:
+        t1 = time.perf_counter()
+        bound_metrics, columns = _bound(cfg, truth, res, pc, spec, verbose)
+        metrics.update(bound_metrics)
+        by_d = {round(d, 6): i for i, d in enumerate(columns.pop("d_mm"))}
+        for col, vals in columns.items():
+            summary[col] = [vals[by_d[round(d, 6)]] if round(d, 6) in by_d else float("nan") for d in summary["d_mm"]]
+        if "bound_pos_mm" in summary:  # efficiency = bound / achieved, per d_o and method
+            summary["efficiency"] = [b / e if e > 0 else float("nan")
+                                     for b, e in zip(summary["bound_pos_mm"], summary["err_pos_mm"], strict=True)]
+        timings["bound_s"] = time.perf_counter() - t1
     ds_list = sorted(res.pairs)
+    labels = ((100.0, "100"), (50.0, "50"), (ds_list[0], "min_d"), (ds_list[-1], "max_d"))
     for m in pc.methods:
-        for d_key, label in ((100.0, "100"), (ds_list[0], "min_d"), (ds_list[-1], "max_d")):
+        for d_key, label in labels:
             idx = [i for i, (d, mm) in enumerate(zip(summary["d_mm"], summary["method"], strict=True))
                    if mm == m and abs(d - d_key) < 1e-6]
-            if idx:
+            if not idx:
+                continue
+            i = idx[0]
+            for ax in "xyz":
+                metrics[f"{m}_err_{ax}_mm_at_{label}"] = summary[f"err_{ax}_mm"][i]
+            metrics[f"{m}_err_pos_at_{label}_mm"] = summary["err_pos_mm"][i]
+            if m == "lms_ratio" and label in ("100", "50") and "bound_pos_mm" in summary:
+                # the bound is the estimator's; named to pair with the error it bounds (x_err_y / x_bound_y)
                 for ax in "xyz":
-                    metrics[f"{m}_err_{ax}_mm_at_{label}"] = summary[f"err_{ax}_mm"][idx[0]]
+                    metrics[f"{m}_bound_{ax}_mm_at_{label}"] = summary[f"bound_{ax}_mm"][i]
+                metrics[f"{m}_bound_pos_at_{label}_mm"] = summary["bound_pos_mm"][i]
+                metrics[f"{m}_bound_mc_pos_at_{label}_mm"] = summary["bound_mc_pos_mm"][i]
+                metrics[f"{m}_efficiency_at_{label}"] = summary["efficiency"][i]
+                metrics[f"bound_rot_at_{label}_deg"] = summary["bound_rot_deg"][i]
     timings["total_s"] = time.perf_counter() - t0
 
     # --- outputs ----------------------------------------------------------------------------------------------------

@@ -127,16 +127,18 @@ def _is_number(v) -> bool:
 
 
 def check_readings(readings, spec: TableSpec, names=None, source="table.csv") -> np.ndarray:
-    """Validate table readings ``(N, 3)`` ``[x_m, z_m, rot_rad]``: finite, slides within the travel."""
+    """Validate table readings ``(N, 3)`` ``[x_m, z_m, rot_rad]``: finite, slides within the travel (give or take
+    one resolution step: a table that reads its carriage's true position - a linear scale - reports its scale error
+    at the ends of the travel)."""
     r = np.atleast_2d(np.asarray(readings, dtype=float))
     names = list(names) if names is not None else [str(i + 1) for i in range(len(r))]
     if r.ndim != 2 or r.shape[1] != 3:
         raise ConfigError(source, "readings", f"expected (N, 3) [x, z, rot], got shape {np.shape(readings)}")
-    half = spec.travel_m / 2
+    half, tol = spec.travel_m / 2, spec.resolution_m
     for name, (x, z, rot) in zip(names, r, strict=True):
         if not np.all(np.isfinite((x, z, rot))):
             raise ConfigError(source, name, "reading is NaN or inf")
-        if abs(x) > half + 1e-9 or abs(z) > half + 1e-9:
+        if abs(x) > half + tol or abs(z) > half + tol:
             raise ConfigError(source, name, f"x = {x * 1e3:.1f} mm, z = {z * 1e3:.1f} mm outside the travel of "
                                             f"+-{half * 1e3:.0f} mm")
         if abs(rot) > np.pi:
@@ -283,6 +285,10 @@ class PositioningResult:
         Every view's pose from the readings and ``R0``.
     keypoints : dict {name: int}
     timings_s : dict
+    observations : dict {name: ViewObservation}
+        Every view as the experiment used it (keypoints, undistorted coordinates, pose from the readings and R0).
+    reference_matches : dict {name: Matches}
+        The reference keypoints' matches in every other view (ratio test and orientation filter).
     """
 
     success: bool
@@ -295,6 +301,8 @@ class PositioningResult:
     T_table_cam: dict
     keypoints: dict
     timings_s: dict = field(default_factory=dict)
+    observations: dict = field(default_factory=dict)
+    reference_matches: dict = field(default_factory=dict)
 
 
 def intraocular_pairs(names, readings, reference: str, intraocular_mm, tolerance_m: float = 1e-3) -> dict:
@@ -504,7 +512,7 @@ def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, 
     ok = sum(c.success for c in combos)
     msg = f"{ok} of {len(combos)} estimates over {n_pairs} pairs, {len(maps)} distinct maps"
     return PositioningResult(ok > 0, msg if ok else "no estimate succeeded: " + msg, R0, bias, search, combos, pairs,
-                             T_table_cam, {n: len(f) for n, f in features.items()}, timings)
+                             T_table_cam, {n: len(f) for n, f in features.items()}, timings, obs, ref_matches)
 
 
 # ------------------------------------------------------------------------------------------------ a dataset
