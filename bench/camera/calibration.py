@@ -457,8 +457,26 @@ def _residual_summary(problem, s):
     return rms, per_view, residuals, r
 
 
+def _check_initial(initial, n_views, model, k3, fit_skew):
+    """``(K, T_cam_target, estimated coefficients)`` from an ``initial`` guess; one-line ValueError if malformed."""
+    try:
+        K, dist, T = (np.array(a, dtype=float) for a in initial)
+    except (TypeError, ValueError):
+        raise ValueError("initial: expected (K (3, 3), dist (5,), T_cam_target (V, 4, 4))") from None
+    if K.shape != (3, 3) or dist.shape != (5,) or T.shape != (n_views, 4, 4):
+        raise ValueError(f"initial: expected shapes (3, 3), (5,), ({n_views}, 4, 4), got {K.shape}, {dist.shape}, "
+                         f"{T.shape}")
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(dist)) and np.all(np.isfinite(T))):
+        raise ValueError("initial: contains NaN or inf")
+    if not fit_skew:
+        K[0, 1] = 0.0
+    idx = {"k1": 0, "k2": 1, "p1": 2, "p2": 3, "k3": 4}
+    return K, T, np.array([dist[idx[n]] for n in distortion_names(model, k3)])
+
+
 def calibrate_camera(object_points, image_points, image_size, model: str = "heikkila", *, k3: bool = False,
-                     fit_skew: bool = False, max_iterations: int = 200, tol: float = 1e-12) -> CalibrationResult:
+                     fit_skew: bool = False, max_iterations: int = 200, tol: float = 1e-12,
+                     initial=None) -> CalibrationResult:
     """Calibrate a camera from V views of a known target (thesis §3.3; Zhang; Heikkilä).
 
     Parameters
@@ -478,6 +496,10 @@ def calibrate_camera(object_points, image_points, image_size, model: str = "heik
         Estimate the skew (the thesis's theta); OpenCV's ``calibrateCamera`` keeps it zero.
     max_iterations, tol : int, float
         Levenberg-Marquardt limits: converged when the largest step, relative to ``|parameter| + 1``, is below ``tol``.
+    initial : (K (3, 3), dist (5,), T_cam_target (V, 4, 4)), optional
+        Start Levenberg-Marquardt here instead of the linear initialisation (DLT/Zhang and Eq. 67-73), e.g. from a
+        calibration of more views (:func:`jackknife_views`); ``dist`` in OpenCV order, coefficients outside the model
+        ignored, the skew ignored unless ``fit_skew``.
 
     Returns
     -------
@@ -498,8 +520,11 @@ def calibrate_camera(object_points, image_points, image_size, model: str = "heik
     if all(dlt.point_set_rank(X) == 2 for X in Xs) and V < (3 if fit_skew else 2):
         return _failure(model, size, V, f"{V} view(s) of a planar target do not determine the intrinsics (Zhang needs "
                         f">= {3 if fit_skew else 2} views; the DLT needs a non-planar target)", timings)
+    start = None if initial is None else _check_initial(initial, V, model, k3, fit_skew)
     try:
-        if model == "pinhole":
+        if start is not None:
+            K, T, k = start
+        elif model == "pinhole":
             K, T = linear_calibration(Xs, uvs, size, fit_skew)
             k = np.zeros(0)
         else:
@@ -555,7 +580,7 @@ def reprojection_residuals(result: CalibrationResult, object_points, image_point
 
 
 def jackknife_views(object_points, image_points, image_size, model: str = "heikkila", *, k3: bool = False,
-                    fit_skew: bool = False, **kwargs):
+                    fit_skew: bool = False, result: CalibrationResult | None = None, **kwargs):
     """Leave-one-view-out (jackknife) standard errors of the intrinsic parameters.
 
     The formal standard errors of :func:`calibrate_camera` (``sigma^2 (J^T J)^-1``) treat every corner coordinate
@@ -568,6 +593,8 @@ def jackknife_views(object_points, image_points, image_size, model: str = "heikk
     ----------
     object_points, image_points, image_size, model, k3, fit_skew, **kwargs
         As for :func:`calibrate_camera`; at least 2 views (a two-plane rig) or 3 (planar targets).
+    result : CalibrationResult, optional
+        The calibration of all views (computed if not given); each leave-one-out calibration starts from it.
 
     Returns
     -------
@@ -583,10 +610,14 @@ def jackknife_views(object_points, image_points, image_size, model: str = "heikk
     est = np.full((V, n_par), np.nan)
     if V < 2:
         return np.full(n_par, np.nan), est
+    if result is None:
+        result = calibrate_camera(Xs, uvs, size, model, k3=k3, fit_skew=fit_skew, **kwargs)
+    if not result.success:
+        return np.full(n_par, np.nan), est
     for i in range(V):
         keep = [j for j in range(V) if j != i]
         r = calibrate_camera([Xs[j] for j in keep], [uvs[j] for j in keep], size, model, k3=k3, fit_skew=fit_skew,
-                             **kwargs)
+                             initial=(result.K, result.dist, result.T_cam_target[keep]), **kwargs)
         if r.success:
             est[i] = r.parameters
     if not np.all(np.isfinite(est)):

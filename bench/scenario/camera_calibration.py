@@ -565,10 +565,19 @@ def _dlt_residuals(X, uv):
 
 
 def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
-    """Run the pipeline on one medium's dataset and score it against its truth; returns ``(metrics, tables)``."""
+    """Run the pipeline on one medium's dataset and score it against its truth.
+
+    Returns ``(metrics, tables, timings_s, artifacts)`` (artifact paths relative to ``out_dir``).
+    """
     t0 = time.perf_counter()
     p = cfg["pipeline"]
     model = p["model"]
+
+    def step(text):
+        if verbose:
+            print(f"  {medium}: {text} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
+
+    step(f"corners ({p['extractor']} extractor)")
     det = detect_dataset_corners(ds_dir, p["extractor"])
     Xs = det.object_points
     uvs = [u.astype(np.float32).astype(float) for u in det.image_points]  # OpenCV takes float32: same points for both
@@ -582,6 +591,7 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
     if p["refine_corners"] and p["extractor"] == "thesis" and model != "pinhole":
         # second pass: the lines fitted in the ideal pixels of the first calibration (straight there), recalibrate
         first_pass = (det, uvs)
+        step("corners again, lines in ideal pixels")
         det = detect_dataset_corners(ds_dir, "thesis", camera=cal.camera)
         Xs = det.object_points
         uvs = [u.astype(np.float32).astype(float) for u in det.image_points]
@@ -647,7 +657,8 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
     pitch = true_cam.pixel_pitch
     heikkila_form = pitch is not None and cal.parameter_names == list(OPENCV_NAMES)
     t1 = time.perf_counter()
-    _, jk_rows = jackknife_views(Xs, uvs, size, model)
+    step("jackknife over views")
+    _, jk_rows = jackknife_views(Xs, uvs, size, model, result=cal)
     t_jk = time.perf_counter() - t1
     rows_cv = [_opencv_params(*_K_dist(cal.parameter_names, r)) for r in jk_rows]
     nominal_cv = _opencv_params(nominal.K, nominal.dist)
@@ -719,6 +730,7 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
     m[f"corner_rms_px_{p['extractor']}_extractor"] = m["corner_rms_px"]
     if p["compare_extractors"]:
         other = "opencv" if p["extractor"] == "thesis" else "thesis"
+        step(f"corners by the {other} extractor (comparison)")
         det2 = detect_dataset_corners(ds_dir, other)
         e2 = np.concatenate([_match_corners(u, uv_true_all[n])[1]
                              for n, u in zip(det2.names, det2.image_points, strict=True)])

@@ -258,8 +258,13 @@ def test_jackknife_views_matches_formal_errors_for_independent_noise_and_exceeds
     Xs, uvs, _ = random_views(rng, K, dist, rig_points(4), 6)
     noisy = [uv + rng.normal(0, 0.05, uv.shape) for uv in uvs]
     res = cal.calibrate_camera(Xs, noisy, SIZE)
-    jk, est = cal.jackknife_views(Xs, noisy, SIZE)
+    jk, est = cal.jackknife_views(Xs, noisy, SIZE, result=res)
     assert est.shape == (6, 8) and np.all(np.isfinite(jk))
+    # the leave-one-out fits start from the full one: a warm start reaches the same optimum as the linear start
+    again = cal.calibrate_camera(Xs, noisy, SIZE, initial=(res.K, res.dist, res.T_cam_target))
+    assert np.allclose(again.parameters, res.parameters, rtol=1e-9, atol=1e-12)
+    with pytest.raises(ValueError, match=r"initial: expected shapes"):
+        cal.calibrate_camera(Xs, noisy, SIZE, initial=(res.K, res.dist, res.T_cam_target[:2]))
     ratio = jk / res.std
     assert 0.5 < np.exp(np.mean(np.log(ratio))) < 2.0 and np.all((ratio > 0.25) & (ratio < 4.0)), ratio
     scaled = [(uv - uv.mean(0)) * (1 + rng.normal(0, 3e-3)) + uv.mean(0) + rng.normal(0, 0.02, uv.shape)
