@@ -365,6 +365,8 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
         if rp.success:
             T_ref_a, cov_ref_a, cond = rp.T_ref_a, rp.covariance, rp.condition
             msg += f"; refined on reprojection: rms {rp.rms:.3g} (normalized), {rp.iterations} iterations"
+            if not rp.kept.all():
+                msg += f", {int((~rp.kept).sum())} points beyond the reprojection gate dropped"
         else:
             msg += f"; refinement skipped ({rp.message})"
         timings["refine_s"] = time.perf_counter() - t0 - sum(timings.values())
@@ -389,6 +391,7 @@ class RefineResult:
     rms: float  # normalized units
     condition: float
     iterations: int
+    kept: np.ndarray | None = None  # (N,) bool: points left after the reprojection gate (all True without one)
 
 
 def _proj_jac(X):
@@ -457,7 +460,26 @@ def inverse_perturbation_jacobian(T_ref_a):
     return M
 
 
-def refine_pose(p_ref, x_a, x_b, T_a_b, T_ref_a0, iterations: int = 20) -> RefineResult:
+def _gauss_newton(p_ref, x_ab, T_b_a, T_a_ref, iterations):
+    """Gauss-Newton on the two-view reprojection error; returns ``(T_a_ref, iterations, failure message or "")``."""
+    it = 0
+    for it in range(1, iterations + 1):
+        u, J, z_min = pose_reprojection(T_a_ref, T_b_a, p_ref)
+        if z_min <= 0:
+            return T_a_ref, it, "points behind a camera"
+        r = (x_ab - u).ravel()
+        N = J.T @ J
+        cond = float(np.linalg.cond(N))
+        if not cond < 1e14:
+            return T_a_ref, it, f"singular normal matrix (condition {cond:.3g})"
+        delta = np.linalg.solve(N, J.T @ r)
+        T_a_ref = _left_exp(delta) @ T_a_ref
+        if np.abs(delta).max() < 1e-13:
+            break
+    return T_a_ref, it, ""
+
+
+def refine_pose(p_ref, x_a, x_b, T_a_b, T_ref_a0, iterations: int = 20, gate: float | None = 3.0) -> RefineResult:
     """Minimise the reprojection error of map points in two views over the pose ``T_ref_a`` (Gauss-Newton).
 
     Estimated: ``T_ref_a`` (6 parameters, a left perturbation of ``T_a_ref``). Fixed: the map points ``p_ref (N, 3)``
@@ -465,6 +487,12 @@ def refine_pose(p_ref, x_a, x_b, T_a_b, T_ref_a0, iterations: int = 20) -> Refin
     ``x_b - pi(T_b_a T_a_ref p)`` in normalized coordinates (:func:`pose_reprojection`). Covariance
     ``s^2 (J^T J)^-1`` with ``s^2`` from the residuals, mapped to a left rotation vector and translation of
     ``T_ref_a`` in the reference frame (:func:`inverse_perturbation_jacobian`).
+
+    ``gate``: after each fit, points whose reprojection error (both views) exceeds ``gate`` times the robust scale
+    ``1.4826 median`` of all points' errors are dropped and the pose is refitted, until none is dropped (at most
+    five rounds, at least six points kept). RANSAC's 3D gate (d_r, 20 mm) cannot see a match that lands on a
+    similar-looking feature a few millimetres away - repeated bolts, growth, stencils - but its reprojection error is
+    many pixels; ``None`` keeps every point (plain least squares).
     """
     p_ref, x_a, x_b = (np.asarray(v, dtype=float) for v in (p_ref, x_a, x_b))
     n = len(p_ref)
@@ -473,31 +501,33 @@ def refine_pose(p_ref, x_a, x_b, T_a_b, T_ref_a0, iterations: int = 20) -> Refin
         return RefineResult(False, f"{n} points (need >= 3)", T_ref_a0, nan6, np.nan, np.inf, 0)
     T_b_a = invert(np.asarray(T_a_b, float))
     T_a_ref = invert(np.asarray(T_ref_a0, float))
-    x_ab = np.concatenate([x_a, x_b], axis=0)
-    it = 0
-    for it in range(1, iterations + 1):
-        u, J, z_min = pose_reprojection(T_a_ref, T_b_a, p_ref)
-        if z_min <= 0:
-            return RefineResult(False, "points behind a camera", T_ref_a0, nan6, np.nan, np.inf, it)
-        r = (x_ab - u).ravel()
-        N = J.T @ J
-        cond = float(np.linalg.cond(N))
-        if not cond < 1e14:
-            return RefineResult(False, f"singular normal matrix (condition {cond:.3g})", T_ref_a0, nan6, np.nan,
-                                cond, it)
-        delta = np.linalg.solve(N, J.T @ r)
-        T_a_ref = _left_exp(delta) @ T_a_ref
-        if np.abs(delta).max() < 1e-13:
+    keep = np.ones(n, dtype=bool)
+    total = 0
+    for _ in range(5 if gate else 1):
+        x_ab = np.concatenate([x_a[keep], x_b[keep]], axis=0)
+        T_a_ref, it, fail = _gauss_newton(p_ref[keep], x_ab, T_b_a, T_a_ref, iterations)
+        total += it
+        if fail:
+            return RefineResult(False, fail, T_ref_a0, nan6, np.nan, np.inf, total, keep)
+        if not gate:
             break
-    u, J, _ = pose_reprojection(T_a_ref, T_b_a, p_ref)
+        u, _, _ = pose_reprojection(T_a_ref, T_b_a, p_ref)
+        e = np.hypot(np.linalg.norm(x_a - u[:n], axis=1), np.linalg.norm(x_b - u[n:], axis=1))
+        scale = max(1.4826 * float(np.median(e[keep])), 1e-9)  # floor: ~1e-6 px, exact data keeps every point
+        new = e <= gate * scale
+        if np.array_equal(new, keep) or new.sum() < 6:
+            break
+        keep = new
+    u, J, _ = pose_reprojection(T_a_ref, T_b_a, p_ref[keep])
     N = J.T @ J
-    r = (x_ab - u).ravel()
+    r = (np.concatenate([x_a[keep], x_b[keep]], axis=0) - u).ravel()
     s2 = float(r @ r) / max(len(r) - 6, 1)
     cov_a = s2 * np.linalg.inv(N)  # left perturbation of T_a_ref, in frame a
     T_ref_a = invert(T_a_ref)
     M = inverse_perturbation_jacobian(T_ref_a)
-    return RefineResult(True, "ok", T_ref_a, M @ cov_a @ M.T, float(np.sqrt(np.mean(r**2))), float(np.linalg.cond(N)),
-                        it)
+    msg = "ok" if keep.all() else f"ok; {int((~keep).sum())} of {n} points beyond {gate:g} x the robust scale dropped"
+    return RefineResult(True, msg, T_ref_a, M @ cov_a @ M.T, float(np.sqrt(np.mean(r**2))), float(np.linalg.cond(N)),
+                        total, keep)
 
 
 def locate_pnp(kmap: KeypointMap, view_a: ViewObservation, config: MapConfig | None = None,
