@@ -17,8 +17,10 @@ pose) and :mod:`bench.scenario.xy_table_bound` (the x-y table's camera positions
   ``sigma_px`` per image axis) with the 3D points eliminated point by point (each point's 3 x 3 block: the Schur
   complement that bundle adjustment calls the reduced camera system; every point is a free nuisance parameter).
 * :func:`crb` - that information plus the priors of the nuisance parameters (encoders, an identification, a table's
-  readout), inverted: the bound on the covariance of any unbiased estimator of the parameters, or of a function
+  errors), inverted: the bound on the covariance of any unbiased estimator of the parameters, or of a function
   ``g`` of them (``G C G^T``, ``G`` its Jacobian by :func:`function_jacobian`).
+* :func:`ml_estimate` - the estimator the bound is attained by for small noise: maximum likelihood (a bundle
+  adjustment over every parameter and point, priors included), by Gauss-Newton; the tests' reference.
 """
 
 from __future__ import annotations
@@ -197,6 +199,19 @@ class MultiViewModel:
         b = self.blocks[i]
         return self.offsets[i] + (view * b.size if b.per_view else 0) + coordinate
 
+    def pack(self, values) -> np.ndarray:
+        """Block values -> the parameter vector (n_params,)."""
+        return np.concatenate([np.asarray(v, float).ravel() for v in values])
+
+    def unpack(self, theta) -> list:
+        """The parameter vector (n_params,) -> block values (shared ``(size,)``, per view ``(V, size)``)."""
+        out = []
+        for b, off in zip(self.blocks, self.offsets, strict=True):
+            k = b.size * (self.n_views if b.per_view else 1)
+            v = np.asarray(theta[off:off + k], float)
+            out.append(v.reshape(self.n_views, b.size) if b.per_view else v)
+        return out
+
     def pixels(self, *args) -> np.ndarray:
         """``pixels(*values, X)`` -> (V, M, 2)."""
         *values, X = args
@@ -245,6 +260,23 @@ class MultiViewModel:
         for m in range(M):
             out[:, m, :, self.n_params + 3 * m:self.n_params + 3 * m + 3] = Jp[:, m]
         return out.reshape(2 * V * M, -1)
+
+    def jacobian_columnwise(self, *args) -> np.ndarray:
+        """The dense Jacobian one column at a time (the check of :meth:`jacobian`'s block differences)."""
+        *values, X = args
+        theta0, M = np.r_[self.pack(values), np.ravel(X)], len(X)
+
+        def f(theta):
+            return self.pixels(*self.unpack(theta[:self.n_params]), theta[self.n_params:].reshape(M, 3)).ravel()
+
+        steps = np.r_[np.concatenate([np.full(b.size * (self.n_views if b.per_view else 1), b.step)
+                                      for b in self.blocks]), np.full(3 * M, self.point_step)]
+        J = np.empty((2 * self.n_views * M, len(theta0)))
+        for i, h in enumerate(steps):
+            e = np.zeros_like(theta0)
+            e[i] = h
+            J[:, i] = (f(theta0 + e) - f(theta0 - e)) / (2 * h)
+        return J
 
     def prior_information(self, priors: dict) -> np.ndarray:
         """The priors' information matrix (n_params, n_params) from ``{block name: information}``: a (size, size)
@@ -332,3 +364,35 @@ def function_jacobian(model: MultiViewModel, g) -> np.ndarray:
                 plus[i], minus[i] = values[i] + e, values[i] - e
                 G[:, model.column(b.name, c, v)] = (np.atleast_1d(g(*plus)) - np.atleast_1d(g(*minus))) / (2 * b.step)
     return G
+
+
+def ml_estimate(model: MultiViewModel, uv, sigma_px: float, priors: dict, prior_means: list, values, X,
+                iterations: int = 10, tol: float = 1e-10) -> dict:
+    """Maximum-likelihood estimate of every parameter and point from the observed pixels ``uv`` (V, M, 2) (those of
+    ``model.vis``) and the priors (Gauss-Newton from ``values``, ``X``).
+
+    ``priors`` as :meth:`MultiViewModel.prior_information`, centred on ``prior_means`` (block values, e.g. the
+    encoder readings and the lab's identified errors). Returns ``values``, ``X``, ``iterations``, ``step`` (the
+    last step's largest parameter change) and ``success`` (it fell below ``tol``).
+    """
+    P = model.prior_information(priors)
+    lam, Q = np.linalg.eigh(P)
+    keep = lam > 1e-12 * max(lam.max(), 1e-300)
+    U = np.sqrt(lam[keep])[:, None] * Q[:, keep].T  # P = U^T U: the prior as residual rows
+    mean = model.pack(prior_means)
+    rows = np.repeat(model.vis.ravel(), 2)
+    theta, X = model.pack(values), np.asarray(X, float).copy()
+    M, n = len(X), model.n_params
+    step, done = np.full(1, np.inf), 0
+    while done < iterations:
+        done += 1
+        vals = model.unpack(theta)
+        r = np.r_[((model.pixels(*vals, X) - uv).ravel() / sigma_px)[rows], U @ (theta - mean)]
+        J = np.vstack([model.jacobian(*vals, X)[rows] / sigma_px, np.c_[U, np.zeros((len(U), 3 * M))]])
+        step = np.linalg.lstsq(J, -r, rcond=None)[0]
+        theta = theta + step[:n]
+        X = X + step[n:].reshape(M, 3)
+        if np.abs(step[:n]).max() < tol:
+            break
+    return {"values": model.unpack(theta), "X": X, "iterations": done, "step": float(np.abs(step[:n]).max()),
+            "success": bool(np.abs(step[:n]).max() < tol)}

@@ -10,6 +10,7 @@ from bench.geometry.transforms import homogeneous, invert, rot_z, transform_poin
 from bench.robot.identifiability import closed_form_reduction
 from bench.robot.model import default_robot_path, load_robot, random_errors
 from bench.robot.orientation import link5_frame
+from bench.scenario.bounds import ml_estimate
 from bench.scenario.in_situ_bound import _Model, crb_base_pose, ideal_features, keypoint_sigma_px
 from bench.vision.insitu import ViewObservation
 
@@ -41,17 +42,8 @@ def test_block_jacobian_equals_brute_force(scene):
     model = _Model(robot, eps, kept, MOUNT, cam.project, T_site_b2, views, X, cam.size)
     assert model.vis.all()
     V, M, P = len(views), len(X), len(kept)
-    theta0 = np.zeros(6 + 6 * V + P + 3 * M)
-
-    def f(theta):
-        xi, q = theta[:6], model.q0 + theta[6:6 + 6 * V].reshape(V, 6)
-        return model.pixels(xi, q, theta[6 + 6 * V:6 + 6 * V + P], X + theta[6 + 6 * V + P:].reshape(M, 3)).ravel()
-
-    J = np.empty((2 * V * M, len(theta0)))
-    for i in range(len(theta0)):
-        e = np.zeros_like(theta0)
-        e[i] = 1e-7
-        J[:, i] = (f(e) - f(-e)) / 2e-7
+    J = model.jacobian_columnwise(*model.values0, X)
+    assert np.allclose(model.jacobian(*model.values0, X), J, rtol=1e-6, atol=1e-6)
     sigma_px, sigma_enc = 0.3, 1e-4
     info = J.T @ J / sigma_px**2
     info[6:6 + 6 * V, 6:6 + 6 * V] += np.eye(6 * V) / sigma_enc**2
@@ -65,48 +57,30 @@ def test_block_jacobian_equals_brute_force(scene):
 
 
 def test_bound_equals_the_ml_estimator_spread(scene):
-    """Bundle adjustment over base pose, joints, arm errors and points (the ML estimator) on noisy pixels, readings
-    and arm errors: its spread matches the bound (Monte Carlo, 80 draws: +-30 % on the traces, ~3 standard
-    errors of a variance estimate)."""
+    """Bundle adjustment over base pose, joints, arm errors and points (the ML estimator,
+    :func:`bench.scenario.bounds.ml_estimate`) on noisy pixels, readings and arm errors: its spread matches the bound
+    (Monte Carlo, 80 draws: +-30 % on the traces, ~3 standard errors of a variance estimate)."""
     robot, eps, cam, T_site_b2, X, views, kept, cov_eps = scene
     sigma_px, sigma_enc = 0.2, 2e-5
     model = _Model(robot, eps, kept, MOUNT, cam.project, T_site_b2, views, X, cam.size)
-    V, M, P = len(views), len(X), len(kept)
+    P = len(kept)
     crb = crb_base_pose(robot, eps, kept, cov_eps, MOUNT, cam.project, T_site_b2, views, X, cam.size, sigma_px,
                         sigma_enc)
-    uv0 = model.pixels(np.zeros(6), model.q0, np.zeros(P), X)
+    uv0 = model.pixels(*model.values0, X)
     L = np.linalg.cholesky(cov_eps)
-    Linv = np.linalg.inv(L)
+    priors = {"q": np.eye(6) / sigma_enc**2, "d_eps": np.linalg.inv(cov_eps)}
     rng = np.random.default_rng(72)
-    n = 6 + 6 * V + P + 3 * M
-    prior_jac = np.zeros((6 * V + P, n))
-    prior_jac[:6 * V, 6:6 + 6 * V] = np.eye(6 * V) / sigma_enc
-    prior_jac[6 * V:, 6 + 6 * V:6 + 6 * V + P] = Linv
-
-    def unpack(th, q_read, e_prior):
-        return (th[:6], q_read + th[6:6 + 6 * V].reshape(V, 6), e_prior + th[6 + 6 * V:6 + 6 * V + P],
-                X + th[6 + 6 * V + P:].reshape(M, 3))
-
     errs = []
     for _ in range(80):
         uv = uv0 + rng.normal(0, sigma_px, uv0.shape)
         q_read = model.q0 + rng.normal(0, sigma_enc, model.q0.shape)
         e_prior = L @ rng.normal(size=P)  # the lab's estimate of the arm errors, relative to the truth
-
-        # Gauss-Newton on the full problem (the ML estimator) from a start off the truth by more than the noise
-        th = np.zeros(n)
-        th[:3], th[3:6] = rng.normal(0, 1e-3, 3), rng.normal(0, 2e-3, 3)
-        th[6 + 6 * V + P:] = rng.normal(0, 2e-3, 3 * M)
-        for _ in range(6):
-            r = np.concatenate([(model.pixels(*unpack(th, q_read, e_prior)) - uv).ravel() / sigma_px,
-                                th[6:6 + 6 * V] / sigma_enc, Linv @ th[6 + 6 * V:6 + 6 * V + P]])
-            J = np.vstack([model.jacobian(*unpack(th, q_read, e_prior)) / sigma_px, prior_jac])
-            step = np.linalg.lstsq(J, -r, rcond=None)[0]
-            th += step
-            if np.abs(step[:6]).max() < 1e-4 * crb["pos_bound_m"]:
-                break
-        assert np.abs(step[:6]).max() < 1e-3 * crb["pos_bound_m"]  # converged, far below the spread measured
-        errs.append(th[:6])
+        # from a start off the truth by more than the noise
+        xi0 = np.r_[rng.normal(0, 1e-3, 3), rng.normal(0, 2e-3, 3)]
+        est = ml_estimate(model, uv, sigma_px, priors, [np.zeros(6), q_read, e_prior], [xi0, q_read, e_prior],
+                          X + rng.normal(0, 2e-3, X.shape), iterations=6, tol=1e-4 * crb["pos_bound_m"])
+        assert est["step"] < 1e-3 * crb["pos_bound_m"]  # converged, far below the spread measured
+        errs.append(est["values"][0])
     cov_mc = np.cov(np.array(errs).T)
     assert np.trace(cov_mc[3:, 3:]) == pytest.approx(np.trace(crb["cov"][3:, 3:]), rel=0.3)
     assert np.trace(cov_mc[:3, :3]) == pytest.approx(np.trace(crb["cov"][:3, :3]), rel=0.3)
