@@ -296,6 +296,39 @@ class MultiViewModel:
         return info
 
 
+def _eliminate_points(J, Jp, vis, r=None) -> tuple:
+    """Normal equations of the (view, point) rows with every point eliminated (the reduced camera system).
+
+    ``J`` (V, M, 2, n), ``Jp`` (V, M, 2, 3) and the residuals ``r`` (V, M, 2), already divided by the pixel noise;
+    rows of ``vis == False`` are left out, and so are points seen in fewer than two views (they carry no
+    information). Returns ``(S, rhs, solve_points, use)``: ``S = A - sum_m B_m C_m^-1 B_m^T`` (n, n),
+    ``rhs = J^T r - sum_m B_m C_m^-1 Jp_m^T r_m`` (None without ``r``), ``solve_points(dc) -> dX`` (M_used, 3) the
+    points' step for a parameter step ``dc`` (Gauss-Newton: ``S dc = -rhs``), ``use`` (M,) the points used.
+    """
+    use = vis.sum(axis=0) >= 2
+    w = vis[:, use][..., None, None].astype(float)
+    J, Jp = J[:, use] * w, Jp[:, use] * w
+    V, M, _, n = J.shape
+    Jm = J.transpose(1, 0, 2, 3).reshape(M, 2 * V, n)  # rows of point m
+    Pm = Jp.transpose(1, 0, 2, 3).reshape(M, 2 * V, 3)
+    A = Jm.reshape(-1, n).T @ Jm.reshape(-1, n)
+    B = np.swapaxes(Jm, 1, 2) @ Pm  # (M, n, 3)
+    Cinv = np.linalg.inv(np.swapaxes(Pm, 1, 2) @ Pm)  # (M, 3, 3), invertible for a point seen in >= 2 views
+    BCinv = B @ Cinv
+    S = A - BCinv.transpose(1, 0, 2).reshape(n, -1) @ B.transpose(1, 0, 2).reshape(n, -1).T
+    if r is None:
+        return 0.5 * (S + S.T), None, None, use
+    rm = (r[:, use] * w[..., 0]).transpose(1, 0, 2).reshape(M, 2 * V, 1)
+    g_c = Jm.reshape(-1, n).T @ rm.reshape(-1)
+    g_m = (np.swapaxes(Pm, 1, 2) @ rm)[..., 0]  # (M, 3)
+    rhs = g_c - np.einsum("mik,mk->i", BCinv, g_m)
+
+    def solve_points(dc):
+        return -np.einsum("mkl,ml->mk", Cinv, g_m + np.einsum("mik,i->mk", B, dc))
+
+    return 0.5 * (S + S.T), rhs, solve_points, use
+
+
 def reduced_information(model: MultiViewModel, sigma_px: float, jacobians=None) -> tuple:
     """Fisher information of every observed pixel (``model.vis``; Gaussian, ``sigma_px`` per axis) on the model's
     parameters with every point a free nuisance parameter, eliminated point by point (Schur complement of its 3 x 3
@@ -307,19 +340,8 @@ def reduced_information(model: MultiViewModel, sigma_px: float, jacobians=None) 
     and of points used.
     """
     J, Jp = model.jacobian_blocks(*model.values0, model.X0) if jacobians is None else jacobians
-    vis = model.vis
-    use = vis.sum(axis=0) >= 2
-    w = vis[:, use][..., None, None].astype(float)
-    J, Jp = J[:, use] * w, Jp[:, use] * w
-    V, M, _, n = J.shape
-    Jm = J.transpose(1, 0, 2, 3).reshape(M, 2 * V, n)  # rows of point m
-    Pm = Jp.transpose(1, 0, 2, 3).reshape(M, 2 * V, 3)
-    A = Jm.reshape(-1, n).T @ Jm.reshape(-1, n)
-    B = np.swapaxes(Jm, 1, 2) @ Pm  # (M, n, 3)
-    C = np.swapaxes(Pm, 1, 2) @ Pm  # (M, 3, 3), invertible for a point seen in >= 2 views
-    BCinv = B @ np.linalg.inv(C)
-    info = (A - BCinv.transpose(1, 0, 2).reshape(n, -1) @ B.transpose(1, 0, 2).reshape(n, -1).T) / sigma_px**2
-    return 0.5 * (info + info.T), int(vis[:, use].sum()), int(use.sum())
+    S, _, _, use = _eliminate_points(J / sigma_px, Jp / sigma_px, model.vis)
+    return S, int(model.vis[:, use].sum()), int(use.sum())
 
 
 def crb(model: MultiViewModel, sigma_px: float, priors: dict, G=None, jacobians=None) -> dict:
@@ -369,30 +391,29 @@ def function_jacobian(model: MultiViewModel, g) -> np.ndarray:
 def ml_estimate(model: MultiViewModel, uv, sigma_px: float, priors: dict, prior_means: list, values, X,
                 iterations: int = 10, tol: float = 1e-10) -> dict:
     """Maximum-likelihood estimate of every parameter and point from the observed pixels ``uv`` (V, M, 2) (those of
-    ``model.vis``) and the priors (Gauss-Newton from ``values``, ``X``).
+    ``model.vis``) and the priors: Gauss-Newton from ``values``, ``X``, each step solved with the points eliminated
+    (:func:`_eliminate_points`); points seen in fewer than two views stay where they are.
 
     ``priors`` as :meth:`MultiViewModel.prior_information`, centred on ``prior_means`` (block values, e.g. the
     encoder readings and the lab's identified errors). Returns ``values``, ``X``, ``iterations``, ``step`` (the
     last step's largest parameter change) and ``success`` (it fell below ``tol``).
     """
     P = model.prior_information(priors)
-    lam, Q = np.linalg.eigh(P)
-    keep = lam > 1e-12 * max(lam.max(), 1e-300)
-    U = np.sqrt(lam[keep])[:, None] * Q[:, keep].T  # P = U^T U: the prior as residual rows
     mean = model.pack(prior_means)
-    rows = np.repeat(model.vis.ravel(), 2)
     theta, X = model.pack(values), np.asarray(X, float).copy()
-    M, n = len(X), model.n_params
-    step, done = np.full(1, np.inf), 0
+    step, done = np.inf, 0
     while done < iterations:
         done += 1
         vals = model.unpack(theta)
-        r = np.r_[((model.pixels(*vals, X) - uv).ravel() / sigma_px)[rows], U @ (theta - mean)]
-        J = np.vstack([model.jacobian(*vals, X)[rows] / sigma_px, np.c_[U, np.zeros((len(U), 3 * M))]])
-        step = np.linalg.lstsq(J, -r, rcond=None)[0]
-        theta = theta + step[:n]
-        X = X + step[n:].reshape(M, 3)
-        if np.abs(step[:n]).max() < tol:
+        J, Jp = model.jacobian_blocks(*vals, X)
+        r = (model.pixels(*vals, X) - uv) / sigma_px
+        S, rhs, solve_points, use = _eliminate_points(J / sigma_px, Jp / sigma_px, model.vis, r)
+        S, rhs = S + P, rhs + P @ (theta - mean)
+        d = np.sqrt(np.diag(S))  # Jacobi scaling: parameters of very different units (rad, m, scale factors)
+        dc = -np.linalg.solve(S / np.outer(d, d), rhs / d) / d
+        theta = theta + dc
+        X[use] += solve_points(dc)
+        step = float(np.abs(dc).max())
+        if step < tol:
             break
-    return {"values": model.unpack(theta), "X": X, "iterations": done, "step": float(np.abs(step[:n]).max()),
-            "success": bool(np.abs(step[:n]).max() < tol)}
+    return {"values": model.unpack(theta), "X": X, "iterations": done, "step": step, "success": bool(step < tol)}
