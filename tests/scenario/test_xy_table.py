@@ -11,13 +11,16 @@ import yaml
 
 pytest.importorskip("mujoco")
 
+from bench.dataset import load_dataset  # noqa: E402
 from bench.errors import ConfigError  # noqa: E402
-from bench.scenario.runner import run_scenario_file  # noqa: E402
+from bench.scenario import xy_table  # noqa: E402
+from bench.scenario.runner import load_scenario, run_scenario_file  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 WEBCAM = ROOT / "scenarios" / "xy_table_webcam.yaml"
 UNDERWATER = ROOT / "scenarios" / "xy_table_underwater.yaml"
-SMOKE = ["sim.supersample=1", "sim.calibration_views=4", "outputs.cache=false", "outputs.plots=false"]
+SMOKE = ["sim.supersample=1", "sim.calibration_views=4", "outputs.cache=false", "outputs.plots=false",
+         "bound.mc_trials=1"]
 SMOKE_WEBCAM = SMOKE + ["sim.positions=[1, 2, 4, 5, 6, 11, 12, 14, 15, 16, 17, 20, 21]",
                         "pipeline.intraocular_mm=[20, 100]"]
 SMOKE_UNDERWATER = SMOKE + ["sim.positions=[1, 2, 5, 6, 9, 11, 12, 15, 16]", "pipeline.intraocular_mm=[10, 100]"]
@@ -59,9 +62,27 @@ def _check_contract(res, methods_d):
     assert {"render_s", "bias_search_s", "total_s"} <= set(res["timings_s"])
 
 
+def _check_bound(res, sigma_max):
+    """The bound: the simulator's table reproduced, measured feature noise, the bound below the thesis's estimator on
+    ideal features (Monte Carlo) and below the achieved error, one bound per d_o whatever the method."""
+    m, t = res["metrics"], res["tables"]["position_error_vs_intraocular"]
+    assert m["bound_pose_check_mm"] < 1e-9  # the bound's table model gives the simulator's true camera poses
+    assert 0.01 < m["keypoint_sigma_px"] < sigma_max and m["keypoint_sigma_matches"] > 100
+    assert 0.005 < m["table_reading_rms_mm"] < 0.1 and 0.001 < m["table_reading_rms_deg"] < 0.1
+    b, mc, e = (m[f"lms_ratio_{k}_pos_at_100_mm"] for k in ("bound", "bound_mc", "err"))
+    assert 0 < b < mc and b < e
+    assert m["lms_ratio_efficiency_at_100"] == pytest.approx(b / e)
+    assert np.sqrt(sum(m[f"lms_ratio_bound_{ax}_mm_at_100"] ** 2 for ax in "xyz")) == pytest.approx(b)
+    for d in set(t["d_mm"]):
+        rows = [i for i, dd in enumerate(t["d_mm"]) if dd == d]
+        assert len({t["bound_pos_mm"][i] for i in rows}) == 1 and np.isfinite(t["eq123_z_mm"][rows[0]])
+        assert all(t["efficiency"][i] == pytest.approx(t["bound_pos_mm"][i] / t["err_pos_mm"][i]) for i in rows)
+
+
 def test_webcam_smoke(webcam):
     out, res = webcam
     _check_contract(res, [20.0, 100.0])
+    _check_bound(res, 0.3)
     m, t = res["metrics"], res["tables"]["position_error_vs_intraocular"]
     # the pairs present among the chosen views: d = 20: 2-4, 4-6, 12-14, 14-16, 15-17; d = 100: 2-12 ... 6-16
     assert [t["combinations"][i] for i in _rows(res, "lms_ratio", 20.0) + _rows(res, "lms_ratio", 100.0)] == [5, 4]
@@ -84,6 +105,7 @@ def test_webcam_smoke(webcam):
 def test_underwater_smoke(underwater):
     _, res = underwater
     _check_contract(res, [10.0, 100.0])
+    _check_bound(res, 0.3)
     m, t = res["metrics"], res["tables"]["position_error_vs_intraocular"]
     assert [t["combinations"][i] for i in _rows(res, "lms", 10.0) + _rows(res, "lms", 100.0)] == [4, 4]
     assert m["keypoints_reference"] == 72 and m["inliers_median"] >= 60  # the rig's corners, matched by id
@@ -155,3 +177,29 @@ def test_recording_loads_back(webcam):
     views = [k for k in e if k.startswith("/world/views/") and k.endswith("/true")]
     assert len(views) == len([k for k in e if k.startswith("/world/views/") and k.endswith("/estimated")]) > 5
     assert "/world/estimates/lms_ratio" in e and "/world/reference" in e
+
+
+def test_table_readout_exact(tmp_path):
+    """sim.table_readout = exact (the budget's perfect encoders): the dataset's readings are the carriage's true
+    positions; steps (default): the steps the table moved in, off the truth by its positioning errors."""
+    read = {}
+    for mode in ("steps", "exact"):
+        cfg = load_scenario(WEBCAM, seed=3, overrides=SMOKE + ["sim.positions=[1, 11]", "sim.calibration_views=1",
+                                                             f"sim.table_readout={mode}"])
+        xy_table.render(cfg, tmp_path / mode, verbose=False)
+        ds = load_dataset(tmp_path / mode)
+        truth = yaml.safe_load((tmp_path / mode / "truth" / "truth.yaml").read_text())
+        read[mode] = np.stack([ds.view(n).table for n in ("p01", "p11")])
+        assert np.allclose(read[mode], truth["true_joints" if mode == "exact" else "steps"], rtol=0, atol=1e-12)
+    assert np.abs(read["exact"] - read["steps"]).max() > 1e-6
+
+
+@pytest.mark.parametrize("scenario", [WEBCAM, UNDERWATER])
+def test_budget_sources_are_valid_switches(scenario):
+    """Every error source of the budget is a valid set of overrides of both scenarios; the primary metric ends in its
+    unit (budget_<source>_mm)."""
+    for source, overrides in xy_table.BUDGET.items():
+        cfg = load_scenario(scenario, overrides=[f"{k}={v}" for k, v in {**xy_table.BUDGET_FIXED, **overrides}.items()])
+        xy_table.validate(cfg)
+        assert all(cfg[k.split(".")[0]][k.split(".")[1]] == v for k, v in overrides.items()), source
+    assert xy_table.BUDGET_METRICS[0].endswith("_mm")
