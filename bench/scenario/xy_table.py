@@ -941,22 +941,29 @@ def run(cfg, out_dir, verbose=True):
                                      for b, e in zip(summary["bound_pos_mm"], summary["err_pos_mm"], strict=True)]
         timings["bound_s"] = time.perf_counter() - t1
     ds_list = sorted(res.pairs)
-    labels = ((100.0, "100"), (50.0, "50"), (ds_list[0], "min_d"), (ds_list[-1], "max_d"))
     for m in pc.methods:
+        # per-axis errors at 100, 50 mm and the extreme d_o (all methods); for LMS + error ratio the 3D error at
+        # every d_o, and the bound named to pair with the error it bounds (x_err_y / x_bound_y: sweeps put the
+        # efficiency RMS bound / RMS error beside them)
+        labels = [(100.0, "100"), (50.0, "50"), (ds_list[0], "min_d"), (ds_list[-1], "max_d")]
+        if m == "lms_ratio":
+            labels += [(d, f"{d:g}") for d in ds_list if d not in (100.0, 50.0)]
         for d_key, label in labels:
             idx = [i for i, (d, mm) in enumerate(zip(summary["d_mm"], summary["method"], strict=True))
                    if mm == m and abs(d - d_key) < 1e-6]
             if not idx:
                 continue
             i = idx[0]
-            for ax in "xyz":
-                metrics[f"{m}_err_{ax}_mm_at_{label}"] = summary[f"err_{ax}_mm"][i]
             metrics[f"{m}_err_pos_at_{label}_mm"] = summary["err_pos_mm"][i]
-            if m == "lms_ratio" and label in ("100", "50") and "bound_pos_mm" in summary:
-                # the bound is the estimator's; named to pair with the error it bounds (x_err_y / x_bound_y)
+            if label in ("100", "50", "min_d", "max_d"):
+                for ax in "xyz":
+                    metrics[f"{m}_err_{ax}_mm_at_{label}"] = summary[f"err_{ax}_mm"][i]
+            if m != "lms_ratio" or "bound_pos_mm" not in summary or label in ("min_d", "max_d"):
+                continue
+            metrics[f"{m}_bound_pos_at_{label}_mm"] = summary["bound_pos_mm"][i]
+            if label in ("100", "50"):
                 for ax in "xyz":
                     metrics[f"{m}_bound_{ax}_mm_at_{label}"] = summary[f"bound_{ax}_mm"][i]
-                metrics[f"{m}_bound_pos_at_{label}_mm"] = summary["bound_pos_mm"][i]
                 metrics[f"{m}_bound_mc_pos_at_{label}_mm"] = summary["bound_mc_pos_mm"][i]
                 metrics[f"{m}_efficiency_at_{label}"] = summary["efficiency"][i]
                 metrics[f"bound_rot_at_{label}_deg"] = summary["bound_rot_deg"][i]
