@@ -81,26 +81,37 @@ def ideal_features(p_world, T_world_cam, project, size, noise_px: float = 0.0, r
 # ------------------------------------------------------------------------------------------------ measured noise
 
 
-def _epipolar_curve(uv_ref, T_ref_k, unproject_ref, project_k, depths):
-    """The image in view k of the true rays through ``uv_ref`` (N, 2), sampled at ``depths``: (N, D, 2) px."""
-    rays = unproject_ref(uv_ref)  # (N, 3) directions in the reference camera frame (central approximation)
-    pts = rays[:, None, :] * depths[None, :, None]  # (N, D, 3)
+def _epipolar_curve(uv_ref, T_ref_k, rays_ref, project_k, depths):
+    """Images in view k of the true rays through ``uv_ref`` (sampled at ``depths`` along them), ``(N, D, 2)``."""
+    o, d = rays_ref(uv_ref)  # (N, 3) origins and directions in the reference camera frame
+    pts = o[:, None, :] + d[:, None, :] * depths[None, :, None]  # (N, D, 3)
     return project_k(transform_points(invert(T_ref_k), pts))
 
 
 def keypoint_sigma_px(reference: ViewObservation, views: list, T_world_cam_true: dict, camera_true: CameraModel,
-                      project, depth_range=(0.2, 3.0), config: MapConfig | None = None, matches=None) -> tuple:
+                      project, depth_range=(0.2, 3.0), config: MapConfig | None = None, matches=None,
+                      port=None) -> tuple:
     """Measured SIFT localisation noise (px, 1-sigma per image axis) and the number of matches it is based on.
 
     The distance of each matched keypoint from the *true* epipolar curve of its reference keypoint (rays through the
     true optics and true camera poses), robust standard deviation over all matches, divided by sqrt(2) (both
-    keypoints of a pair are noisy). ``T_world_cam_true`` maps view names to true camera poses; ``camera_true``
-    back-projects the reference keypoints (in water the central equivalent, an approximation of the port's rays
-    good to a fraction of a pixel over the short epipolar segments involved); ``project`` maps into the other views
-    through the true optics. ``matches`` (one :class:`~bench.vision.features.Matches` per view, as
+    keypoints of a pair are noisy). ``T_world_cam_true`` maps view names to true camera poses; ``camera_true`` (the
+    lens) back-projects the reference keypoints, and with a flat ``port`` the rays are traced through it into the
+    water (exact, the camera is not central there); ``project`` maps into the other views through the true optics.
+    ``matches`` (one :class:`~bench.vision.features.Matches` per view, as
     :func:`~bench.vision.insitu.reference_matches` gives them) saves matching again.
     """
     depths = np.geomspace(*depth_range, 400)
+
+    def rays(uv):
+        dirs = camera_true.unproject(uv)
+        if port is None:
+            return np.zeros_like(dirs), dirs
+        from bench.sim.flatport import trace_rays
+
+        origin, direction, _ = trace_rays(dirs, port)
+        return origin, direction
+
     d_all = []
     T_wr = T_world_cam_true[reference.name]
     matches = reference_matches(reference, views, config) if matches is None else matches
@@ -108,7 +119,7 @@ def keypoint_sigma_px(reference: ViewObservation, views: list, T_world_cam_true:
         if len(m) == 0:
             continue
         T_ref_k = invert(T_wr) @ T_world_cam_true[view.name]
-        curve = _epipolar_curve(reference.features.uv[m.i1], T_ref_k, camera_true.unproject, project, depths)
+        curve = _epipolar_curve(reference.features.uv[m.i1], T_ref_k, rays, project, depths)
         p = view.features.uv[m.i2][:, None, :]
         a, b = curve[:, :-1], curve[:, 1:]
         ab = b - a

@@ -37,6 +37,7 @@ from bench.camera.calibrate_dataset import load_target
 from bench.camera.calibration import calibrate_camera
 from bench.camera.corners import extract_corners_opencv, extract_corners_thesis
 from bench.camera.io import camera_yaml_text, read_camera_yaml, write_camera_yaml
+from bench.camera.model import CameraModel
 from bench.camera.presets import load_preset
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
@@ -436,10 +437,8 @@ def _true_optics(truth):
     """The true lens (CameraModel), port (FlatPort or None) and the central camera equivalent to both."""
     from bench.sim.flatport import FlatPort
 
-    nominal = load_preset("air_webcam")  # only for the image size and the model name
-    size = truth.get("image_size", [nominal.width, nominal.height])
-    lens = nominal.replace(K=np.array(truth["camera_K"]), dist=np.array(truth["camera_dist"]), width=size[0],
-                           height=size[1], name="true lens")
+    w, h = truth["image_size"]
+    lens = CameraModel(int(w), int(h), np.array(truth["camera_K"]), np.array(truth["camera_dist"]), "true lens")
     port = truth.get("port")
     port = None if port is None else FlatPort(**{k: np.array(v) if isinstance(v, list) else v
                                                  for k, v in port.items()})
@@ -477,8 +476,8 @@ def _bound(cfg, robot, truth, lab, details, ransac) -> dict:
     ref = [n for n in obs if truth["views"][n]["role"] == "reference"][0]
     surround = [n for n in obs if truth["views"][n]["role"] == "surround"]
     loc = [n for n in obs if truth["views"][n]["role"] == "locate"][:2]
-    sigma_px, n_sigma = keypoint_sigma_px(obs[ref], [obs[n] for n in surround], poses, central,
-                                          true_projector(lens, port))
+    sigma_px, n_sigma = keypoint_sigma_px(obs[ref], [obs[n] for n in surround], poses, lens,
+                                          true_projector(lens, port), port=port)
     out = {"keypoint_sigma_px": sigma_px, "keypoint_sigma_matches": float(n_sigma)}
     if not np.isfinite(sigma_px) or sigma_px <= 0:
         return out
