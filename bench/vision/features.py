@@ -114,9 +114,11 @@ def detect_sift(image, contrast_threshold: float = CONTRAST_THRESHOLD, edge_thre
     if not (contrast_threshold > 0 and edge_threshold > 1):
         raise ValueError(f"contrast_threshold must be > 0 and edge_threshold > 1, got {contrast_threshold}, "
                          f"{edge_threshold}")
+    # enable_precise_upscale: OpenCV's default doubling of the image for octave -1 maps pixel x to 2x + 0.5 and puts
+    # every keypoint 0.25 px right and below its feature (measured: 0.249 / 0.252 px on Gaussian blobs, 0.002 with it)
     sift = cv2.SIFT_create(nfeatures=int(max_features), nOctaveLayers=int(n_octave_layers),
                            contrastThreshold=float(contrast_threshold) * n_octave_layers,
-                           edgeThreshold=float(edge_threshold))
+                           edgeThreshold=float(edge_threshold), enable_precise_upscale=True)
     kps, desc = sift.detectAndCompute(grey, mask)
     if not kps:
         return Features(np.empty((0, 2)), np.empty(0), np.empty(0), np.empty(0), np.empty((0, 128), np.float32))

@@ -63,7 +63,7 @@ def test_lowe_threshold_mapping_changes_the_count():
     rng = np.random.default_rng(5)
     img = _texture(rng)
     n_lowe = len(detect_sift(img))  # Lowe's 0.03 = OpenCV 0.09 with 3 layers
-    raw = cv2.SIFT_create(contrastThreshold=0.09, edgeThreshold=10).detect(img, None)
+    raw = cv2.SIFT_create(contrastThreshold=0.09, edgeThreshold=10, enable_precise_upscale=True).detect(img, None)
     assert n_lowe == len(raw)
     assert len(detect_sift(img, contrast_threshold=0.01)) > n_lowe
 
@@ -87,3 +87,23 @@ def test_degenerate_inputs():
         detect_sift(np.zeros((10, 10), np.float32))
     with pytest.raises(ValueError, match="ratio"):
         match_descriptors(f, f, ratio=1.5)
+
+
+def test_keypoints_are_not_biased_by_the_upscaled_octave():
+    """Gaussian blobs at known sub-pixel centres: SIFT keypoints land on them (OpenCV's default upscaling would put
+    every one 0.25 px right and below)."""
+    rng = np.random.default_rng(31)
+    yy, xx = np.mgrid[0:480, 0:640].astype(float)
+    img = np.full((480, 640), 40.0)
+    centres = []
+    for gy in range(60, 440, 70):
+        for gx in range(60, 600, 70):
+            c = np.array([gx, gy]) + rng.uniform(-0.5, 0.5, 2)
+            centres.append(c)
+            img += 180 * np.exp(-((xx - c[0]) ** 2 + (yy - c[1]) ** 2) / (2 * 4.0**2))
+    f = detect_sift(np.clip(img, 0, 255).astype(np.uint8))
+    C = np.array(centres)
+    d = np.linalg.norm(f.uv[:, None] - C[None], axis=2)
+    near = d.min(axis=1) < 1.5
+    offset = f.uv[near] - C[d.argmin(axis=1)[near]]
+    assert near.sum() > len(C) and np.abs(offset.mean(axis=0)).max() < 0.02
