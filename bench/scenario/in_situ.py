@@ -78,7 +78,7 @@ SCHEMA = {
     "survey": {"depth_resolution_mm": (float, 5.0), "directions": (int, 6), "offsets_mm": (list, [])},
     "task": {"valve": (str, "nearest"), "teach": (bool, True)},
     "locate": {"baseline_mm": (float, 150.0), "motion_m": (float, 0.15), "motion_deg": (float, 5.0)},
-    "pipeline": {"method": (str, "svd"), "extractor": (str, "opencv"), "refine": (bool, True),
+    "pipeline": {"method": (str, "svd"), "extractor": (str, "opencv"), "refine": (str, "bundle"),
                  "ransac_iterations": (int, 100), "d_r_mm": (float, 20.0), "r_lim": (float, 0.1)},
     # error sources, for the error budget: switching one off injects the truth explicitly (evaluator side), e.g.
     # kinematics=perfect gives the pipeline the true errors and mount instead of its calibration
@@ -125,6 +125,8 @@ def validate(cfg) -> None:
         raise ConfigError(src, "lab.tracker_sigma_mm", "implausible: the unit is mm")
     if cfg["pipeline"]["method"] not in ("svd", "horn", "rodrigues"):
         raise ConfigError(src, "pipeline.method", "expected svd, horn or rodrigues")
+    if cfg["pipeline"]["refine"] not in ("none", "pose", "bundle"):
+        raise ConfigError(src, "pipeline.refine", f"expected none, pose or bundle, got {cfg['pipeline']['refine']!r}")
     if cfg["pipeline"]["extractor"] not in ("opencv", "thesis"):
         raise ConfigError(src, "pipeline.extractor", "expected opencv or thesis")
     for key, allowed in SOURCES.items():
@@ -495,7 +497,7 @@ def _bound(cfg, robot, truth, lab, details, ransac) -> dict:
                         central.size, sigma_px, sigma_enc)
     mc = mc_ideal_estimator(robot, eps_true, kept, ident.covariance, mount, central, T_site_b2, views, names, X_site,
                             sigma_px, EncoderModel(**enc), np.random.default_rng([cfg["seed"], 13]),
-                            cfg["bound"]["mc_trials"], cfg["pipeline"]["method"], ransac)
+                            cfg["bound"]["mc_trials"], cfg["pipeline"]["method"], ransac, cfg["pipeline"]["refine"])
     out.update({"base_pos_bound_mm": crb["pos_bound_m"] * 1e3, "base_rot_bound_deg": np.rad2deg(crb["rot_bound_rad"]),
                 "base_pos_bound_mc_mm": mc["pos_rms_m"] * 1e3, "base_rot_bound_mc_deg": np.rad2deg(mc["rot_rms_rad"]),
                 "bound_observations": float(crb["observations"])})

@@ -108,7 +108,7 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
 
 def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraModel, T_site_b2, views, names,
                        X_site, sigma_px, encoders, rng: np.random.Generator, trials: int = 30, method: str = "svd",
-                       ransac: dict | None = None) -> dict:
+                       ransac: dict | None = None, refine="pose") -> dict:
     """RMS base error of the pipeline's estimator on ideal features with the bound's noise, over ``trials`` draws.
 
     Each draw: pixel noise ``sigma_px`` on exact projections (``camera``: the true central camera), encoder readings
@@ -133,7 +133,7 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
                                        @ mount))
         n_survey = int(np.sum(~is_loc))
         kmap = build_map(obs[0], obs[1:n_survey])
-        res = locate(kmap, obs[n_survey], obs[n_survey + 1], method=method, rng=rng, **(ransac or {}))
+        res = locate(kmap, obs[n_survey], obs[n_survey + 1], method=method, rng=rng, refine=refine, **(ransac or {}))
         if not res.success:
             fails += 1
             continue

@@ -107,6 +107,13 @@ class KeypointMap:
         Pose of the reference camera in the site frame (the survey base frame).
     stats : dict
         Counts after each filter.
+    x_ref : ndarray (M, 2)
+        The map points' keypoints in the reference view (normalized, undistorted).
+    T_ref_views : ndarray (K, 4, 4)
+        Poses of the surrounding views in the reference camera frame (kinematics).
+    observations : list of (ndarray (n_i,) int, ndarray (n_i, 2))
+        Per map point: the surrounding views that contributed to it and its keypoint in each (normalized) - what
+        :func:`bundle_refine` re-uses.
     """
 
     p_ref: np.ndarray
@@ -116,6 +123,9 @@ class KeypointMap:
     spread_m: np.ndarray
     T_world_ref: np.ndarray
     stats: dict = field(default_factory=dict)
+    x_ref: np.ndarray | None = None
+    T_ref_views: np.ndarray | None = None
+    observations: list | None = None
 
     def __len__(self) -> int:
         return len(self.p_ref)
@@ -171,15 +181,15 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
         tri = triangulate_midpoint(np.eye(4), reference.x_n[m.i1], T_ref_j, view.x_n[m.i2])
         ok = tri.valid & (tri.gap <= cfg.gap_max_m)
         stats["after_gap_filter"] += int(ok.sum())
-        for i, p1, p2 in zip(m.i1[ok], tri.p1[ok], tri.p2[ok], strict=True):
-            est[i].append((p1, p2))  # Eq. 163 (on the reference ray) and Eq. 164 (on ray j)
+        for i, p1, p2, x in zip(m.i1[ok], tri.p1[ok], tri.p2[ok], view.x_n[m.i2[ok]], strict=True):
+            est[i].append((p1, p2, k, x))  # Eq. 163 (on the reference ray) and Eq. 164 (on ray j)
 
-    keep, P, Pstar, nv, spread = [], [], [], [], []
+    keep, P, Pstar, nv, spread, observations = [], [], [], [], [], []
     for i, e in enumerate(est):
         if len(e) < cfg.min_views:
             continue
-        p = np.array([a for a, _ in e])
-        ps = np.array([b for _, b in e])
+        p = np.array([a[0] for a in e])
+        ps = np.array([a[1] for a in e])
         d = np.linalg.norm(p[:, None] - p[None], axis=-1)
         np.fill_diagonal(d, np.inf)
         good = d.min(axis=1) <= cfg.neighbour_m if len(p) > 1 else np.ones(1, bool)  # neighbour filter d_n
@@ -189,6 +199,8 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
         if np.linalg.norm(mean - mean_star) > cfg.cross_check_m:
             continue
         keep.append(i)
+        observations.append((np.array([a[2] for a, g in zip(e, good, strict=True) if g], dtype=int),
+                             np.array([a[3] for a, g in zip(e, good, strict=True) if g]).reshape(-1, 2)))
         P.append(mean)
         Pstar.append(mean_star)
         nv.append(int(good.sum()))
@@ -199,8 +211,10 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
                                                           [:3, 3]) for v in surrounding))
     stats["median_depth_m"] = float(np.median(np.array(P)[:, 2])) if P else float("nan")
     idx = np.array(keep, dtype=int)
+    T_ref_views = np.array([invert(T_world_ref) @ np.asarray(v.T_base_cam, float) for v in surrounding])
     return KeypointMap(np.array(P).reshape(-1, 3), np.array(Pstar).reshape(-1, 3), reference.features.subset(idx),
-                       np.array(nv, dtype=int), np.array(spread), T_world_ref, stats)
+                       np.array(nv, dtype=int), np.array(spread), T_world_ref, stats, reference.x_n[idx],
+                       T_ref_views, observations)
 
 
 @dataclass
@@ -299,10 +313,12 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
     d_r, iterations, adaptive, r_lim : RANSAC distance (m), iterations, adaptive count, error-ratio limit (thesis:
         20 mm, 100, fixed, 0.1).
     rng : numpy.random.Generator or int, optional
-    refine : bool
-        After the thesis's alignment, minimise the reprojection error of the inlier map points in both views over
-        the 6 pose parameters (:func:`refine_pose`); the reported covariance is that of this final least-squares
-        problem. Without it, the alignment's own first-order covariance is reported.
+    refine : bool or {"none", "pose", "bundle"}
+        After the thesis's alignment: ``"pose"`` (or True) minimises the reprojection error of the inlier map points
+        in both views over the 6 pose parameters (:func:`refine_pose`, with its reprojection gate); ``"bundle"``
+        then refines the map points and the pose together on every observation (:func:`bundle_refine`, the
+        maximum-likelihood estimate given the kinematics). The reported covariance is that of the final
+        least-squares problem; ``"none"`` (or False) reports the alignment's own first-order covariance.
     focal_px : float
         Focal length (px) of the camera: converts the 1 px disparity error of the baseline checks (Eq. 123, 199;
         see :data:`BASELINE_FAIL_RATIO`) to normalized units.
@@ -312,6 +328,9 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
     LocateResult
     """
     cfg = config or MapConfig()
+    if refine not in (True, False, "none", "pose", "bundle"):
+        raise ValueError(f"refine: expected True, False, 'none', 'pose' or 'bundle', got {refine!r}")
+    refine = {True: "pose", False: "none"}.get(refine, refine)
     t0 = time.perf_counter()
     timings = {}
     if len(kmap) < 3:
@@ -359,7 +378,7 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
     orient = res.orientation
     cov_ref_a, cond = orient.covariance, float(orient.condition)
     msg = f"{int(res.inliers.sum())} of {len(p1)} 3D matches kept, rms {res.rms * 1e3:.2f} mm"
-    if refine:
+    if refine != "none":
         sel_ok = np.flatnonzero(ok)[res.inliers]
         rp = refine_pose(kmap.p_ref[i_map[sel_ok]], view_a.x_n[i_a[sel_ok]], view_b.x_n[i_b[sel_ok]], T_a_b, T_ref_a)
         if rp.success:
@@ -367,6 +386,14 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
             msg += f"; refined on reprojection: rms {rp.rms:.3g} (normalized), {rp.iterations} iterations"
             if not rp.kept.all():
                 msg += f", {int((~rp.kept).sum())} points beyond the reprojection gate dropped"
+            if refine == "bundle":
+                k = sel_ok[rp.kept]
+                bp = bundle_refine(kmap, i_map[k], view_a.x_n[i_a[k]], view_b.x_n[i_b[k]], T_a_b, T_ref_a)
+                if bp.success:
+                    T_ref_a, cov_ref_a, cond = bp.T_ref_a, bp.covariance, bp.condition
+                    msg += f"; {bp.message[4:]}, rms {bp.rms:.3g}, {bp.iterations} iterations"
+                else:
+                    msg += f"; bundle skipped ({bp.message})"
         else:
             msg += f"; refinement skipped ({rp.message})"
         timings["refine_s"] = time.perf_counter() - t0 - sum(timings.values())
@@ -528,6 +555,119 @@ def refine_pose(p_ref, x_a, x_b, T_a_b, T_ref_a0, iterations: int = 20, gate: fl
     msg = "ok" if keep.all() else f"ok; {int((~keep).sum())} of {n} points beyond {gate:g} x the robust scale dropped"
     return RefineResult(True, msg, T_ref_a, M @ cov_a @ M.T, float(np.sqrt(np.mean(r**2))), float(np.linalg.cond(N)),
                         total, keep)
+
+
+def bundle_refine(kmap: KeypointMap, idx, x_a, x_b, T_a_b, T_ref_a0, iterations: int = 20) -> RefineResult:
+    """The locate view's pose and the map points together, on every observation of them (maximum likelihood).
+
+    The thesis fixes the map ¹p (averaged pairwise triangulations, Eq. 162) and aligns ²p to it; :func:`refine_pose`
+    fixes the map and minimises the reprojection error in the two new views. Here the map points move too: estimated
+    are ``T_ref_a`` (6 parameters, as in :func:`refine_pose`) and the 3D points ``p_ref[idx]``; fixed are the
+    camera poses of the survey (reference = identity, surrounding views ``kmap.T_ref_views``) and ``T_a_b`` (all from
+    the kinematics). Residuals (normalized coordinates): every point in the reference view, in each surrounding view
+    that contributed to it (``kmap.observations``), and in views a and b (``x_a``, ``x_b``). Gauss-Newton with the
+    points eliminated one by one (Schur complement); the covariance of the pose is ``s^2 S^-1`` of the reduced system
+    (``s^2`` from the residuals), so it carries the map's uncertainty - which :func:`refine_pose`'s does not.
+
+    Parameters
+    ----------
+    kmap : KeypointMap
+        With ``x_ref``, ``T_ref_views`` and ``observations`` (as :func:`build_map` makes it).
+    idx : array_like (N,) int
+        The map points to use (e.g. the alignment's inliers), with ``x_a (N, 2)``, ``x_b (N, 2)`` their keypoints
+        in views a and b.
+    T_a_b, T_ref_a0 : ndarray (4, 4)
+        View b in view a (kinematics); the starting pose of view a in the reference frame.
+    """
+    idx = np.asarray(idx, dtype=int)
+    x_a, x_b = np.asarray(x_a, float), np.asarray(x_b, float)
+    n = len(idx)
+    nan6 = np.full((6, 6), np.nan)
+    if kmap.observations is None or kmap.x_ref is None:
+        return RefineResult(False, "the map carries no observations (built by an older build_map)", T_ref_a0, nan6,
+                            np.nan, np.inf, 0)
+    if n < 3:
+        return RefineResult(False, f"{n} points (need >= 3)", T_ref_a0, nan6, np.nan, np.inf, 0)
+    # fixed views: (point, R, t, x) rows - the reference and the surrounding views
+    T_views = [invert(T) for T in kmap.T_ref_views]
+    pts, Rs, ts, xs = [np.arange(n)], [np.broadcast_to(np.eye(3), (n, 3, 3))], [np.zeros((n, 3))], [kmap.x_ref[idx]]
+    for j, i in enumerate(idx):
+        views, x = kmap.observations[i]
+        if len(views):
+            pts.append(np.full(len(views), j))
+            Rs.append(np.array([T_views[k][:3, :3] for k in views]))
+            ts.append(np.array([T_views[k][:3, 3] for k in views]))
+            xs.append(x)
+    pts, Rs, ts, xs = (np.concatenate(v) for v in (pts, Rs, ts, xs))
+    X = kmap.p_ref[idx].copy()
+    T_b_a = invert(np.asarray(T_a_b, float))
+    T_a_ref = invert(np.asarray(T_ref_a0, float))
+    eye3 = np.broadcast_to(np.eye(3), (n, 3, 3))
+
+    def linearise(T_a_ref, X):
+        """Residuals and Jacobians: fixed rows (r, A), view rows (r, A, B); and whether every point is in front."""
+        Xc = np.einsum("nij,nj->ni", Rs, X[pts]) + ts
+        u, Jp = _proj_jac(Xc)
+        fixed = (xs - u, Jp @ Rs)
+        Xa = transform_points(T_a_ref, X)
+        Xb = transform_points(T_b_a, Xa)
+        ua, Ja = _proj_jac(Xa)
+        ub, Jb = _proj_jac(Xb)
+        skew = np.zeros((n, 3, 3))
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -Xa[:, 2], Xa[:, 1], -Xa[:, 0]
+        skew -= np.swapaxes(skew, 1, 2)
+        dX = np.concatenate([-skew, eye3], axis=2)  # d Xa / d(w, v)
+        Rba = T_b_a[:3, :3]
+        views = (np.concatenate([x_a - ua, x_b - ub]), np.concatenate([Ja @ T_a_ref[:3, :3],
+                                                                        Jb @ Rba @ T_a_ref[:3, :3]]),
+                 np.concatenate([Ja @ dX, Jb @ (Rba @ dX)]))
+        front = min(Xc[:, 2].min(), Xa[:, 2].min(), Xb[:, 2].min()) > 0
+        return fixed, views, front
+
+    def normal_equations(fixed, views):
+        (rf, Af), (rv, Av, Bv) = fixed, views
+        pv = np.concatenate([np.arange(n), np.arange(n)])
+        V = np.zeros((n, 3, 3))
+        np.add.at(V, pts, np.swapaxes(Af, 1, 2) @ Af)
+        np.add.at(V, pv, np.swapaxes(Av, 1, 2) @ Av)
+        ga = np.zeros((n, 3))
+        np.add.at(ga, pts, np.einsum("nki,nk->ni", Af, rf))
+        np.add.at(ga, pv, np.einsum("nki,nk->ni", Av, rv))
+        W = np.zeros((n, 6, 3))
+        np.add.at(W, pv, np.swapaxes(Bv, 1, 2) @ Av)
+        U = np.einsum("nki,nkj->ij", Bv, Bv)
+        gb = np.einsum("nki,nk->i", Bv, rv)
+        Vinv = np.linalg.inv(V)
+        WVi = W @ Vinv
+        S = U - np.einsum("nij,nkj->ik", WVi, W)
+        g = gb - np.einsum("nij,nj->i", WVi, ga)
+        return S, g, ga, W, Vinv
+
+    it, S = 0, None
+    for it in range(1, iterations + 1):
+        fixed, views, front = linearise(T_a_ref, X)
+        if not front:
+            return RefineResult(False, "points behind a camera", T_ref_a0, nan6, np.nan, np.inf, it)
+        S, g, ga, W, Vinv = normal_equations(fixed, views)
+        cond = float(np.linalg.cond(S))
+        if not cond < 1e14:
+            return RefineResult(False, f"singular reduced system (condition {cond:.3g})", T_ref_a0, nan6, np.nan,
+                                cond, it)
+        d_pose = np.linalg.solve(S, g)
+        dX = np.einsum("nij,nj->ni", Vinv, ga - np.einsum("nji,j->ni", W, d_pose))
+        T_a_ref = _left_exp(d_pose) @ T_a_ref
+        X = X + dX
+        if max(np.abs(d_pose).max(), np.abs(dX).max()) < 1e-13:
+            break
+    fixed, views, _ = linearise(T_a_ref, X)
+    S, *_ = normal_equations(fixed, views)
+    r = np.concatenate([fixed[0].ravel(), views[0].ravel()])
+    s2 = float(r @ r) / max(len(r) - 6 - 3 * n, 1)
+    T_ref_a = invert(T_a_ref)
+    M = inverse_perturbation_jacobian(T_ref_a)
+    return RefineResult(True, f"ok; bundle of {n} points, {len(r) // 2} observations", T_ref_a,
+                        M @ (s2 * np.linalg.inv(S)) @ M.T, float(np.sqrt(np.mean(r**2))), float(np.linalg.cond(S)),
+                        it, np.ones(n, dtype=bool))
 
 
 def locate_pnp(kmap: KeypointMap, view_a: ViewObservation, config: MapConfig | None = None,

@@ -64,7 +64,7 @@ def _retarget_tasks(ds, robot, eps, T_site_base, q_now) -> dict:
 
 
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
-                   seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine: bool = True,
+                   seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine="bundle",
                    ransac: dict | None = None, details: dict | None = None, features_fn=None):
     """Build the map from the survey views and locate the base from the two ``locate`` views.
 

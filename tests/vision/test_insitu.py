@@ -69,9 +69,11 @@ def test_noise_free_map_and_base_are_exact(ta40):
     p_map_world = transform_points(kmap.T_world_ref, kmap.p_ref)
     assert np.abs(np.sort(p_map_world, axis=0) - np.sort(p_world, axis=0)).max() <= 1e-9
     for method in ("svd", "horn", "rodrigues"):
-        res = locate(kmap, loc[0], loc[1], method=method, rng=1)
-        assert res.success and "WARNING" not in res.message, res.message  # 150 mm: Eq. 199 needs 60 mm
-        assert np.abs(res.T_world_base - T_true).max() <= 1e-9
+        for refine in ("none", "pose", "bundle"):
+            res = locate(kmap, loc[0], loc[1], method=method, rng=1, refine=refine)
+            assert res.success and "WARNING" not in res.message, res.message  # 150 mm: Eq. 199 needs 60 mm
+            assert np.abs(res.T_world_base - T_true).max() <= 1e-9, (method, refine)
+    assert "bundle of 250 points, 2000 observations" in res.message  # 250 points x (ref + 5 survey + 2 new)
     pnp = locate_pnp(kmap, loc[0])
     assert pnp.success and np.abs(pnp.T_world_base - T_true).max() <= 1e-8
 
@@ -208,3 +210,32 @@ def test_refine_pose_drops_near_false_matches():
     err = {k: np.linalg.norm(r.T_ref_a[:3, 3] - T_ref_a[:3, 3]) for k, r in
            (("clean", clean), ("robust", robust), ("plain", plain))}
     assert err["robust"] < 2 * err["clean"] + 1e-5 and err["plain"] > 3 * err["robust"]
+
+
+def _with_noise(view, sigma, rng):
+    """The same view with fresh pixel noise on its (exact) keypoints."""
+    x = view.x_n + rng.normal(0.0, sigma, view.x_n.shape)
+    f = view.features
+    return ViewObservation(view.name, Features(x * 1000, f.angle_deg, f.size, f.response, f.descriptors), x,
+                           view.T_base_cam)
+
+
+def test_bundle_refinement_spread_matches_its_covariance_and_beats_the_fixed_map(ta40):
+    """Noisy pixels (0.3 px), exact kinematics: over 40 draws the bundle's pose spreads as its reported covariance
+    says (which includes the map's own uncertainty), and less than the pose refined against the fixed map."""
+    rng = np.random.default_rng(47)
+    views0, loc0, _, T_true = _campaign(ta40, rng, random_errors(rng))
+    errs, covs, errs_pose = [], [], []
+    for _ in range(40):
+        views = [_with_noise(v, 0.3e-3, rng) for v in views0]
+        loc = [_with_noise(v, 0.3e-3, rng) for v in loc0]
+        kmap = build_map(views[0], views[1:])
+        b = locate(kmap, loc[0], loc[1], rng=4, refine="bundle")
+        p = locate(kmap, loc[0], loc[1], rng=4, refine="pose")
+        assert b.success and p.success and "bundle of" in b.message, b.message
+        errs.append(b.T_world_base[:3, 3] - T_true[:3, 3])
+        errs_pose.append(p.T_world_base[:3, 3] - T_true[:3, 3])
+        covs.append(np.trace(b.covariance[3:, 3:]))
+    mse = np.mean(np.sum(np.square(errs), axis=1))
+    assert mse == pytest.approx(np.mean(covs), rel=0.35)  # 40 draws of a 3-D spread: ~ +-13 % (1 sigma)
+    assert mse < 0.8 * np.mean(np.sum(np.square(errs_pose), axis=1))
