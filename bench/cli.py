@@ -57,6 +57,9 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--method", choices=("svd", "horn", "rodrigues"), default="svd",
                      help="absolute-orientation estimator (rodrigues = the thesis's quaternion method)")
     loc.add_argument("--pnp", action="store_true", help="single-view PnP against the map instead of two views")
+    loc.add_argument("--refine", choices=("none", "pose", "bundle"), default="bundle",
+                     help="after the thesis's alignment: none, the pose on the reprojection error (map fixed), or "
+                          "the pose and the map points together (default)")
     loc.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     loc.add_argument("--robot", default=None, help="calibrated robot file (default: the dataset's robot.yaml)")
     loc.add_argument("--camera", default=None, help="calibrated camera file (default: the dataset's camera.yaml)")
@@ -199,7 +202,7 @@ def main(argv=None) -> int:
             from bench.vision.locate_dataset import locate_dataset
 
             res, _ = locate_dataset(args.dataset, args.out, method=args.method, pnp=args.pnp, seed=args.seed,
-                                    camera_path=args.camera, robot_path=args.robot)
+                                    camera_path=args.camera, robot_path=args.robot, refine=args.refine)
             return 0 if res.success else 1
         elif args.command in _INTERCHANGE:
             return _interchange(args)
