@@ -54,8 +54,8 @@ would give (``oracle_within_*``: the pipeline's estimate against them).
 ``corner_rms_px``, ``err_<p>`` / ``std_<p>`` for ``fx_px, fy_px, cx_px, cy_px, k1, k2, p1, p2`` and (underwater
 camera) ``s_u, f_px, u0_px, v0_px, k1_per_mm2, k2_per_mm4, T1_per_mm, T2_per_mm``, ``heikkila_within_{1,2,3}std``,
 ``heikkila_max_abs_z``, ``oracle_within_{1,2,3}std``, ``model_floor_rms_px``; Table 3 figures for the webcam. With
-``camera.medium: both`` every metric is written twice with the prefixes ``air_`` and ``water_``, and the unprefixed
-contract names hold the in-water calibration (section 5.5: the camera as it goes subsea).
+``camera.medium: both`` every metric and table is written with the prefixes ``air_`` and ``water_``, and the
+unprefixed names hold the in-water calibration (section 5.5: the camera as it goes subsea).
 """
 
 from __future__ import annotations
@@ -834,6 +834,7 @@ def run(cfg, out_dir, verbose=True):
         artifacts.update({pre + k: rel + v for k, v in art.items()})
     if len(ms) == 2:
         metrics.update(per_medium["water"][0])  # the contract names: the camera as it goes subsea (section 5.5)
+        tables.update(per_medium["water"][1])
         fa, fw = per_medium["air"][1]["intrinsics"], per_medium["water"][1]["intrinsics"]
         metrics["focal_ratio_water_air"] = fw["estimated"][1] / fa["estimated"][1]
         metrics["thesis_focal_ratio_water_air"] = 662.6 / 510.06  # Table 15 / Table 9

@@ -77,6 +77,7 @@ def test_underwater_smoke_both_media(underwater_run):
         assert m[f"{medium}_reproj_rms_px"] <= m[f"{medium}_opencv_reproj_rms_px"] + 1e-9
         assert (out / "dataset" / f"in_{medium}" / "manifest.yaml").is_file()
     assert all(m[k] == m[f"water_{k}"] for k in CONTRACT)  # unprefixed = in water (NaN -> null)
+    assert res["tables"]["heikkila"] == res["tables"]["water_heikkila"]
     # in air the housing's glass slab makes the lens a (slightly) non-single-viewpoint camera; in water the flat
     # port does so strongly: the polynomial model's own error (fitted to exact projections) grows
     assert 1e-5 < m["air_model_floor_rms_px"] < 0.01 < m["water_model_floor_rms_px"] < 0.1
