@@ -30,8 +30,8 @@ reproduce: $(STAMP)
 	$(BIN)/bench run scenarios/table2_kinematic_identification.yaml --out $(OUT)/table2 --set monte_carlo.seeds=500
 	$(BIN)/bench run scenarios/tracker_base_frame.yaml --out $(OUT)/tracker_base_frame
 	$(BIN)/bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-insitu
-	$(BIN)/bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-insitu-underwater \
-		--set camera.preset=underwater_in_water
+	$(BIN)/bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-insitu-air \
+		--set camera.preset=air_webcam
 	$(BIN)/bench budget scenarios/ta40_in_situ_manifold.yaml --seeds $(BUDGET_SEEDS) --seed 1 --out $(OUT)/budget-insitu
 	$(BIN)/bench run scenarios/xy_table_webcam.yaml --out $(OUT)/xy_table_webcam
 	$(BIN)/bench run scenarios/xy_table_underwater.yaml --out $(OUT)/xy_table_underwater

@@ -127,7 +127,7 @@ class Report:
         self.figure(self.runs / "tracker_base_frame" / "base_accuracy_vs_noise.png", "tracker_base_accuracy.png",
                     "Base frame accuracy vs tracker noise and arc span, with the Cramér-Rao bound")
 
-    def insitu(self, folder="sweep-insitu", title="TA-40 in situ, air camera (`make demo`'s scenario)"):
+    def insitu(self, folder="sweep-insitu", title="TA-40 in situ, underwater camera (`make demo`'s scenario)"):
         runs = _sweep_runs(self.runs / folder)
         if not runs:
             self.missing.append(f"{title} (`runs/{folder}`)")
@@ -289,7 +289,7 @@ def main(argv=None) -> int:
     rep.table2()
     rep.tracker()
     rep.insitu()
-    rep.insitu("sweep-insitu-underwater", "TA-40 in situ, underwater camera (`camera.preset=underwater_in_water`)")
+    rep.insitu("sweep-insitu-air", "TA-40 in situ, air camera (`camera.preset=air_webcam`)")
     rep.budget()
     rep.xy_table("xy_table_webcam", "5-8")
     rep.xy_table("xy_table_underwater", "11-14")

@@ -169,6 +169,23 @@ def _random_motion(rng, trans_m, rot_deg, vertical=0.3):
     return homogeneous(R, t)
 
 
+def _effective_camera(port) -> np.ndarray:
+    """``T_lens_effective`` (4, 4): the centre of the central camera equivalent to lens + flat port (identity
+    without a port).
+
+    Behind a flat port the water rays converge, paraxially, on a virtual centre on the axis at
+    ``z_v = (d0 + t) - (d0 + t n_air / n_glass) n_water / n_air`` (-5.6 mm for the 20 mm / 12 mm housing in sea
+    water): the camera centre a calibration in water finds, and what the evaluator scores the calibrated mount's
+    position against. The port's tilt also turns the principal ray (by ~``tilt (1 - n_air / n_water)``, 0.28 deg
+    here), but a small turn of the axis and a shift of the principal point are nearly the same to a calibration, so
+    the calibrated intrinsics and the mount rotation share it: no rotation is put into the effective camera, and
+    ``mount_rot_err_deg`` in water contains that share (0.3-0.5 deg measured)."""
+    if port is None:
+        return np.eye(4)
+    z_v = (port.d0 + port.t) - (port.d0 + port.t * port.n_air / port.n_glass) * port.n_water / port.n_air
+    return homogeneous(np.eye(3), [0.0, 0.0, z_v])
+
+
 def _survey_offsets(cfg, nominal_cam) -> np.ndarray:
     """Eye offsets (m) of the surrounding views in the reference camera's image plane, (k, 3).
 
@@ -371,6 +388,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
             "units": "SI (m, rad)",
             "errors": eps.tolist(),
             "T_link5_cam": mount_true.tolist(),
+            # the central camera a calibration in water finds (see _effective_camera): the mount of the lens moved
+            # to the port's paraxial virtual centre and turned onto the principal ray as it leaves the glass
+            "T_link5_cam_effective": (mount_true @ _effective_camera(port)).tolist(),
             "T_link5_cam_nominal": mount_nominal.tolist(),
             "camera_K": true_cam.K.tolist(), "camera_dist": true_cam.dist.tolist(),
             "image_size": [int(true_cam.width), int(true_cam.height)],
@@ -395,7 +415,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         }
         w.write_text("truth/truth.yaml", yaml.safe_dump(truth, sort_keys=False))
         checks = kinematics_check(robot, eps, np.array([v[3] for v in views]))
-        checks.update(marker_check(true_cam, ss))
+        # the camera-convention self-check renders its markers at >= 2x: point-sampled at 1x, a marker's centroid
+        # through Table 9's distortion is off by 0.13 px from aliasing alone, which says nothing about the convention
+        checks.update(marker_check(true_cam, max(ss, 2)))
         checks["distortion_roundtrip_max_px"] = distortion_roundtrip(true_cam)
         if render_s:  # all views from the cache: no render was timed
             checks["render_fps"] = float(1.0 / np.median(render_s))
@@ -639,8 +661,10 @@ def run(cfg, out_dir, verbose=True):
     cam_true = np.array(truth["camera_K_effective"])
     metrics["focal_err_pct"] = float(abs(lab["camera"].K[0, 0] / cam_true[0, 0] - 1) * 100)
     metrics["reproj_rms_px"] = float(lab["camera"].rms_px)
-    Tm_true, Tm_hat = np.array(truth["T_link5_cam"]), lab["mount"].T_mount_cam
+    Tm_true, Tm_hat = np.array(truth["T_link5_cam_effective"]), lab["mount"].T_mount_cam  # = the lens in air
     metrics["mount_pos_err_mm"] = float(np.linalg.norm(Tm_hat[:3, 3] - Tm_true[:3, 3]) * 1e3)
+    metrics["mount_pos_err_lens_centre_mm"] = float(np.linalg.norm(Tm_hat[:3, 3] - np.array(truth["T_link5_cam"])
+                                                                   [:3, 3]) * 1e3)
     metrics["mount_rot_err_deg"] = float(np.rad2deg(rotation_angle(Tm_hat[:3, :3].T @ Tm_true[:3, :3])))
     q_ho = load_robot(Path(cfg["_file"]).parent / cfg["robot"]).random_configurations(np.random.default_rng(1), 500)
     eps_true = np.array(truth["errors"])

@@ -17,21 +17,25 @@ SMOKE = ["camera.supersample=1", "lab.rig_views=7", "lab.tracker_poses=60", "out
          "survey.offsets_mm=[[130, 0], [-130, 0], [0, 130], [0, -130]]", "bound.mc_trials=4"]
 
 
-@pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory):
+@pytest.fixture(scope="module", params=["underwater_in_water", "air_webcam"])
+def smoke_run(tmp_path_factory, request):
     out = tmp_path_factory.mktemp("insitu") / "run"
-    path = run_scenario_file(SCENARIO, out=out, seed=2, overrides=SMOKE, verbose=False, quiet=True)
-    return out, json.loads(Path(path).read_text())
+    path = run_scenario_file(SCENARIO, out=out, seed=2, overrides=SMOKE + [f"camera.preset={request.param}"],
+                             verbose=False, quiet=True)
+    return out, json.loads(Path(path).read_text()), request.param
 
 
 def test_smoke_accuracy(smoke_run):
-    _, res = smoke_run
+    _, res, preset = smoke_run
     m = res["metrics"]
     assert m["sim_vs_fk_max_err_m"] <= 1e-9 and m["sim_vs_pinocchio_max_err_m"] <= 1e-9
     assert m["marker_projection_rms_px"] <= 0.1
     assert m["reproj_rms_px"] < 0.2 and m["focal_err_pct"] < 0.3  # the camera calibrated from the rig views
     assert m["arm_heldout_rms_mm"] < 0.1  # the arm calibrated from the tracker points
-    assert m["mount_pos_err_mm"] < 5 and m["mount_rot_err_deg"] < 0.5
+    underwater = preset == "underwater_in_water"
+    # in water the port's tilt turns the principal ray by ~0.3 deg, shared by the intrinsics and the mount (see
+    # in_situ._effective_camera): 0.3-0.5 deg at full size, ~0.8 deg with this smoke-size rig campaign
+    assert m["mount_pos_err_mm"] < 5 and m["mount_rot_err_deg"] < (1.0 if underwater else 0.5)
     assert m["map_points"] > 50 and m["inliers"] > 20
     # smoke-size campaign: the full-size targets (2 mm, 0.05 deg over 20 seeds) are `make reproduce`'s business
     assert m["base_pos_err_mm"] < 10 and m["base_rot_err_deg"] < 0.3
@@ -57,7 +61,7 @@ def _numbers(obj):
 
 
 def test_no_truth_value_outside_truth(smoke_run):
-    out, _ = smoke_run
+    out, _, _ = smoke_run
     ds = out / "dataset"
     truth = yaml.safe_load((ds / "truth" / "truth.yaml").read_text())
     secret = {round(v, 9) for key in ("errors", "T_link5_cam", "camera_K", "T_world_base_survey",
@@ -93,7 +97,7 @@ def test_recording_loads_back_with_the_run_s_values(smoke_run):
     """The run's .rrd, read back with rerun's own reader, holds the world, poses, cameras, images and point sets."""
     from bench.scenario.recording import load_entities
 
-    out, res = smoke_run
+    out, res, _ = smoke_run
     assert res["artifacts"]["recording"] == "recording.rrd"
     e = load_entities(out / "recording.rrd")
     truth = yaml.safe_load((out / "dataset" / "truth" / "truth.yaml").read_text())
