@@ -242,9 +242,10 @@ class Report:
             return
         m, t = r["metrics"], r["tables"]
         self.md.append(f"## {name}\n\n`bench run scenarios/{name}.yaml`\n")
-        keys = [k for k in ("reproj_rms_px", "opencv_reproj_rms_px", "focal_err_pct", "corner_rms_px",
-                            "heikkila_within_1_se", "heikkila_within_2_se", "focal_ratio_water_air",
-                            "thesis_focal_ratio_water_air") if k in m]
+        keys = [k for k in m if k.endswith(("reproj_rms_px", "focal_err_pct", "corner_rms_px", "model_floor_rms_px"))
+                or "within_" in k or k in ("heikkila_n_coeffs", "focal_ratio_water_air",
+                                           "thesis_focal_ratio_water_air", "table3_alpha_mean_err_pct",
+                                           "table3_chi_mean_px")]
         self.md.append(_table(["metric", "value"], [[f"`{k}`", _fmt(m[k], 4)] for k in keys]) + "\n")
         for tname in ("table3", "heikkila"):
             if tname in t:

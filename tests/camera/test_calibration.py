@@ -1,7 +1,6 @@
 """Camera calibration (thesis §3.3, Eq. 67-76, 196): exactness, Jacobian, Monte Carlo, OpenCV, real webcam data."""
 
 import glob
-import time
 from pathlib import Path
 
 import cv2
@@ -219,16 +218,13 @@ def detect_webcam_views():
 def test_real_webcam_calibration_no_worse_than_opencv(tmp_path):
     files, Xs, uvs = detect_webcam_views()
     assert len(files) == 19
-    t0 = time.perf_counter()
     ours = cal.calibrate_camera(Xs, uvs, SIZE, "heikkila")
-    elapsed = time.perf_counter() - t0
     ref = cal.opencv_reference(Xs, uvs, SIZE, "heikkila")
     assert ours.success, ours.message
     assert ours.rms_px < 0.6  # measured 0.5570 px (JPEG webcam, hand-held board)
     assert ours.rms_px <= ref.rms_px + 1e-6
     assert np.abs(ours.K - ref.K).max() < 1e-3 and np.abs(ours.dist - ref.dist).max() < 1e-6
-    assert np.all(ours.std[:4] < 10.0)  # focal lengths and principal point to a few px
-    assert elapsed < 5.0
+    assert np.all(ours.std[:4] < 10.0)  # focal lengths and principal point to a few px (speed: make benchmark)
     # the symmetric board: a relabelling of a view by any symmetry of the square grid (rotation or reflection) is
     # absorbed by that view's pose (a reflection of a planar grid is a 180-degree turn about an in-plane axis)
     rng = np.random.default_rng(28)
