@@ -62,46 +62,58 @@ def _check_store(db):
 
 def test_sigkill_resume_keeps_every_finished_row_once(tmp_path):
     """Issue 6: a sweep killed with SIGKILL at random moments (>= 10 times) resumes with every finished row intact
-    and none duplicated. The kill moments are drawn (seeded) over a launch's whole life - interpreter start, store
-    creation, workers computing, rows committing, the final summary - and every fourth kill lands right after a
-    row appeared (a commit just finished while the other worker is mid-run)."""
+    and none duplicated. Every third launch is killed after a drawn delay (interpreter start, store creation, the
+    first rows); the others right after a row appeared (a commit just finished while the other worker is mid-run),
+    so the kills land mid-sweep however fast the machine (at least five with some rows done and some not). Finally
+    a launch over the finished grid (only the summary left to write) is killed too."""
     out = tmp_path / "sw"
     db = out / "sweep.sqlite"
     tiny = {**SMALL, "monte_carlo.trials": 2, "arcs.n_points": 6}
     cmd = [sys.executable, "-m", "bench", "sweep", str(SCENARIO), "--param",
-           "noise.default_sigma_mm=0.02,0.05,0.1,0.2", "--seeds", "3", "--workers", "2", "--out", str(out),
+           "noise.default_sigma_mm=0.02,0.05,0.1,0.2", "--seeds", "6", "--workers", "2", "--out", str(out),
            *[a for k, v in tiny.items() for a in ("--set", f"{k}={json.dumps(v)}")]]
+    total = 4 * 6
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     rng = np.random.default_rng(20261122)
-    seen, kills, launches = {}, 0, 0
-    while kills < 10 and launches < 30:
-        launches += 1
-        before = len(seen)
-        after_row = launches % 4 == 0
-        delay = rng.uniform(0.3, 4.0)
+
+    def launch(delay=None):
+        """Run the sweep until `delay` seconds passed (or, without one, until a new row appeared); SIGKILL it then.
+        Returns whether it was killed and the store checked afterwards."""
+        before = len(_rows(db)) if db.exists() else 0
         proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                 start_new_session=True)
         t0 = time.time()
         while proc.poll() is None:
-            grown = after_row and db.exists() and len(_rows(db)) > before
-            if grown or (not after_row and time.time() - t0 >= delay) or time.time() - t0 > 60:
+            grown = delay is None and db.exists() and len(_rows(db)) > before
+            if grown or (delay is not None and time.time() - t0 >= delay) or time.time() - t0 > 60:
                 os.killpg(proc.pid, signal.SIGKILL)
-                kills += 1
                 break
-            time.sleep(0.02)
-        proc.wait()
-        rows = _check_store(db) if db.exists() else {}
+            time.sleep(0.01)
+        killed = proc.wait() == -signal.SIGKILL
+        return killed, (_check_store(db) if db.exists() else {})
+
+    seen, kills, mid_sweep, launches = {}, 0, 0, 0
+    while (kills < 10 or mid_sweep < 5) and launches < 40:
+        launches += 1
+        killed, rows = launch(rng.uniform(0.2, 1.5) if launches % 3 == 1 else None)
+        kills += killed
+        mid_sweep += killed and 0 < len(rows) < total
         for rid, row in seen.items():  # every row finished before this kill is untouched
             assert rows.get(rid) == row
         seen = rows
-    assert kills >= 10, f"only {kills} kills in {launches} launches"
-    assert 0 < len(seen) < 12
+    assert kills >= 10 and mid_sweep >= 5, f"{kills} kills ({mid_sweep} mid-sweep) in {launches} launches"
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     rows = _check_store(db)
-    assert len(rows) == 12 and len(_rows(db)) == 12
+    assert len(rows) == total and len(_rows(db)) == total
     for rid, row in seen.items():
         assert rows[rid] == row
+    (out / "summary.csv").unlink()
+    killed, after = launch(rng.uniform(0.5, 1.5))  # the finished grid: only the summary is written
+    assert after == rows
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert _check_store(db) == rows
     for r in rows.values():  # each row's result file is complete
         con = sqlite3.connect(db)
         path = con.execute("SELECT result_path FROM runs WHERE run_id = ?", (r[0],)).fetchone()[0]
