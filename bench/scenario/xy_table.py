@@ -283,7 +283,10 @@ class OpticsCamera:
         xml, assets = make_xml(self.spec)
         self.model = mujoco.MjModel.from_xml_string(xml, assets=assets)
         self.data = mujoco.MjData(self.model)
-        h = hashlib.sha256(xml.encode())
+        from bench.sim.campaign import IMAGE_CHAIN_VERSION
+
+        h = hashlib.sha256(f"image chain {IMAGE_CHAIN_VERSION}".encode())  # a changed chain renders afresh
+        h.update(xml.encode())
         for k in sorted(assets):
             h.update(k.encode())
             h.update(hashlib.sha256(assets[k]).digest())
@@ -769,7 +772,7 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose) -> tuple:
     project = true_projector(lens, port)
     T_true = {n: np.array(T) for n, T in truth["T_table_cam"].items()}
     kind = "corners" if p["features"] == "corners" else "sift"
-    sigma, n_sigma = measured_sigma_px(res, kind, T_true, lens, project, truth, ref, pc.map)
+    sigma, n_sigma = measured_sigma_px(res, kind, T_true, lens, project, truth, ref, pc.map, port)
     read_err = np.array(truth["true_joints"]) - np.array(truth["read"])  # the carriage minus its reading
     metrics = {"keypoint_sigma_px": sigma, "keypoint_sigma_matches": float(n_sigma),
                "table_reading_rms_mm": float(np.sqrt(np.mean(read_err[:, :2] ** 2)) * 1e3),

@@ -148,13 +148,14 @@ def model_poses(kin: TableKinematics) -> dict:
 
 
 def measured_sigma_px(result, features: str, T_true: dict, lens, project, truth: dict, reference: str,
-                      config=None) -> tuple:
+                      config=None, port=None) -> tuple:
     """Localisation noise of the pipeline's features (px, per image axis) against the truth and its sample size.
 
     ``features = "sift"``: :func:`~bench.scenario.bounds.keypoint_sigma_px` on the reference keypoints' matches
     (``result`` a :class:`~bench.vision.xy_table_positioning.PositioningResult`); ``"corners"``: the extracted
     corners against the true projections of the rig's corners of the same id
-    (:func:`~bench.scenario.bounds.point_sigma_px`). ``T_true``: the true camera poses.
+    (:func:`~bench.scenario.bounds.point_sigma_px`). ``T_true``: the true camera poses; ``port``: the true flat
+    port (the reference rays are traced through it; ``None`` for a camera in air).
     """
     obs = result.observations
     if features == "corners":
@@ -168,7 +169,7 @@ def measured_sigma_px(result, features: str, T_true: dict, lens, project, truth:
         return sigma, n
     others = [n for n in obs if n != reference]
     return keypoint_sigma_px(obs[reference], [obs[n] for n in others], T_true, lens, project, config=config,
-                             matches=[result.reference_matches[n] for n in others])
+                             matches=[result.reference_matches[n] for n in others], port=port)
 
 
 def map_points(result, reference: str, T_table_ref, names_for_map) -> tuple:

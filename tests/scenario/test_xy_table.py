@@ -203,3 +203,24 @@ def test_budget_sources_are_valid_switches(scenario):
         xy_table.validate(cfg)
         assert all(cfg[k.split(".")[0]][k.split(".")[1]] == v for k, v in overrides.items()), source
     assert xy_table.BUDGET_METRICS[0].endswith("_mm")
+
+
+def test_render_cache_key_follows_the_image_chain_version(monkeypatch):
+    """A changed image chain (``bench.sim.campaign.IMAGE_CHAIN_VERSION``) must not reuse cached renders."""
+    from bench.camera.presets import load_preset
+    from bench.sim import campaign
+    from bench.sim.optics_presets import optics_preset
+    from bench.sim.scenes import compose
+
+    lens, optics = load_preset("air_webcam"), optics_preset("air_webcam")
+
+    def make_xml(spec):
+        from bench.sim.camera import mujoco_camera_xml
+
+        cam = mujoco_camera_xml("c", spec.K, spec.width, spec.height, np.eye(4))
+        return compose([], f'<body name="b" mocap="true">\n{cam}\n</body>\n', offscreen=(spec.width, spec.height))
+
+    key = xy_table.OpticsCamera(make_xml, lens, optics, 1, None, "c")._key
+    assert xy_table.OpticsCamera(make_xml, lens, optics, 1, None, "c")._key == key
+    monkeypatch.setattr(campaign, "IMAGE_CHAIN_VERSION", campaign.IMAGE_CHAIN_VERSION + 1)
+    assert xy_table.OpticsCamera(make_xml, lens, optics, 1, None, "c")._key != key
