@@ -15,6 +15,7 @@ KINDS = {
     "in_situ": "in_situ",
     "xy_table": "xy_table",
     "camera_calibration": "camera_calibration",
+    "flatport_study": "flatport_study",
 }
 
 
