@@ -491,7 +491,8 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     write_table_csv(out_dir / f"{CALIB_TABLE}.csv", ctable)
     artifacts.update({f"{TABLE}_csv": f"{TABLE}.csv", f"{CALIB_TABLE}_csv": f"{CALIB_TABLE}.csv"})
     if cfg["outputs"]["plots"]:
-        artifacts["flatport_error_plot"] = plot_study(table, cfg, out_dir / f"{TABLE}.png")
+        tilt = next((np.rad2deg(port.tilt) for a, _, port in cases if a == "tilted"), (0.0, 0.0))
+        artifacts["flatport_error_plot"] = plot_study(table, cfg, out_dir / f"{TABLE}.png", tilt)
     timings["total_s"] = time.perf_counter() - t_all
     path = write_result(out_dir, cfg["name"], cfg["seed"], metrics, tables, timings, artifacts)
     if verbose:
@@ -502,12 +503,14 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
 # ------------------------------------------------------------------------------------------------ report
 
 
-def plot_study(table: dict, cfg: dict, path) -> str:
-    """Error vs working distance (log-log), one curve per lens-to-glass distance, one column per port alignment."""
+def plot_study(table: dict, cfg: dict, path, tilt_deg=(0.0, 0.0)) -> str:
+    """Error vs working distance (log-log), one curve per lens-to-glass distance, one column per port alignment
+    (``tilt_deg``: the tilted case's port tilt about the camera x and y axes, for the title)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
     al = np.asarray(table["alignment"])
     aligns = [a for a in ALIGNMENTS if a in set(al.tolist())]
@@ -533,11 +536,15 @@ def plot_study(table: dict, cfg: dict, path) -> str:
             ax.axvline(D, color="0.5", lw=0.8)
             ax.set_xscale("log")
             ax.set_yscale("log")
+            ticks = [x for x in (0.1, 0.2, 0.3, 0.5, 0.7, 1.0, 2.0, 3.0, 5.0, 10.0, 20.0, 50.0)
+                     if z.min() * 0.99 <= x <= z.max() * 1.01]
+            ax.set_xticks(ticks)
+            ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+            ax.xaxis.set_minor_formatter(NullFormatter())
             ax.grid(alpha=0.3, which="both")
         axes[0, j].axhline(thr, color="k", ls=":", lw=1.2, label=f"threshold {thr:g} px ({stat})")
-        port = cfg["port"]
         what = "port normal on the optical axis" if a == "aligned" else (
-            "tilted port (preset)" if port["tilt_deg"] is None else f"tilt {port['tilt_deg']} deg")
+            f"port tilted {tilt_deg[0]:.2f} / {tilt_deg[1]:.2f} deg about x / y")
         axes[0, j].set_title(f"{a}: {what}", fontsize=10)
         axes[0, j].set_ylabel("reprojection error over the image (px)")
         axes[1, j].set_ylabel("object-space error (mm)")
