@@ -19,8 +19,9 @@ how far, for several lens-to-glass distances ``d0``, with no image in between (p
    Start of the Levenberg-Marquardt fit: the paraxial description of the true optics - the lens's distortion, its
    focal lengths times ``n_water / n_air``, the true rig poses seen from the port's paraxial virtual centre
    (:func:`bench.sim.flatport.axis_crossing` of a near-axial ray). The pipeline's own linear start (DLT/Zhang and the
-   radial alternation) fails on these whole-image views through a port (LM stops at 1-13 px RMS, "points behind the
-   camera") while it works when the rig stays near the image centre (the ``camera_calibration`` scenario). This does
+   radial alternation) mostly fails on these whole-image views through a port (LM stops at 0.7-13 px RMS, "points
+   behind the camera") while it works when the rig stays nearer the image centre (the ``camera_calibration``
+   scenario). This does
    not bias the result: the fit is the least-squares minimum, and where the linear start converges both reach the same
    parameters (tested).
 
