@@ -21,9 +21,8 @@ how far, for several lens-to-glass distances ``d0``, with no image in between (p
    (:func:`bench.sim.flatport.axis_crossing` of a near-axial ray). The pipeline's own linear start (DLT/Zhang and the
    radial alternation) mostly fails on these whole-image views through a port (LM stops at 0.7-13 px RMS, "points
    behind the camera") while it works when the rig stays nearer the image centre (the ``camera_calibration``
-   scenario). This does
-   not bias the result: the fit is the least-squares minimum, and where the linear start converges both reach the same
-   parameters (tested).
+   scenario). This does not bias the result: the fit is the least-squares minimum, and where the linear start
+   converges both reach the same parameters (tested).
 
 2. **The fitted camera's frame.** The fitted central camera does not sit at the lens: its centre is where the water
    rays seem to come from (behind the lens, by about the paraxial virtual centre's distance, further for wide
