@@ -39,6 +39,8 @@ reproduce: $(STAMP)
 	$(BIN)/bench sweep scenarios/xy_table_underwater.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-xy_table_underwater
 	$(BIN)/bench run scenarios/camera_calibration_webcam.yaml --out $(OUT)/camera_calibration_webcam
 	$(BIN)/bench run scenarios/camera_calibration_underwater.yaml --out $(OUT)/camera_calibration_underwater
+	$(BIN)/bench run scenarios/flatport_study.yaml --out $(OUT)/flatport_study
+	$(BIN)/bench run scenarios/flatport_study.yaml --out $(OUT)/flatport_study_k3 --set calibration.k3=true
 	$(BIN)/python tools/results_report.py --runs $(OUT)
 
 benchmark: $(STAMP)

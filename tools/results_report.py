@@ -261,6 +261,28 @@ class Report:
         for png in sorted((self.runs / name).glob("*.png")):
             self.figure(png, f"{name}_{png.name}", f"{name}: {png.stem.replace('_', ' ')}")
 
+    def flatport(self, name, title):
+        r = _load(self.runs / name / "result.json")
+        if r is None:
+            self.missing.append(f"{name} (`runs/{name}`)")
+            return
+        m, c = r["metrics"], r["tables"]["flatport_calibration"]
+        k3 = " --set calibration.k3=true" if name.endswith("_k3") else ""
+        self.md.append(f"## {title}\n\n`bench run scenarios/flatport_study.yaml{k3}` (threshold "
+                       f"{_fmt(m.get('threshold_px'))} px RMS over the image)\n")
+        rows = []
+        for i in range(len(c["lens_to_glass_mm"])):
+            case = f"d0_{c['lens_to_glass_mm'][i]:g}mm_{c['alignment'][i]}"
+            lo, hi = c["polynomial_ok_from_m"][i], c["polynomial_ok_to_m"][i]
+            ok = "never" if lo is None or hi is None or not np.isfinite(lo) else f"{_fmt(lo)}-{_fmt(hi)}"
+            rows.append([c["alignment"][i], _fmt(c["lens_to_glass_mm"][i]), _fmt(c["calib_rms_px"][i]),
+                         _fmt(m.get(f"rms_px_at_0p2m_{case}")), _fmt(m.get(f"rms_px_at_calib_{case}")),
+                         _fmt(m.get(f"rms_px_at_3m_{case}")), _fmt(m.get(f"rms_mm_at_3m_{case}")), ok])
+        self.md.append(_table(["port", "lens-to-glass (mm)", "calibration RMS (px)", "RMS at 0.2 m (px)",
+                               "RMS at the calibration distance (px)", "RMS at 3 m (px)", "RMS at 3 m (mm)",
+                               "polynomial model ok (m)"], rows) + "\n")
+        self.figure(self.runs / name / "flatport_error_vs_distance.png", f"{name}.png", title)
+
     # --- output -----------------------------------------------------------------------------------------------------
     def write(self, readme: Path) -> None:
         head = _table(["what", "measured", "target", "thesis"], self.headline) if self.headline else ""
@@ -296,6 +318,8 @@ def main(argv=None) -> int:
     rep.xy_table("xy_table_underwater", "11-14")
     rep.camera("camera_calibration_webcam")
     rep.camera("camera_calibration_underwater")
+    rep.flatport("flatport_study", "Flat-port study: the polynomial (Heikkilä) model vs working distance")
+    rep.flatport("flatport_study_k3", "Flat-port study with k3")
     rep.write(Path(args.readme))
     print(f"wrote {Path(args.docs) / 'results.md'} and the results block of {args.readme}"
           + (f"; not run: {len(rep.missing)} parts" if rep.missing else ""), file=sys.stderr)
