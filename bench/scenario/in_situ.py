@@ -274,6 +274,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     perfect = cfg["sources"]["encoders"] == "perfect"
     enc = EncoderModel(0.0 if perfect else cfg["encoders"]["noise_deg"] * DEG,
                        0.0 if perfect else cfg["encoders"]["resolution_deg"] * DEG)
+    # every random source draws from a stream of its own, so that switching one off (bench budget) leaves the
+    # others' draws - the truth, the parking, the tracker campaign - exactly as they were: the variants are paired
+    rng_enc = np.random.default_rng([cfg["seed"], 21])
     site = cfg["site"]
 
     # --- site geometry: the panel faces the arm (normal -x of the world), within reach of the nominal base ----------
@@ -356,7 +359,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
             scenes[key] = ArmScene(robot, eps, T_wb, mount_true, true_cam, objects[role], ss, optics.chain, cache_dir,
                                    T_link5_mount=mount_nominal, port=port)
         images[name] = scenes[key].render(q, seed=cfg["seed"] * 1000 + n)
-        readings[name] = enc.read(q, rng)
+        readings[name] = enc.read(q, rng_enc)
         if verbose:
             print(f"\r  {n + 1}/{len(views)}", end="", file=sys.stderr)
     if verbose:
@@ -366,10 +369,11 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         sc.close()
 
     # --- tracker campaign (lab, base at the origin; the tracker frame is the base frame found from the arcs) -------
-    q_tr = robot.random_configurations(rng, cfg["lab"]["tracker_poses"])
-    p_tr = ee_position(robot, q_tr, eps) + rng.normal(0, cfg["lab"]["tracker_sigma_mm"] * 1e-3, (len(q_tr), 3))
-    q_tr_read = enc.read(q_tr, rng)
-    q_task_read = enc.read(task["q_true"], rng) if task is not None else None
+    rng_tr = np.random.default_rng([cfg["seed"], 22])
+    q_tr = robot.random_configurations(rng_tr, cfg["lab"]["tracker_poses"])
+    p_tr = ee_position(robot, q_tr, eps) + rng_tr.normal(0, cfg["lab"]["tracker_sigma_mm"] * 1e-3, (len(q_tr), 3))
+    q_tr_read = enc.read(q_tr, rng_enc)
+    q_task_read = enc.read(task["q_true"], rng_enc) if task is not None else None
 
     # --- write the dataset --------------------------------------------------------------------------------------------
     out_dataset = Path(out_dataset)
@@ -448,8 +452,11 @@ def _oracle_files(cfg, ds, robot, out_dir):
     oracle = Path(out_dir) / "oracle"
     oracle.mkdir(parents=True, exist_ok=True)
     if cfg["sources"]["kinematics"] == "perfect":
+        # the mount of the central camera the camera file describes: behind a flat port its centre is the port's
+        # virtual centre, not the lens (a calibrated camera in water and the perfect optics model are central)
         robot_path = write_calibrated_robot(oracle / "robot.yaml", ds.robot_path, robot, np.array(truth["errors"]),
-                                            np.array(truth["T_link5_cam"]), notes="ORACLE: the true errors and mount")
+                                            np.array(truth["T_link5_cam_effective"]),
+                                            notes="ORACLE: the true errors and mount")
     if cfg["sources"]["camera"] == "perfect":
         cam = read_camera_yaml(camera_path)
         camera_path = write_camera_yaml(oracle / "camera.yaml", cam.replace(

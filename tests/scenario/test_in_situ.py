@@ -148,3 +148,41 @@ def test_bad_value_leaves_no_output_folder(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "lab.tracker_sigma_mm: must be > 0" in err[0]
     assert not out.exists()
+
+
+def test_budget_variants_are_paired(tmp_path, monkeypatch):
+    """Switching one error source off (bench budget) changes only that source's draws: with perfect encoders the
+    truth (errors, parking, views, tracker campaign) and the tracker points are those of the real run, only the
+    readings differ. (Rendering is replaced by blank images: the pairing is in the planning and the draws.)"""
+    import csv
+
+    from bench.scenario import in_situ
+    from bench.sim import campaign
+
+    class BlankScene:
+        def __init__(self, robot, eps, T_wb, mount, cam, *args, **kwargs):
+            self.size, self.render_s = (cam.height, cam.width, 3), []
+
+        def render(self, q, seed=0):
+            return np.zeros(self.size, np.uint8)
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(campaign, "ArmScene", BlankScene)
+
+    def dataset(variant):
+        cfg = load_scenario(SCENARIO, seed=4, overrides=SMOKE + [f"sources.encoders={variant}"])
+        in_situ.render(cfg, tmp_path / variant, verbose=False)
+        truth = yaml.safe_load((tmp_path / variant / "truth" / "truth.yaml").read_text())
+        with open(tmp_path / variant / "tracker.csv") as f:
+            tracker = [r for r in csv.DictReader(f)]
+        return truth, tracker
+
+    (t_real, tr_real), (t_perf, tr_perf) = dataset("real"), dataset("perfect")
+    assert t_real.pop("encoders") != t_perf.pop("encoders")
+    assert t_real == t_perf
+    xyz = [k for k in tr_real[0] if k.endswith("_mm")]
+    assert [[r[k] for k in xyz] for r in tr_real] == [[r[k] for k in xyz] for r in tr_perf]
+    joints = [k for k in tr_real[0] if k.endswith("_deg")]
+    assert [[r[k] for k in joints] for r in tr_real] != [[r[k] for k in joints] for r in tr_perf]
