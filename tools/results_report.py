@@ -168,22 +168,29 @@ class Report:
             self.missing.append(f"{title} (`runs/{folder}`)")
             return
         b, v = r["tables"]["budget"], r["tables"]["variants"]
-        cols = [c for c in b if c.startswith("budget_")]
+        cols = [c for c in b if c.startswith("budget_") and not c.endswith(("_lo", "_hi"))]
+
+        def cell(c, i):  # the budget with its 90 % paired-bootstrap interval when the run has one
+            if f"{c}_lo" not in b:
+                return _fmt(b[c][i])
+            return f"{_fmt(b[c][i])} [{_fmt(b[f'{c}_lo'][i])}, {_fmt(b[f'{c}_hi'][i])}]"
+
         self.md.append(f"## {title}\n\n`bench budget` (folder `{folder}`): RMS over "
                        f"{_fmt(v['runs'][0])} seeds with every source real, with one switched off, with all off\n")
         self.md.append(_table(["variant", "runs"] + [c.replace("rms_", "RMS ") for c in v if c.startswith("rms_")],
                               [[v["variant"][i], _fmt(v["runs"][i])] + [_fmt(v[c][i]) for c in v
                                                                         if c.startswith("rms_")]
                                for i in range(len(v["variant"]))]) + "\n")
-        self.md.append("Share of the final error each source explains, `sqrt(RMS_full² − RMS_without²)`:\n")
+        self.md.append("Share of the final error each source explains, `sqrt(RMS_full² − RMS_without²)` [90 % "
+                       "paired bootstrap over the seeds]:\n")
         self.md.append(_table(["source"] + [c.replace("budget_", "") for c in cols],
-                              [[b["source"][i]] + [_fmt(b[c][i]) for c in cols] for i in range(len(b["source"]))])
+                              [[b["source"][i]] + [cell(c, i) for c in cols] for i in range(len(b["source"]))])
                        + "\n")
         self.figure(self.runs / folder / "budget.png", f"{folder}.png", title)
-        top = int(np.nanargmax(np.array(b[cols[0]], dtype=float)))
         full = r["metrics"].get("rms_full_" + cols[0][7:])
-        self.head(f"{title}: dominant source of `{cols[0][7:]}`",
-                  f"{b['source'][top]} ({_fmt(b[cols[0]][top])} of {_fmt(full)})")
+        self.head(f"{title}: sources of `{cols[0][7:]}` (RMS {_fmt(full)} over {_fmt(v['runs'][0])} seeds)",
+                  "; ".join(f"{b['source'][i]} {cell(cols[0], i)}"
+                            for i in np.argsort(np.nan_to_num(b[cols[0]]))[::-1]))
 
     def xy_table(self, name, thesis_tables):
         run = _load(self.runs / name / "result.json")

@@ -13,6 +13,11 @@ the part of the final error that the source explains (errors of independent sour
 the budgets' squares next to ``RMS_full^2`` shows how far that holds). The primary metric's budgets are reported as
 ``budget_<source>_<unit>`` (``budget_features_mm`` ...), the others as ``budget_<source>_<metric>``.
 ``DIR/result.json`` (the result contract), ``budget.csv`` and ``budget.png`` (a bar chart) are written.
+
+The variants run on the same seeds (the kinds draw every random source from a stream of its own, so that switching
+one off leaves the others' draws unchanged), and a budget over a handful of seeds is itself uncertain: a paired
+bootstrap over the seeds (the same resampled seeds in both variants) gives each budget a 90 % interval,
+``budget_<source>_<unit>_lo`` / ``_hi`` (error bars on the plot).
 """
 
 from __future__ import annotations
@@ -69,9 +74,35 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
     return {"result": str(path), "metrics": result_metrics, "table": budget_table}
 
 
+def _paired(full_rows, rows, m) -> np.ndarray:
+    """``(k, 2)`` values of metric ``m`` for the seeds both variants finished (by ``seed``; by position if the rows
+    carry none), rows with a missing or non-finite value left out."""
+    def value(r):
+        v = r["metrics"].get(m)
+        return float(v) if v is not None and np.isfinite(v) else None
+
+    if all("seed" in r for r in full_rows + rows):
+        other = {r["seed"]: value(r) for r in rows}
+        pairs = [(value(r), other.get(r["seed"])) for r in full_rows]
+    else:
+        pairs = list(zip(map(value, full_rows), map(value, rows), strict=False))
+    return np.array([p for p in pairs if None not in p], dtype=float).reshape(-1, 2)
+
+
+def _bootstrap_budget(pairs, n_boot=2000, seed=0) -> tuple:
+    """90 % paired-bootstrap interval of ``sqrt(max(0, RMS_full^2 - RMS_without^2))`` over the seeds."""
+    if len(pairs) < 2:
+        return float("nan"), float("nan")
+    idx = np.random.default_rng(seed).integers(0, len(pairs), (n_boot, len(pairs)))
+    ms = np.mean(pairs[idx] ** 2, axis=1)  # (n_boot, 2) mean squares of full and without
+    b = np.sqrt(np.clip(ms[:, 0] - ms[:, 1], 0.0, None))
+    return float(np.percentile(b, 5)), float(np.percentile(b, 95))
+
+
 def budget_from_rows(rows: dict, sources: list, metrics: list) -> tuple:
-    """The budget from finished runs: ``rows = {variant: [{"metrics": {...}}, ...]}`` with variants ``full``, each
-    source and ``none``; returns ``(variants table, budget table, result metrics)`` (see the module docstring)."""
+    """The budget from finished runs: ``rows = {variant: [{"seed": s, "metrics": {...}}, ...]}`` with variants
+    ``full``, each source and ``none``; returns ``(variants table, budget table, result metrics)`` (see the module
+    docstring)."""
     variants = ["full", *sources, "none"]
     table = {"variant": variants, "runs": [len(rows[v]) for v in variants]}
     for m in metrics:
@@ -81,13 +112,18 @@ def budget_from_rows(rows: dict, sources: list, metrics: list) -> tuple:
     budget_table = {"source": list(sources)}
     for m in metrics:
         full = table[f"rms_{m}"][0]
-        col = []
+        col, lo, hi = [], [], []
         for i, s in enumerate(sources, start=1):
             without = table[f"rms_{m}"][i]
             ok = np.isfinite(full) and np.isfinite(without)
             col.append(float(np.sqrt(max(0.0, full**2 - without**2))) if ok else float("nan"))
-            result_metrics[f"budget_{s}_{unit}" if m == primary else f"budget_{s}_{m}"] = col[-1]
+            a, b = _bootstrap_budget(_paired(rows["full"], rows[s], m))
+            lo.append(a)
+            hi.append(b)
+            name = f"budget_{s}_{unit}" if m == primary else f"budget_{s}_{m}"
+            result_metrics[name], result_metrics[f"{name}_lo"], result_metrics[f"{name}_hi"] = col[-1], a, b
         budget_table[f"budget_{m}"] = col
+        budget_table[f"budget_{m}_lo"], budget_table[f"budget_{m}_hi"] = lo, hi
         result_metrics[f"rms_full_{m}"] = full
         result_metrics[f"rms_floor_{m}"] = table[f"rms_{m}"][-1]
         result_metrics[f"budget_quadrature_sum_{m}"] = float(np.sqrt(np.nansum(np.square(col))))
@@ -99,8 +135,8 @@ def _rows(store_path) -> list:
 
     db = sqlite3.connect(store_path)
     try:
-        cur = db.execute("SELECT metrics FROM runs WHERE status = 'done'")
-        return [{"metrics": json.loads(r[0] or "{}")} for r in cur]
+        cur = db.execute("SELECT seed, metrics FROM runs WHERE status = 'done'")
+        return [{"seed": int(r[0]), "metrics": json.loads(r[1] or "{}")} for r in cur]
     finally:
         db.close()
 
@@ -113,8 +149,12 @@ def _plot(budget_table, metrics, table, path, title) -> str:
 
     fig, axes = plt.subplots(1, len(metrics), figsize=(4.2 * len(metrics), 3.6), squeeze=False)
     for ax, m in zip(axes[0], metrics, strict=True):
-        vals = budget_table[f"budget_{m}"]
-        ax.bar(budget_table["source"], vals, color="tab:blue")
+        vals = np.array(budget_table[f"budget_{m}"], dtype=float)
+        lo = np.array(budget_table[f"budget_{m}_lo"], dtype=float)
+        hi = np.array(budget_table[f"budget_{m}_hi"], dtype=float)
+        err = np.nan_to_num(np.stack([np.clip(vals - lo, 0, None), np.clip(hi - vals, 0, None)]))
+        ax.bar(budget_table["source"], vals, color="tab:blue", yerr=err, capsize=4, ecolor="0.3",
+               label="budget, 90 % paired bootstrap over seeds")
         full = table[f"rms_{m}"][0]
         ax.axhline(full, color="k", lw=1, ls="--", label=f"RMS, all sources ({full:.3g})")
         ax.set_ylabel(f"share of {m} (quadrature)")

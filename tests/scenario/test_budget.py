@@ -41,3 +41,26 @@ def test_kind_without_sources_is_a_one_line_error(tmp_path):
     with pytest.raises(ConfigError, match="declares no error sources to budget"):
         run_budget(ROOT / "scenarios" / "tracker_base_frame.yaml", [0], tmp_path / "b", progress=False)
     assert not (tmp_path / "b").exists()
+
+
+def test_paired_bootstrap_interval():
+    """The 90 % interval pairs the variants by seed: a source that changes nothing has [0, 0] even when the seeds'
+    errors scatter widely (an unpaired resampling would not); a source that removes a known share brackets it."""
+    rng = np.random.default_rng(8)
+    base = rng.lognormal(0, 1, 40)
+    extra = rng.normal(0, 0.5, 40)
+    seeds = list(rng.permutation(40))  # rows in any order: pairing is by seed, not by position
+
+    def rows(values, order):
+        return [{"seed": int(k), "metrics": {"err_mm": float(values[k])}} for k in order]
+
+    full = rows(np.sqrt(base**2 + extra**2), range(40))
+    data = {"full": full, "same": rows(np.sqrt(base**2 + extra**2), seeds), "x": rows(base, seeds),
+            "none": rows(np.zeros(40), range(40))}
+    _, budget, metrics = budget_from_rows(data, ["same", "x"], ["err_mm"])
+    assert metrics["budget_same_mm"] == 0.0
+    assert metrics["budget_same_mm_lo"] == 0.0 and metrics["budget_same_mm_hi"] == 0.0
+    truth = float(np.sqrt(np.mean(extra**2)))
+    assert metrics["budget_x_mm"] == pytest.approx(truth, rel=1e-12)
+    assert metrics["budget_x_mm_lo"] < truth < metrics["budget_x_mm_hi"]
+    assert budget["budget_err_mm_lo"][1] == metrics["budget_x_mm_lo"]
