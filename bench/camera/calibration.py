@@ -25,7 +25,7 @@ coordinate), the intrinsic block of the full inverse (i.e. marginalised over the
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -565,9 +565,23 @@ def calibrate_camera(object_points, image_points, image_size, model: str = "heik
         message += (f"; the views do not determine the parameters (condition number {cond:.1e} of the scaled "
                     "Jacobian)")
     timings["total_s"] = time.perf_counter() - t0
-    return CalibrationResult(bool(success), message, model, s.K(), _full_dist(model, s.dist), size, T_out, rms,
-                             per_view, residuals, list(problem.intr_names), problem.intrinsic_vector(s), cov,
-                             float(np.sqrt(sigma2)), iterations, cost, timings)
+    result = CalibrationResult(bool(success), message, model, s.K(), _full_dist(model, s.dist), size, T_out, rms,
+                               per_view, residuals, list(problem.intr_names), problem.intrinsic_vector(s), cov,
+                               float(np.sqrt(sigma2)), iterations, cost, timings)
+    if success or start is not None or model == "pinhole":
+        return result
+    # Eq. 67-73's start can be far off when strong distortion reaches the image corners (a flat port seen over the
+    # whole image: LM then stalls with points behind the camera); restart from the pinhole fit, distortion zero
+    pinhole = calibrate_camera(Xs, uvs, size, "pinhole", fit_skew=fit_skew, max_iterations=max_iterations, tol=tol)
+    if not np.isfinite(pinhole.rms_px):
+        return result
+    retry = calibrate_camera(Xs, uvs, size, model, k3=k3, fit_skew=fit_skew, max_iterations=max_iterations, tol=tol,
+                             initial=(pinhole.K, np.zeros(5), pinhole.T_cam_target))
+    if not retry.success:
+        return result
+    retry.timings_s["total_s"] = time.perf_counter() - t0
+    return replace(retry, message=f"{retry.message} (from the pinhole fit: the radial alternation's start gave "
+                                  f"'{message}')")
 
 
 def reprojection_residuals(result: CalibrationResult, object_points, image_points):

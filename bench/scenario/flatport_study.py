@@ -18,11 +18,11 @@ how far, for several lens-to-glass distances ``d0``, with no image in between (p
 
    Start of the Levenberg-Marquardt fit: the paraxial description of the true optics - the lens's distortion, its
    focal lengths times ``n_water / n_air``, the true rig poses seen from the port's paraxial virtual centre
-   (:func:`bench.sim.flatport.axis_crossing` of a near-axial ray). The pipeline's own linear start (DLT/Zhang and the
-   radial alternation) mostly fails on these whole-image views through a port (LM stops at 0.7-13 px RMS, "points
-   behind the camera") while it works when the rig stays nearer the image centre (the ``camera_calibration``
-   scenario). This does not bias the result: the fit is the least-squares minimum, and where the linear start
-   converges both reach the same parameters (tested).
+   (:func:`bench.sim.flatport.axis_crossing` of a near-axial ray). The pipeline's own start (DLT/Zhang and the
+   radial alternation) stalls on these whole-image views through a port (LM stops at 4-29 px RMS, "points behind the
+   camera"); :func:`~bench.camera.calibration.calibrate_camera` then restarts from its pinhole fit and reaches the
+   same minimum as the paraxial start (tested). The start does not bias the result: the fit is the least-squares
+   minimum.
 
 2. **The fitted camera's frame.** The fitted central camera does not sit at the lens: its centre is where the water
    rays seem to come from (behind the lens, by about the paraxial virtual centre's distance, further for wide

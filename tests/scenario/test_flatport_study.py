@@ -161,6 +161,20 @@ def test_paraxial_start_reaches_the_pipelines_own_minimum(alignment, grid, sprea
     assert np.allclose(cold.K, ours.K, atol=1e-6) and np.allclose(cold.dist, ours.dist, atol=1e-9)
 
 
+@pytest.mark.parametrize("d0", [5, 20])
+def test_pipeline_calibrates_whole_image_port_views_from_a_cold_start(d0):
+    """On the default whole-image views the radial alternation's start (Eq. 67-73) stalls with points behind the
+    camera; calibrate_camera then restarts from the pinhole fit and reaches the paraxial start's minimum."""
+    cfg, lens, port = _case([f"port.lens_to_glass_mm=[{d0}]", "port.alignments=[aligned]", "calibration.k3=false"])
+    T, X, uv = fs.rig_views(lens, port, calibration_rig(), cfg["calibration"], np.random.default_rng(0))
+    ours = fs.fit_central_model(lens, port, T, X, uv, k3=False)
+    cold = calibrate_camera(X, uv, lens.size, model="heikkila")
+    assert ours.success and cold.success, cold.message
+    assert "from the pinhole fit" in cold.message
+    assert cold.rms_px == pytest.approx(ours.rms_px, rel=1e-6)
+    assert np.allclose(cold.K, ours.K, atol=1e-4) and np.allclose(cold.dist, ours.dist, atol=1e-7)
+
+
 def test_reprojection_frame_beats_the_absolute_orientation():
     cfg, lens, port = _case(["port.lens_to_glass_mm=[20]", "port.alignments=[tilted]"])
     T, X, uv = fs.rig_views(lens, port, calibration_rig(), cfg["calibration"], np.random.default_rng(0))
