@@ -12,6 +12,9 @@ import numpy as np
 def rot_x(angle):
     """Rotation about x (Eq. 3), shape ``angle.shape + (3, 3)``."""
     c, s = np.cos(angle), np.sin(angle)
+    if np.ndim(c) == 0:  # one angle: a literal (the stacks below cost ~10x more; error matrices build many)
+        c, s = float(c), float(s)
+        return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
 
@@ -19,6 +22,9 @@ def rot_x(angle):
 def rot_y(angle):
     """Rotation about y (Eq. 4), shape ``angle.shape + (3, 3)``."""
     c, s = np.cos(angle), np.sin(angle)
+    if np.ndim(c) == 0:  # one angle: a literal (the stacks below cost ~10x more; error matrices build many)
+        c, s = float(c), float(s)
+        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
 
@@ -26,6 +32,9 @@ def rot_y(angle):
 def rot_z(angle):
     """Rotation about z (Eq. 5), shape ``angle.shape + (3, 3)``."""
     c, s = np.cos(angle), np.sin(angle)
+    if np.ndim(c) == 0:  # one angle: a literal (the stacks below cost ~10x more; error matrices build many)
+        c, s = float(c), float(s)
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
 
