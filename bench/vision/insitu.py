@@ -463,6 +463,15 @@ def pose_reprojection(T_a_ref, T_b_a, p_ref):
     z_min : float
         The smallest depth of a point in either camera (m); ``<= 0`` means a point is behind a camera.
     """
+    Xa, Xb, ua, ub, Ja, Jb, dX = _two_view(T_a_ref, T_b_a, p_ref)
+    J = np.concatenate([Ja @ dX, Jb @ (T_b_a[:3, :3] @ dX)], axis=0).reshape(-1, 6)
+    return np.concatenate([ua, ub], axis=0), J, float(min(Xa[:, 2].min(), Xb[:, 2].min()))
+
+
+def _two_view(T_a_ref, T_b_a, p_ref):
+    """Map points ``p_ref (N, 3)`` in views a and b: ``Xa, Xb`` (camera frames), normalized projections ``ua, ub``,
+    their derivatives ``Ja, Jb (N, 2, 3)`` w.r.t. the camera-frame point, and ``dX (N, 3, 6)`` = d Xa / d(w, v) for a
+    left perturbation of ``T_a_ref``."""
     n = len(p_ref)
     Xa = transform_points(T_a_ref, p_ref)
     Xb = transform_points(T_b_a, Xa)
@@ -471,9 +480,8 @@ def pose_reprojection(T_a_ref, T_b_a, p_ref):
     skew = np.zeros((n, 3, 3))
     skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -Xa[:, 2], Xa[:, 1], -Xa[:, 0]
     skew -= np.swapaxes(skew, 1, 2)  # [Xa]x
-    dX = np.concatenate([-skew, np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)  # d Xa / d(w, v)
-    J = np.concatenate([Ja @ dX, Jb @ (T_b_a[:3, :3] @ dX)], axis=0).reshape(-1, 6)
-    return np.concatenate([ua, ub], axis=0), J, float(min(Xa[:, 2].min(), Xb[:, 2].min()))
+    dX = np.concatenate([-skew, np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)
+    return Xa, Xb, ua, ub, Ja, Jb, dX
 
 
 def inverse_perturbation_jacobian(T_ref_a):
@@ -602,21 +610,13 @@ def bundle_refine(kmap: KeypointMap, idx, x_a, x_b, T_a_b, T_ref_a0, iterations:
     X = kmap.p_ref[idx].copy()
     T_b_a = invert(np.asarray(T_a_b, float))
     T_a_ref = invert(np.asarray(T_ref_a0, float))
-    eye3 = np.broadcast_to(np.eye(3), (n, 3, 3))
 
     def linearise(T_a_ref, X):
         """Residuals and Jacobians: fixed rows (r, A), view rows (r, A, B); and whether every point is in front."""
         Xc = np.einsum("nij,nj->ni", Rs, X[pts]) + ts
         u, Jp = _proj_jac(Xc)
         fixed = (xs - u, Jp @ Rs)
-        Xa = transform_points(T_a_ref, X)
-        Xb = transform_points(T_b_a, Xa)
-        ua, Ja = _proj_jac(Xa)
-        ub, Jb = _proj_jac(Xb)
-        skew = np.zeros((n, 3, 3))
-        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -Xa[:, 2], Xa[:, 1], -Xa[:, 0]
-        skew -= np.swapaxes(skew, 1, 2)
-        dX = np.concatenate([-skew, eye3], axis=2)  # d Xa / d(w, v)
+        Xa, Xb, ua, ub, Ja, Jb, dX = _two_view(T_a_ref, T_b_a, X)
         Rba = T_b_a[:3, :3]
         views = (np.concatenate([x_a - ua, x_b - ub]), np.concatenate([Ja @ T_a_ref[:3, :3],
                                                                         Jb @ Rba @ T_a_ref[:3, :3]]),
