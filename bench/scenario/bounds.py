@@ -41,16 +41,11 @@ DESCRIPTOR_SEED = 20061  # fixed: the same 3D point has the same descriptor in e
 
 
 def true_projector(camera: CameraModel, port=None):
-    """``project(p_cam (..., 3)) -> uv (..., 2)`` through the lens ``camera`` and, if given, the flat ``port``."""
-    if port is None:
-        return camera.project
-    from bench.sim.flatport import project_flatport
+    """``project(p_cam (..., 3)) -> uv (..., 2)`` through the true lens ``camera`` and, if given, the flat ``port``
+    (:func:`bench.sim.flatport.lens_port_projector`)."""
+    from bench.sim.flatport import lens_port_projector
 
-    def project(p_cam):
-        x_n = project_flatport(p_cam, port)
-        return camera.project(np.concatenate([x_n, np.ones(x_n.shape[:-1] + (1,))], axis=-1))
-
-    return project
+    return lens_port_projector(camera, port)
 
 
 def ideal_features(p_world, T_world_cam, project, size, noise_px: float = 0.0, rng=None) -> Features:

@@ -276,13 +276,9 @@ class TableRigScene:
 
 def project_true(camera: CameraModel, port, p_cam) -> np.ndarray:
     """True pixels ``(..., 2)`` of camera-frame points (m): the lens alone, or the flat port then the lens."""
-    from bench.sim.flatport import project_flatport
+    from bench.sim.flatport import lens_port_projector
 
-    p = np.asarray(p_cam, dtype=float)
-    if port is None:
-        return camera.project(p)
-    x_n = project_flatport(p, port)
-    return camera.project(np.concatenate([x_n, np.ones(x_n.shape[:-1] + (1,))], axis=-1))
+    return lens_port_projector(camera, port)(np.asarray(p_cam, dtype=float))
 
 
 def _pattern_outline(rig, samples: int = 12) -> np.ndarray:

@@ -163,13 +163,9 @@ class ArmScene:
     def project(self, p_cam) -> np.ndarray:
         """Pixels ``(..., 2)`` of camera-frame points ``p_cam (..., 3)`` through the lens (and the port); NaN where
         a point cannot be imaged."""
-        from bench.sim.flatport import project_flatport
+        from bench.sim.flatport import lens_port_projector
 
-        p = np.asarray(p_cam, dtype=float)
-        if self.port is None:
-            return self.camera.project(p)
-        x_n = project_flatport(p, self.port)
-        return self.camera.project(np.concatenate([x_n, np.ones(x_n.shape[:-1] + (1,))], axis=-1))
+        return lens_port_projector(self.camera, self.port)(np.asarray(p_cam, dtype=float))
 
     def close(self):
         if self._renderer is not None:

@@ -272,6 +272,19 @@ def _radial_offset(s, L, n_k):
     return rho, drho
 
 
+def lens_port_projector(camera: CameraModel, port: FlatPort | None = None):
+    """``project(p_cam (..., 3)) -> uv (..., 2)`` (px) through the lens ``camera`` and, if given, the flat ``port``
+    (:func:`project_flatport`, then the lens's distortion and K); NaN where a point cannot be imaged."""
+    if port is None:
+        return camera.project
+
+    def project(p_cam):
+        x_n = project_flatport(np.asarray(p_cam, dtype=float), port)
+        return camera.project(np.concatenate([x_n, np.ones(x_n.shape[:-1] + (1,))], axis=-1))
+
+    return project
+
+
 def project_flatport(p_cam, port: FlatPort, K=None, *, tol: float = PROJECT_TOL, max_iterations: int = 100,
                      full_output: bool = False):
     """Forward projection of water points through the flat port: the image point of the in-air ray.
