@@ -27,13 +27,17 @@ def kind_module(kind: str, source="<scenario>"):
 
 
 def load_scenario(path, seed=None, overrides=()) -> dict:
-    """Load, override and validate a scenario; paths inside it are resolved relative to the file."""
+    """Load, override and validate a scenario (the schema, then the kind's own value checks where its module offers
+    ``validate(cfg)``); paths inside it are resolved relative to the file."""
     path = Path(path)
     raw = apply_overrides(load_yaml(path), overrides, str(path))
-    cfg = validate(raw, kind_module(raw.get("kind"), path).SCHEMA, str(path))
+    module = kind_module(raw.get("kind"), path)
+    cfg = validate(raw, module.SCHEMA, str(path))
     if seed is not None:
         cfg["seed"] = int(seed)
     cfg["_file"] = str(path.resolve())
+    if hasattr(module, "validate"):  # ranges, units, consistency: before anything is created
+        module.validate(cfg)
     return cfg
 
 
@@ -41,8 +45,6 @@ def run_scenario_file(path, out=None, seed=None, overrides=(), verbose=True, qui
     """Run one scenario; returns the path of ``result.json`` (``quiet``: print nothing, e.g. in sweep workers)."""
     cfg = load_scenario(path, seed, overrides)
     module = kind_module(cfg["kind"])
-    if hasattr(module, "validate"):  # the kind's value checks, before anything is created
-        module.validate(cfg)
     out_dir = Path(out) if out else Path("runs") / cfg["name"]
     created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
