@@ -22,7 +22,6 @@ bootstrap over the seeds (the same resampled seeds in both variants) gives each 
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -75,15 +74,16 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
 
 
 def _paired(full_rows, rows, m) -> np.ndarray:
-    """``(k, 2)`` values of metric ``m`` for the seeds both variants finished (by ``seed``; by position if the rows
-    carry none), rows with a missing or non-finite value left out."""
+    """``(k, 2)`` values of metric ``m`` for the seeds both variants finished (by ``seed``, in seed order, so that the
+    bootstrap does not depend on the order runs finished in; by position if the rows carry no seed), rows with a
+    missing or non-finite value left out."""
     def value(r):
         v = r["metrics"].get(m)
         return float(v) if v is not None and np.isfinite(v) else None
 
     if all("seed" in r for r in full_rows + rows):
         other = {r["seed"]: value(r) for r in rows}
-        pairs = [(value(r), other.get(r["seed"])) for r in full_rows]
+        pairs = [(value(r), other.get(r["seed"])) for r in sorted(full_rows, key=lambda r: r["seed"])]
     else:
         pairs = list(zip(map(value, full_rows), map(value, rows), strict=False))
     return np.array([p for p in pairs if None not in p], dtype=float).reshape(-1, 2)
@@ -131,14 +131,14 @@ def budget_from_rows(rows: dict, sources: list, metrics: list) -> tuple:
 
 
 def _rows(store_path) -> list:
-    import sqlite3
+    """The finished runs of a variant's sweep (:class:`~bench.scenario.sweep.SweepStore` rows)."""
+    from bench.scenario.sweep import SweepStore
 
-    db = sqlite3.connect(store_path)
+    store = SweepStore(store_path)
     try:
-        cur = db.execute("SELECT seed, metrics FROM runs WHERE status = 'done'")
-        return [{"seed": int(r[0]), "metrics": json.loads(r[1] or "{}")} for r in cur]
+        return [r for r in store.rows() if r["status"] == "done"]
     finally:
-        db.close()
+        store.close()
 
 
 def _plot(budget_table, metrics, table, path, title) -> str:
