@@ -21,10 +21,13 @@ from bench.camera import calibration as cal
 from bench.camera.heikkila import fit_implicit_inverse
 from bench.camera.plots import plot_residual_vectors
 
+WEBCAM = Path(__file__).resolve().parents[1] / "tests" / "data" / "real_webcam_chessboard"
+
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default="/work/shared/data/real_webcam_chessboard")
+    ap.add_argument("--data", default=str(WEBCAM),
+                    help="folder of photos (default: the real webcam photos in tests/data)")
     ap.add_argument("--out", default="runs/webcam_calibration")
     ap.add_argument("--model", default="heikkila", choices=cal.MODELS)
     args = ap.parse_args(argv)

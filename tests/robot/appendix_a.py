@@ -1,6 +1,6 @@
 """Thesis Appendix A (TA-40 kinematics), transcribed as printed, for ``test_appendix_a.py``.
 
-Source: the thesis in ``/work/shared/seed/000_3fc37a772f2f4fe4.txt`` from the line " Appendix A" (about line 2313):
+Source: the thesis in ``../shared/seed/000_3fc37a772f2f4fe4.txt`` from the line " Appendix A" (about line 2313):
 (a) the closed-form end-effector position X, Y, Z, (b) the 3x6 joint-space Jacobian J(1..3, 1..6) and (c) the 3x42
 Identification Jacobian J(r.c). The text is an OCR/LaTeX transcription of the thesis.
 
