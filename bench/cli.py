@@ -70,6 +70,9 @@ def _parser() -> argparse.ArgumentParser:
     cc.add_argument("--extractor", choices=("thesis", "opencv"), default="thesis",
                     help="corner extractor: the thesis's edge/k-means method or OpenCV's")
     _add_interchange_commands(sub)
+    from bench.robot import commands as robot_commands
+
+    robot_commands.add_parsers(sub)
     return p
 
 
@@ -206,6 +209,10 @@ def main(argv=None) -> int:
             return 0 if res.success else 1
         elif args.command in _INTERCHANGE:
             return _interchange(args)
+        elif args.command in ("calibrate-robot", "check-robot"):
+            from bench.robot import commands as robot_commands
+
+            return robot_commands.run(args)
         return 0
     except BenchError as exc:
         print(f"bench: error: {exc}", file=sys.stderr)

@@ -23,6 +23,7 @@ import numpy as np
 import yaml
 
 from bench.errors import ConfigError
+from bench.fileio import atomic_write_text
 from bench.geometry.quaternion import matrix_to_quaternion, quaternion_to_matrix
 from bench.geometry.transforms import check_transform, homogeneous
 from bench.robot.model import Robot, error_names, robot_from_dict
@@ -56,7 +57,7 @@ def write_calibrated_robot(path, nominal_file, robot: Robot, eps=None, T_link5_c
     data.pop("calibration", None)
     data["calibration"] = calibration_section(robot, eps, T_link5_cam, notes)
     path = Path(path)
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    atomic_write_text(path, yaml.safe_dump(data, sort_keys=False))
     return path
 
 

@@ -1,0 +1,161 @@
+"""``bench calibrate-robot DATASET --out DIR``: arm calibration from a dataset's laser-tracker campaign (thesis §4.4).
+
+Input: a dataset folder (``bench.dataset``) with ``tracker.csv`` (``point, x_mm, y_mm, z_mm, q1_deg .. q6_deg``: the
+measured end-effector point in the robot base frame - the frame the lab found from the two probe arcs, §2.9 - and the
+joint readings it was taken at) and the nominal DH robot file ``robot.yaml`` (default: the dataset's, else the TA-40
+model ``models/ta40.yaml``).
+
+Method: the 25 identifiable generalized errors of the closed-form reduction (Eq. 21, 23, 167) estimated by
+Levenberg-Marquardt on the exact error model (:func:`bench.robot.identification.identify_iterative`; Eq. 14 is its
+linear first step), each coordinate weighted by the tracker's standard deviation ``sigma_mm``.
+
+Output: ``DIR/robot.yaml`` - the nominal file plus a ``calibration.errors`` section (all ``6 (n + 1)`` errors, the
+eliminated ones zero; loadable by ``bench locate --robot`` and ``bench export``) - and ``DIR/calibration.json``
+(``rms_mm``, ``max_mm``, ``n_postures``, ``n_parameters``, the kept and merged parameters, the covariance in SI units,
+``chi2_per_dof``, per-posture residuals).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bench.errors import BenchError, ConfigError
+from bench.fileio import atomic_write_text
+from bench.robot.calibration_file import write_calibrated_robot
+from bench.robot.identifiability import closed_form_reduction
+from bench.robot.identification import identify_iterative
+from bench.robot.kinematics import ee_position
+from bench.robot.model import default_robot_path, load_robot
+
+#: Outputs of this command: a folder holding only these (or nothing) may be written again.
+OUTPUT_FILES = ("robot.yaml", "calibration.json", "check.json")
+
+
+@dataclass
+class DatasetCalibration:
+    """What :func:`calibrate_robot_dataset` found (SI units) and where it wrote it."""
+
+    success: bool
+    message: str
+    eps: np.ndarray
+    rms_mm: float
+    max_mm: float
+    n_postures: int
+    n_parameters: int
+    robot_path: Path
+    report_path: Path
+
+
+def prepare_out_dir(out) -> Path:
+    """The output folder, refused when it is a file or a non-empty folder holding files this command did not write.
+
+    Uses the shared helper of :mod:`bench.fileio` when it exists; else the same rule here.
+    """
+    from bench import fileio
+
+    helper = getattr(fileio, "check_out_dir", None)
+    out = Path(out)
+    if helper is not None:
+        helper(out, OUTPUT_FILES)
+    else:
+        if out.exists() and not out.is_dir():
+            raise BenchError(f"--out {out}: is a file, not a folder")
+        if out.is_dir():
+            foreign = sorted(p.name for p in out.iterdir() if p.name not in OUTPUT_FILES)
+            if foreign:
+                raise BenchError(f"--out {out}: a non-empty folder that this command did not write (holds "
+                                 f"{foreign[0]!r}); choose a new or empty folder")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def check_plausible(robot, eps, err_nominal, source) -> None:
+    """Refuse an identification whose "errors" are not errors: a translation beyond a tenth of the arm's reach or a
+    rotation beyond 0.2 rad (11 deg) means that the nominal model does not describe the measured arm (wrong units,
+    wrong robot file, points in another frame) - the generalized error model can fit almost anything with large
+    enough translations, so a small residual alone proves nothing."""
+    reach = float(np.sum(np.abs(robot.a)) + np.sum(np.abs(robot.d)))
+    e = np.asarray(eps).reshape(-1, 6)
+    trans, rot = float(np.abs(e[:, :3]).max()), float(np.abs(e[:, 3:]).max())
+    nominal_rms = float(np.sqrt(np.mean(np.square(err_nominal))))
+    if trans > 0.1 * reach or rot > 0.2:
+        hint = (f"the points lie {nominal_rms:.3g} m RMS from the nominal model of an arm reaching {reach:.3g} m: "
+                "mm given as m?" if nominal_rms > 10 * reach else "wrong robot file or points in another frame?")
+        raise ConfigError(source, "<identification>",
+                          f"implausible errors (largest translation {trans * 1e3:.4g} mm, rotation "
+                          f"{np.rad2deg(rot):.3g} deg; at most {0.1 * reach * 1e3:.4g} mm and 11.5 deg): {hint}")
+
+
+def calibrate_robot_dataset(dataset, out, robot_file=None, sigma_mm: float = 0.05,
+                            verbose: bool = False) -> DatasetCalibration:
+    """Identify the arm's generalized errors from the dataset's tracker campaign and write the calibrated files.
+
+    Parameters
+    ----------
+    dataset : path
+        Dataset folder with ``tracker.csv`` (points in the robot base frame, mm; readings in degrees).
+    out : path
+        Output folder (new, empty, or an earlier output of this command).
+    robot_file : path, optional
+        Nominal DH robot file; default the dataset's ``robot.yaml``, else ``models/ta40.yaml``.
+    sigma_mm : float
+        Standard deviation of each tracker coordinate (mm): the weights, the a-priori covariance and the chi-square
+        consistency check (an identification whose residuals exceed 100 sigma is refused).
+    """
+    from bench.dataset import load_dataset
+
+    t0 = time.perf_counter()
+    if not (isinstance(sigma_mm, (int, float)) and np.isfinite(sigma_mm) and 0 < sigma_mm <= 50):
+        raise BenchError(f"--sigma-mm: expected a tracker standard deviation in (0, 50] mm, got {sigma_mm!r}")
+    ds = load_dataset(dataset)
+    if ds.tracker is None:
+        raise ConfigError(ds.root / "tracker.csv", "<file>", "not found: calibrate-robot needs the tracker campaign "
+                                                             "(point, x_mm, y_mm, z_mm, q1_deg .. q6_deg)")
+    nominal = Path(robot_file) if robot_file is not None else (ds.robot_path or default_robot_path())
+    robot = load_robot(nominal)
+    q, p = ds.tracker["q"], ds.tracker["p"]
+    if q.shape[1] != robot.n:
+        raise ConfigError(nominal, "joints", f"{robot.n} joints, tracker.csv has readings of {q.shape[1]}")
+    out = prepare_out_dir(out)
+    red = closed_form_reduction(robot)
+    res = identify_iterative(robot, q, p, red, sigma=sigma_mm * 1e-3)
+    if not res.success:
+        raise ConfigError(ds.root / "tracker.csv", "<identification>", res.message)
+    err = np.linalg.norm(p - ee_position(robot, q, res.eps), axis=1)
+    err0 = np.linalg.norm(p - ee_position(robot, q), axis=1)
+    check_plausible(robot, res.eps, err0, ds.root / "tracker.csv")
+    notes = (f"identified from {len(q)} tracker points of {ds.root.name} (closed-form reduction, {len(red.kept)} "
+             f"parameters, Levenberg-Marquardt on the exact model); RMS {np.sqrt(np.mean(err**2)) * 1e3:.4g} mm")
+    write_calibrated_robot(out / "robot.yaml", nominal, robot, res.eps, notes=notes)
+    std = res.std
+    report = {
+        "method": "closed-form reduction (Eq. 21, 23, 167) + Levenberg-Marquardt on the exact model (Eq. 10, 14)",
+        "dataset": str(ds.root), "nominal_robot": str(nominal), "message": res.message,
+        "rms_mm": float(np.sqrt(np.mean(err**2)) * 1e3), "max_mm": float(err.max() * 1e3),
+        "rms_nominal_mm": float(np.sqrt(np.mean(err0**2)) * 1e3),
+        "n_postures": int(len(q)), "n_parameters": int(len(red.kept)), "sigma_mm": float(sigma_mm),
+        "chi2_per_dof": float(res.chi2_per_dof), "condition_number": float(res.condition_number),
+        "iterations": int(res.iterations),
+        "kept": [{"name": n, "value": float(v * (1e3 if n[0] in "xyz" else 1.0)),
+                  "std": float(s * (1e3 if n[0] in "xyz" else 1.0)), "unit": "mm" if n[0] in "xyz" else "rad"}
+                 for n, v, s in zip(red.names, res.eps_dot, std, strict=True)],
+        "merged": red.merged,
+        "covariance_units": "SI: m for x, y, z; rad for s, r, p (products for the off-diagonal entries)",
+        "covariance": res.covariance.tolist(),
+        "per_posture": [{"point": n, "error_mm": float(e * 1e3)} for n, e in zip(ds.tracker["point"], err,
+                                                                                   strict=True)],
+        "timings_s": {"calibration_s": time.perf_counter() - t0},
+    }
+    atomic_write_text(out / "calibration.json", json.dumps(report, indent=2) + "\n")
+    if verbose:
+        print(f"{len(q)} postures, {len(red.kept)} parameters: RMS {report['rms_mm']:.4g} mm (nominal "
+              f"{report['rms_nominal_mm']:.4g} mm), max {report['max_mm']:.4g} mm, chi2/dof "
+              f"{report['chi2_per_dof']:.3g}")
+        print(f"wrote {out / 'robot.yaml'} and {out / 'calibration.json'}")
+    return DatasetCalibration(True, res.message, res.eps, report["rms_mm"], report["max_mm"], len(q),
+                              len(red.kept), out / "robot.yaml", out / "calibration.json")
