@@ -4,8 +4,8 @@ Steps of the pipeline (identification, FK + Jacobian, SIFT, matching, map buildi
 calibration), the renderer, whole scenario runs (Table 2, the in-situ scenario, the full x-y table webcam run with
 its renders cached), and - measured in the same run - the same steps by the obvious peer as ratios: Pinocchio for
 forward kinematics, OpenCV ``calibrateCamera`` for camera calibration (same detections), OpenCV ``solvePnPRansac``
-for localisation (same map and view). Targets are those of the issues; they are benchmarks, not tests. The README's
-*Benchmarks* block is regenerated from the JSON (between its markers).
+for localisation (same map and view). Targets are those of the issues; they are benchmarks, not tests. The block
+between the markers of ``docs/benchmarks.md`` is regenerated from the JSON.
 """
 
 from __future__ import annotations
@@ -156,8 +156,8 @@ TARGETS = {"fk_jacobian_10000_s": 0.050, "identification_100_iterative_s": 0.020
 BEGIN, END = "<!-- benchmark:begin -->", "<!-- benchmark:end -->"
 
 
-def readme_block(doc: dict) -> str:
-    """The README's Benchmarks block: every figure with its target, and the machine."""
+def doc_block(doc: dict) -> str:
+    """The Benchmarks block of docs/benchmarks.md: every figure with its target, and the machine."""
     m, targets = doc["machine"], doc["targets"]
     rows = []
     for k, v in doc["figures"].items():
@@ -174,8 +174,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="runs/benchmark.json")
     ap.add_argument("--repeats", type=int, default=21)
     ap.add_argument("--skip-scenario", action="store_true", help="speed figures only")
-    ap.add_argument("--readme", default=str(ROOT / "README.md"), help="README whose Benchmarks block is regenerated "
-                    "('' to leave it)")
+    ap.add_argument("--doc", default=str(ROOT / "docs" / "benchmarks.md"),
+                    help="markdown file whose Benchmarks block is regenerated ('' to leave it)")
     args = ap.parse_args(argv)
     load = os.getloadavg()[0]
     rng = np.random.default_rng(0)
@@ -242,12 +242,14 @@ def main(argv=None) -> int:
         t = doc["targets"].get(k)
         print(f"{k:<48}{v:>14.6g}{'' if t is None else f'{t:>12.3g}'}")
     print(f"wrote {out}")
-    if args.readme:
-        readme = Path(args.readme)
-        text = readme.read_text()
+    if args.doc:
+        page = Path(args.doc)
+        text = page.read_text() if page.is_file() else ""
         if BEGIN in text and END in text:
-            readme.write_text(text[:text.index(BEGIN)] + readme_block(doc) + text[text.index(END) + len(END):])
-            print(f"updated the Benchmarks block of {readme}")
+            page.write_text(text[:text.index(BEGIN)] + doc_block(doc) + text[text.index(END) + len(END):])
+            print(f"updated the Benchmarks block of {page}")
+        else:
+            print(f"{page}: no {BEGIN} ... {END} block; not updated (the figures are in {out})", file=sys.stderr)
     return 0
 
 
