@@ -1,4 +1,4 @@
-"""tools/results_report.py: the README's results block and docs/results.md come from the runs, nothing by hand."""
+"""tools/results_report.py: docs/results.md (its headline table first) comes from the runs, nothing by hand."""
 
 import importlib.util
 import json
@@ -15,7 +15,7 @@ def _tool():
     return mod
 
 
-def test_report_from_runs_replaces_only_its_block(tmp_path):
+def test_report_from_runs(tmp_path):
     runs = tmp_path / "runs"
     (runs / "table2").mkdir(parents=True)
     (runs / "table2" / "result.json").write_text(json.dumps({"metrics": {
@@ -32,17 +32,14 @@ def test_report_from_runs_replaces_only_its_block(tmp_path):
                                             "base_rot_bound_deg": 0.01})))
     db.commit()
     db.close()
-    readme = tmp_path / "README.md"
-    readme.write_text("# x\n\nbefore\n\n<!-- results:begin -->\nold\n<!-- results:end -->\n\nafter\n")
     tool = _tool()
-    assert tool.main(["--runs", str(runs), "--docs", str(tmp_path / "docs"), "--readme", str(readme)]) == 0
-    text = readme.read_text()
-    assert text.startswith("# x\n\nbefore\n\n<!-- results:begin -->")
-    assert text.endswith("<!-- results:end -->\n\nafter\n")
-    assert "old" not in text and "0.0264 RMS over 500 draws (bound 0.0266)" in text
-    assert "2 mm / 0.02° / 0.5 mm" in text  # medians of the three seeds
+    assert tool.main(["--runs", str(runs), "--docs", str(tmp_path / "docs")]) == 0
     doc = (tmp_path / "docs" / "results.md").read_text()
+    head = doc[:doc.index("\n## ")]  # the headline table, before the first section
+    assert head.startswith("# Results") and "| what | measured | target | thesis |" in head
+    assert "0.0264 RMS over 500 draws (bound 0.0266)" in head
+    assert "2 mm / 0.02° / 0.5 mm" in head  # medians of the three seeds
     assert "Efficiency (RMS bound / RMS error over the seeds): pos: 0.46" in doc  # 1 / sqrt(14 / 3)
     assert "Not run yet" in doc and "xy_table_webcam" in doc
-    tool.main(["--runs", str(runs), "--docs", str(tmp_path / "docs"), "--readme", str(readme)])
-    assert readme.read_text() == text  # idempotent
+    tool.main(["--runs", str(runs), "--docs", str(tmp_path / "docs")])
+    assert (tmp_path / "docs" / "results.md").read_text() == doc  # idempotent
