@@ -1,0 +1,451 @@
+"""Measure how a real camera errs, from photos of a chessboard: the evidence behind ``imaging: realistic``.
+
+    .venv/bin/python tools/real_camera_stats.py [--data DIR] [--pattern 7x7] [--json OUT.json]
+
+``DIR`` holds JPEG/PNG photos of a chessboard with ``--pattern`` inner corners (default the project's real webcam
+photos, ``tests/data/real_webcam_chessboard``: 19 views, 640 x 480, 7 x 7 inner corners). Every statistic is
+defined in :func:`residual_statistics` and the ``measure_*`` functions; docs/realistic_imaging.md quotes this tool's
+output. The same residual statistics are computed for simulated photos (``bench.sim.imaging``'s tests and the
+``camera_calibration_real_webcam_sim`` scenario), so the two are compared with one piece of code.
+
+Measured here:
+
+* calibration (``cv2.findChessboardCornersSB`` with the ACCURACY flag, the bench's Heikkilä calibration): RMS and
+  per-view RMS (px);
+* residual correlation along a board row / column at lag k (:func:`residual_statistics`) and across views at
+  image distance d (the part of the residual tied to the image, i.e. the lens, not the board);
+* JPEG quality: the file's quantisation tables (DQT) matched to the IJG tables scaled for quality 1..100;
+* noise in flat regions: the standard deviation (DN) inside white and black squares after removing a plane;
+* blur: the edge spread function across square edges, fitted by an erf: its Gaussian sigma (px);
+* vignetting: white-square brightness against the distance from the image centre (``I = I0 (1 - a r^2)``, r in
+  units of the half diagonal) - lighting contributes too, so this is an upper bound on the lens's vignetting;
+* lateral chromatic aberration: corners located in R and in B separately (``cv2.cornerSubPix``) minus G, radial
+  component against radius: ``d_r = c r`` (c in px per 1000 px of radius).
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+DEFAULT_DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "real_webcam_chessboard"
+
+#: IJG (libjpeg) standard luminance quantisation table (ITU-T T.81 Annex K, Table K.1); its sum is order-free
+IJG_LUMA = np.array([16, 11, 10, 16, 24, 40, 51, 61, 12, 12, 14, 19, 26, 58, 60, 55, 14, 13, 16, 24, 40, 57, 69, 56,
+                     14, 17, 22, 29, 51, 87, 80, 62, 18, 22, 37, 56, 68, 109, 103, 77, 24, 35, 55, 64, 81, 104, 113, 92,
+                     49, 64, 78, 87, 103, 121, 120, 101, 72, 92, 95, 98, 112, 100, 103, 99])
+
+
+def ijg_table(quality: int) -> np.ndarray:
+    """IJG luminance quantisation table (64,) at ``quality`` 1..100 (libjpeg's ``jpeg_quality_scaling``)."""
+    q = int(quality)
+    scale = 5000 // q if q < 50 else 200 - 2 * q
+    return np.clip((IJG_LUMA * scale + 50) // 100, 1, 255)
+
+
+def jpeg_luma_table(data: bytes) -> np.ndarray | None:
+    """The first 8-bit quantisation table (64,) of a JPEG file's DQT segments (zig-zag order), or None."""
+    i = 2
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            return None
+        marker, length = data[i + 1], int.from_bytes(data[i + 2:i + 4], "big")
+        if marker == 0xDB:
+            pq_tq = data[i + 4]
+            if pq_tq >> 4 == 0:
+                return np.frombuffer(data[i + 5:i + 5 + 64], dtype=np.uint8).astype(int)
+        if marker == 0xDA:  # start of scan: no more tables
+            return None
+        i += 2 + length
+    return None
+
+
+def estimate_jpeg_quality(data: bytes) -> tuple:
+    """``(quality, exact)``: the IJG quality whose luminance table matches the file's (same multiset of values:
+    exact=True), else the quality with the nearest table sum."""
+    table = jpeg_luma_table(data)
+    if table is None:
+        return None, False
+    best, best_d = None, np.inf
+    for q in range(1, 101):
+        t = ijg_table(q)
+        if np.array_equal(np.sort(t), np.sort(table)):
+            return q, True
+        d = abs(int(t.sum()) - int(table.sum()))
+        if d < best_d:
+            best, best_d = q, d
+    return best, False
+
+
+def detect(files, pattern):
+    """Grey images, colour images and corners ``(N, 2)`` of the photos where the board is found."""
+    out = []
+    for f in files:
+        bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
+        if bgr is None:
+            continue
+        grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+        ok, c = cv2.findChessboardCornersSB(grey, pattern, flags=cv2.CALIB_CB_ACCURACY)
+        if ok:
+            out.append((Path(f), bgr, grey, c.reshape(-1, 2).astype(float)))
+    return out
+
+
+def residual_statistics(residuals, pattern, uvs=None, max_lag: int = 3) -> dict:
+    """Spatial structure of calibration residuals of chessboard views.
+
+    Parameters
+    ----------
+    residuals : list of ndarray (N, 2)
+        Per view, the residual of each corner (px), corners row-major with ``pattern = (cols, rows)``.
+    uvs : list of ndarray (N, 2), optional
+        The detected corners (px), for the cross-view image-distance correlation.
+
+    Returns
+    -------
+    dict
+        ``rms_px`` (all corners), ``per_view_rms_px`` (list), ``per_view_rms_cv`` (std / mean of the per-view RMS),
+        ``row_corr_lag{k}`` and ``col_corr_lag{k}``: the normalised correlation of residual *vectors* k corners apart
+        along a board row (column), pooled over views,
+        ``rho_k = sum(r_i . r_{i+k}) / sqrt(sum |r_i|^2 sum |r_{i+k}|^2)``
+        (0 for white noise, 1 for a common shift); ``cross_view_corr_{a}_{b}px``: the same correlation for corner
+        pairs of *different* views whose image positions lie a..b px apart (residual tied to the image).
+    """
+    cols, rows = pattern
+    R = [np.asarray(r, float).reshape(rows, cols, 2) for r in residuals]
+    allr = np.concatenate([r.reshape(-1, 2) for r in R])
+    pv = np.array([np.sqrt(np.mean(np.sum(r ** 2, -1))) for r in R])
+    out = {"rms_px": float(np.sqrt(np.mean(np.sum(allr ** 2, 1)))), "per_view_rms_px": pv.round(4).tolist(),
+           "per_view_rms_cv": float(pv.std() / pv.mean())}
+    for name, axis in (("row", 1), ("col", 0)):
+        for k in range(1, max_lag + 1):
+            a = np.concatenate([(r[:, :-k] if axis == 1 else r[:-k]).reshape(-1, 2) for r in R])
+            b = np.concatenate([(r[:, k:] if axis == 1 else r[k:]).reshape(-1, 2) for r in R])
+            out[f"{name}_corr_lag{k}"] = float(np.sum(a * b) / np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    if uvs is not None:
+        P = [np.asarray(u, float) for u in uvs]
+        Rf = [r.reshape(-1, 2) for r in R]
+        for lo, hi in ((0, 20), (20, 60), (60, 150)):
+            num = den_a = den_b = 0.0
+            for i in range(len(P)):
+                for j in range(i + 1, len(P)):
+                    d = np.linalg.norm(P[i][:, None] - P[j][None], axis=-1)
+                    ii, jj = np.nonzero((d >= lo) & (d < hi))
+                    num += np.sum(Rf[i][ii] * Rf[j][jj])
+                    den_a += np.sum(Rf[i][ii] ** 2)
+                    den_b += np.sum(Rf[j][jj] ** 2)
+            out[f"cross_view_corr_{lo}_{hi}px"] = float(num / np.sqrt(den_a * den_b)) if den_a > 0 else float("nan")
+    return out
+
+
+def _board_homography(corners, pattern):
+    cols, rows = pattern
+    g = np.stack(np.meshgrid(np.arange(cols), np.arange(rows)), -1).reshape(-1, 2).astype(np.float32)
+    H, _ = cv2.findHomography(g, corners.astype(np.float32))
+    return H
+
+
+def _to_image(H, pts):
+    return cv2.perspectiveTransform(np.asarray(pts, np.float32).reshape(-1, 1, 2), H).reshape(-1, 2)
+
+
+def measure_noise(views, pattern) -> dict:
+    """Std (DN, grey) inside square interiors after a plane fit; white and black squares; JPEG leaves what it keeps.
+
+    The squares fully inside the inner-corner grid are used (grid cells (i, j) .. (i+1, j+1)); the central 40 % of
+    each square's width is sampled; the colour of a cell is decided by its mean (the board's parity is unknown)."""
+    stats = {"white": [], "black": []}
+    means = {"white": [], "black": []}
+    cols, rows = pattern
+    for _, _, grey, c in views:
+        H = _board_homography(c, pattern)
+        for i in range(rows - 1):
+            for j in range(cols - 1):
+                s = np.linspace(0.3, 0.7, 9)
+                gx, gy = np.meshgrid(j + s, i + s)
+                p = _to_image(H, np.c_[gx.ravel(), gy.ravel()])
+                u0, v0 = np.floor(p.min(0)).astype(int)
+                u1, v1 = np.ceil(p.max(0)).astype(int)
+                if u1 - u0 < 4 or v1 - v0 < 4:
+                    continue
+                # pixels inside the central quadrilateral
+                quad = _to_image(H, [[j + 0.3, i + 0.3], [j + 0.7, i + 0.3], [j + 0.7, i + 0.7], [j + 0.3, i + 0.7]])
+                mask = np.zeros(grey.shape, np.uint8)
+                cv2.fillConvexPoly(mask, np.round(quad).astype(np.int32), 1)
+                vv, uu = np.nonzero(mask)
+                if len(vv) < 20:
+                    continue
+                val = grey[vv, uu].astype(float)
+                A = np.c_[uu, vv, np.ones_like(uu)].astype(float)
+                res = val - A @ np.linalg.lstsq(A, val, rcond=None)[0]
+                kind = "white" if val.mean() > 128 else "black"
+                stats[kind].append(res.std(ddof=3))
+                means[kind].append(val.mean())
+    return {f"noise_{k}_dn": float(np.median(v)) for k, v in stats.items() if v} | \
+           {f"level_{k}_dn": float(np.median(v)) for k, v in means.items() if v}
+
+
+def _erf_fit(x, y):
+    """Fit ``a + b erf((x - x0) / (sqrt(2) sigma))``; returns sigma (px) or None."""
+    from scipy.optimize import least_squares
+    from scipy.special import erf
+
+    a0, b0 = (y.max() + y.min()) / 2, (y[-1] - y[0]) / 2
+    if abs(b0) < 20:
+        return None
+
+    def f(p):
+        return p[0] + p[1] * erf((x - p[2]) / (np.sqrt(2) * abs(p[3]) + 1e-9)) - y
+
+    r = least_squares(f, [a0, b0, 0.0, 1.0])
+    if not r.success or abs(r.x[2]) > 2 or not 0.1 < abs(r.x[3]) < 5:
+        return None
+    return abs(r.x[3])
+
+
+def measure_blur(views, pattern) -> dict:
+    """Edge spread: erf sigma (px) of profiles across the square edges between neighbouring inner corners (their
+    middle half), sampled perpendicular to the edge over +-5 px at 0.25 px (bilinear)."""
+    cols, rows = pattern
+    sig = []
+    for _, _, grey, c in views:
+        g = grey.astype(np.float32)
+        C = c.reshape(rows, cols, 2)
+        pairs = [(C[i, j], C[i, j + 1]) for i in range(rows) for j in range(cols - 1)] + \
+                [(C[i, j], C[i + 1, j]) for i in range(rows - 1) for j in range(cols)]
+        t = np.arange(-5, 5.01, 0.25)
+        for a, b in pairs:
+            d = b - a
+            n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
+            for s in (0.35, 0.5, 0.65):
+                m = a + s * d
+                p = (m + t[:, None] * n).astype(np.float32)
+                y = cv2.remap(g, p[:, :1], p[:, 1:], cv2.INTER_LINEAR).ravel().astype(float)
+                r = _erf_fit(t, y)
+                if r is not None:
+                    sig.append(r)
+    sig = np.array(sig)
+    return {"edge_sigma_px": float(np.median(sig)), "edge_sigma_p25_px": float(np.percentile(sig, 25)),
+            "edge_sigma_p75_px": float(np.percentile(sig, 75)), "edge_profiles": len(sig)}
+
+
+def measure_vignetting(views, pattern) -> dict:
+    """Fit ``I = I0 (1 - a r^2)`` to the white squares' centre brightness (r: distance from the image centre over
+    the half diagonal); returns ``a`` (fall-off at the corner, fraction) per view's median and all pooled."""
+    cols, rows = pattern
+    rr, ii = [], []
+    for _, _, grey, c in views:
+        h, w = grey.shape
+        H = _board_homography(c, pattern)
+        ctr = np.array([(j + 0.5, i + 0.5) for i in range(rows - 1) for j in range(cols - 1)])
+        p = _to_image(H, ctr)
+        vals = np.array([cv2.getRectSubPix(grey, (5, 5), tuple(map(float, q))).mean() for q in p])
+        white = vals > np.median(vals)
+        r = np.linalg.norm(p - [(w - 1) / 2, (h - 1) / 2], axis=1) / np.hypot(w / 2, h / 2)
+        rr.append(r[white])
+        ii.append(vals[white] / vals[white].mean())
+    r, i = np.concatenate(rr), np.concatenate(ii)
+    A = np.c_[np.ones_like(r), -r ** 2]
+    coef = np.linalg.lstsq(A, i, rcond=None)[0]
+    return {"vignetting_a_corner": float(coef[1] / coef[0]), "white_brightness_cv": float(i.std())}
+
+
+def measure_chromatic(views, pattern) -> dict:
+    """Lateral chromatic aberration: corners refined in R and B alone minus G, radial component vs radius."""
+    rad, dr_r, dr_b = [], [], []
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
+    for _, bgr, _, c in views:
+        h, w = bgr.shape[:2]
+        ctr = np.array([(w - 1) / 2, (h - 1) / 2])
+        loc = {}
+        for k, ch in (("b", 0), ("g", 1), ("r", 2)):
+            p = c.astype(np.float32).reshape(-1, 1, 2).copy()
+            loc[k] = cv2.cornerSubPix(np.ascontiguousarray(bgr[..., ch]), p, (5, 5), (-1, -1), crit).reshape(-1, 2)
+        v = loc["g"] - ctr
+        r = np.linalg.norm(v, axis=1)
+        e = v / np.maximum(r, 1e-9)[:, None]
+        rad.append(r)
+        dr_r.append(np.sum((loc["r"] - loc["g"]) * e, 1))
+        dr_b.append(np.sum((loc["b"] - loc["g"]) * e, 1))
+    r = np.concatenate(rad)
+    out = {}
+    for k, d in (("r", np.concatenate(dr_r)), ("b", np.concatenate(dr_b))):
+        A = np.c_[np.ones_like(r), r]
+        coef = np.linalg.lstsq(A, d, rcond=None)[0]
+        out[f"lateral_ca_{k}_px_per_1000px"] = float(coef[1] * 1000)
+        out[f"lateral_ca_{k}_offset_px"] = float(coef[0])
+    return out
+
+
+def measure_board_bow(res, uvs, pattern, square_mm: float) -> dict:
+    """How far the real board is from a plane: per view, the pose and a quadratic out-of-plane shape
+    ``z = a x^2 + b y^2 + c x y`` (board coordinates centred on the board, in squares) fitted to the corners with
+    the calibration's intrinsics and distortion held; the sagitta is ``max |z| - min |z|`` over the corner grid in mm
+    (for a square of ``square_mm``) and the residual RMS left after the shape (px)."""
+    from scipy.optimize import least_squares
+
+    cols, rows = pattern
+    g = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2).astype(float)
+    gc = g - g.mean(0)
+    K, dist = res.camera.K, res.camera.dist
+    sag, rms_after, rms_before = [], [], []
+    for uv in uvs:
+        obj0 = np.c_[g, np.zeros(len(g))]
+        _, rvec, tvec = cv2.solvePnP(obj0, uv, K, dist)
+
+        def f(p, uv=uv):
+            z = p[6] * gc[:, 0] ** 2 + p[7] * gc[:, 1] ** 2 + p[8] * gc[:, 0] * gc[:, 1]
+            proj, _ = cv2.projectPoints(np.c_[g, z], p[:3], p[3:6], K, dist)
+            return (proj.reshape(-1, 2) - uv).ravel()
+
+        p0 = np.r_[rvec.ravel(), tvec.ravel(), 0.0, 0.0, 0.0]
+        r0 = least_squares(f, np.r_[rvec.ravel(), tvec.ravel(), 0, 0, 0], x_scale="jac")
+        rms_before.append(np.sqrt(np.mean(f(p0) ** 2) * 2))
+        p = r0.x
+        z = p[6] * gc[:, 0] ** 2 + p[7] * gc[:, 1] ** 2 + p[8] * gc[:, 0] * gc[:, 1]
+        sag.append((z.max() - z.min()) * square_mm)
+        rms_after.append(np.sqrt(np.mean(r0.fun ** 2) * 2))
+    sag = np.array(sag)
+    return {"bow_sagitta_median_mm": float(np.median(sag)), "bow_sagitta_max_mm": float(sag.max()),
+            "bow_square_mm_assumed": square_mm, "bow_rms_before_px": float(np.sqrt(np.mean(np.square(rms_before)))),
+            "bow_rms_after_px": float(np.sqrt(np.mean(np.square(rms_after)))),
+            "bow_sagitta_per_view_mm": sag.round(3).tolist()}
+
+
+def _rotations(pattern):
+    """Index maps of the corner grid's four rotations (square grids only: a symmetric board's labellings)."""
+    cols, rows = pattern
+    idx = np.arange(cols * rows).reshape(rows, cols)
+    return [np.rot90(idx, k).ravel() for k in range(4)] if cols == rows else [idx.ravel()]
+
+
+def measure_print_error(views, pattern, square_mm: float, iterations: int = 4) -> dict:
+    """The printed board's line positions, estimated from the photos: the rows and columns of corners are allowed
+    their own offsets (in the board plane, along y for a row and x for a column) and the offsets are re-estimated
+    from the views' residuals mapped into the board plane (the local homography's inverse Jacobian), alternating
+    with the calibration. Each view's corner labelling is first brought to the majority's (a symmetric board's
+    detection may start from any of its four corners). The offsets' mean and linear trend are removed (a scale
+    and a shift are the pose's). Returns the offsets' RMS in mm (for a square of ``square_mm``) and the
+    calibration RMS with the estimated print corrections (what the photos err by when the target's geometry is
+    right)."""
+    from bench.camera import calibration as cal
+
+    cols, rows = pattern
+    g = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2).astype(float)
+    uvs = [v[3].copy() for v in views]
+    size = views[0][2].shape[::-1]
+
+    def calib(off_x, off_y):
+        obj = np.c_[g[:, 0] + off_x[g[:, 0].astype(int)], g[:, 1] + off_y[g[:, 1].astype(int)], np.zeros(len(g))]
+        return cal.calibrate_camera([obj] * len(uvs), uvs, size, "heikkila"), obj
+
+    res, _ = calib(np.zeros(cols), np.zeros(rows))
+    ref = res.residuals_px[0].reshape(rows, cols, 2)[..., 1].mean(1)
+    relabelled = 0
+    for k in range(1, len(uvs)):  # the labelling whose per-row residual pattern matches view 0's best
+        best = max(_rotations(pattern), key=lambda m, k=k: float(np.dot(
+            res.residuals_px[k][m].reshape(rows, cols, 2)[..., 1].mean(1), ref)))
+        if not np.array_equal(best, np.arange(cols * rows)):
+            relabelled += 1
+        uvs[k] = uvs[k][best]
+    off_x, off_y = np.zeros(cols), np.zeros(rows)
+    for _ in range(iterations):
+        res, obj = calib(off_x, off_y)
+        dX = []
+        for r, uv in zip(res.residuals_px, uvs, strict=True):
+            H, _ = cv2.findHomography(obj[:, :2], uv - r)  # the fitted projection, locally a homography
+            dX.append(_inverse_jacobian_apply(H, obj[:, :2], r))
+        dX = np.mean(dX, axis=0)  # board-plane correction of each corner (squares)
+        off_x += np.array([dX[g[:, 0] == j, 0].mean() for j in range(cols)])
+        off_y += np.array([dX[g[:, 1] == i, 1].mean() for i in range(rows)])
+        for o in (off_x, off_y):
+            t = np.arange(len(o)) - (len(o) - 1) / 2
+            o -= o.mean() + t * np.dot(t, o) / np.dot(t, t)
+    res, _ = calib(off_x, off_y)
+    return {"print_row_offsets_rms_mm": float(np.sqrt(np.mean(off_y ** 2)) * square_mm),
+            "print_col_offsets_rms_mm": float(np.sqrt(np.mean(off_x ** 2)) * square_mm),
+            "print_row_offsets_mm": (off_y * square_mm).round(3).tolist(),
+            "print_col_offsets_mm": (off_x * square_mm).round(3).tolist(),
+            "views_relabelled": relabelled, "rms_with_print_correction_px": float(res.rms_px),
+            "per_view_rms_with_print_correction_px": res.per_view_rms_px.round(3).tolist(),
+            "residual_stats_with_print_correction": residual_statistics(res.residuals_px, pattern, uvs)}
+
+
+def _inverse_jacobian_apply(H, XY, duv):
+    """Board-plane displacements ``(N, 2)`` whose image under homography ``H`` at ``XY`` is ``duv`` (first order)."""
+    out = []
+    for (x, y), d in zip(XY, duv, strict=True):
+        p = H @ [x, y, 1.0]
+        J = (H[:2, :2] * p[2] - np.outer(p[:2], H[2, :2])) / p[2] ** 2
+        out.append(np.linalg.solve(J, d))
+    return np.array(out)
+
+
+def calibrate(views, pattern, model="heikkila"):
+    """The bench's calibration of the detected views (unit squares): ``(result, uvs)``."""
+    from bench.camera import calibration as cal
+
+    cols, rows = pattern
+    obj = np.zeros((cols * rows, 3))
+    obj[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2)
+    uvs = [v[3] for v in views]
+    size = views[0][2].shape[::-1]
+    return cal.calibrate_camera([obj] * len(uvs), uvs, size, model), uvs
+
+
+def measure(data_dir, pattern=(7, 7), square_mm: float = 25.0) -> dict:
+    files = sorted(glob.glob(str(Path(data_dir) / "*.jpg")) + glob.glob(str(Path(data_dir) / "*.png")))
+    if not files:
+        raise SystemExit(f"{data_dir}: no .jpg or .png images")
+    views = detect(files, pattern)
+    if len(views) < 3:
+        raise SystemExit(f"{data_dir}: the {pattern[0]}x{pattern[1]} board was found in only {len(views)} images")
+    res, uvs = calibrate(views, pattern)
+    out = {"images": len(files), "views": len(views), "image_size_px": list(views[0][2].shape[::-1]),
+           "calibration_model": "heikkila (k1 k2 p1 p2)", "fx_px": float(res.camera.fx), "fy_px": float(res.camera.fy),
+           "cx_px": float(res.camera.K[0, 2]), "cy_px": float(res.camera.K[1, 2])}
+    out.update(residual_statistics(res.residuals_px, pattern, uvs))
+    out.update(measure_board_bow(res, uvs, pattern, square_mm))
+    out.update(measure_print_error(views, pattern, square_mm))
+    q = [estimate_jpeg_quality(Path(f).read_bytes()) for f in files if f.lower().endswith(".jpg")]
+    if q:
+        out["jpeg_quality"] = sorted({int(a) for a, _ in q if a is not None})
+        out["jpeg_quality_exact_ijg"] = all(e for _, e in q)
+    out.update(measure_noise(views, pattern))
+    out.update(measure_blur(views, pattern))
+    out.update(measure_vignetting(views, pattern))
+    out.update(measure_chromatic(views, pattern))
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default=str(DEFAULT_DATA))
+    ap.add_argument("--pattern", default="7x7", help="inner corners per row x per column")
+    ap.add_argument("--square-mm", type=float, default=25.0,
+                    help="square size assumed for the bow in mm (the real board's is not recorded; 25 mm = an 8 x 8 "
+                         "board printed on A4)")
+    ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    args = ap.parse_args(argv)
+    try:
+        pattern = tuple(int(v) for v in args.pattern.lower().split("x"))
+        if len(pattern) != 2 or min(pattern) < 2:
+            raise ValueError
+    except ValueError:
+        raise SystemExit(f"--pattern: expected e.g. 7x7 (inner corners), got {args.pattern!r}") from None
+    out = measure(args.data, pattern, args.square_mm)
+    for k, v in out.items():
+        print(f"{k:34s} {v if not isinstance(v, float) else round(v, 4)}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
