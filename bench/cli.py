@@ -63,10 +63,16 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     loc.add_argument("--robot", default=None, help="calibrated robot file (default: the dataset's robot.yaml)")
     loc.add_argument("--camera", default=None, help="calibrated camera file (default: the dataset's camera.yaml)")
-    cc = sub.add_parser("calibrate-camera", help="corners + calibration (+ OpenCV reference) on a rig dataset")
-    cc.add_argument("dataset", help="dataset folder with rig views and target.yaml")
+    cc = sub.add_parser("calibrate-camera", help="corners + calibration (+ OpenCV reference) on a rig dataset or a "
+                                                 "plain folder of photos")
+    cc.add_argument("dataset", help="dataset folder (rig views, target.yaml) or a plain folder of photos (give the "
+                                    "target by --target ...)")
     cc.add_argument("--out", required=True, help="folder for camera.yaml, calibration.json, per_view.csv, plots")
     cc.add_argument("--model", choices=("heikkila", "radial", "pinhole"), default="heikkila")
+    cc.add_argument("--k3", action="store_true", help="also fit the third radial coefficient k3")
+    cc.add_argument("--robot", default=None, help="(calibrated) robot file: also calibrate the camera mount on link 5 "
+                                                  "(AX = XB from the views' joint readings) into OUT/robot.yaml")
+    _add_target_flags(cc)
     cc.add_argument("--extractor", choices=("thesis", "opencv"), default="thesis",
                     help="corner extractor: the thesis's edge/k-means method or OpenCV's")
     _add_interchange_commands(sub)
@@ -74,6 +80,29 @@ def _parser() -> argparse.ArgumentParser:
 
     robot_commands.add_parsers(sub)
     return p
+
+
+def _add_target_flags(parser) -> None:
+    """``--target chessboard --inner WxH --square-mm S`` or ``--target two_plane_rig --size-mm S [--squares N]
+    [--margin-mm M]``: the calibration target (what ``target.yaml`` holds; docs/tutorial_real_data.md)."""
+    parser.add_argument("--target", choices=("chessboard", "two_plane_rig"), default=None,
+                        help="calibration target type (a dataset's target.yaml says it otherwise)")
+    parser.add_argument("--inner", default=None, metavar="WxH", help="chessboard: inner corners per row x rows")
+    parser.add_argument("--square-mm", type=float, default=None, help="chessboard: side of a square (mm)")
+    parser.add_argument("--size-mm", type=float, default=None, help="two_plane_rig: side of one board's pattern (mm)")
+    parser.add_argument("--squares", type=int, default=None, help="two_plane_rig: squares per side (default 7)")
+    parser.add_argument("--margin-mm", type=float, default=None, help="two_plane_rig: border to the pattern (mm)")
+
+
+def _target_from_flags(args):
+    from bench.camera.calibrate_dataset import target_spec
+
+    given = [f for f in ("inner", "square_mm", "size_mm", "squares", "margin_mm") if getattr(args, f) is not None]
+    if args.target is None:
+        if given:
+            raise BenchError(f"--{given[0].replace('_', '-')}: describes a target; give --target too")
+        return None
+    return target_spec(args.target, args.inner, args.square_mm, args.squares, args.size_mm, args.margin_mm)
 
 
 _INTERCHANGE = ("export", "export-camera", "import-tracker", "import-joints")
@@ -199,7 +228,8 @@ def main(argv=None) -> int:
         elif args.command == "calibrate-camera":
             from bench.camera.calibrate_dataset import calibrate_dataset
 
-            res, _ = calibrate_dataset(args.dataset, args.out, model=args.model, extractor=args.extractor)
+            res, _ = calibrate_dataset(args.dataset, args.out, model=args.model, extractor=args.extractor,
+                                       target=_target_from_flags(args), k3=args.k3, robot=args.robot)
             return 0 if res.success else 1
         elif args.command == "locate":
             from bench.vision.locate_dataset import locate_dataset

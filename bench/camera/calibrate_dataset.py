@@ -1,19 +1,30 @@
-"""``bench calibrate-camera DATASET``: corners, calibration and the OpenCV reference on any dataset folder.
+"""``bench calibrate-camera``: corners, calibration and the OpenCV reference on a dataset or a plain folder of photos.
 
-The dataset carries the rig images and ``target.yaml`` describing the target the user built (nominal geometry)::
+Two sources of views:
 
-    type: two_plane_rig       # the thesis's rig (section 5.2): two perpendicular boards
-    squares: 7
-    size_mm: 197              # pattern size of one board
-    margin_mm: 20             # white border from the fold to the pattern
+* a **dataset folder** (:mod:`bench.dataset`): its views (those with role ``rig`` if any has it) and ``target.yaml``;
+* a **plain folder of photos** (``*.png``, ``*.jpg``, ``*.jpeg``, views named by file stem, in name order), the target
+  described by the command's flags (``--target chessboard --inner 9x6 --square-mm 25``), which is also what a
+  ``target.yaml`` holds.
+
+``target.yaml`` (documented for users in ``docs/tutorial_real_data.md``; every key is checked, one-line errors)::
+
+    type: chessboard          # a flat chessboard ("planar" is read as a synonym)
+    inner: [9, 6]             # inner corners per row, rows (both >= 2)
+    square_mm: 25             # side of one square (mm, > 0)
   or
-    type: planar
-    inner: [7, 7]             # inner corners per row, rows
-    square_mm: 28.14
+    type: two_plane_rig       # the thesis's rig (section 5.2): two perpendicular boards
+    squares: 7                # squares per side of one board (>= 3; default 7)
+    size_mm: 197              # side of the pattern of one board (mm, > 0)
+    margin_mm: 20             # white border from the fold and the bottom to the pattern (mm, >= 0; default 0)
 
 Outputs in ``out``: ``camera.yaml`` (OpenCV keys + the thesis's parameters), ``calibration.json`` (RMS, per-view
 χ (Eq. 196), parameters with standard errors, OpenCV's result on the same detections), ``per_view.csv``
-(Table 3's α, β, θ, u0, v0, χ per view) and ``residuals.png`` (Figures 44/53).
+(Table 3's α, β, θ, u0, v0, χ per view) and ``residuals.png`` (Figures 44/53). With a robot file (``--robot``, e.g.
+the output of ``bench calibrate-robot``) and joint readings for the views, also the camera mount on link 5 by
+``AX = XB`` (:func:`bench.vision.handeye.hand_eye_axxb`; the target's symmetric labellings made consistent from the
+motions alone, :func:`~bench.vision.handeye.resolve_target_symmetry_screw`), written into ``out/robot.yaml`` (the
+robot file with ``calibration.camera_mount`` added, its errors kept) and ``calibration.json`` (``mount``).
 """
 
 from __future__ import annotations
@@ -30,11 +41,56 @@ from bench.camera.calibration import calibrate_camera, opencv_reference, per_vie
 from bench.camera.corners import extract_corners_opencv, extract_corners_thesis, planar_board, two_plane_rig
 from bench.camera.io import write_camera_yaml
 from bench.camera.plots import plot_residual_vectors
-from bench.dataset import load_dataset
-from bench.errors import ConfigError
+from bench.dataset import View, load_dataset
+from bench.errors import BenchError, ConfigError
 from bench.fileio import atomic_write_text, write_table_csv
+from bench.geometry.transforms import homogeneous, rot_z
 
-_TARGET_KEYS = {"type", "squares", "size_mm", "margin_mm", "inner", "square_mm"}
+#: target types and their keys: (required, optional with default)
+TARGET_KEYS = {"chessboard": ({"inner", "square_mm"}, {}),
+               "two_plane_rig": ({"size_mm"}, {"squares": 7, "margin_mm": 0.0})}
+_TARGET_SYNONYMS = {"planar": "chessboard"}
+#: image files of a plain folder of photos
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+#: Outputs of this command: a folder holding only these (or nothing) may be written again.
+OUTPUT_FILES = ("camera.yaml", "calibration.json", "per_view.csv", "residuals.png", "robot.yaml")
+
+
+def parse_target(t, source):
+    """The target geometry (SI) from a ``target.yaml`` mapping (module docstring); one-line ConfigError naming
+    ``source`` and the key for anything else."""
+    if not isinstance(t, dict):
+        raise ConfigError(source, "<top>", f"expected a mapping (type: chessboard|two_plane_rig, ...), got {t!r}")
+    kind = _TARGET_SYNONYMS.get(t.get("type"), t.get("type"))
+    if kind not in TARGET_KEYS:
+        raise ConfigError(source, "type", f"expected 'chessboard' or 'two_plane_rig', got {t.get('type')!r}")
+    required, optional = TARGET_KEYS[kind]
+    for key in sorted(set(t) - {"type"} - required - set(optional)):
+        other = [k for k, (r, o) in TARGET_KEYS.items() if key in r or key in o]
+        hint = f" (a key of type {other[0]})" if other else ""
+        raise ConfigError(source, key, f"unknown key for type {kind}{hint}; allowed: "
+                                       f"{', '.join(sorted(required | set(optional)))}")
+    for key in sorted(required - set(t)):
+        raise ConfigError(source, key, f"missing (type {kind} needs {', '.join(sorted(required))})")
+    t = {**optional, **t}
+
+    def length(key, positive=True):
+        v = t[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0 or (
+                positive and v == 0):
+            raise ConfigError(source, key, f"expected a length in mm {'> 0' if positive else '>= 0'}, got {v!r}")
+        return float(v)
+
+    if kind == "two_plane_rig":
+        squares = t["squares"]
+        if isinstance(squares, bool) or not isinstance(squares, int) or squares < 3:
+            raise ConfigError(source, "squares", f"expected an integer >= 3 (squares per side), got {squares!r}")
+        return two_plane_rig(squares, length("size_mm") * 1e-3, length("margin_mm", positive=False) * 1e-3)
+    inner = t["inner"]
+    if not (isinstance(inner, list) and len(inner) == 2 and
+            all(isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in inner)):
+        raise ConfigError(source, "inner", f"expected [inner corners per row, rows], both >= 2, got {inner!r}")
+    return planar_board(tuple(inner), length("square_mm") * 1e-3)
 
 
 def load_target(path):
@@ -44,32 +100,115 @@ def load_target(path):
         raise ConfigError(path, "<file>", "not found (the dataset must describe its calibration target)")
     try:
         t = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(path, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(t, dict):
-        raise ConfigError(path, "<top>", "expected a mapping")
-    bad = set(t) - _TARGET_KEYS
-    if bad:
-        raise ConfigError(path, sorted(bad)[0], f"unknown key (allowed: {', '.join(sorted(_TARGET_KEYS))})")
+    return parse_target(t, path)
 
-    def num(key, default=None):
-        v = t.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
-            raise ConfigError(path, key, f"expected a non-negative number, got {v!r}")
-        return float(v)
 
-    kind = t.get("type")
-    if kind == "two_plane_rig":
-        squares = t.get("squares", 7)
-        if not isinstance(squares, int) or squares < 3:
-            raise ConfigError(path, "squares", f"expected an integer >= 3, got {squares!r}")
-        return two_plane_rig(squares, num("size_mm") * 1e-3, num("margin_mm", 0.0) * 1e-3)
-    if kind == "planar":
-        inner = t.get("inner")
-        if not (isinstance(inner, list) and len(inner) == 2 and all(isinstance(v, int) and v >= 2 for v in inner)):
-            raise ConfigError(path, "inner", f"expected [corners per row, rows], got {inner!r}")
-        return planar_board(tuple(inner), num("square_mm") * 1e-3)
-    raise ConfigError(path, "type", f"expected 'two_plane_rig' or 'planar', got {kind!r}")
+def target_spec(target: str, inner: str | None = None, square_mm: float | None = None, squares: int | None = None,
+                size_mm: float | None = None, margin_mm: float | None = None) -> dict:
+    """The ``target.yaml`` mapping from command-line flags (``--target chessboard --inner 9x6 --square-mm 25``, or
+    ``--target two_plane_rig --size-mm 197 [--squares 7] [--margin-mm 20]``), checked by :func:`parse_target`."""
+    kind = _TARGET_SYNONYMS.get(str(target).replace("-", "_"), str(target).replace("-", "_"))
+    if kind not in TARGET_KEYS:
+        raise ConfigError("--target", kind, "expected chessboard or two_plane_rig")
+    flags = {"inner": inner, "square_mm": square_mm, "squares": squares, "size_mm": size_mm, "margin_mm": margin_mm}
+    required, optional = TARGET_KEYS[kind]
+
+    def flag(key):
+        return "--" + key.replace("_", "-")
+
+    allowed = ", ".join(flag(k) for k in sorted(required | set(optional)))
+    for key, value in flags.items():
+        if value is not None and key not in required | set(optional):
+            raise ConfigError(f"--target {kind}", flag(key), f"not a flag of this target (its flags: {allowed})")
+        if value is None and key in required:
+            raise ConfigError(f"--target {kind}", flag(key), f"missing (this target needs "
+                                                                  f"{', '.join(flag(k) for k in sorted(required))})")
+    spec = {"type": kind}
+    for key, value in flags.items():
+        if value is None:
+            continue
+        if key == "inner":
+            parts = str(value).lower().replace("*", "x").split("x")
+            try:
+                value = [int(v) for v in parts]
+            except ValueError:
+                value = None
+            if value is None or len(value) != 2 or min(value) < 2:
+                raise ConfigError(f"--target {kind}", "--inner", f"expected WxH inner corners, both >= 2 (e.g. "
+                                                                 f"9x6), got {inner!r}")
+        spec[key] = value
+    try:
+        parse_target(spec, "--target")
+    except ConfigError as exc:  # name the flag, not the yaml key
+        raise ConfigError(f"--target {kind}", flag(exc.field), exc.problem) from None
+    return spec
+
+
+def target_yaml_text(spec: dict) -> str:
+    """``target.yaml`` text of a :func:`target_spec` mapping (units in the key names)."""
+    return "# calibration target (docs/tutorial_real_data.md: target.yaml)\n" + yaml.safe_dump(
+        spec, sort_keys=False, default_flow_style=None)
+
+
+def target_symmetries(geometry) -> list:
+    """Rigid motions ``S`` (4x4, target frame) after which the target looks the same, so that a detector may label a
+    view as ``T_cam_target S``: the two-plane rig's half turn about the horizontal bisector of its boards; a
+    chessboard's half turn about its normal through its centre (and the quarter turns of a square grid)."""
+    X = geometry.object_points()
+    if geometry.name == "planar":
+        c = X.mean(axis=0)
+        nx, ny = geometry.planes[0].inner
+        turns = (1, 2, 3) if nx == ny else (2,)
+        out = []
+        for k in turns:
+            R = rot_z(k * np.pi / 2)
+            out.append(homogeneous(R, c - R @ c))
+        return out
+    z_mid = float(np.mean(X[:, 2]))
+    return [homogeneous(np.array([[0.0, 1, 0], [1, 0, 0], [0, 0, -1]]), [0.0, 0.0, 2 * z_mid])]
+
+
+def photo_views(folder) -> list:
+    """The views of a plain folder of photos: one :class:`~bench.dataset.View` per image file (module docstring)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ConfigError(folder, "<folder>", "not found")
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        other = sorted(p.name for p in folder.iterdir())[:3]
+        raise ConfigError(folder, "<folder>", f"no photos ({', '.join(IMAGE_SUFFIXES)}) and no manifest.yaml"
+                                              + (f"; holds {', '.join(other)}" if other else ": empty"))
+    stems = {}
+    for f in files:
+        if f.stem in stems:
+            raise ConfigError(f, "<file>", f"two photos named {f.stem!r} ({stems[f.stem].name}, {f.name})")
+        stems[f.stem] = f
+    return [View(f.stem, f) for f in files]
+
+
+def _views_and_target(root, target: dict | None):
+    """``(views, geometry, dataset or None)`` of a dataset folder or a plain folder of photos."""
+    root = Path(root)
+    if (root / "manifest.yaml").is_file():
+        ds = load_dataset(root)
+        if target is not None:
+            if (ds.root / "target.yaml").is_file():
+                raise ConfigError(ds.root / "target.yaml", "<file>", "the dataset describes its target: drop --target "
+                                                                     "(or edit target.yaml)")
+            geometry = parse_target(target, "--target")
+        else:
+            geometry = load_target(ds.root / "target.yaml")
+        views = [v for v in ds.views if v.image_path is not None]
+        rig = [v for v in views if v.role == "rig"]
+        return (rig or views), geometry, ds
+    if target is None:
+        if root.is_dir():
+            raise ConfigError(root, "<folder>", "neither a dataset (no manifest.yaml) nor described: for a plain "
+                                                "folder of photos give --target chessboard --inner WxH --square-mm S")
+        raise ConfigError(root, "<folder>", "not found")
+    return photo_views(root), parse_target(target, "--target"), None
 
 
 @dataclass
@@ -103,25 +242,24 @@ class DatasetCorners:
     detect_s: float
 
 
-def detect_dataset_corners(root, extractor: str = "thesis", camera=None) -> DatasetCorners:
-    """Detect the target of ``target.yaml`` in every view of a dataset with the thesis's or OpenCV's extractor.
+def detect_dataset_corners(root, extractor: str = "thesis", camera=None, target: dict | None = None) -> DatasetCorners:
+    """Detect the target in every view of a dataset (or plain folder of photos) with the thesis's or OpenCV's
+    extractor.
 
+    ``target``: a :func:`target_spec` mapping, required for a plain folder of photos (a dataset has ``target.yaml``).
     ``camera`` (thesis extractor only): a first calibration; the lines are then fitted in ideal pixels
     (:func:`~bench.camera.corners.extract_corners_thesis`). One-line :class:`ConfigError` when the views differ in
     size or the target is found in no view.
     """
     t0 = time.perf_counter()
-    ds = load_dataset(root)
-    geometry = load_target(ds.root / "target.yaml")
     if extractor not in ("thesis", "opencv"):
         raise ValueError(f"extractor: expected 'thesis' or 'opencv', got {extractor!r}")
     if camera is not None and extractor != "thesis":
         raise ValueError("camera: only the thesis extractor fits lines in ideal pixels")
+    views, geometry, _ = _views_and_target(root, target)
     size = None
     Xs, uvs, names, skipped = [], [], [], []
-    for v in ds.views:
-        if v.image_path is None:  # a frame of readings only (e.g. a taught tool pose)
-            continue
+    for v in views:
         img = v.image()
         if size is None:
             size = (img.shape[1], img.shape[0])
@@ -137,38 +275,122 @@ def detect_dataset_corners(root, extractor: str = "thesis", camera=None) -> Data
         uvs.append(res.uv)
         names.append(v.name)
     if not Xs:
-        raise ConfigError(ds.root, "views", "the target was found in no view: " + "; ".join(skipped[:3]))
+        raise ConfigError(root, "views", f"the target was found in none of the {len(views)} views: "
+                                         + "; ".join(skipped[:3]))
     return DatasetCorners(names, Xs, uvs, size, skipped, geometry, time.perf_counter() - t0)
 
 
-def calibrate_dataset(root, out, model: str = "heikkila", extractor: str = "thesis", verbose: bool = True):
-    """Detect corners in every view, calibrate, compare with OpenCV; returns ``(CalibrationResult, report)``."""
-    ds = load_dataset(root)
-    det = detect_dataset_corners(ds.root, extractor)
+def prepare_out_dir(out) -> Path:
+    """The output folder, refused when it is a file or a non-empty folder holding files this command did not write
+    (the shared rule of :mod:`bench.fileio` when it has one)."""
+    from bench import fileio
+
+    helper = getattr(fileio, "check_out_dir", None)
+    out = Path(out)
+    if helper is not None:
+        helper(out, OUTPUT_FILES)
+    else:
+        if out.exists() and not out.is_dir():
+            raise BenchError(f"--out {out}: is a file, not a folder")
+        if out.is_dir():
+            foreign = sorted(p.name for p in out.iterdir() if p.name not in OUTPUT_FILES)
+            if foreign:
+                raise BenchError(f"--out {out}: a non-empty folder that this command did not write (holds "
+                                 f"{foreign[0]!r}); choose a new or empty folder")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def calibrate_mount(robot_file, views, T_cam_target, geometry) -> dict:
+    """The camera mount on link 5 by ``AX = XB`` from the used views' joint readings (module docstring).
+
+    ``views``: the :class:`~bench.dataset.View` objects of the calibrated views (with ``q``); ``T_cam_target
+    (N, 4, 4)`` their extrinsics. Returns ``{"robot", "eps", "result" (HandEyeResult), "symmetry" (index per view),
+    "angle_mismatch_deg"}``; one-line ConfigError when readings are missing or the problem is degenerate.
+    """
+    from bench.robot.calibration_file import load_calibrated_robot
+    from bench.robot.orientation import link5_frame
+    from bench.vision.handeye import hand_eye_axxb, resolve_target_symmetry_screw
+
+    robot, eps, _ = load_calibrated_robot(robot_file)
+    missing = [v.name for v in views if v.q is None]
+    if missing:
+        raise ConfigError("joints.csv", missing[0], f"no joint readings for this view: the mount (--robot) needs "
+                                                    f"them for every calibrated view ({len(missing)} missing)")
+    T_base_l5 = np.stack([link5_frame(robot, robot.check_q(v.q, f"joints.csv ({v.name})"), eps) for v in views])
+    B, choice, worst = resolve_target_symmetry_screw(T_base_l5, T_cam_target, target_symmetries(geometry))
+    he = hand_eye_axxb(T_base_l5, B)
+    if not he.success:
+        raise ConfigError("rig views", "mount", f"AX = XB failed: {he.message}")
+    return {"robot": robot, "eps": eps, "result": he, "symmetry": choice.tolist(),
+            "angle_mismatch_deg": float(np.rad2deg(worst))}
+
+
+def calibrate_dataset(root, out, model: str = "heikkila", extractor: str = "thesis", verbose: bool = True,
+                      target: dict | None = None, k3: bool = False, robot=None):
+    """Detect corners in every view, calibrate, compare with OpenCV; returns ``(CalibrationResult, report)``.
+
+    Parameters
+    ----------
+    root : path
+        A dataset folder or a plain folder of photos (module docstring).
+    out : path
+        Output folder (new, empty, or an earlier output of this command).
+    model : {"heikkila", "radial", "pinhole"}
+    extractor : {"thesis", "opencv"}
+    target : dict, optional
+        :func:`target_spec` of the target (a plain folder of photos needs it; a dataset has ``target.yaml``).
+    k3 : bool
+        Also fit the third radial coefficient ``k3`` (OpenCV order ``k1, k2, p1, p2, k3``).
+    robot : path, optional
+        A (calibrated) robot file: the camera mount is calibrated too (dataset views with joint readings) and
+        ``out/robot.yaml`` written.
+    """
+    if robot is not None and not (Path(root) / "manifest.yaml").is_file():
+        raise ConfigError(root, "--robot", "the mount needs the joint readings of a dataset (bench dataset init), "
+                                           "not a plain folder of photos")
+    out = prepare_out_dir(out)
+    views, _, ds = _views_and_target(root, target)
+    det = detect_dataset_corners(root, extractor, target=target)
     Xs, uvs, names, skipped, size = det.object_points, det.image_points, det.names, det.skipped, det.image_size
     t_detect = det.detect_s
-    result = calibrate_camera(Xs, uvs, size, model=model)
-    ref = opencv_reference([X.astype(np.float32) for X in Xs], [u.astype(np.float32) for u in uvs], size, model)
-    report = {"dataset": str(ds.root), "model": model, "extractor": extractor, "views_used": names,
+    result = calibrate_camera(Xs, uvs, size, model=model, k3=k3)
+    ref = opencv_reference([X.astype(np.float32) for X in Xs], [u.astype(np.float32) for u in uvs], size, model,
+                           k3=k3)
+    source = str(ds.root) if ds is not None else str(Path(root))
+    report = {"dataset" if ds is not None else "photos": source, "target": target or "target.yaml",
+              "model": model, "k3": bool(k3), "extractor": extractor, "views_used": names,
               "views_skipped": skipped, "success": result.success, "message": result.message,
               "reproj_rms_px": result.rms_px, "per_view_rms_px": dict(zip(names, map(float, result.per_view_rms_px),
                                                                            strict=True)),
               "opencv_rms_px": ref.rms_px, "timings_s": {"detect_s": t_detect, **result.timings_s}}
+    by_name = {v.name: v for v in views}
     if result.success:
         report["K"] = result.K.tolist()
         report["dist"] = result.dist.tolist()
         report["standard_errors"] = result.standard_errors
         report["opencv_K"] = ref.K.tolist()
         report["opencv_dist"] = ref.dist.tolist()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    if result.success:
         write_camera_yaml(out / "camera.yaml", result.camera)
         rows = per_view_pinhole(Xs, uvs)
         cols = [k for k in rows[0] if k != "note"]
         write_table_csv(out / "per_view.csv", {"view": names, **{k: [r[k] for r in rows] for k in cols}})
-        first = ds.view(names[0]).image()
+        first = by_name[names[0]].image()
         plot_residual_vectors(out / "residuals.png", uvs[0], result.residuals_px[0], image=first, image_size=size)
+        if robot is not None:
+            from bench.robot.calibration_file import write_calibrated_robot
+
+            m = calibrate_mount(robot, [by_name[n] for n in names], result.T_cam_target, det.geometry)
+            he = m["result"]
+            write_calibrated_robot(out / "robot.yaml", robot, m["robot"], m["eps"], he.T_mount_cam,
+                                   notes=f"errors from {Path(robot).name}; camera mount from {len(names)} views of "
+                                         f"{Path(source).name} (AX = XB): {he.message}")
+            report["mount"] = {"robot": str(robot), "T_link5_cam": he.T_mount_cam.tolist(),
+                               "translation_mm": (he.T_mount_cam[:3, 3] * 1e3).tolist(),
+                               "rms_rot_deg": float(np.rad2deg(he.rms_rot_rad)),
+                               "rms_trans_mm": float(he.rms_trans_m * 1e3), "condition": he.condition,
+                               "symmetry_per_view": m["symmetry"],
+                               "motion_angle_mismatch_deg": m["angle_mismatch_deg"], "message": he.message}
     atomic_write_text(out / "calibration.json", json.dumps(report, indent=2, default=float) + "\n")
     if verbose:
         print(f"{len(names)} views used, {len(skipped)} skipped; RMS {result.rms_px:.4f} px (OpenCV on the same "
@@ -177,4 +399,10 @@ def calibrate_dataset(root, out, model: str = "heikkila", extractor: str = "thes
             print(f"  skipped {s}")
         if result.success:
             print("K =", np.array2string(result.K, precision=3), "dist =", np.array2string(result.dist, precision=5))
+            print(f"wrote {out / 'camera.yaml'}")
+        if "mount" in report:
+            mt = report["mount"]
+            print(f"camera mount (link 5): translation [{', '.join(f'{v:.2f}' for v in mt['translation_mm'])}] mm; "
+                  f"AX = XB residual {mt['rms_trans_mm']:.3f} mm, {mt['rms_rot_deg']:.4f} deg; "
+                  f"wrote {out / 'robot.yaml'}")
     return result, report

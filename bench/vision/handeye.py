@@ -191,6 +191,50 @@ def resolve_target_symmetry(T_base_mount, T_cam_target, T_mount_cam_guess, symme
     return np.stack([B[i] @ S[c] for i, c in enumerate(choice)]), choice
 
 
+def _screw_invariants(T):
+    """``(angle (rad), translation along the axis (m))`` of rigid motions ``(..., 4, 4)``: unchanged by conjugation
+    ``X T X^-1``, so equal for a mount motion ``A_ij`` and the camera motion ``B_ij`` it causes (``A_ij X = X B_ij``).
+    Below 1e-6 rad the axis is undefined and the translation's length stands in."""
+    w = np.array([_log_so3(R) for R in np.asarray(T)[..., :3, :3].reshape(-1, 3, 3)])
+    angle = np.linalg.norm(w, axis=1)
+    t = np.asarray(T)[..., :3, 3].reshape(-1, 3)
+    along = np.where(angle > 1e-6, np.abs(np.sum(w * t, axis=1)) / np.maximum(angle, 1e-12),
+                     np.linalg.norm(t, axis=1))
+    return angle, along
+
+
+def resolve_target_symmetry_screw(T_base_mount, T_cam_target, symmetries, length_m: float = 1.0):
+    """:func:`resolve_target_symmetry` without a mount guess: the labelling of each view is chosen so that the
+    camera's motions between views match the mount's in the two quantities ``AX = XB`` preserves (rotation angle and
+    translation along the screw axis; Park & Martin 1994), whatever ``X`` is.
+
+    Views are taken in order; view 0 keeps its labelling (the target frame's choice), and each later view takes the
+    candidate ``T_cam_target S`` whose motions to all earlier views match best (angle mismatch in rad plus the
+    along-axis mismatch divided by ``length_m``).
+
+    Returns ``(T_cam_target (N, 4, 4) consistent, chosen symmetry index per view, worst angle mismatch (rad))``.
+    """
+    A = _check_stack(T_base_mount, "T_base_mount")
+    B = _check_stack(T_cam_target, "T_cam_target")
+    if len(A) != len(B):
+        raise ValueError(f"T_base_mount and T_cam_target: {len(A)} vs {len(B)} views")
+    S = [np.eye(4)] + [np.asarray(s, dtype=float) for s in symmetries]
+    chosen, fixed, worst = [0], [B[0]], 0.0
+    for j in range(1, len(A)):
+        ang_a, d_a = _screw_invariants(invert(A[j]) @ A[:j])  # A_ji = A_j^-1 A_i, i < j
+        costs, mismatch = [], []
+        for s in S:
+            Bj = B[j] @ s
+            ang_b, d_b = _screw_invariants(Bj @ np.stack([invert(b) for b in fixed]))  # B_ji = B_j B_i^-1
+            costs.append(float(np.sum(np.abs(ang_a - ang_b) + np.abs(d_a - d_b) / length_m)))
+            mismatch.append(float(np.max(np.abs(ang_a - ang_b))))
+        c = int(np.argmin(costs))
+        chosen.append(c)
+        fixed.append(B[j] @ S[c])
+        worst = max(worst, mismatch[c])
+    return np.stack(fixed), np.array(chosen), worst
+
+
 def mount_rotation(theta_x0, theta_y0, theta_z0):
     """``R0`` of Eq. 197, ``Ry(theta_y0) Rx(theta_x0) Rz(theta_z0)`` (labels trusted; see the module note)."""
     return rot_y(theta_y0) @ rot_x(theta_x0) @ rot_z(theta_z0)  # Eq. 197, factors as labelled
