@@ -315,7 +315,7 @@ def _api_cases():
         ("RANSAC: 2 matches", lambda: ransac_absolute_orientation(pts[:2], pts[:2]), "fail:"),
         ("RANSAC: collinear", lambda: ransac_absolute_orientation(line, line + 0.5), "fail:"),
         ("triangulation: zero baseline", lambda: triangulate_optimal(np.stack([np.eye(4)] * 2),
-                                                                     np.full((2, 3, 2), 0.1)), "nan"),
+                                                                     np.full((2, 3, 2), 0.1)), "invalid"),
         ("lines: zero direction", lambda: closest_points_between_lines(np.zeros(3), np.zeros(3), np.ones(3),
                                                                        [0, 1.0, 0]), "raise:d1: zero-length"),
         ("Eq. 123: zero baseline", lambda: stereo_sensitivity(1, 1, 0, 0, 800.0, 800.0, 0.0, 1.0),
@@ -347,9 +347,9 @@ def test_api_bad_input(index):
         with pytest.raises(ValueError, match=pattern) as info:
             call()
         assert "\n" not in str(info.value)
-    elif kind == "nan":
-        p, rms = call()
-        assert np.isnan(p).all() and np.isnan(rms).all()
+    elif kind == "invalid":  # a Triangulation: every point flagged and NaN
+        tri = call()
+        assert not tri.valid.any() and np.isnan(tri.points).all() and np.isnan(tri.rms).all()
     else:
         res = call()
         assert res.success is False or res.success is np.False_, name

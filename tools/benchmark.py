@@ -75,11 +75,11 @@ def vision_and_render(repeats: int) -> dict:
         scene.close()
         out[f"render_fps_{name}"] = 1.0 / statistics.median(times)
         out[f"render_cpu_ms_{name}"] = 1e3 * statistics.median(cpu)
-        out[f"panel_sift_keypoints_{name}"] = float(len(detect_sift(frame)))
+        out[f"panel_sift_keypoints_{name}"] = float(len(detect_sift(frame, channel_order="rgb")))
         img = frame if img is None else img
     # the figure: the panel scene at 640 x 480, supersampled, through the underwater chain (port + medium)
     out["render_fps"] = out["render_fps_underwater_in_water"]
-    out["sift_640x480_s"] = median_time(lambda: detect_sift(img), repeats)
+    out["sift_640x480_s"] = median_time(lambda: detect_sift(img, channel_order="rgb"), repeats)
     out["panel_sift_keypoints"] = out["panel_sift_keypoints_air_webcam"]  # img is the air frame
     return out
 

@@ -427,7 +427,8 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
             checks["render_fps"] = float(1.0 / np.median(render_s))
         from bench.vision.features import detect_sift
 
-        counts = [len(detect_sift(images[n])) for n, role, _, _ in views if role in ("reference", "surround")]
+        counts = [len(detect_sift(images[n], channel_order="rgb")) for n, role, _, _ in views
+                  if role in ("reference", "surround")]
         checks["panel_sift_keypoints"] = float(np.median(counts))
         checks["views_rendered"] = float(len(render_s))
         checks["plan_s"] = t_plan

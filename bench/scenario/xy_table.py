@@ -876,7 +876,7 @@ def run(cfg, out_dir, verbose=True):
         feats = true_projection_features(truth, names, s["true_projection_points"],
                                          np.random.default_rng((cfg["seed"], 7)))
     elif p["features"] == "sift":
-        feats = {v.name: sift_features(v.image(expected_size=camera.size)) for v in views}
+        feats = {v.name: sift_features(v.image(expected_size=camera.size), "rgb") for v in views}
     else:
         geometry = load_target(ds.root / "target.yaml")
         feats, lost = {}, []

@@ -200,7 +200,7 @@ def keypoint_reliability(scene: ArmScene, q_a, q_b, image_a, image_b, tol_px: fl
     from bench.geometry.transforms import invert, transform_points
     from bench.vision.features import detect_sift, match_descriptors
 
-    fa, fb = detect_sift(image_a), detect_sift(image_b)
+    fa, fb = detect_sift(image_a, channel_order="rgb"), detect_sift(image_b, channel_order="rgb")
     m = match_descriptors(fa, fb, mutual=True) if len(fa) and len(fb) else None
     out = {"keypoints_a": len(fa), "keypoints_b": len(fb), "matches": 0 if m is None else len(m)}
     if m is None or len(m) == 0:

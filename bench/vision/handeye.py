@@ -30,7 +30,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle
-from bench.vision.features import match_descriptors, orientation_filter
+from bench.vision.features import match_features
 from bench.vision.triangulation import triangulate_midpoint
 
 METHODS = ("park", "andreff")
@@ -291,8 +291,7 @@ def search_mount_rotation(reference, views, T_base_mount_ref, T_base_mount, t_mo
         raise ValueError(f"T_base_mount: {len(T_bm)} poses for {len(views)} views")
     matches = []
     for v in views:
-        m = match_descriptors(reference.features, v.features, ratio)
-        matches.append(orientation_filter(reference.features, v.features, m, orientation_tol_deg)[0])
+        matches.append(match_features(reference.features, v.features, ratio, orientation_tol_deg).matches)
 
     def poses(ty, tz):
         X = homogeneous(mount_rotation(0.0, ty, tz), t_mount_cam)
@@ -301,7 +300,7 @@ def search_mount_rotation(reference, views, T_base_mount_ref, T_base_mount, t_mo
 
     def triang(k, T_ref_k):
         m = matches[k]
-        tri = triangulate_midpoint(np.eye(4), reference.x_n[m.i1], T_ref_k, views[k].x_n[m.i2])
+        tri = triangulate_midpoint([np.eye(4), T_ref_k], [reference.x_n[m.i1], views[k].x_n[m.i2]])
         return m.i1, tri
 
     def depth_gap(ty):
@@ -313,8 +312,8 @@ def search_mount_rotation(reference, views, T_base_mount_ref, T_base_mount, t_mo
         if ok.sum() == 0:
             return np.inf
         if depth_statistic == "median":
-            return abs(float(np.median(tl.p1[al][ok, 2] - tr.p1[ar][ok, 2])))
-        return abs(float(np.mean(tl.p1[al][ok, 2]) - np.mean(tr.p1[ar][ok, 2])))
+            return abs(float(np.median(tl.ray_points[0][al][ok, 2] - tr.ray_points[0][ar][ok, 2])))
+        return abs(float(np.mean(tl.ray_points[0][al][ok, 2]) - np.mean(tr.ray_points[0][ar][ok, 2])))
 
     def coinciding(ty, tz):
         P = poses(ty, tz)

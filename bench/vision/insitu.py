@@ -36,8 +36,7 @@ from bench.vision.features import (
     RATIO,
     Features,
     Matches,
-    match_descriptors,
-    orientation_filter,
+    match_features,
 )
 from bench.vision.ransac import ransac_absolute_orientation
 from bench.vision.triangulation import required_baseline, triangulate_midpoint
@@ -132,9 +131,7 @@ class KeypointMap:
 
 
 def _matches(f1: Features, f2: Features, cfg: MapConfig) -> Matches:
-    m = match_descriptors(f1, f2, cfg.ratio)
-    kept, _ = orientation_filter(f1, f2, m, cfg.orientation_tol_deg)
-    return kept
+    return match_features(f1, f2, cfg.ratio, cfg.orientation_tol_deg).matches
 
 
 def reference_matches(reference: ViewObservation, views: list, config: MapConfig | None = None) -> list:
@@ -178,10 +175,11 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
         if len(m) == 0:
             continue
         T_ref_j = invert(T_world_ref) @ np.asarray(view.T_base_cam, dtype=float)
-        tri = triangulate_midpoint(np.eye(4), reference.x_n[m.i1], T_ref_j, view.x_n[m.i2])
+        tri = triangulate_midpoint([np.eye(4), T_ref_j], [reference.x_n[m.i1], view.x_n[m.i2]])
         ok = tri.valid & (tri.gap <= cfg.gap_max_m)
         stats["after_gap_filter"] += int(ok.sum())
-        for i, p1, p2, x in zip(m.i1[ok], tri.p1[ok], tri.p2[ok], view.x_n[m.i2[ok]], strict=True):
+        for i, p1, p2, x in zip(m.i1[ok], tri.ray_points[0][ok], tri.ray_points[1][ok], view.x_n[m.i2[ok]],
+                                strict=True):
             est[i].append((p1, p2, k, x))  # Eq. 163 (on the reference ray) and Eq. 164 (on ray j)
 
     keep, P, Pstar, nv, spread, observations = [], [], [], [], [], []
@@ -351,9 +349,9 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
     if baseline < 1e-4:
         return _failure(f"the two views are {baseline * 1e3:.3f} mm apart: no baseline to triangulate", len(i_map),
                         timings)
-    tri = triangulate_midpoint(np.eye(4), view_a.x_n[i_a], T_a_b, view_b.x_n[i_b])  # Eq. 165 (a's ray) / 166
+    tri = triangulate_midpoint([np.eye(4), T_a_b], [view_a.x_n[i_a], view_b.x_n[i_b]])  # Eq. 165 (a's ray) / 166
     ok = tri.valid & (tri.gap <= cfg.gap_max_m)
-    p1, p2 = kmap.p_ref[i_map[ok]], tri.p1[ok]
+    p1, p2 = kmap.p_ref[i_map[ok]], tri.ray_points[0][ok]
     timings["triangulate_s"] = time.perf_counter() - t0 - timings["match_s"]
     if len(p1) < 3:
         return _failure(f"only {len(p1)} of {len(i_map)} matches triangulate within {cfg.gap_max_m * 1e3:g} mm",

@@ -40,7 +40,7 @@ def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0, featur
     if np.any(q < robot.q_min - 1e-9) or np.any(q > robot.q_max + 1e-9):
         raise ConfigError("joints.csv", view.name, "joint readings outside the joint limits")
     if features_fn is None:
-        f = detect_sift(view.image(expected_size=camera.size), max_features=max_features)
+        f = detect_sift(view.image(expected_size=camera.size), max_features=max_features, channel_order="rgb")
     else:
         f = features_fn(view)
     x_n = camera.undistort_pixels(f.uv) if len(f) else np.empty((0, 2))

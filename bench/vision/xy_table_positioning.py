@@ -160,9 +160,11 @@ def stage_camera(R0, camera_offset_m) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------ features
 
 
-def sift_features(image) -> Features:
-    """SIFT keypoints with the thesis's thresholds (section 3.4; :func:`bench.vision.features.detect_sift`)."""
-    return detect_sift(image)
+def sift_features(image, channel_order: str | None = None) -> Features:
+    """SIFT keypoints with the thesis's thresholds (section 3.4; :func:`bench.vision.features.detect_sift`).
+
+    ``channel_order`` (``"rgb"`` / ``"bgr"``) is required for a colour image, as in :func:`detect_sift`."""
+    return detect_sift(image, channel_order=channel_order)
 
 
 def corner_features(uv, ids, n_ids: int) -> Features:
@@ -548,7 +550,7 @@ def position_dataset(root, config: PositioningConfig, camera=None, features: str
     for v in views:
         img = v.image(expected_size=cam.size)
         if features == "sift":
-            feats[v.name] = sift_features(img)
+            feats[v.name] = sift_features(img, "rgb")  # View.image: RGB (or grey)
         elif features == "corners":
             from bench.camera.corners import extract_corners_opencv
 

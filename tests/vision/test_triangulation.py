@@ -42,13 +42,14 @@ def test_noise_free_exactness():
     rng = np.random.default_rng(31)
     T, p = _views(rng, 5, 200)
     x, z = _project(T, p)
-    m = triangulate_midpoint(T[0], x[0], T[1], x[1])
-    assert m.valid.all() and np.abs(m.p_ref - p).max() <= 1e-9 * np.abs(p).max()
-    assert m.gap.max() <= 1e-12 and np.allclose(m.gamma1, z[0], rtol=1e-12) and np.allclose(m.gamma2, z[1], rtol=1e-12)
+    m = triangulate_midpoint(T[:2], x[:2])
+    assert m.valid.all() and np.abs(m.points - p).max() <= 1e-9 * np.abs(p).max()
+    assert m.gap.max() <= 1e-12 and np.allclose(m.depth, z[:2], rtol=1e-12)
     for views in (slice(0, 2), slice(0, 5)):
-        assert np.abs(triangulate_linear(T[views], x[views]) - p).max() <= 1e-9 * np.abs(p).max()
-        po, rms = triangulate_optimal(T[views], x[views])
-        assert np.abs(po - p).max() <= 1e-9 * np.abs(p).max() and rms.max() < 1e-12
+        lin = triangulate_linear(T[views], x[views])
+        assert lin.valid.all() and np.abs(lin.points - p).max() <= 1e-9 * np.abs(p).max()
+        opt = triangulate_optimal(T[views], x[views])
+        assert np.abs(opt.points - p).max() <= 1e-9 * np.abs(p).max() and opt.rms.max() < 1e-12
 
 
 def test_depth_noise_matches_eq_123_and_optimal_is_no_worse():
@@ -58,13 +59,13 @@ def test_depth_noise_matches_eq_123_and_optimal_is_no_worse():
     p = np.tile([0.05, 0.0, z], (4000, 1))
     x, _ = _project(T, p)
     xn = x + rng.normal(0.0, sigma_px / alpha, x.shape)
-    m = triangulate_midpoint(T[0], xn[0], T[1], xn[1])
-    po, _ = triangulate_optimal(T, xn)
+    m = triangulate_midpoint(T, xn).points
+    po = triangulate_optimal(T, xn).points
     # disparity error of two independent image points: sigma_s = sqrt(2) sigma_px
     pred = np.abs(stereo_sensitivity(0.05 / z * alpha, 0.0, 0.0, 0.0, alpha, alpha, d_int, z, np.sqrt(2) * sigma_px))
-    assert np.std(m.p_ref[:, 2]) == pytest.approx(pred[2], rel=0.08)
+    assert np.std(m[:, 2]) == pytest.approx(pred[2], rel=0.08)
     assert np.std(po[:, 2]) == pytest.approx(pred[2], rel=0.08)
-    err_mid = np.sqrt(np.mean(np.sum((m.p_ref - p) ** 2, 1)))
+    err_mid = np.sqrt(np.mean(np.sum((m - p) ** 2, 1)))
     err_opt = np.sqrt(np.mean(np.sum((po - p) ** 2, 1)))
     assert err_opt <= err_mid * 1.01
 
@@ -78,21 +79,21 @@ def test_required_baseline_eq_199():
 
 def test_degenerate_geometry():
     x = np.array([[0.1, 0.0]])
-    same = triangulate_midpoint(np.eye(4), x, np.eye(4), np.array([[0.0, 0.0]]))  # zero baseline
-    assert not same.valid.any()
+    same = triangulate_midpoint([np.eye(4), np.eye(4)], [x, np.array([[0.0, 0.0]])])  # zero baseline
+    assert not same.valid.any() and np.isnan(same.points).all()
     shifted = homogeneous(np.eye(3), [0.1, 0, 0])
-    par = triangulate_midpoint(np.eye(4), x, shifted, x)  # parallel rays
-    assert not par.valid.any() and np.all(np.isfinite(par.gap))
+    par = triangulate_midpoint([np.eye(4), shifted], [x, x])  # parallel rays
+    assert not par.valid.any() and np.isnan(par.gap).all()
     lin = triangulate_linear(np.stack([np.eye(4), np.eye(4)]), np.stack([x, np.array([[0.0, 0.0]])]))
-    assert np.isnan(lin).all()
+    assert np.isnan(lin.points).all() and not lin.valid.any()
     # regression: zero baseline raised LinAlgError ("SVD did not converge") in triangulate_optimal
     for p0 in (None, [[0.1, 0.0, 1.0]]):
-        p, rms = triangulate_optimal(np.stack([np.eye(4), np.eye(4)]), np.stack([x, x]), p0=p0)
-        assert np.isnan(p).all() and np.isnan(rms).all()
-    behind = triangulate_midpoint(np.eye(4), np.array([[0.1, 0.0]]), shifted, np.array([[0.2, 0.0]]))
+        opt = triangulate_optimal(np.stack([np.eye(4), np.eye(4)]), np.stack([x, x]), p0=p0)
+        assert np.isnan(opt.points).all() and np.isnan(opt.rms).all()
+    behind = triangulate_midpoint([np.eye(4), shifted], [np.array([[0.1, 0.0]]), np.array([[0.2, 0.0]])])
     assert not behind.valid.any()  # rays diverge: the closest points lie behind the cameras
     with pytest.raises(ValueError, match="x_n"):
-        triangulate_midpoint(np.eye(4), np.array([[np.nan, 0.0]]), shifted, x)
+        triangulate_midpoint([np.eye(4), shifted], [np.array([[np.nan, 0.0]]), x])
     with pytest.raises(ValueError, match="V >= 2"):
         triangulate_linear(np.eye(4)[None], x[None])
     with pytest.raises(ValueError, match="must be > 0"):
