@@ -63,6 +63,15 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     loc.add_argument("--robot", default=None, help="calibrated robot file (default: the dataset's robot.yaml)")
     loc.add_argument("--camera", default=None, help="calibrated camera file (default: the dataset's camera.yaml)")
+    fa = sub.add_parser("faults", help="inject dive faults into copies of a rendered in-situ dataset, localise and "
+                                       "score each (integrity, protection radius, silent failures)")
+    fa.add_argument("dataset", help="rendered in-situ dataset (bench sim render; with truth/)")
+    fa.add_argument("--out", required=True, help="folder for faults.csv, faults.json and each fault's locate.json")
+    fa.add_argument("--fault", action="append", default=None, help="only this fault (repeatable; default: all)")
+    fa.add_argument("--seed", type=int, default=0, help="draws of the random faults and the RANSAC seed")
+    fa.add_argument("--camera", default=None, help="lab camera calibration (default: calibrated from the dataset)")
+    fa.add_argument("--robot", default=None, help="lab robot calibration (default: calibrated from the dataset)")
+    fa.add_argument("--force", action="store_true", help="replace an earlier output of bench faults in --out")
     cc = sub.add_parser("calibrate-camera", help="corners + calibration (+ OpenCV reference) on a rig dataset or a "
                                                  "plain folder of photos")
     cc.add_argument("dataset", help="dataset folder (rig views, target.yaml) or a plain folder of photos (give the "
@@ -234,9 +243,15 @@ def main(argv=None) -> int:
         elif args.command == "locate":
             from bench.vision.locate_dataset import locate_dataset
 
-            res, _ = locate_dataset(args.dataset, args.out, method=args.method, pnp=args.pnp, seed=args.seed,
-                                    camera_path=args.camera, robot_path=args.robot, refine=args.refine)
-            return 0 if res.success else 1
+            res, rep = locate_dataset(args.dataset, args.out, method=args.method, pnp=args.pnp, seed=args.seed,
+                                      camera_path=args.camera, robot_path=args.robot, refine=args.refine)
+            return 0 if res.success and rep["integrity"] != "refused" else 1  # refused: do not use the pose
+        elif args.command == "faults":
+            from bench.scenario.faults import run_faults
+
+            rows = run_faults(args.dataset, args.out, faults=args.fault, seed=args.seed, camera=args.camera,
+                              robot=args.robot, force=args.force)
+            return 1 if any(r["silent"] for r in rows) else 0
         elif args.command in _INTERCHANGE:
             return _interchange(args)
         elif args.command in ("calibrate-robot", "check-robot"):

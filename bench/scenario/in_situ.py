@@ -656,6 +656,11 @@ def run(cfg, out_dir, verbose=True):
     metrics = dict(checks)
     metrics["map_points"] = float(report["map_points"])
     metrics["inliers"] = float(report["inliers"])
+    # integrity (bench.vision.integrity): ok = 1; protection levels NaN when refused (no bound: do not use the pose)
+    metrics["integrity_ok"] = float(report["integrity"] == "ok")
+    metrics["integrity_refused"] = float(report["integrity"] == "refused")
+    for k in ("protection_radius_mm", "protection_angle_deg"):
+        metrics[k] = float("nan") if report[k] is None else float(report[k])
     metrics["insitu_solve_s"] = float(sum(res.timings_s.get(k, 0.0) for k in ("match_s", "triangulate_s", "align_s",
                                                                                  "refine_s")))
     if res.success:

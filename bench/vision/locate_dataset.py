@@ -5,10 +5,12 @@ moved) and ``locate`` (two views after the base moved), their joint readings, ``
 camera) and ``robot.yaml`` with its ``calibration`` section (identified errors and camera mount; without it the
 nominal model and an identity mount are used, with a warning). Output: ``locate.json`` in ``out`` (and the
 returned :class:`~bench.vision.insitu.LocateResult`): ``T_world_base`` (world = the survey base frame) with its
-covariance, position / rotation standard deviations, inliers, condition number and timings. Views with role
+covariance, position / rotation standard deviations, inliers, condition number, timings, and its integrity
+(:mod:`bench.vision.integrity`: ``integrity`` ok / warning / refused, ``integrity_reasons``, ``protection_radius_mm``,
+``protection_angle_deg``, ``integrity_tests``). Views with role
 ``task`` (frames of joint readings taught at the survey parking, e.g. the tool on a valve handle) are re-targeted
 from the located base (:func:`bench.robot.task.retarget_taught_pose`): ``locate.json`` then lists the joint readings
-to command for each (``tasks``).
+to command for each (``tasks``; none when the localisation is refused).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from bench.robot.orientation import link5_frame
 from bench.robot.task import retarget_taught_pose
 from bench.vision.features import detect_sift
 from bench.vision.insitu import MapConfig, ViewObservation, build_map, locate, locate_pnp
+from bench.vision.integrity import assess
 
 
 def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0, features_fn=None) -> ViewObservation:
@@ -109,12 +112,18 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     else:
         res = locate(kmap, a, obs[roles["locate"][1].name], config, method=method, rng=seed, refine=refine,
                      focal_px=camera.fx, **(ransac or {}))  # focal: the baseline checks' 1 px (Eq. 123, 199)
-    res.timings_s.update({"detect_s": t_detect, "map_s": t_map, "pipeline_total_s": time.perf_counter() - t0})
+    t_int = time.perf_counter()
+    integ = assess(kmap, [obs[v.name] for v in roles["surround"]], a, None if pnp else obs[roles["locate"][1].name],
+                   res, camera.fx, camera.size, config, seed)
+    res.timings_s.update({"detect_s": t_detect, "map_s": t_map, "integrity_s": time.perf_counter() - t_int,
+                          "pipeline_total_s": time.perf_counter() - t0})
     if details is not None:
-        details.update(map=kmap, observations=obs, camera=camera, robot=robot, eps=eps, T_link5_cam=T_link5_cam)
+        details.update(map=kmap, observations=obs, camera=camera, robot=robot, eps=eps, T_link5_cam=T_link5_cam,
+                       integrity=integ)
     report = {"dataset": str(ds.root), "success": res.success, "message": res.message, "map_points": len(kmap),
               "map_stats": kmap.stats, "n_matches": res.n_matches, "inliers": res.n_inliers,
-              "condition": res.condition, "method": "pnp" if pnp else method, "timings_s": res.timings_s}
+              "condition": res.condition, "method": "pnp" if pnp else method, **integ.report(),
+              "timings_s": res.timings_s}
     if res.success:
         T = res.T_world_base
         std = np.sqrt(np.clip(np.diag(res.covariance), 0.0, None))
@@ -122,7 +131,9 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                        "rotation_deg": float(np.rad2deg(rotation_angle(T[:3, :3]))),
                        "position_std_mm": (std[3:] * 1e3).tolist(), "rotation_std_deg": np.rad2deg(std[:3]).tolist(),
                        "covariance": res.covariance.tolist()})
-        report["tasks"] = _retarget_tasks(ds, robot, eps, res.T_world_base, roles["locate"][0].q)
+        # the compensated task is not offered on a refused localisation
+        report["tasks"] = ({} if integ.level == "refused" else
+                           _retarget_tasks(ds, robot, eps, res.T_world_base, roles["locate"][0].q))
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
@@ -137,4 +148,9 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                 q = ", ".join(f"{v:.3f}" for v in t["q_command_deg"])
                 print(f"task {name}: command q = [{q}] deg" + ("" if t["success"] else f" ({t['message']})"))
         print(res.message)
+        pr = report["protection_radius_mm"]
+        bound = "" if pr is None else f" (protection radius {pr:.2f} mm, {report['protection_angle_deg']:.3f} deg)"
+        print(f"integrity: {integ.level.upper()}{bound}")
+        for r in integ.reasons:
+            print(f"  - {r}")
     return res, report
