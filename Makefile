@@ -9,7 +9,7 @@ BUDGET_SEEDS ?= 10
 # Headless rendering through Mesa's EGL (Debian: libegl1 libgl1-mesa-dri).
 export MUJOCO_GL ?= egl
 
-.PHONY: demo test reproduce benchmark lint venv clean
+.PHONY: demo test reproduce benchmark docs lint venv clean
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -45,6 +45,9 @@ reproduce: $(STAMP)
 
 benchmark: $(STAMP)
 	$(BIN)/python tools/benchmark.py --out $(OUT)/benchmark.json
+
+docs: $(STAMP)
+	$(BIN)/python tools/gen_reference.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check bench tests tools

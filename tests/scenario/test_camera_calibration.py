@@ -12,6 +12,7 @@ pytest.importorskip("mujoco")
 
 from bench.errors import ConfigError  # noqa: E402
 from bench.scenario import camera_calibration as cc  # noqa: E402
+from bench.scenario.metrics import check_metrics  # noqa: E402
 from bench.scenario.runner import load_scenario, run_scenario_file  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -41,6 +42,7 @@ def underwater_run(tmp_path_factory):
 def test_webcam_smoke_accuracy_and_contract(webcam_run):
     out, res = webcam_run
     m = res["metrics"]
+    assert check_metrics("camera_calibration", res["metrics"]) == ([], [])  # (undeclared, missing)
     assert set(res) == {"scenario", "seed", "metrics", "tables", "timings_s", "artifacts"}
     assert all(k in m for k in CONTRACT), [k for k in CONTRACT if k not in m]
     assert m["views_used"] == 4 and m["points"] == 4 * 72
@@ -71,6 +73,7 @@ def test_webcam_smoke_accuracy_and_contract(webcam_run):
 def test_underwater_smoke_both_media(underwater_run):
     out, res = underwater_run
     m = res["metrics"]
+    assert check_metrics("camera_calibration", res["metrics"]) == ([], [])  # (undeclared, missing)
     for medium in ("air", "water"):
         assert all(f"{medium}_{k}" in m for k in CONTRACT)
         assert m[f"{medium}_reproj_rms_px"] < 0.1 and m[f"{medium}_corner_rms_px"] < 0.15

@@ -9,6 +9,7 @@ from bench.errors import ConfigError
 from bench.geometry.transforms import transform_points
 from bench.scenario import flatport_study as fs
 from bench.scenario.bounds import true_projector
+from bench.scenario.metrics import check_metrics
 from bench.scenario.runner import load_scenario, run_scenario_file
 from bench.sim.flatport import axis_crossing
 from bench.sim.scenes.rig import calibration_rig
@@ -38,6 +39,7 @@ def test_result_contract(smoke):
     out, res = smoke
     assert set(res) == {"scenario", "seed", "metrics", "tables", "timings_s", "artifacts"}
     assert res["scenario"] == "flatport_study"
+    assert check_metrics("flatport_study", res["metrics"]) == ([], [])  # (undeclared, missing)
     t = res["tables"][fs.TABLE]
     cols = ("alignment", "lens_to_glass_mm", "distance_m", "rms_px", "max_px", "rms_mm", "max_mm", "exceeds_threshold")
     assert set(t) == set(cols)

@@ -9,6 +9,7 @@ import yaml
 
 pytest.importorskip("mujoco")
 
+from bench.scenario.metrics import check_metrics  # noqa: E402
 from bench.scenario.runner import load_scenario, run_scenario_file  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -28,6 +29,7 @@ def smoke_run(tmp_path_factory, request):
 def test_smoke_accuracy(smoke_run):
     _, res, preset = smoke_run
     m = res["metrics"]
+    assert check_metrics("in_situ", res["metrics"]) == ([], [])  # (undeclared, missing)
     assert m["sim_vs_fk_max_err_m"] <= 1e-9 and m["sim_vs_pinocchio_max_err_m"] <= 1e-9
     assert m["marker_projection_rms_px"] <= 0.1
     assert m["reproj_rms_px"] < 0.2 and m["focal_err_pct"] < 0.3  # the camera calibrated from the rig views

@@ -8,6 +8,7 @@ import pytest
 
 from bench.cli import main
 from bench.errors import ConfigError
+from bench.scenario.metrics import check_metrics
 from bench.scenario.runner import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -27,6 +28,7 @@ def test_result_contract(smoke_result):
     out, res = smoke_result
     assert set(res) == {"scenario", "seed", "metrics", "tables", "timings_s", "artifacts"}
     assert res["scenario"] == "table2_kinematic_identification" and res["seed"] == 2
+    assert check_metrics("kinematic_identification", res["metrics"]) == ([], [])  # (undeclared, missing)
     t = res["tables"]["table2"]
     assert list(t) == ["name", "full", "reduced_true", "reduced_estimated"]
     assert t["name"][:7] == ["x0", "y0", "z0", "s0", "r0", "p0", "x1"] and len(t["name"]) == 42

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from bench.errors import ConfigError
+from bench.scenario.metrics import check_metrics
 from bench.scenario.runner import load_scenario, run_scenario_file
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -23,6 +24,7 @@ def test_result_contract(smoke):
     out, res = smoke
     assert set(res) == {"scenario", "seed", "metrics", "tables", "timings_s", "artifacts"}
     assert res["scenario"] == "tracker_base_frame" and res["seed"] == 3
+    assert check_metrics("tracker_base_frame", res["metrics"]) == ([], [])  # (undeclared, missing)
     t = res["tables"]["base_accuracy_vs_noise"]
     for col in ("sigma_mm", "span_deg", "pos_err_mm_median", "rot_err_deg_median", "predicted_pos_std_mm"):
         assert len(t[col]) == 2

@@ -14,6 +14,7 @@ pytest.importorskip("mujoco")
 from bench.dataset import load_dataset  # noqa: E402
 from bench.errors import ConfigError  # noqa: E402
 from bench.scenario import xy_table  # noqa: E402
+from bench.scenario.metrics import check_metrics  # noqa: E402
 from bench.scenario.runner import load_scenario, run_scenario_file  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -49,6 +50,7 @@ def _rows(res, method, d):
 def _check_contract(res, methods_d):
     assert set(res) == {"scenario", "seed", "metrics", "tables", "timings_s", "artifacts"}
     t = res["tables"]["position_error_vs_intraocular"]
+    assert check_metrics("xy_table", res["metrics"]) == ([], [])  # (undeclared, missing)
     assert COLUMNS <= set(t)
     assert set(t["method"]) == {"quaternion", "lms", "quaternion_ratio", "lms_ratio"}
     assert sorted(set(t["d_mm"])) == methods_d

@@ -1,0 +1,324 @@
+"""The metrics each scenario kind writes to ``result.json``, declared in one place.
+
+``tools/gen_reference.py`` writes them into ``docs/reference.md``; the kinds' smoke tests check that a run writes
+exactly these names (:func:`check_metrics`: nothing undeclared, nothing declared and unconditional missing), so the
+reference cannot drift from the code. A name may hold ``<placeholders>`` (``PLACEHOLDERS``: the values they take).
+``when`` says under which configuration a metric appears; metrics without it appear in every successful run (a value
+may still be ``null`` when the step it scores failed).
+"""
+
+from __future__ import annotations
+
+import re
+from typing import NamedTuple
+
+
+class Metric(NamedTuple):
+    """One declared metric: ``name`` (may hold ``<placeholders>``), ``unit``, one-line ``description``, ``when``."""
+
+    name: str
+    unit: str
+    description: str
+    when: str = ""
+
+
+# placeholder -> (regular expression, what it stands for)
+PLACEHOLDERS = {
+    "axis": (r"x|y|z", "`x`, `y`, `z`"),
+    "method": (r"quaternion_ratio|lms_ratio|quaternion|lms",
+               "`quaternion`, `lms` (RANSAC + the thesis's quaternion / the LMS rotation), `quaternion_ratio`, "
+               "`lms_ratio` (the same + error-ratio elimination)"),
+    "at": (r"100|50|min_d|max_d", "intraocular distance d_o: `100`, `50` mm, the smallest (`min_d`) or largest "
+                                  "(`max_d`) of `pipeline.intraocular_mm`"),
+    "d": (r"[0-9]+(?:\.[0-9]+)?", "any intraocular distance d_o of `pipeline.intraocular_mm`, in mm"),
+    "at2": (r"100|50", "d_o = `100` or `50` mm (when in `pipeline.intraocular_mm`)"),
+    "index": (r"O[1-5]", "the observability index of `pose_selection.index` (`O1` ... `O5`)"),
+    "medium": (r"air_|water_|", "empty, or `air_` / `water_` when `camera.medium: both` (the unprefixed names then "
+                                "hold the in-water calibration)"),
+    "p": (r"fx_px|fy_px|cx_px|cy_px|k1|k2|p1|p2", "an OpenCV intrinsic: `fx_px`, `fy_px`, `cx_px`, `cy_px` (px), "
+                                                 "`k1`, `k2`, `p1`, `p2` (unitless)"),
+    "h": (r"s_u|f_px|u0_px|v0_px|k1_per_mm2|k2_per_mm4|T1_per_mm|T2_per_mm",
+          "a Heikkilä coefficient in Table 9's units: `s_u`, `f_px`, `u0_px`, `v0_px`, `k1_per_mm2`, `k2_per_mm4`, "
+          "`T1_per_mm`, `T2_per_mm`"),
+    "z": (r"heikkila|heikkila_jk|oracle|oracle_jk",
+          "`heikkila` / `heikkila_jk`: against the true lens with formal / jackknife standard errors; `oracle` / "
+          "`oracle_jk`: against the oracle fit"),
+    "k": (r"1|2|3", "`1`, `2`, `3` standard errors"),
+    "extractor": (r"thesis|opencv", "corner extractor: `thesis` or `opencv`"),
+    "case": (r"d0_[0-9p]+mm_(?:aligned|tilted)", "port case `d0_<lens-to-glass mm>mm_<aligned|tilted>` (a decimal "
+                                                 "point written `p`), one per `port.lens_to_glass_mm` × alignment"),
+}
+
+METRICS: dict[str, tuple[Metric, ...]] = {
+    "kinematic_identification": (
+        Metric("n_identifiable_closed_form", "count", "identifiable errors by the closed-form reduction (Eq. 21, 23, "
+               "167): 25 for the TA-40 measured at O6"),
+        Metric("rank_numeric", "count", "rank of the stacked identification Jacobian at random poses (SVD)"),
+        Metric("closed_vs_numeric_same_columns", "1 / 0", "1 when the numeric choice keeps the closed form's columns"),
+        Metric("closed_vs_numeric_map_max_abs_diff", "1", "largest difference between the two reduction maps M"),
+        Metric("rank_numeric_off_axis_point", "count", "numeric rank for a point off the joint-6 axis "
+               "(`identifiability.off_axis_point_mm`)"),
+        Metric("n_identifiable_closed_form_off_axis_point", "count", "closed-form count for that point"),
+        Metric("max_abs_reduced_error_linear", "mm or rad", "largest error of the reduced errors ε̇ from the "
+               "thesis's linear, noise-free experiment (Eq. 14)"),
+        Metric("condition_number_linear", "1", "condition number of the reduced Jacobian G_e, linear experiment"),
+        Metric("heldout_rms_mm_uncalibrated", "mm", "held-out RMS position error of the nominal model"),
+        Metric("heldout_rms_mm_noise_free_exact", "mm", "held-out RMS after identification on noise-free exact "
+               "data (LM)"),
+        Metric("iterations_noise_free_exact", "count", "LM iterations of that identification"),
+        Metric("identification_s", "s", "time of the iterated (LM) identification of `realistic.n_poses` poses"),
+        Metric("identification_linear_s", "s", "time of the linear identification of the same poses"),
+        Metric("heldout_rms_mm_calibrated", "mm", "held-out RMS after identification with tracker noise (LM)"),
+        Metric("heldout_rms_bound_mm", "mm", "held-out RMS implied by the Cramér-Rao bound of the 25 errors"),
+        Metric("heldout_efficiency", "1", "bound / achieved held-out RMS, this draw"),
+        Metric("residual_rms_mm", "mm", "RMS residual of the fit"),
+        Metric("condition_number", "1", "condition number of the fit's Jacobian"),
+        Metric("iterations", "count", "LM iterations"),
+        Metric("heldout_rms_mm_calibrated_linear_method", "mm", "held-out RMS of the linear method on the same "
+               "noisy exact data"),
+        Metric("mc_seeds", "count", "noise draws of the Monte Carlo", "`monte_carlo.seeds` >= 2"),
+        Metric("mc_std_ratio_median", "1", "Monte Carlo / predicted standard deviation of ε̇, median over the "
+               "errors", "`monte_carlo.seeds` >= 2"),
+        Metric("mc_std_ratio_min", "1", "the same, smallest", "`monte_carlo.seeds` >= 2"),
+        Metric("mc_std_ratio_max", "1", "the same, largest", "`monte_carlo.seeds` >= 2"),
+        Metric("mc_heldout_rms_mm_median", "mm", "held-out RMS, median over the draws", "`monte_carlo.seeds` >= 2"),
+        Metric("mc_heldout_rms_mm_rms", "mm", "held-out RMS, RMS over the draws", "`monte_carlo.seeds` >= 2"),
+        Metric("mc_heldout_efficiency", "1", "bound / Monte Carlo RMS (1 = the estimator reaches the bound)",
+               "`monte_carlo.seeds` >= 2"),
+        Metric("pose_selection_<index>_selected", "1", "the index's value for the selected poses"),
+        Metric("pose_selection_<index>_random_median", "1", "the index's value for random pose sets, median",
+               "`pose_selection.n_random_sets` >= 1"),
+        Metric("heldout_rms_mm_selected_poses_median", "mm", "held-out RMS after identification on the selected "
+               "poses, median", "`pose_selection.n_random_sets` >= 1"),
+        Metric("heldout_rms_mm_random_poses_median", "mm", "the same on random poses",
+               "`pose_selection.n_random_sets` >= 1"),
+        Metric("ee_pos_err_max_mm", "mm", "§4.6: largest end-effector position deviation after calibration"),
+        Metric("ee_rot_err_range_deg", "deg", "§4.6: range of the end-effector orientation deviation"),
+        Metric("link5_rot_err_range_deg", "deg", "§4.6: range of link 5's orientation deviation (constant: a bias)"),
+        Metric("link5_pos_err_range_mm", "mm", "§4.6: range of link 5's position deviation"),
+        Metric("link5_rot_bias_deg_<axis>", "deg", "§4.6: link 5's mean orientation deviation (Eq. 189-194)"),
+        Metric("link5_pos_bias_mm_<axis>", "mm", "§4.6: link 5's mean position deviation"),
+    ),
+    "tracker_base_frame": (
+        Metric("base_pos_err_mm_noise_free", "mm", "base origin error from noise-free arcs"),
+        Metric("base_rot_err_deg_noise_free", "deg", "base rotation error from noise-free arcs"),
+        Metric("base_from_arcs_s", "s", "time of one base-frame fit"),
+        Metric("base_pos_err_mm", "mm", "base origin error, one noisy campaign (`noise.default_sigma_mm`)"),
+        Metric("base_rot_err_deg", "deg", "base rotation error, the same campaign"),
+        Metric("residual_rms_mm", "mm", "RMS residual of the circle fits"),
+        Metric("a1_measured_mm", "mm", "DH a1 measured from the two axes (model check)"),
+        Metric("alpha1_measured_deg", "deg", "DH α1 measured from the two axes"),
+        Metric("arc1_radius_mm", "mm", "radius of the joint-1 arc"),
+        Metric("arc2_radius_mm", "mm", "radius of the joint-2 arc"),
+        Metric("predicted_pos_std_mm", "mm", "the fit's predicted origin standard deviation (first order)"),
+        Metric("predicted_rot_std_deg", "deg", "the fit's predicted rotation standard deviation"),
+        Metric("base_pos_err_mm_median", "mm", "origin error, median over the Monte Carlo (default cell)"),
+        Metric("base_rot_err_deg_median", "deg", "rotation error, median over the Monte Carlo (default cell)"),
+        Metric("pos_rms_over_predicted", "1", "Monte Carlo origin RMS / predicted standard deviation"),
+        Metric("rot_rms_over_predicted", "1", "Monte Carlo rotation RMS / predicted standard deviation"),
+        Metric("base_pos_bound_mm", "mm", "Cramér-Rao bound of the origin with the joint readings along the arcs"),
+        Metric("base_rot_bound_deg", "deg", "Cramér-Rao bound of the rotation"),
+        Metric("base_pos_bound_geometry_mm", "mm", "Cramér-Rao bound of the origin from the geometry alone"),
+        Metric("base_pos_efficiency", "1", "bound / Monte Carlo RMS, origin"),
+        Metric("base_rot_efficiency", "1", "bound / Monte Carlo RMS, rotation"),
+        Metric("base_pos_efficiency_geometry", "1", "geometry-only bound / Monte Carlo RMS, origin"),
+        Metric("e01_base_shift_mm", "mm", "base shift the arcs report when frames 0-1 carry errors"),
+        Metric("e01_base_turn_deg", "deg", "base turn the arcs report when frames 0-1 carry errors"),
+        Metric("e01_vs_stated_result_mm", "mm", "that base against T·E0·Tz(y1)·Rz(s1) (Eq. 21's merges), position"),
+        Metric("e01_vs_stated_result_deg", "deg", "the same, rotation"),
+    ),
+    "in_situ": (
+        Metric("sim_vs_fk_max_err_m", "m", "simulator check: MuJoCo frames vs our FK, largest difference"),
+        Metric("sim_vs_pinocchio_max_err_m", "m", "simulator check: MuJoCo frames vs Pinocchio"),
+        Metric("marker_projection_rms_px", "px", "simulator check: rendered markers vs analytic projection, RMS"),
+        Metric("marker_projection_max_px", "px", "the same, largest"),
+        Metric("markers", "count", "markers found in that check"),
+        Metric("depth_has_background", "1 / 0", "the check's depth image holds background (inf)"),
+        Metric("distortion_roundtrip_max_px", "px", "distort → undistort round trip over the image, largest error"),
+        Metric("render_fps", "1/s", "rendered frames per second (median, wall clock)"),
+        Metric("panel_sift_keypoints", "count", "SIFT keypoints in a panel view"),
+        Metric("views_rendered", "count", "views rendered (not taken from the cache)"),
+        Metric("plan_s", "s", "view planning time"),
+        Metric("parking_attempts", "count", "ROV parkings drawn until views and valve were reachable"),
+        Metric("map_points", "count", "map points ¹p"),
+        Metric("inliers", "count", "RANSAC + elimination inliers of the alignment"),
+        Metric("insitu_solve_s", "s", "two new views → base pose (match, triangulate, align, refine), map given"),
+        Metric("base_pos_err_mm", "mm", "located base displacement vs the truth, position"),
+        Metric("base_rot_err_deg", "deg", "located base displacement vs the truth, rotation"),
+        Metric("base_pos_std_mm", "mm", "the pipeline's reported position uncertainty", "the localisation succeeded"),
+        Metric("base_rot_std_deg", "deg", "the pipeline's reported rotation uncertainty",
+               "the localisation succeeded"),
+        Metric("valve_tool_err_mm", "mm", "true tool tip vs true valve handle centre after re-targeting the taught "
+               "task through the calibrated arm"),
+        Metric("valve_tool_err_uncompensated_mm", "mm", "the same when the taught readings are replayed"),
+        Metric("keypoint_sigma_px", "px", "SIFT keypoint noise measured against the true epipolar curves (robust σ)",
+               "`bound.enabled`"),
+        Metric("keypoint_sigma_matches", "count", "matches behind that σ", "`bound.enabled`"),
+        Metric("base_pos_bound_mm", "mm", "Cramér-Rao bound of the base position", "`bound.enabled`"),
+        Metric("base_rot_bound_deg", "deg", "Cramér-Rao bound of the base rotation", "`bound.enabled`"),
+        Metric("base_pos_bound_mc_mm", "mm", "Monte Carlo of the pipeline's estimator on ideal features, position",
+               "`bound.enabled`"),
+        Metric("base_rot_bound_mc_deg", "deg", "the same, rotation", "`bound.enabled`"),
+        Metric("bound_observations", "count", "image observations in the bound", "`bound.enabled`"),
+        Metric("bound_s", "s", "time of the bound", "`bound.enabled`"),
+        Metric("base_pos_efficiency", "1", "bound / achieved, position (over seeds: RMS bound / RMS error)",
+               "`bound.enabled`"),
+        Metric("base_rot_efficiency", "1", "bound / achieved, rotation", "`bound.enabled`"),
+        Metric("focal_err_pct", "%", "calibrated focal length vs the true (in water: paraxial) one"),
+        Metric("reproj_rms_px", "px", "reprojection RMS of the lab camera calibration"),
+        Metric("mount_pos_err_mm", "mm", "calibrated camera mount vs the true (in water: virtual centre), position"),
+        Metric("mount_pos_err_lens_centre_mm", "mm", "calibrated mount position vs the lens itself"),
+        Metric("mount_rot_err_deg", "deg", "calibrated camera mount, rotation error"),
+        Metric("arm_heldout_rms_mm", "mm", "lab-calibrated arm vs the true arm, RMS over 500 held-out poses"),
+    ),
+    "xy_table": (
+        Metric("views_rendered", "count", "views rendered (not taken from the cache)"),
+        Metric("camera_centre_vs_readings_max_mm", "mm", "simulator check: camera centres vs the table readings"),
+        Metric("sim_s", "s", "simulation time"),
+        Metric("render_fps", "1/s", "rendered frames per second", "views were rendered"),
+        Metric("reproj_rms_px", "px", "reprojection RMS of the rig calibration", "`pipeline.camera: calibrated`"),
+        Metric("calibration_views_used", "count", "rig views the calibration used", "`pipeline.camera: calibrated`"),
+        Metric("focal_err_pct", "%", "the pipeline's focal length vs the true lens"),
+        Metric("eq199_baseline_mm", "mm", "Eq. 199's intraocular distance for `pipeline.depth_resolution_mm`"),
+        Metric("corner_views_lost", "count", "table views whose rig corners were not found",
+               "`pipeline.features: corners`"),
+        Metric("bias_rot_err_deg", "deg", "estimated camera orientation bias R0 vs the truth (angle)"),
+        Metric("theta_<axis>0_true_deg", "deg", "true bias angle θx0, θy0, θz0 (Eq. 197)"),
+        Metric("theta_<axis>0_deg", "deg", "estimated bias angle", "the search found it"),
+        Metric("theta_<axis>0_err_deg", "deg", "estimated − true bias angle", "the search found it"),
+        Metric("truth_injected", "count", "evaluator-side truth injections (camera, mount bias, features)"),
+        Metric("combinations_total", "count", "view pairs evaluated over all d_o"),
+        Metric("estimates_failed", "count", "pairs whose localisation failed"),
+        Metric("keypoints_median", "count", "features per table view, median"),
+        Metric("keypoints_reference", "count", "features in the reference view"),
+        Metric("map_points_median", "count", "map points per pair, median", "a pair succeeded"),
+        Metric("pairs_3d_median", "count", "3D pairs per estimate, median", "a pair succeeded"),
+        Metric("inliers_median", "count", "RANSAC inliers per estimate, median", "a pair succeeded"),
+        Metric("keypoint_sigma_px", "px", "feature noise measured against the truth", "`bound.enabled`"),
+        Metric("keypoint_sigma_matches", "count", "matches behind that σ", "`bound.enabled`"),
+        Metric("table_reading_rms_mm", "mm", "table readings vs the carriage's true position, RMS",
+               "`bound.enabled`"),
+        Metric("table_reading_rms_deg", "deg", "the same for the rotary stage", "`bound.enabled`"),
+        Metric("bound_pose_check_mm", "mm", "the bound's table model vs the simulator's camera poses",
+               "`bound.enabled`, features not exact"),
+        Metric("bound_mc_failures", "count", "failed draws of the ideal estimator's Monte Carlo",
+               "`bound.enabled`, `bound.mc_trials` > 0"),
+        Metric("bound_points", "count", "map points in the bound", "`bound.enabled`, features not exact"),
+        Metric("bound_observations_median", "count", "observations per bound, median",
+               "`bound.enabled`, features not exact"),
+        Metric("<method>_err_pos_at_<at>_mm", "mm", "3D RMS position error over the pairs at that d_o"),
+        Metric("<method>_err_<axis>_mm_at_<at>", "mm", "RMS position error along one table axis at that d_o "
+               "(Tables 5-8, 11-14)"),
+        Metric("lms_ratio_err_pos_at_<d>_mm", "mm", "LMS + error ratio: 3D RMS error at every d_o"),
+        Metric("lms_ratio_bound_pos_at_<d>_mm", "mm", "Cramér-Rao bound of that 3D error",
+               "`bound.enabled`, features not exact"),
+        Metric("lms_ratio_bound_<axis>_mm_at_<at2>", "mm", "the bound along one axis",
+               "`bound.enabled`, features not exact"),
+        Metric("lms_ratio_bound_mc_pos_at_<at2>_mm", "mm", "the ideal estimator's Monte Carlo, 3D RMS",
+               "`bound.enabled`, features not exact"),
+        Metric("lms_ratio_efficiency_at_<at2>", "1", "bound / achieved 3D error",
+               "`bound.enabled`, features not exact"),
+        Metric("bound_rot_at_<at2>_deg", "deg", "rotation bound at that d_o", "`bound.enabled`, features not exact"),
+    ),
+    "camera_calibration": (
+        Metric("<medium>sim_table_pose_err_m", "m", "simulator check: table poses vs the commanded ones"),
+        Metric("<medium>views_rendered", "count", "views rendered (not taken from the cache)"),
+        Metric("<medium>render_s", "s", "render time"),
+        Metric("<medium>plan_render_s", "s", "planning + render time"),
+        Metric("<medium>reproj_rms_px", "px", "reprojection RMS χ (Eq. 196) of the multi-view calibration"),
+        Metric("<medium>opencv_reproj_rms_px", "px", "cv2.calibrateCamera on the same detections"),
+        Metric("<medium>reproj_minus_opencv_px", "px", "ours − OpenCV (≤ 0: never worse)"),
+        Metric("<medium>focal_err_pct", "%", "the worse of the fx, fy errors (in water vs the paraxial focal length)"),
+        Metric("<medium>fx_err_pct", "%", "fx error (signed)"),
+        Metric("<medium>fy_err_pct", "%", "fy error (signed)"),
+        Metric("<medium>opencv_focal_err_pct", "%", "OpenCV's focal error"),
+        Metric("<medium>corner_rms_px", "px", "extracted corners vs their true projections, RMS"),
+        Metric("<medium>corner_max_px", "px", "the same, largest"),
+        Metric("<medium>corner_duplicate_matches", "count", "true corners matched twice (should be 0)"),
+        Metric("<medium>corner_rms_px_first_pass", "px", "corner RMS before the refinement in ideal pixels "
+               "(null without `pipeline.refine_corners`)"),
+        Metric("<medium>corner_rms_px_<extractor>_extractor", "px", "corner RMS of that extractor (the one used, "
+               "and the other with `pipeline.compare_extractors`)"),
+        Metric("<medium>views_found_<extractor>_extractor", "count", "views the other extractor found",
+               "`pipeline.compare_extractors`"),
+        Metric("<medium>model_floor_rms_px", "px", "the oracle's RMS: the model fitted to exact projections"),
+        Metric("<medium>oracle_focal_err_pct", "%", "the oracle's focal error"),
+        Metric("<medium>views_used", "count", "views calibrated"),
+        Metric("<medium>views_skipped", "count", "views without a usable corner set"),
+        Metric("<medium>points", "count", "corners calibrated"),
+        Metric("<medium>sigma_px", "px", "noise σ estimated from the residuals"),
+        Metric("<medium>jackknife_s", "s", "time of the jackknife over views"),
+        Metric("<medium>err_<p>", "unit of the parameter", "estimate − truth (null in water except fx, fy)"),
+        Metric("<medium>std_<p>", "unit of the parameter", "formal standard error σ²(JᵀJ)⁻¹"),
+        Metric("<medium>jk_std_<p>", "unit of the parameter", "jackknife standard error over views"),
+        Metric("<medium>err_<h>", "unit of the coefficient", "Heikkilä coefficient: estimate − truth",
+               "the underwater camera"),
+        Metric("<medium>std_<h>", "unit of the coefficient", "formal standard error (`heikkila_covariance`)",
+               "the underwater camera"),
+        Metric("<medium>jk_std_<h>", "unit of the coefficient", "jackknife standard error",
+               "the underwater camera"),
+        Metric("<medium><z>_within_<k>std", "count", "coefficients within k standard errors (null in water for the "
+               "true lens)"),
+        Metric("<medium><z>_max_abs_z", "1", "largest |estimate − reference| / standard error"),
+        Metric("<medium>heikkila_n_coeffs", "count", "coefficients fitted"),
+        Metric("table3_alpha_mean_err_pct", "%", "Table 3: average per-view α vs the true fx",
+               "`camera.preset: air_webcam`"),
+        Metric("table3_beta_mean_err_pct", "%", "Table 3: average per-view β vs the true fy",
+               "`camera.preset: air_webcam`"),
+        Metric("table3_theta_mean_deg", "deg", "Table 3: average per-view skew angle θ", "`camera.preset: air_webcam`"),
+        Metric("table3_chi_mean_px", "px", "Table 3: average per-view χ", "`camera.preset: air_webcam`"),
+        Metric("focal_ratio_water_air", "1", "focal length in water / in air (paraxial: 1.34)",
+               "`camera.medium: both`"),
+        Metric("thesis_focal_ratio_water_air", "1", "the thesis's Table 15 / Table 9 focal lengths",
+               "`camera.medium: both`"),
+    ),
+    "flatport_study": (
+        Metric("threshold_px", "px", "the image error below which the polynomial model is good enough"),
+        Metric("calib_rms_px_<case>", "px", "reprojection RMS of the noise-free rig calibration"),
+        Metric("rms_px_at_calib_<case>", "px", "image RMS error over the whole image at the calibration distance"),
+        Metric("rms_px_at_0p2m_<case>", "px", "image RMS error at 0.2 m (the nearest distance)"),
+        Metric("max_px_at_0p2m_<case>", "px", "largest image error at 0.2 m"),
+        Metric("rms_px_at_3m_<case>", "px", "image RMS error at 3 m (the farthest distance)"),
+        Metric("max_px_at_3m_<case>", "px", "largest image error at 3 m"),
+        Metric("rms_mm_at_0p2m_<case>", "mm", "object-space RMS error (point to fitted ray) at 0.2 m"),
+        Metric("rms_mm_at_3m_<case>", "mm", "object-space RMS error at 3 m"),
+        Metric("polynomial_ok_from_m_<case>", "m", "near edge of the window where the error is below the threshold "
+               "(null: none)"),
+        Metric("polynomial_ok_to_m_<case>", "m", "far edge of that window (null: none)"),
+        Metric("refractive_needed_below_m_<case>", "m", "a refractive model is needed nearer than this"),
+        Metric("refractive_needed_above_m_<case>", "m", "a refractive model is needed farther than this"),
+        Metric("refractive_needed_everywhere_<case>", "1 / 0", "1 when no distance is within the threshold"),
+        Metric("centre_offset_axial_mm_<case>", "mm", "fitted camera centre along the axis, relative to the lens "
+               "(negative: behind)"),
+        Metric("centre_offset_lateral_mm_<case>", "mm", "fitted camera centre off the axis"),
+        Metric("centre_rotation_deg_<case>", "deg", "fitted camera frame's rotation relative to the lens"),
+        Metric("paraxial_centre_axial_mm_<case>", "mm", "the port's paraxial virtual centre along the axis"),
+        Metric("calib_coverage_<case>", "1", "fraction of the image the calibration corners cover"),
+        Metric("frame_reproj_rms_px_<case>", "px", "calibration corners reprojected with one camera frame for all "
+               "views"),
+    ),
+}
+
+
+def _regex(name: str) -> re.Pattern:
+    parts = re.split(r"<([a-z0-9]+)>", name)
+    out = []
+    for i, part in enumerate(parts):
+        if i % 2:
+            if part not in PLACEHOLDERS:
+                raise KeyError(f"metric {name!r}: unknown placeholder <{part}>")
+            out.append(f"(?:{PLACEHOLDERS[part][0]})")
+        else:
+            out.append(re.escape(part))
+    return re.compile("".join(out) + r"\Z")
+
+
+def check_metrics(kind: str, names) -> tuple[list[str], list[str]]:
+    """``(undeclared, missing)``: written names no declaration matches, and unconditional declarations (no
+    ``when``) that no written name matches. Both empty when a run of ``kind`` writes what ``METRICS`` declares."""
+    declared = METRICS[kind]
+    patterns = [(m, _regex(m.name)) for m in declared]
+    names = list(names)
+    undeclared = [n for n in names if not any(p.match(n) for _, p in patterns)]
+    missing = [m.name for m, p in patterns if not m.when and not any(p.match(n) for n in names)]
+    return undeclared, missing
