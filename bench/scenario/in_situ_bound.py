@@ -9,7 +9,7 @@ measured keypoint noise (:func:`keypoint_sigma_px`) and the bound's machinery - 
   the identified arm errors (the 25 of §2.5-2.7) with the identification's covariance as prior (tracker noise) and
   the 3D points as free nuisance parameters (eliminated point by point); the base's 6 x 6 block of the inverse.
   Intrinsics and mount are taken as exact (their calibration errors are systematic and largely cancel between
-  survey and localisation, see the README); in water the camera is the central equivalent of lens + port.
+  survey and localisation, see docs/bounds.md); in water the camera is the central equivalent of lens + port.
 * :func:`mc_ideal_estimator` - the pipeline's own estimator (map by Eq. 162-164, RANSAC + absolute orientation,
   reprojection refinement) run on ideal features with exactly the noise the bound assumes, over many draws.
 

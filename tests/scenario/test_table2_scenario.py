@@ -46,7 +46,7 @@ def test_table2_reproduced(smoke_result):
     ours, printed = np.array(t["table2"]["reduced_true"]), np.array(t["table2_thesis"]["reduced_actual"])
     differs = [n for n, a, b in zip(t["table2"]["name"], ours, printed, strict=True)
                if abs(a - b) > 5e-6 * max(1.0, abs(b)) + 1e-8]
-    assert differs == ["p5"]  # the one printed entry that contradicts Eq. 167 (see README)
+    assert differs == ["p5"]  # the one printed entry that contradicts Eq. 167 (see docs/experiments.md)
     assert t["table2"]["reduced_true"][t["table2"]["name"].index("x5")] == pytest.approx(9.30879, abs=1e-5)
 
 
