@@ -23,6 +23,7 @@ sys.path.insert(0, str(ROOT))
 import yaml  # noqa: E402
 
 from bench.errors import BenchError  # noqa: E402
+from bench.fileio import atomic_write_text  # noqa: E402
 from bench.scenario.metrics import METRICS, PLACEHOLDERS  # noqa: E402
 from bench.scenario.runner import KINDS, kind_module  # noqa: E402
 from bench.scenario.schema import _REQUIRED, validate  # noqa: E402
@@ -191,7 +192,8 @@ def main(argv=None) -> int:
             print(f"{out} is out of date: run make docs", file=sys.stderr)
             return 1
         return 0
-    out.write_text(text)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out, text)
     print(f"wrote {out}")
     return 0
 
