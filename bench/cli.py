@@ -50,6 +50,11 @@ def _parser() -> argparse.ArgumentParser:
     rend.add_argument("--seed", type=int, default=None)
     rend.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     rend.add_argument("--no-cache", action="store_true", help="render every view even if cached")
+    raw = simsub.add_parser("export-raw", help="write a rendered dataset as raw files (JPEG photos, joint log in "
+                                               "degrees, tracker export), truth dropped (docs/tutorial_real_data.md)")
+    raw.add_argument("dataset", help="rendered dataset (bench sim render)")
+    raw.add_argument("--out", required=True, help="new folder for the raw files")
+    raw.add_argument("--jpeg-quality", type=int, default=95, help="JPEG quality of the photos (1-100, default 95)")
 
     loc = sub.add_parser("locate", help="in-situ base localisation on a dataset folder (section 3.9)")
     loc.add_argument("dataset", help="dataset folder (manifest.yaml, images/, joints.csv, camera.yaml, robot.yaml)")
@@ -85,6 +90,7 @@ def _parser() -> argparse.ArgumentParser:
     cc.add_argument("--extractor", choices=("thesis", "opencv"), default="thesis",
                     help="corner extractor: the thesis's edge/k-means method or OpenCV's")
     _add_interchange_commands(sub)
+    _add_dataset_commands(sub)
     from bench.robot import commands as robot_commands
 
     robot_commands.add_parsers(sub)
@@ -112,6 +118,43 @@ def _target_from_flags(args):
             raise BenchError(f"--{given[0].replace('_', '-')}: describes a target; give --target too")
         return None
     return target_spec(args.target, args.inner, args.square_mm, args.squares, args.size_mm, args.margin_mm)
+
+
+def _add_dataset_commands(sub) -> None:
+    """``bench dataset init``: a dataset folder from raw files (bench/dataset_init.py, docs/tutorial_real_data.md)."""
+    ds = sub.add_parser("dataset", help="dataset folder commands")
+    dsub = ds.add_subparsers(dest="dataset_command", required=True)
+    di = dsub.add_parser("init", help="build a dataset folder from photos, a joint log, a tracker export and the "
+                                      "nominal robot/camera files")
+    di.add_argument("--out", required=True, help="dataset folder to create (new or empty)")
+    di.add_argument("--images", default=None, help="folder of photos (JPEG/PNG), one per view, named by view")
+    di.add_argument("--joints", default=None, help="joint log: a row per view (and per taught frame)")
+    di.add_argument("--joint-units", choices=("deg", "rad"), default=None,
+                    help="the joint log's unit, unless its columns or a '# units:' line state it")
+    di.add_argument("--tracker", default=None, help="laser-tracker export (points with their joint readings)")
+    di.add_argument("--tracker-units", choices=("mm", "m"), default=None, help="the tracker export's length unit")
+    di.add_argument("--tracker-joints", default=None, help="joint log of the tracker points (if not in the export)")
+    di.add_argument("--tracker-joint-units", choices=("deg", "rad"), default=None,
+                    help="unit of the tracker points' joint readings")
+    di.add_argument("--robot", default=None, help="nominal robot file (e.g. models/ta40.yaml)")
+    di.add_argument("--camera", default=None, help="nominal camera file (camera.yaml)")
+    di.add_argument("--role", dest="roles", action="append", default=[], metavar="ROLE=PATTERN",
+                    help="views whose name matches PATTERN get ROLE (rig, reference, surround, locate, task)")
+    di.add_argument("--kind", choices=("in_situ", "camera_calibration", "kinematic"), default=None,
+                    help="campaign kind (default: from the files given)")
+    di.add_argument("--name", default=None, help="dataset name (default: the folder's name)")
+    _add_target_flags(di)
+
+
+def _dataset_command(args) -> int:
+    from bench.dataset_init import init_dataset
+
+    res = init_dataset(args.out, args.images, args.joints, args.joint_units, args.tracker, args.tracker_units,
+                       args.tracker_joints, args.tracker_joint_units, args.robot, args.camera, args.roles, args.kind,
+                       _target_from_flags(args), args.name)
+    roles = ", ".join(f"{n} {r}" for r, n in res.roles.items())
+    print(f"wrote {res.root} ({res.kind}: {res.views} views - {roles}; {res.tracker_points} tracker points)")
+    return 0
 
 
 _INTERCHANGE = ("export", "export-camera", "import-tracker", "import-joints")
@@ -232,6 +275,12 @@ def main(argv=None) -> int:
             _sweep(args)
         elif args.command == "budget":
             _budget(args)
+        elif args.command == "sim" and args.sim_command == "export-raw":
+            from bench.sim.export_raw import export_raw
+
+            res = export_raw(args.dataset, args.out, args.jpeg_quality)
+            print(f"wrote {res['out']}: {res['photos']} photos, {res['frames']} joint-log rows, "
+                  f"{res['tracker_points']} tracker points (no truth)")
         elif args.command == "sim":
             _sim_render(args)
         elif args.command == "calibrate-camera":
@@ -254,6 +303,8 @@ def main(argv=None) -> int:
             return 1 if any(r["silent"] for r in rows) else 0
         elif args.command in _INTERCHANGE:
             return _interchange(args)
+        elif args.command == "dataset":
+            return _dataset_command(args)
         elif args.command in ("calibrate-robot", "check-robot"):
             from bench.robot import commands as robot_commands
 

@@ -148,8 +148,12 @@ def target_spec(target: str, inner: str | None = None, square_mm: float | None =
 
 def target_yaml_text(spec: dict) -> str:
     """``target.yaml`` text of a :func:`target_spec` mapping (units in the key names)."""
-    return "# calibration target (docs/tutorial_real_data.md: target.yaml)\n" + yaml.safe_dump(
-        spec, sort_keys=False, default_flow_style=None)
+    lines = ["# calibration target (docs/tutorial_real_data.md: target.yaml)"]
+    for key, value in spec.items():
+        text = f"[{', '.join(str(v) for v in value)}]" if isinstance(value, list) else yaml.safe_dump(value).split(
+            "\n")[0]
+        lines.append(f"{key}: {text}")
+    return "\n".join(lines) + "\n"
 
 
 def target_symmetries(geometry) -> list:
