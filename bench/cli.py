@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 
@@ -46,7 +47,8 @@ def _parser() -> argparse.ArgumentParser:
     simsub = sim.add_subparsers(dest="sim_command", required=True)
     rend = simsub.add_parser("render", help="simulate a scenario's campaign and write its dataset (with truth/)")
     rend.add_argument("scenario", help="scenario YAML file (a kind that renders, e.g. in_situ)")
-    rend.add_argument("--out", required=True, help="dataset folder to write (atomically; replaced if it exists)")
+    rend.add_argument("--out", required=True, help="dataset folder to write (atomically; a previous render of the "
+                                                    "same scenario there is replaced)")
     rend.add_argument("--seed", type=int, default=None)
     rend.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     rend.add_argument("--no-cache", action="store_true", help="render every view even if cached")
@@ -91,6 +93,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="corner extractor: the thesis's edge/k-means method or OpenCV's")
     _add_interchange_commands(sub)
     _add_dataset_commands(sub)
+    _add_force_flag([*(sub.choices[c] for c in _WRITERS), rend])
     from bench.robot import commands as robot_commands
 
     robot_commands.add_parsers(sub)
@@ -158,6 +161,24 @@ def _dataset_command(args) -> int:
 
 
 _INTERCHANGE = ("export", "export-camera", "import-tracker", "import-joints")
+#: commands that write an output folder or file (bench.fileio: they claim it first); plus ``sim render``
+_WRITERS = ("run", "sweep", "budget", "locate", "calibrate-camera", *_INTERCHANGE)
+
+
+def _add_force_flag(parsers) -> None:
+    for p in parsers:
+        p.add_argument("--force", action="store_true",
+                       help="replace a previous output of this same command at --out (never a folder or file that "
+                            "bench did not write, nor another command's output)")
+
+
+def _output_guard(args, stack) -> None:
+    """``locate --out`` and ``calibrate-camera --out`` write their folder at the end: refuse a foreign one now, mark
+    what they wrote when they end (:func:`bench.fileio.writing_output_dir`); the other commands claim their own."""
+    if args.command in ("locate", "calibrate-camera") and getattr(args, "out", None):
+        from bench.fileio import writing_output_dir
+
+        stack.enter_context(writing_output_dir(args.out, args.command, force=args.force))
 
 
 def _add_interchange_commands(sub) -> None:
@@ -195,17 +216,18 @@ def _interchange(args) -> int:
             if val is not None and not val > 0:
                 raise BenchError(f"{opt}: expected a positive limit, got {val}")
         vel = None if args.velocity_deg_s is None else radians(args.velocity_deg_s)
-        path = export_robot(args.robot, args.format, args.out, args.name, vel, args.effort_nm)
+        path = export_robot(args.robot, args.format, args.out, args.name, vel, args.effort_nm, force=args.force)
         print(f"wrote {path} ({args.format.upper()})")
     elif args.command == "export-camera":
         from bench.camera.export import export_camera
 
-        print(f"wrote {export_camera(args.camera, args.format, args.out)} ({args.format})")
+        print(f"wrote {export_camera(args.camera, args.format, args.out, force=args.force)} ({args.format})")
     else:
         from bench.robot.importers import import_joints, import_tracker
 
-        res = (import_tracker(args.file, args.out, args.units, args.joints, args.joint_units)
-               if args.command == "import-tracker" else import_joints(args.file, args.out, args.units))
+        res = (import_tracker(args.file, args.out, args.units, args.joints, args.joint_units, force=args.force)
+               if args.command == "import-tracker" else import_joints(args.file, args.out, args.units,
+                                                                      force=args.force))
         print(f"wrote {res.path}: {res.rows} rows (read in {', '.join(res.units.values())})")
     return 0
 
@@ -219,8 +241,11 @@ def _sim_render(args) -> None:
     module = kind_module(cfg["kind"])
     if not hasattr(module, "render"):
         raise BenchError(f"{args.scenario}: kind {cfg['kind']!r} has no simulated campaign to render")
+    from bench.fileio import claimed_output_dir
+
     cache = None if args.no_cache else Path(args.out).resolve().parent / ".render_cache"
-    checks = module.render(cfg, args.out, verbose=True, cache_dir=cache)
+    with claimed_output_dir(args.out, "sim render", force=args.force, identity=cfg["name"]):
+        checks = module.render(cfg, args.out, verbose=True, cache_dir=cache)
     for k, v in checks.items():
         print(f"  {k:<32} {v:.6g}" if isinstance(v, float) else f"  {k:<32} {v}")
 
@@ -236,7 +261,7 @@ def _sweep(args) -> None:
     fixed = dict(parse_set(item) for item in args.overrides)
     out = args.out or str(Path("runs") / f"sweep-{Path(args.scenario).stem}")
     res = run_sweep(args.scenario, params, list(range(args.seed, args.seed + args.seeds)), out, args.backend,
-                    args.address, args.workers, fixed=fixed)
+                    args.address, args.workers, fixed=fixed, force=args.force)
     print(f"{res['rows']} finished runs in {res['store']}; summary {res['summary']}")
     for p in res["plots"]:
         print(f"plot {p}")
@@ -257,7 +282,7 @@ def _budget(args) -> None:
     fixed = dict(parse_set(item) for item in args.overrides)
     out = args.out or str(Path("runs") / f"budget-{Path(args.scenario).stem}")
     res = run_budget(args.scenario, list(range(args.seed, args.seed + args.seeds)), out, args.backend, args.address,
-                     args.workers, fixed=fixed)
+                     args.workers, fixed=fixed, force=args.force)
     for k, v in res["metrics"].items():
         print(f"  {k:<44} {v:.4g}")
     print(f"wrote {res['result']}")
@@ -265,12 +290,14 @@ def _budget(args) -> None:
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    stack = contextlib.ExitStack()
     try:
+        _output_guard(args, stack)
         if args.command == "run":
             from bench.scenario.runner import run_scenario_file
 
             run_scenario_file(args.scenario, out=args.out, seed=args.seed, overrides=args.overrides,
-                              verbose=not args.quiet)
+                              verbose=not args.quiet, force=args.force)
         elif args.command == "sweep":
             _sweep(args)
         elif args.command == "budget":
@@ -322,3 +349,5 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("bench: interrupted", file=sys.stderr)
         return 130
+    finally:
+        stack.close()

@@ -35,6 +35,7 @@ import numpy as np
 import yaml
 
 from bench.errors import ConfigError
+from bench.fileio import check_output_dir, fix_mkdtemp_mode, mark_output_dir, output_marker
 
 FORMAT = "insitu-bench-dataset/1"
 KINDS = ("in_situ", "camera_calibration", "xy_table", "kinematic")
@@ -417,18 +418,26 @@ class DatasetWriter:
             w.write_text("camera.yaml", text)
         # out/ now exists, complete; on an exception nothing is left behind
 
-    ``overwrite=True`` replaces an existing dataset only once the new one is complete.
+    The folder is marked as the output of ``command`` (:mod:`bench.fileio`: ``.bench-output.json``) for
+    ``identity`` (default: the dataset's name). ``root`` may be absent or an empty folder; ``overwrite=True`` also
+    replaces a previous output of the same command and identity, only once the new one is complete; ``force=True``
+    one of the same command with another identity. Anything else at ``root`` - a file, a folder bench did not write,
+    another command's output - is refused (:class:`~bench.fileio.OutputRefused`) when the writer is created, before
+    any work.
     """
 
     def __init__(self, root, kind: str, name: str | None = None, notes: str = "", created_by: str = "",
-                 overwrite: bool = False):
+                 overwrite: bool = False, command: str = "dataset", force: bool = False, identity: str | None = None):
         if kind not in KINDS:
             raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
         self.root = Path(root)
-        if self.root.exists() and not overwrite:
-            raise ConfigError(self.root, "<folder>", "already exists (pass --overwrite to replace it)")
         self.kind, self.name, self.notes, self.created_by = kind, name or self.root.name, notes, created_by
-        self.overwrite = overwrite
+        self.command, self.identity = command, identity or self.name
+        marker = output_marker(self.root) if self.root.is_dir() else None
+        if marker and marker["command"] == command and not (overwrite or force):
+            raise ConfigError(self.root, "<folder>", "already exists (pass --overwrite to replace it)")
+        check_output_dir(self.root, command, force=force, identity=self.identity, option="dataset folder")
+        self.overwrite, self.force = overwrite, force
         self.tmp: Path | None = None
         self._views: list[dict] = []
         self._joints: list = []
@@ -438,7 +447,7 @@ class DatasetWriter:
 
     def __enter__(self) -> DatasetWriter:
         self.root.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = Path(tempfile.mkdtemp(dir=self.root.parent, prefix=f".{self.root.name}.", suffix=".tmp"))
+        self.tmp = fix_mkdtemp_mode(tempfile.mkdtemp(dir=self.root.parent, prefix=f".{self.root.name}.", suffix=".tmp"))
         (self.tmp / "images").mkdir()
         return self
 
@@ -509,6 +518,7 @@ class DatasetWriter:
                 man[key] = rel
         man["views"] = self._views
         self.write_text("manifest.yaml", yaml.safe_dump(man, sort_keys=False))
+        mark_output_dir(self.tmp, self.command, self.identity)
 
     def __exit__(self, exc_type, exc, tb) -> bool:
         if exc_type is not None:
@@ -516,6 +526,9 @@ class DatasetWriter:
             return False
         try:
             self._finish()
+            # again: the folder may have changed while the views were rendered
+            check_output_dir(self.root, self.command, force=self.force, identity=self.identity,
+                             option="dataset folder")
             if self.root.exists():
                 old = self.root.with_name(f".{self.root.name}.old-{os.getpid()}")
                 os.replace(self.root, old)

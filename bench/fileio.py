@@ -1,27 +1,141 @@
-"""Atomic file writing shared by the pipeline and the bench: a temporary file in the same folder, then a rename."""
+"""Safe outputs, shared by every command that writes: atomic writes that honour the umask, and output claims.
+
+Atomic writes
+-------------
+:func:`atomic_write_text`, :func:`atomic_write_bytes`, :func:`write_table_csv` and :func:`atomic_save_figure` write
+a temporary file in the target's folder and rename it over the target, so a reader (or a crash) never sees half a
+file. The file gets the permissions a plain ``open(path, "w")`` would give (``0666 & ~umask``, typically 0644), not
+:func:`tempfile.mkstemp`'s owner-only 0600.
+
+Output claims: no command deletes or replaces what it did not create
+----------------------------------------------------------------------
+Every command that writes an output folder (``bench run``, ``sweep``, ``budget``, ``sim render``, ``locate --out``,
+``calibrate-camera --out``, ...) claims it first, before any work, with one line::
+
+    out = claim_output_dir(args.out, "run", force=args.force, identity=scenario_name)
+
+and every command that writes one output file (``bench export``, ``export-camera``, ``import-tracker``,
+``import-joints``, ...) writes it through::
+
+    write_output_file(args.out, text, "export", force=args.force)   # or check_output_file(...) first, then write
+
+(``check_output_dir`` / ``check_output_file`` make the same decision without creating anything, for a command that
+must refuse before a long computation and writes later.) A claimed folder holds a marker, :data:`OUTPUT_MARKER`
+(``.bench-output.json``: the command, an identity such as the scenario name, the time); an output file has a
+sidecar ``.NAME.bench-output.json`` with the command and the SHA-256 of what was written. The rules:
+
+* a path that does not exist, or an empty folder, is claimed (folders created, the marker written);
+* a previous output of the same command and identity is written into again (a sweep resumes, a run re-runs, a
+  file is replaced): today's behaviour for one's own output;
+* a previous output of the same command with another identity (a run folder of another scenario), or an output
+  file edited since bench wrote it, is refused unless ``force=True``, which replaces it;
+* anything else - a non-empty folder bench did not mark, another command's output, a file where a folder is
+  expected or a folder where a file is expected - is refused, ``force`` or not: :class:`OutputRefused`, one line
+  naming the option, the path and what is in the way.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import hashlib
 import io
+import json
 import math
 import os
+import shutil
 import tempfile
+import time
 from pathlib import Path
 
+from bench.errors import BenchError
 
-def atomic_write_text(path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same folder and an atomic rename."""
+#: the marker file inside every output folder a bench command created
+OUTPUT_MARKER = ".bench-output.json"
+
+
+class OutputRefused(BenchError):
+    """An output path that a command may not write: someone else's folder or file, or the wrong type of path."""
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it where the system allows (Linux: /proc/self/status)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)  # elsewhere: read it by setting it (and put it back at once)
+    os.umask(mask)
+    return mask
+
+
+def _mkstemp_like_open(folder: Path, name: str):
+    """``(fd, tmp path)`` of a new temporary file next to ``name``, with a plain file's permissions."""
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name}.", suffix=".tmp")
+    try:
+        os.fchmod(fd, 0o666 & ~_umask())
+    except BaseException:
+        os.close(fd)
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return fd, tmp
+
+
+def atomic_write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` via a temporary file in the same folder and an atomic rename; returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = _mkstemp_like_open(path.parent, path.name)
     try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    return path
+
+
+def atomic_write_text(path, text: str) -> Path:
+    """Write ``text`` to ``path`` via a temporary file in the same folder and an atomic rename; returns the path."""
+    return atomic_write_bytes(path, text.encode())
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yield a temporary path next to ``path`` for a writer that wants a file name (a plot, a recording); renamed
+    to ``path`` when the block ends without an exception, deleted otherwise. The suffix is kept (``.x.png.tmp.png``)
+    so that writers choosing the format from the name still do."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = _mkstemp_like_open(path.parent, path.name)
+    os.close(fd)
+    tmp_named = Path(tmp).with_name(Path(tmp).name + path.suffix)
+    os.replace(tmp, tmp_named)
+    try:
+        yield tmp_named
+        os.replace(tmp_named, path)
+    finally:
+        tmp_named.unlink(missing_ok=True)
+
+
+def atomic_save_figure(fig, path, **kwargs) -> Path:
+    """``fig.savefig(path, **kwargs)`` written atomically (matplotlib figure); returns the path."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=path.suffix.lstrip(".") or None, **kwargs)
+    return path
+
+
+
+
+def fix_mkdtemp_mode(path) -> Path:
+    """Give a folder from :func:`tempfile.mkdtemp` (0700) a plain folder's permissions before it is renamed into
+    place."""
+    os.chmod(path, 0o777 & ~_umask())
+    return Path(path)
 
 
 def _clean(value):
@@ -33,7 +147,7 @@ def _clean(value):
 
 
 def write_table_csv(path, table: dict) -> None:
-    """Write ``{column: [values]}`` as CSV."""
+    """Write ``{column: [values]}`` as CSV (atomically)."""
     buf = io.StringIO()
     w = csv.writer(buf)
     cols = list(table)
@@ -41,3 +155,175 @@ def write_table_csv(path, table: dict) -> None:
     for row in zip(*(table[c] for c in cols), strict=True):
         w.writerow([_clean(v) for v in row])
     atomic_write_text(path, buf.getvalue())
+
+
+# ------------------------------------------------------------------------------------------------ output claims
+
+
+def _read_json(path: Path):
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) and isinstance(doc.get("command"), str) else None
+
+
+def _listing(names: list) -> str:
+    shown = ", ".join(repr(n) for n in names[:3])
+    return shown + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+
+
+def output_marker(path):
+    """The marker of a bench output folder (``{"command", "identity", "created_at"}``), or ``None``."""
+    return _read_json(Path(path) / OUTPUT_MARKER)
+
+
+def check_output_dir(path, command: str, *, force: bool = False, identity: str | None = None,
+                     option: str = "--out") -> str:
+    """Decide whether ``command`` may write the folder ``path`` (creates nothing; see the module docstring).
+
+    Returns ``"new"`` (absent), ``"empty"`` (an empty folder), ``"own"`` (a previous output of the same command and
+    identity: write into it again) or ``"replace"`` (a previous output of the same command that ``force`` replaces);
+    raises :class:`OutputRefused` otherwise.
+    """
+    path = Path(path)
+    if not path.exists():
+        if path.is_symlink():
+            raise OutputRefused(f"{option} {path}: is a dangling symbolic link; choose another folder")
+        for parent in path.parents:
+            if parent.exists():
+                if not parent.is_dir():
+                    raise OutputRefused(f"{option} {path}: {parent} is a file, not a folder")
+                break
+        return "new"
+    if not path.is_dir():
+        raise OutputRefused(f"{option} {path}: is a file, not a folder (bench {command} writes a folder); "
+                            "choose a new or empty folder")
+    names = sorted(p.name for p in path.iterdir())
+    if not names:
+        return "empty"
+    marker = output_marker(path)
+    if marker is None:
+        extra = f" (--force only replaces a previous output of bench {command})" if force else ""
+        raise OutputRefused(f"{option} {path}: a non-empty folder that bench did not write (holds {_listing(names)}); "
+                            f"choose a new or empty folder{extra}")
+    if marker["command"] != command:
+        raise OutputRefused(f"{option} {path}: holds the output of bench {marker['command']}, not of bench {command}; "
+                            "choose another folder")
+    if identity is not None and marker.get("identity") not in (None, identity):
+        if not force:
+            raise OutputRefused(f"{option} {path}: holds the output of bench {command} for {marker['identity']!r}, "
+                                f"not {identity!r}; --force replaces it, or choose another folder")
+        return "replace"
+    return "replace" if force else "own"
+
+
+def mark_output_dir(path, command: str, identity: str | None = None) -> Path:
+    """Write the marker into the folder ``path`` (which must exist): it is the output of ``command``."""
+    doc = {"command": command, "identity": identity, "created_at": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    return atomic_write_text(Path(path) / OUTPUT_MARKER, json.dumps(doc, indent=2) + "\n")
+
+
+def claim_output_dir(path, command: str, *, force: bool = False, identity: str | None = None,
+                     option: str = "--out") -> Path:
+    """Make ``path`` the output folder of ``command`` before any work, or refuse (:class:`OutputRefused`).
+
+    A new or empty folder is created and marked; a previous output of the same command and identity is returned as
+    it is (the command writes into it again, e.g. a sweep resumes); with ``force``, a previous output of the same
+    command is emptied and marked afresh. Everything else is refused (see the module docstring). Returns the path.
+    """
+    path = Path(path)
+    decision = check_output_dir(path, command, force=force, identity=identity, option=option)
+    if decision == "own":
+        return path
+    if decision == "replace":
+        shutil.rmtree(path)
+    path.mkdir(parents=True, exist_ok=True)
+    mark_output_dir(path, command, identity)
+    return path
+
+
+def _sidecar(path: Path) -> Path:
+    return path.with_name(f".{path.name}{OUTPUT_MARKER}")
+
+
+def check_output_file(path, command: str, *, force: bool = False, option: str = "--out") -> str:
+    """Decide whether ``command`` may write the file ``path`` (creates nothing).
+
+    Returns ``"new"``, ``"own"`` (written by the same command and unchanged since: replaced) or ``"replace"`` (written
+    by the same command but edited since, and ``force`` given); raises :class:`OutputRefused` otherwise.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise OutputRefused(f"{option} {path}: is a folder; bench {command} writes a file (give a file name)")
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise OutputRefused(f"{option} {path}: {parent} is a file, not a folder")
+            break
+    if not path.exists():
+        if path.is_symlink():
+            raise OutputRefused(f"{option} {path}: is a dangling symbolic link; choose another name")
+        return "new"
+    side = _read_json(_sidecar(path))
+    if side is None or side["command"] != command:
+        by = f"bench {side['command']}" if side else "someone else"
+        raise OutputRefused(f"{option} {path}: exists and was written by {by}, not by bench {command}; remove it "
+                            "or choose another name")
+    if side.get("sha256") == hashlib.sha256(path.read_bytes()).hexdigest():
+        return "own"
+    if not force:
+        raise OutputRefused(f"{option} {path}: changed since bench {command} wrote it; --force replaces it")
+    return "replace"
+
+
+def write_output_file(path, data, command: str, *, force: bool = False, option: str = "--out") -> Path:
+    """Write the output file ``path`` of ``command`` atomically (``data``: str or bytes) after
+    :func:`check_output_file`, and record it in its sidecar ``.NAME.bench-output.json``; returns the path."""
+    path = Path(path)
+    check_output_file(path, command, force=force, option=option)
+    raw = data.encode() if isinstance(data, str) else bytes(data)
+    doc = {"command": command, "sha256": hashlib.sha256(raw).hexdigest(),
+           "created_at": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    atomic_write_text(_sidecar(path), json.dumps(doc, indent=2) + "\n")  # first: a crash between leaves "changed"
+    return atomic_write_bytes(path, raw)
+
+
+@contextlib.contextmanager
+def writing_output_dir(path, command: str, *, force: bool = False, identity: str | None = None,
+                       option: str = "--out"):
+    """For a command that writes its folder only at the end (``bench locate --out``): refuse now, as
+    :func:`claim_output_dir` would, but create nothing unless the command writes; yields the path.
+
+    A refused or failed command that wrote nothing leaves nothing behind; whatever it wrote is marked as its output
+    when the block ends (even by an exception). With ``force``, a previous output of the same command is removed
+    first."""
+    path = Path(path)
+    decision = check_output_dir(path, command, force=force, identity=identity, option=option)
+    if decision == "replace":
+        shutil.rmtree(path)
+    try:
+        yield path
+    finally:
+        if decision != "own" and path.is_dir() and any(path.iterdir()) and output_marker(path) is None:
+            mark_output_dir(path, command, identity)
+
+
+@contextlib.contextmanager
+def claimed_output_dir(path, command: str, *, force: bool = False, identity: str | None = None,
+                       option: str = "--out"):
+    """:func:`claim_output_dir` for the duration of a command: yields the claimed folder; if the block raises (a
+    refusal found late, a crash, Ctrl-C), a folder this call created is removed again - everything in it was the
+    command's - and an empty folder it was given is left empty. A previous output written into again is left as
+    the command left it."""
+    path = Path(path)
+    decision = check_output_dir(path, command, force=force, identity=identity, option=option)
+    claim_output_dir(path, command, force=force, identity=identity, option=option)
+    try:
+        yield path
+    except BaseException:
+        if decision != "own":
+            shutil.rmtree(path, ignore_errors=True)
+            if decision == "empty":
+                path.mkdir(exist_ok=True)
+        raise

@@ -215,7 +215,7 @@ def test_bench_locate_bad_dataset(good_dataset, tmp_path, capsys, monkeypatch, n
         assert not out.exists()  # nothing written
     else:
         assert re.search(pattern, captured.out.strip().splitlines()[-1]), captured.out
-        assert sorted(p.name for p in out.iterdir()) == ["locate.json"]  # complete, and nothing else
+        assert sorted(p.name for p in out.iterdir()) == [".bench-output.json", "locate.json"]  # and the marker
         rep = json.loads((out / "locate.json").read_text())
         assert rep["success"] is False and re.search(pattern, rep["message"])
     if name == "huge image header":

@@ -25,7 +25,7 @@ import yaml
 from bench.camera.io import camera_yaml_text, read_camera_yaml
 from bench.camera.model import CameraModel
 from bench.errors import ConfigError
-from bench.fileio import atomic_write_text
+from bench.fileio import check_output_file, write_output_file
 
 FORMATS = ("opencv", "ros")
 #: largest pixel shift the skew may cause over the image for an export to OpenCV/ROS (the parity target, px)
@@ -87,13 +87,15 @@ def camera_info_text(camera: CameraModel, source: str = "<camera>") -> str:
     return yaml.safe_dump(info, sort_keys=False, default_flow_style=None, width=10_000)
 
 
-def export_camera(camera_file, fmt: str, out) -> Path:
-    """Read ``camera.yaml`` and write it as ``fmt`` (``opencv`` or ``ros``) to ``out`` atomically; returns the path."""
+def export_camera(camera_file, fmt: str, out, force: bool = False) -> Path:
+    """Read ``camera.yaml`` and write it as ``fmt`` (``opencv`` or ``ros``) to ``out`` atomically; returns the path.
+
+    ``force`` replaces an earlier output of ``bench export-camera`` edited since (never another file: see
+    :func:`bench.fileio.check_output_file`)."""
+    check_output_file(out, "export-camera", force=force)
     if fmt not in FORMATS:
         raise ConfigError("--format", fmt, f"expected one of {', '.join(FORMATS)}")
     camera = read_camera_yaml(camera_file)
     text = opencv_yaml_text(camera, str(camera_file)) if fmt == "opencv" else camera_info_text(camera,
                                                                                                str(camera_file))
-    out = Path(out)
-    atomic_write_text(out, text)
-    return out
+    return write_output_file(out, text, "export-camera", force=force)

@@ -10,6 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from bench.fileio import atomic_save_figure
+
 
 def plot_residual_vectors(path, image_points, residuals_px, image=None, image_size=None, scale: float = 50.0,
                           title: str | None = None, rms_px: float | None = None):
@@ -66,6 +68,6 @@ def plot_residual_vectors(path, image_points, residuals_px, image=None, image_si
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    atomic_save_figure(fig, path)
     plt.close(fig)
     return path

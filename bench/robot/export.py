@@ -43,7 +43,7 @@ import numpy as np
 import yaml
 
 from bench.errors import ConfigError
-from bench.fileio import atomic_write_text
+from bench.fileio import check_output_file, write_output_file
 from bench.geometry.quaternion import matrix_to_quaternion
 from bench.geometry.transforms import check_transform, rot_x
 from bench.robot.calibration_file import load_calibrated_robot
@@ -289,7 +289,7 @@ def mjcf_text(robot: Robot, eps=None, T_link5_cam=None, name: str | None = None,
 
 
 def export_robot(robot_file, fmt: str, out, name: str | None = None, velocity: float | None = None,
-                 effort: float | None = None) -> Path:
+                 effort: float | None = None, force: bool = False) -> Path:
     """Read a (calibrated) robot file and write its URDF or MJCF to ``out`` atomically; returns the path.
 
     Parameters
@@ -302,7 +302,11 @@ def export_robot(robot_file, fmt: str, out, name: str | None = None, velocity: f
         Model name in the file (default: the robot file's name).
     velocity, effort : float, optional
         URDF joint limits (rad/s, N m); see :func:`urdf_text`.
+    force : bool
+        Replace an earlier output of ``bench export`` edited since (never another file: see
+        :func:`bench.fileio.check_output_file`).
     """
+    check_output_file(out, "export", force=force)
     if fmt not in FORMATS:
         raise ConfigError("--format", fmt, f"expected one of {', '.join(FORMATS)}")
     for key, val in (("velocity", velocity), ("effort", effort)):
@@ -315,6 +319,4 @@ def export_robot(robot_file, fmt: str, out, name: str | None = None, velocity: f
         text = urdf_text(robot, eps, T_link5_cam, name, str(robot_file), notes, velocity, effort)
     else:
         text = mjcf_text(robot, eps, T_link5_cam, name, str(robot_file), notes)
-    out = Path(out)
-    atomic_write_text(out, text)
-    return out
+    return write_output_file(out, text, "export", force=force)

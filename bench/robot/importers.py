@@ -35,7 +35,7 @@ import numpy as np
 
 from bench.dataset import JOINT_COLUMNS, TRACKER_COLUMNS, _check_degrees, _csv_text
 from bench.errors import ConfigError
-from bench.fileio import atomic_write_text
+from bench.fileio import check_output_file, write_output_file
 
 LENGTH_UNITS = {"mm": 1e-3, "m": 1.0}
 ANGLE_UNITS = {"deg": np.pi / 180.0, "rad": 1.0}
@@ -356,7 +356,7 @@ def _check_points(t: Table) -> np.ndarray:
     return t.values if t.unit == "mm" else t.values * 1e3
 
 
-def import_joints(path, out, units: str | None = None) -> ImportResult:
+def import_joints(path, out, units: str | None = None, force: bool = False) -> ImportResult:
     """Convert a joint log into the dataset's ``joints.csv`` (``view, q1_deg ... q6_deg``).
 
     Parameters
@@ -367,15 +367,20 @@ def import_joints(path, out, units: str | None = None) -> ImportResult:
         The ``joints.csv`` to write (atomically).
     units : {"deg", "rad"}, optional
         The log's angle unit, unless its columns or a declaration line state it (then they must agree).
+    force : bool
+        Replace an earlier output of ``bench import-joints`` edited since (never another file: see
+        :func:`bench.fileio.check_output_file`).
     """
+    check_output_file(out, "import-joints", force=force)
     t = _read_table(path, "joints", units)["joint"]
     q_deg = _check_joints(t)
-    atomic_write_text(out, _csv_text(["view", *JOINT_COLUMNS], [[n, *q] for n, q in zip(t.names, q_deg,
-                                                                                        strict=True)]))
+    write_output_file(out, _csv_text(["view", *JOINT_COLUMNS], [[n, *q] for n, q in zip(t.names, q_deg, strict=True)]),
+                      "import-joints", force=force)
     return ImportResult(Path(out), len(t.names), {"angle": t.unit})
 
 
-def import_tracker(path, out, units: str | None = None, joints=None, joint_units: str | None = None) -> ImportResult:
+def import_tracker(path, out, units: str | None = None, joints=None, joint_units: str | None = None,
+                   force: bool = False) -> ImportResult:
     """Convert a laser-tracker export into the dataset's ``tracker.csv`` (``point, x_mm, y_mm, z_mm, q1_deg ...``).
 
     Parameters
@@ -390,7 +395,10 @@ def import_tracker(path, out, units: str | None = None, joints=None, joint_units
         A joint log with a reading for every point, matched by name (when the export has no joint columns).
     joint_units : {"deg", "rad"}, optional
         The readings' unit (of the joint columns, or of ``joints``), unless stated in the file.
+    force : bool
+        Replace an earlier output of ``bench import-tracker`` edited since (never another file).
     """
+    check_output_file(out, "import-tracker", force=force)
     groups = _read_table(path, "tracker", units, joint_units)
     pts = groups["coord"]
     p_mm = _check_points(pts)
@@ -412,6 +420,6 @@ def import_tracker(path, out, units: str | None = None, joints=None, joint_units
                                                       f"({len(missing)} of {len(pts.names)} points unmatched)")
         q_deg = np.array([by_name[n] for n in pts.names])
     rows = [[n, *p, *q] for n, p, q in zip(pts.names, p_mm, q_deg, strict=True)]
-    atomic_write_text(out, _csv_text(["point", *TRACKER_COLUMNS, *JOINT_COLUMNS], rows))
+    write_output_file(out, _csv_text(["point", *TRACKER_COLUMNS, *JOINT_COLUMNS], rows), "import-tracker", force=force)
     angle = groups["joint"].unit if "joint" in groups else jt.unit
     return ImportResult(Path(out), len(rows), {"length": pts.unit, "angle": angle})

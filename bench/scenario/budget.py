@@ -22,11 +22,13 @@ bootstrap over the seeds (the same resampled seeds in both variants) gives each 
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 
 from bench.errors import ConfigError
+from bench.fileio import atomic_save_figure
 from bench.scenario.results import write_result, write_table_csv
 
 
@@ -36,11 +38,17 @@ def _rms(values) -> float:
 
 
 def run_budget(scenario, seeds: list, out, backend: str = "local", address=None, workers=None,
-               fixed: dict | None = None, progress: bool = True) -> dict:
-    """Run (or resume) the budget of ``scenario`` over ``seeds``; returns ``{"result": path, "metrics": {...}}``."""
-    from bench.scenario.runner import kind_module
+               fixed: dict | None = None, progress: bool = True, force: bool = False) -> dict:
+    """Run (or resume) the budget of ``scenario`` over ``seeds``; returns ``{"result": path, "metrics": {...}}``.
+
+    Every variant's values, the seeds and the worker count are checked before ``out`` is touched; ``out`` is then
+    claimed (:func:`bench.fileio.claim_output_dir`, command ``budget``, identity the scenario file's name): a new or
+    empty folder or a previous budget of the same scenario (resumed); ``force`` starts a previous budget afresh.
+    """
+    from bench.fileio import check_output_dir, claim_output_dir
+    from bench.scenario.runner import kind_module, load_scenario
     from bench.scenario.schema import load_yaml
-    from bench.scenario.sweep import run_sweep
+    from bench.scenario.sweep import check_seeds_and_workers, run_sweep
 
     scenario = Path(scenario)
     kind = load_yaml(scenario).get("kind")
@@ -51,26 +59,43 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
     metrics = module.BUDGET_METRICS
     variants = {"full": {}, **{s: dict(o) for s, o in sources.items()},
                 "none": {k: v for o in sources.values() for k, v in o.items()}}
-    out = Path(out)
-    rows = {}
-    for name, overrides in variants.items():
-        if progress:
-            print(f"variant {name}: {overrides or 'every source real'}")
+    check_seeds_and_workers(seeds, workers)
+    for overrides in variants.values():  # every variant's values, before anything is created
         base = {**getattr(module, "BUDGET_FIXED", {}), **(fixed or {}), **overrides}
-        res = run_sweep(scenario, [], seeds, out / name, backend, address, workers, progress=progress, fixed=base)
-        done = _rows(out / name / "sweep.sqlite")
-        rows[name] = done
-        if res["errors"] and progress:
-            print(f"  {len(res['errors'])} runs failed, e.g. {res['errors'][0]}")
-    table, budget_table, result_metrics = budget_from_rows(rows, list(sources), metrics)
-    write_table_csv(out / "variants.csv", table)
-    write_table_csv(out / "budget.csv", budget_table)
-    plot = _plot(budget_table, metrics, table, out / "budget.png", scenario.stem)
-    path = write_result(out, f"budget:{scenario.stem}", int(seeds[0]) if seeds else 0, result_metrics,
-                        {"variants": table, "budget": budget_table}, {},
-                        {"variants": "variants.csv", "budget": "budget.csv", "plot": Path(plot).name,
-                         **{f"sweep_{v}": f"{v}/sweep.sqlite" for v in variants}})
-    return {"result": str(path), "metrics": result_metrics, "table": budget_table}
+        load_scenario(scenario, seeds[0], [f"{k}={json.dumps(v)}" for k, v in base.items()])
+    out = Path(out)
+    check_output_dir(out, "budget", force=force, identity=scenario.name)
+    started = False
+    if backend == "ray":  # a missing Ray or a cluster that refuses: refused before the folder is made
+        from bench.scenario.sweep import _ray_connect
+
+        started = _ray_connect(address)
+    try:
+        claim_output_dir(out, "budget", force=force, identity=scenario.name)
+        rows = {}
+        for name, overrides in variants.items():
+            if progress:
+                print(f"variant {name}: {overrides or 'every source real'}")
+            base = {**getattr(module, "BUDGET_FIXED", {}), **(fixed or {}), **overrides}
+            res = run_sweep(scenario, [], seeds, out / name, backend, address, workers, progress=progress, fixed=base)
+            done = _rows(out / name / "sweep.sqlite")
+            rows[name] = done
+            if res["errors"] and progress:
+                print(f"  {len(res['errors'])} runs failed, e.g. {res['errors'][0]}")
+        table, budget_table, result_metrics = budget_from_rows(rows, list(sources), metrics)
+        write_table_csv(out / "variants.csv", table)
+        write_table_csv(out / "budget.csv", budget_table)
+        plot = _plot(budget_table, metrics, table, out / "budget.png", scenario.stem)
+        path = write_result(out, f"budget:{scenario.stem}", int(seeds[0]) if seeds else 0, result_metrics,
+                            {"variants": table, "budget": budget_table}, {},
+                            {"variants": "variants.csv", "budget": "budget.csv", "plot": Path(plot).name,
+                             **{f"sweep_{v}": f"{v}/sweep.sqlite" for v in variants}})
+        return {"result": str(path), "metrics": result_metrics, "table": budget_table}
+    finally:
+        if started:
+            import ray
+
+            ray.shutdown()
 
 
 def _paired(full_rows, rows, m) -> np.ndarray:
@@ -163,6 +188,6 @@ def _plot(budget_table, metrics, table, path, title) -> str:
         ax.grid(alpha=0.3, axis="y")
     fig.suptitle(f"error budget: {title}")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    atomic_save_figure(fig, path, dpi=110)
     plt.close(fig)
     return str(path)

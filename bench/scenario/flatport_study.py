@@ -79,6 +79,7 @@ import numpy as np
 from bench.camera.calibration import calibrate_camera
 from bench.camera.model import CameraModel
 from bench.errors import ConfigError
+from bench.fileio import atomic_save_figure
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rotation_angle, transform_points
 from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
@@ -553,7 +554,7 @@ def plot_study(table: dict, cfg: dict, path, tilt_deg=(0.0, 0.0)) -> str:
     fig.suptitle(f"Heikkilä model{' + k3' if cfg['calibration']['k3'] else ''} calibrated at {D:g} +- {dr:g} m "
                  "(grey) behind a flat port: RMS (o-) and max (--) over the image", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    atomic_save_figure(fig, path, dpi=110)
     plt.close(fig)
     return Path(path).name
 

@@ -378,6 +378,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     # --- write the dataset --------------------------------------------------------------------------------------------
     out_dataset = Path(out_dataset)
     with DatasetWriter(out_dataset, kind="in_situ", name=cfg["name"], overwrite=True,
+                       command="sim render", identity=cfg["name"],
                        created_by=f"bench sim render {Path(cfg['_file']).name} (seed {cfg['seed']})") as w:
         for name, role, _, _ in views:
             w.add_view(name, images[name], q=readings[name], role=role)

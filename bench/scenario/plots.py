@@ -10,6 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from bench.fileio import atomic_save_figure
+
 
 def plot_orientation(table: dict, path) -> str:
     """Figures 36-39 of the thesis: position/rotation error of the end effector and of link 5 per configuration."""
@@ -30,7 +32,7 @@ def plot_orientation(table: dict, path) -> str:
         ax.set_xlabel("configuration")
     fig.suptitle("Calibrated (reduced errors) vs true arm, Eq. 189 - link 5's deviation is a constant bias")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    atomic_save_figure(fig, path, dpi=110)
     plt.close(fig)
     return Path(path).name
 
@@ -48,6 +50,6 @@ def plot_monte_carlo(table: dict, path) -> str:
     ax.legend()
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    atomic_save_figure(fig, path, dpi=110)
     plt.close(fig)
     return Path(path).name

@@ -5,7 +5,10 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
+import numpy as np
+
 from bench.errors import ConfigError
+from bench.fileio import claimed_output_dir
 from bench.scenario.schema import apply_overrides, load_yaml, validate
 
 # scenario kind -> module of bench.scenario (imported only when a scenario of that kind runs)
@@ -34,26 +37,30 @@ def load_scenario(path, seed=None, overrides=()) -> dict:
     module = kind_module(raw.get("kind"), path)
     cfg = validate(raw, module.SCHEMA, str(path))
     if seed is not None:
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ConfigError("--seed", "<seed>", f"expected a non-negative integer, got {seed!r}")
         cfg["seed"] = int(seed)
+    elif "seed" in cfg and (not isinstance(cfg["seed"], int) or cfg["seed"] < 0):
+        raise ConfigError(path, "seed", f"expected a non-negative integer, got {cfg['seed']!r}")
     cfg["_file"] = str(path.resolve())
     if hasattr(module, "validate"):  # ranges, units, consistency: before anything is created
         module.validate(cfg)
     return cfg
 
 
-def run_scenario_file(path, out=None, seed=None, overrides=(), verbose=True, quiet=False):
-    """Run one scenario; returns the path of ``result.json`` (``quiet``: print nothing, e.g. in sweep workers)."""
+def run_scenario_file(path, out=None, seed=None, overrides=(), verbose=True, quiet=False, force=False):
+    """Run one scenario; returns the path of ``result.json`` (``quiet``: print nothing, e.g. in sweep workers).
+
+    The output folder is claimed before the run (:func:`bench.fileio.claim_output_dir`, command ``run``, identity
+    the scenario's name): a new or empty folder, or a previous run of the same scenario (re-run in place); ``force``
+    replaces a previous run (of this or another scenario) with a fresh one; anything else is refused. A run that
+    fails leaves no folder it created behind (and an empty folder it was given empty).
+    """
     cfg = load_scenario(path, seed, overrides)
     module = kind_module(cfg["kind"])
     out_dir = Path(out) if out else Path("runs") / cfg["name"]
-    created = not out_dir.exists()
-    out_dir.mkdir(parents=True, exist_ok=True)
-    try:
+    with claimed_output_dir(out_dir, "run", force=force, identity=cfg["name"]):
         result_path = module.run(cfg, out_dir, verbose=verbose)
-    except BaseException:
-        if created and not any(out_dir.iterdir()):  # a failed run leaves no empty folder behind
-            out_dir.rmdir()
-        raise
     if verbose:
         print(f"wrote {result_path}")
     elif not quiet:

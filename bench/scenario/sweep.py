@@ -18,13 +18,16 @@
 
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import itertools
 import json
 import os
 import platform
+import signal
 import sqlite3
 import sys
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
@@ -33,6 +36,7 @@ import numpy as np
 import yaml
 
 from bench.errors import BenchError, ConfigError
+from bench.fileio import atomic_save_figure
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS runs (
@@ -183,23 +187,98 @@ class _Progress:
             self.stream.write("\n")
 
 
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def _end_with_parent(parent_pid: int, period_s: float = 1.0) -> None:
+    """Worker initializer: this worker ends when the sweep's process dies, whatever the signal (SIGKILL included).
+
+    Linux: ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` has the kernel kill the worker when its parent goes; everywhere, a
+    watchdog thread checks ``os.getppid()`` every ``period_s`` (an orphan is re-parented). Ctrl-C is left to the
+    parent (SIGINT ignored here), which stops the workers itself: a run in flight is then lost, not half-recorded,
+    and the next sweep re-runs it.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # no prctl: the watchdog alone
+            pass
+    if os.getppid() != parent_pid:  # the parent died before the prctl took effect
+        os._exit(1)
+
+    def watch():
+        while os.getppid() == parent_pid:
+            time.sleep(period_s)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, name="bench-sweep-parent-watchdog", daemon=True).start()
+
+
 def _local_backend(tasks, workers):
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    """Yield ``(task, row)`` as runs finish in a pool of ``workers`` processes. If the consumer stops early (an
+    exception, Ctrl-C), the workers are terminated and the queued runs dropped instead of being run to the end."""
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_end_with_parent, initargs=(os.getpid(),))
+    pending = {}
+    try:
         pending = {pool.submit(run_one, *t[1:]): t for t in tasks}
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for fut in done:
                 yield pending.pop(fut), fut.result()
+    finally:
+        if pending:
+            for proc in list((getattr(pool, "_processes", None) or {}).values()):  # running runs: stop them
+                proc.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
+        else:
+            pool.shutdown(wait=True)
 
 
-def _ray_backend(tasks, address):
+RAY_HELP = "see docs/sweeps.md, 'Running on a Ray cluster'"
+
+
+def _ray_connect(address) -> bool:
+    """Connect to the Ray cluster at ``address`` (``None``: start a private local instance); returns whether this
+    call started the connection (and so must end it). One-line :class:`BenchError` if Ray is missing or the cluster
+    cannot be reached or refuses the connection.
+
+    Token authentication (Ray >= 2.5x enables it on clusters by default): Ray itself uses a token for an explicit
+    address only when ``RAY_AUTH_MODE=token``; a token given explicitly - ``RAY_AUTH_TOKEN`` or
+    ``RAY_AUTH_TOKEN_PATH`` set - is taken as that intent here. A token in the default file ``~/.ray/auth_token``
+    alone is not sent to an address the user typed (as in Ray).
+    """
     try:
         import ray
     except ImportError:
         raise BenchError("--backend ray needs Ray: pip install -e '.[cluster]'") from None
-    started = not ray.is_initialized()
-    if started:
+    if ray.is_initialized():
+        return False
+    if address and "RAY_AUTH_MODE" not in os.environ and (os.environ.get("RAY_AUTH_TOKEN")
+                                                           or os.environ.get("RAY_AUTH_TOKEN_PATH")):
+        os.environ["RAY_AUTH_MODE"] = "token"
+    try:
         ray.init(address=address, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
+    except Exception as exc:  # noqa: BLE001 - Ray raises ConnectionError, RuntimeError, AuthenticationError, ...
+        if address is None:
+            raise
+        reason = " ".join(str(exc).split(".")[0].split()) or type(exc).__name__
+        cause = exc.__cause__ or exc.__context__
+        if cause is not None and "uthenticat" in str(cause) + reason:
+            reason = "authentication token missing or wrong"
+        if "uthenticat" in reason:
+            reason += ("; set RAY_AUTH_TOKEN (or RAY_AUTH_TOKEN_PATH) to the cluster's token, or RAY_AUTH_MODE=token "
+                       "to use ~/.ray/auth_token")
+        raise BenchError(f"--address {address}: cannot connect to the Ray cluster ({reason}); {RAY_HELP}") from None
+    return True
+
+
+def _ray_backend(tasks, started: bool):
+    """Yield ``(task, row)`` as Ray tasks finish (Ray connected by :func:`_ray_connect`; disconnected at the end if
+    ``started``, also when the consumer stops early - the cluster cancels the tasks of a driver that leaves)."""
+    import ray
+
     try:
         remote = ray.remote(run_one)
         refs = {remote.remote(*t[1:]): t for t in tasks}
@@ -212,11 +291,27 @@ def _ray_backend(tasks, address):
             ray.shutdown()
 
 
+def check_seeds_and_workers(seeds: list, workers) -> None:
+    """Refuse, before anything is created, seeds that are not non-negative integers and a worker count below 1
+    (``None`` = one worker per core); the messages name the command-line options."""
+    if not len(seeds):
+        raise ConfigError("--seeds", "<count>", "must be >= 1, got no seeds")
+    for s in seeds:
+        if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0:
+            raise ConfigError("--seed", "<first seed>", f"expected a non-negative integer, got {s!r}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
+                                or workers < 1):
+        raise ConfigError("--workers", "<count>", f"must be >= 1 (omit it for one per core), got {workers!r}")
+
+
 def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", address=None, workers=None,
-              progress: bool = True, fixed: dict | None = None) -> dict:
+              progress: bool = True, fixed: dict | None = None, force: bool = False) -> dict:
     """Run (or resume) a sweep; returns ``{"store": path, "summary": path, "plots": [...], "rows": n}``.
 
-    ``params`` is a list of ``(key, values)`` (the grid); ``fixed`` overrides every run (``--set``).
+    ``params`` is a list of ``(key, values)`` (the grid); ``fixed`` overrides every run (``--set``). Everything is
+    checked before ``out`` is touched; ``out`` is then claimed (:func:`bench.fileio.claim_output_dir`, command
+    ``sweep``, identity the scenario file's name): a new or empty folder, or a previous sweep of the same scenario
+    (resumed); ``force`` starts a previous sweep of the same scenario afresh (or replaces one of another scenario).
     """
     fixed = dict(fixed or {})
     clash = set(fixed) & {k for k, _ in params}
@@ -227,12 +322,24 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
         raise ConfigError(scenario, "<file>", "not found")
     if backend not in ("local", "ray"):
         raise ConfigError("--backend", backend, "expected 'local' or 'ray'")
+    check_seeds_and_workers(seeds, workers)
+    from bench.fileio import check_output_dir, claim_output_dir
     from bench.scenario.runner import load_scenario
 
     for overrides, seed in grid(params, seeds[:1]):  # validate every value before launching anything
         load_scenario(scenario, seed, [f"{k}={json.dumps(v)}" for k, v in {**fixed, **overrides}.items()])
     out = Path(out)
-    store = SweepStore(out / "sweep.sqlite")
+    check_output_dir(out, "sweep", force=force, identity=scenario.name)
+    started = _ray_connect(address) if backend == "ray" else False  # a cluster that refuses: nothing written
+    try:
+        claim_output_dir(out, "sweep", force=force, identity=scenario.name)
+        store = SweepStore(out / "sweep.sqlite")
+    except BaseException:
+        if started:
+            import ray
+
+            ray.shutdown()
+        raise
     text = scenario.read_text()
     todo, all_tasks = [], grid(params, seeds)
     finished = store.finished()
@@ -242,7 +349,7 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
         if rid not in finished:
             todo.append((rid, str(scenario.resolve()), full, seed, str((out / "runs" / rid).resolve())))
     bar = _Progress(len(all_tasks), len(all_tasks) - len(todo)) if progress else None
-    stream = _local_backend(todo, workers or os.cpu_count()) if backend == "local" else _ray_backend(todo, address)
+    stream = _local_backend(todo, workers or os.cpu_count()) if backend == "local" else _ray_backend(todo, started)
     for task, row in stream:
         store.add(task[0], task[2], task[3], row)
         if bar:
@@ -365,7 +472,7 @@ def _plot(table, keys, metrics, out):
         ax.legend(fontsize=7)
         fig.tight_layout()
         path = out / f"sweep_{m}.png"
-        fig.savefig(path, dpi=110)
+        atomic_save_figure(fig, path, dpi=110)
         plt.close(fig)
         paths.append(str(path))
     return paths

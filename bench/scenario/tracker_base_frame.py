@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.errors import ConfigError
+from bench.fileio import atomic_save_figure
 from bench.geometry.transforms import homogeneous, random_transform, rot_z, rotation_angle
 from bench.robot.base_from_arcs import (
     base_frame_accuracy,
@@ -275,7 +276,7 @@ def plot_accuracy(table: dict, path) -> str:
     fig.suptitle("Base frame from joint-1/joint-2 arcs (section 2.9): Monte Carlo RMS (o), median (s), "
                  "linear prediction (--), Cramér-Rao bound with the joint readings (:)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    atomic_save_figure(fig, path, dpi=110)
     plt.close(fig)
     return Path(path).name
 

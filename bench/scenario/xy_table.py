@@ -47,6 +47,7 @@ from bench.camera.model import CameraModel
 from bench.camera.presets import load_preset
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
+from bench.fileio import atomic_save_figure
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
 from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
@@ -263,11 +264,12 @@ class OpticsCamera:
     """
 
     def __init__(self, make_xml, lens: CameraModel, optics, supersample: int, cache_dir=None, name="cam",
-                 z_min: float = 0.3):
+                 z_min: float = 0.3, imaging=None):
         import mujoco
 
         from bench.sim.distortion import DistortionStage
         from bench.sim.flatport import FlatPortStage
+        from bench.sim.imaging import ImagingChain
         from bench.sim.medium import cos_beam
 
         self.lens, self.optics, self.name = lens, optics, name
@@ -293,6 +295,10 @@ class OpticsCamera:
         h.update(np.ascontiguousarray(lens.K).tobytes())
         h.update(np.ascontiguousarray(lens.dist).tobytes())
         h.update(repr((lens.width, lens.height, supersample, optics.chain, optics.port)).encode())
+        # imaging: an ImagingProfile (bench.sim.imaging); None or "ideal" is the ideal chain (its cache keys unchanged)
+        self.imaging = None if imaging is None or not imaging.stages else ImagingChain(imaging, lens.K, lens.size)
+        if self.imaging is not None:
+            h.update(imaging.key().encode())
         self._key = h.hexdigest()
         self.cache_dir = Path(cache_dir) if cache_dir else None
         self._renderer = None
@@ -303,7 +309,8 @@ class OpticsCamera:
         import cv2
         import mujoco
 
-        from bench.sim.medium import apply_medium, path_length_m
+        from bench.sim.imaging import apparent_depth_m, finish_image
+        from bench.sim.medium import path_length_m
         from bench.sim.render import SceneRenderer
 
         h = hashlib.sha256(self._key.encode())
@@ -326,12 +333,11 @@ class OpticsCamera:
             water = path_length_m(z, self._rays)
         else:
             out = self.stage.apply(rgb, depth, self.spec.K)
-            img, water = out.image, out.water_path
+            img, water, z = out.image, out.water_path, out.depth
         chain = self.optics.chain
-        img = apply_medium(img, water, np.random.default_rng(seed), chain,
+        focus = None if self.imaging is None else apparent_depth_m(self.optics.port, z, water)
+        img = finish_image(self.imaging, img, water, focus, np.random.default_rng(seed), chain,
                            self._cos if chain.light is not None else None)
-        if img.dtype != np.uint8:
-            img = np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
         self.render_s.append(time.perf_counter() - t0)
         if path is not None:
             self.cache_dir.mkdir(parents=True, exist_ok=True)
@@ -523,6 +529,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                  f"travel_mm: {tm.travel_m * 1e3:g}\nresolution_mm: {tm.resolution_m * 1e3:g}\n"
                  f"resolution_deg: {np.rad2deg(tm.resolution_rad):g}\n")
     with DatasetWriter(out_dataset, kind="xy_table", name=cfg["name"], overwrite=True,
+                       command="sim render", identity=cfg["name"],
                        created_by=f"bench sim render {Path(cfg['_file']).name} (seed {cfg['seed']})") as w:
         for k in range(len(cal_poses)):
             w.add_view(f"cal{k + 1:02d}", images[f"cal{k + 1:02d}"], role="calibration")
@@ -738,7 +745,7 @@ def plot_tables(summary: dict, poses: str, path) -> str:
     fig.suptitle(f"x-y table positioning error vs intraocular distance ({figs}); dashed: the thesis"
                  + ("; dotted: the Cramér-Rao bound" if "bound_x_mm" in summary else ""))
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    atomic_save_figure(fig, path, dpi=110)
     plt.close(fig)
     return Path(path).name
 
