@@ -1,0 +1,158 @@
+"""Integrity of the in-situ localisation on a small render: the known confident-wrong datasets (images swapped between
+views, a duplicated frame) are refused, a clean one is not, the protection levels need no truth, and every fault of
+``bench faults`` damages its copy as described."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+pytest.importorskip("mujoco")
+
+from bench.camera.io import read_camera_yaml, write_camera_yaml  # noqa: E402
+from bench.cli import main  # noqa: E402
+from bench.dataset import load_dataset  # noqa: E402
+from bench.robot.calibration_file import load_calibrated_robot, write_calibrated_robot  # noqa: E402
+from bench.scenario import faults as F  # noqa: E402
+from bench.scenario.runner import kind_module, load_scenario  # noqa: E402
+from bench.vision.integrity import _whiteness  # noqa: E402
+from bench.vision.locate_dataset import locate_dataset  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENARIO = ROOT / "scenarios" / "ta40_in_situ_manifold.yaml"
+# one rig view: the test gives the pipeline the true calibration (oracle files) instead of a lab campaign; in air, where
+# the true camera is central and the oracle files are exact
+SMALL = ["camera.preset=air_webcam", "camera.supersample=1", "lab.rig_views=1", "lab.tracker_poses=10",
+         "outputs.cache=false", "survey.offsets_mm=[[130, 0], [-130, 0], [0, 130], [0, -130]]"]
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """A small rendered dataset and oracle calibration files (the evaluator's: true camera, arm errors, mount)."""
+    tmp = tmp_path_factory.mktemp("integrity")
+    cfg = load_scenario(SCENARIO, seed=3, overrides=SMALL)
+    kind_module("in_situ", SCENARIO).render(cfg, tmp / "ds", verbose=False)
+    ds = load_dataset(tmp / "ds")
+    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
+    cam = read_camera_yaml(ds.camera_path)
+    camera = write_camera_yaml(tmp / "cal" / "camera.yaml", cam.replace(K=np.array(truth["camera_K_effective"]),
+                                                                        dist=np.array(truth["camera_dist"])))
+    robot = write_calibrated_robot(tmp / "cal" / "robot.yaml", ds.robot_path, ds.robot(), np.array(truth["errors"]),
+                                   np.array(truth["T_link5_cam_effective"]), notes="test oracle")
+    return tmp, camera, robot
+
+
+@pytest.fixture(scope="module")
+def fault_rows(rendered):
+    tmp, camera, robot = rendered
+    rows = F.run_faults(tmp / "ds", tmp / "faults", faults=["clean", "swap_images", "duplicate_frame"], seed=0,
+                        camera=camera, robot=robot, verbose=False)
+    return {r["fault"]: r for r in rows}
+
+
+def test_clean_dataset_is_not_refused_and_its_error_lies_inside_the_protection_radius(fault_rows):
+    r = fault_rows["clean"]
+    assert r["integrity"] in ("ok", "warning"), r["reasons"]
+    assert 0 < r["protection_radius_mm"] < 20 and 0 < r["protection_angle_deg"] < 1
+    assert r["pos_err_mm"] <= r["protection_radius_mm"] and r["rot_err_deg"] <= r["protection_angle_deg"]
+    assert not r["silent"]
+
+
+@pytest.mark.parametrize("fault", ["swap_images", "duplicate_frame"])
+def test_confident_wrong_datasets_are_refused(fault_rows, fault):
+    r = fault_rows[fault]
+    assert r["integrity"] == "refused" and r["reasons"], r
+    assert not r["silent"]
+    assert r["protection_radius_mm"] == float("inf")
+
+
+def test_bench_locate_exits_nonzero_on_refusal_and_offers_no_task(rendered, fault_rows, capsys, tmp_path):
+    tmp, camera, robot = rendered
+    ds = tmp / "dup"
+    if not ds.exists():
+        shutil.copytree(tmp / "ds", ds)
+        F.duplicate_frame(ds, F._site_views(load_dataset(ds)), {}, np.random.default_rng(0))
+    rc = main(["locate", str(ds), "--camera", str(camera), "--robot", str(robot), "--out", str(tmp_path / "loc")])
+    out = capsys.readouterr().out
+    assert rc == 1 and "integrity: REFUSED" in out and "consensus" in out
+    rep = json.loads((tmp_path / "loc" / "locate.json").read_text())
+    assert rep["integrity"] == "refused" and rep["integrity_reasons"] and rep["tasks"] == {}
+    assert rep["protection_radius_mm"] is None
+    rc = main(["locate", str(tmp / "ds"), "--camera", str(camera), "--robot", str(robot)])
+    assert rc == 0 and "integrity: " in capsys.readouterr().out
+
+
+def test_protection_levels_need_no_truth(rendered, tmp_path):
+    """The same report with truth/ removed from the dataset: nothing in the integrity comes from it."""
+    tmp, camera, robot = rendered
+    shutil.copytree(tmp / "ds", tmp_path / "ds", ignore=shutil.ignore_patterns("truth"))
+    _, a = locate_dataset(tmp / "ds", None, verbose=False, camera_path=camera, robot_path=robot)
+    _, b = locate_dataset(tmp_path / "ds", None, verbose=False, camera_path=camera, robot_path=robot)
+    for k in ("integrity", "integrity_reasons", "protection_radius_mm", "protection_angle_deg", "integrity_tests"):
+        assert a[k] == b[k], k
+
+
+def test_every_fault_damages_its_copy(rendered, tmp_path):
+    tmp, camera, robot = rendered
+    src = tmp / "ds"
+    roles = F._site_views(load_dataset(src))
+    joints0 = (src / "joints.csv").read_text()
+    for k, name in enumerate(F.FAULTS):
+        work = tmp_path / name / "dataset"
+        shutil.copytree(src, work)
+        cal = {"camera": Path(camera), "robot": Path(robot)}
+        F.FAULTS[name](work, roles, cal, np.random.default_rng([0, k]))
+        images = {p.name for p in (src / "images").iterdir() if (p.read_bytes() != (work / "images" / p.name)
+                                                                 .read_bytes())}
+        joints_changed = (work / "joints.csv").read_text() != joints0
+        cal_changed = cal != {"camera": Path(camera), "robot": Path(robot)}
+        a, b = roles["locate"][:2]
+        expected = {"clean": (set(), False, False), "swap_images": ({f"{a}.png", f"{roles['surround'][1]}.png"},
+                                                                    False, False),
+                    "duplicate_frame": ({f"{b}.png"}, False, False), "joint_log_shift": (set(), True, False),
+                    "joint_offset": (set(), True, False), "mount_bent": (set(), False, True),
+                    "air_calibration": (set(), False, True), "fouled_lens": ({f"{a}.png", f"{b}.png"}, False, False),
+                    "motion_blur": ({f"{a}.png"}, False, False), "turbid": ({f"{a}.png", f"{b}.png"}, False, False),
+                    "new_growth": ({f"{a}.png", f"{b}.png"}, False, False)}[name]
+        assert (images, joints_changed, cal_changed) == expected, name
+    # the calibration faults: a 1 deg / 5 mm bend of the mount, a focal length divided by n_water
+    _, _, T0 = load_calibrated_robot(robot)
+    _, _, T1 = load_calibrated_robot(tmp_path / "mount_bent" / "calibrated_bent" / "robot.yaml")
+    D = np.linalg.inv(T0) @ T1
+    assert np.rad2deg(np.arccos((np.trace(D[:3, :3]) - 1) / 2)) == pytest.approx(1.0, abs=1e-6)
+    fx = read_camera_yaml(tmp_path / "air_calibration" / "calibrated_air" / "camera.yaml").fx
+    assert fx == pytest.approx(read_camera_yaml(camera).fx / F.N_WATER)
+
+
+def test_fault_cli_refuses_a_foreign_out_and_an_unknown_fault(rendered, tmp_path, capsys):
+    tmp, camera, robot = rendered
+    (tmp_path / "foreign").mkdir()
+    (tmp_path / "foreign" / "mine.txt").write_text("x")
+    assert main(["faults", str(tmp / "ds"), "--out", str(tmp_path / "foreign"), "--camera", str(camera),
+                 "--robot", str(robot)]) == 2
+    assert "did not write" in capsys.readouterr().err
+    assert main(["faults", str(tmp / "ds"), "--out", str(tmp_path / "x"), "--fault", "gremlins"]) == 2
+    assert "gremlins" in capsys.readouterr().err
+
+
+def test_whiteness_separates_noise_from_structure():
+    rng = np.random.default_rng(5)
+    uv = rng.uniform(0, 640, (300, 2))
+    noise = rng.normal(0, 0.3, (300, 2))
+    smooth = np.c_[np.sin(uv[:, 0] / 100), np.cos(uv[:, 1] / 100)]  # a model error: neighbours alike
+    assert abs(_whiteness(uv, noise)) < 0.15
+    assert _whiteness(uv, smooth + 0.1 * noise) > 0.8
+    assert np.isnan(_whiteness(uv[:5], noise[:5]))
+
+
+def test_silent_failure_definition():
+    row = {"integrity": "ok", "pos_err_mm": 2.0, "rot_err_deg": 0.01, "protection_radius_mm": 2.5,
+           "protection_angle_deg": 0.05}
+    assert not F.is_silent(row)
+    assert F.is_silent({**row, "pos_err_mm": 2.6})  # beyond the protection radius
+    assert F.is_silent({**row, "protection_radius_mm": 5.0, "pos_err_mm": 3.5})  # beyond 3 mm whatever the radius
+    assert F.is_silent({**row, "rot_err_deg": 0.06})
+    assert not F.is_silent({**row, "integrity": "warning", "pos_err_mm": 50.0})
