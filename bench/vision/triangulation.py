@@ -278,7 +278,7 @@ def reprojection_jacobian(T_ref_cams, p_ref):
     return proj, np.einsum("vnab,vbc->vnac", Jp / z[..., None], P[..., :3])
 
 
-def triangulate_optimal(T_ref_cams, x_n, p0=None, iterations: int = 10) -> Triangulation:
+def triangulate_optimal(T_ref_cams, x_n, *, p0=None, iterations: int = 10) -> Triangulation:
     """Minimum-reprojection-error triangulation (Gauss-Newton on each point), V >= 2 views.
 
     Parameters
