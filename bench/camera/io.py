@@ -22,8 +22,6 @@ which are ignored). Note that OpenCV's own functions ignore ``K[0, 1]`` (they ha
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -33,6 +31,7 @@ from bench.camera.dlt import thesis_parameters
 from bench.camera.heikkila import heikkila_of
 from bench.camera.model import CameraModel
 from bench.errors import ConfigError
+from bench.fileio import atomic_write_text
 
 _KEYS = {"camera_matrix", "dist_coeffs", "image_width", "image_height", "model", "name", "pixel_pitch_mm",
          "intrinsics_eq50", "heikkila_eq75", "extra"}
@@ -95,19 +94,7 @@ def camera_yaml_text(camera: CameraModel, extra: dict | None = None) -> str:
 
 def write_camera_yaml(path, camera: CameraModel, extra: dict | None = None) -> Path:
     """Write ``camera.yaml`` atomically (temporary file in the same folder, then rename); returns the path."""
-    path = Path(path)
-    text = camera_yaml_text(camera, extra)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write_text(path, camera_yaml_text(camera, extra))  # a plain file's permissions (umask)
 
 
 def _numbers(src, key, node) -> np.ndarray:

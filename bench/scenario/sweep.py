@@ -171,8 +171,9 @@ class SweepStore:
 
 
 class _Progress:
-    def __init__(self, total: int, done: int, stream=sys.stderr):
-        self.total, self.done, self.t0, self.stream, self.new = total, done, time.perf_counter(), stream, 0
+    def __init__(self, total: int, done: int, stream=None):
+        self.total, self.done, self.t0, self.new = total, done, time.perf_counter(), 0
+        self.stream = sys.stderr if stream is None else stream  # the current stderr, not the one at import
 
     def step(self, ok: bool = True) -> None:
         self.done += 1
