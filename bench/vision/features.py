@@ -97,6 +97,8 @@ def _read_image(path) -> np.ndarray:
     from bench.dataset import check_image_file
 
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(path, "<file>", "a folder, not an image file")
     if not path.is_file():
         raise ConfigError(path, "<file>", "image not found")
     check_image_file(path)
@@ -136,7 +138,7 @@ def _grey(image, channel_order=None, name="image") -> np.ndarray:
         code = cv2.COLOR_RGB2GRAY if channel_order == "rgb" else cv2.COLOR_BGR2GRAY
         img = cv2.cvtColor(np.ascontiguousarray(img[..., :3]), code)
     if img.ndim != 2 or img.size == 0:
-        raise ValueError(f"{name}: expected an (H, W) grey or (H, W, 3) colour image, got shape "
+        raise ValueError(f"{name}: expected an (H, W) grey or (H, W, 3|4) colour image, got shape "
                          f"{np.asarray(image).shape}")
     return img
 

@@ -50,6 +50,9 @@ from bench.geometry.lines import PARALLEL_TOL, closest_points_between_lines
 METHODS = ("midpoint", "linear", "optimal")
 #: A point counts as in front of a camera when its ray depth exceeds this (m); rejects points at a camera centre.
 MIN_DEPTH_M = 1e-12
+#: Largest departure of a camera pose from a rigid transform (``|R^T R - I|``, last row) that is accepted: a guard
+#: against projection or intrinsic matrices passed as poses, loose enough for the linearised error form (Eq. 9).
+RIGID_TOL = 1e-3
 
 
 @dataclass(frozen=True)
@@ -102,6 +105,14 @@ def _parse(T_ref_cams, x_n, name="x_n", two_views=False):
         raise ValueError("T_ref_cams: expected one (4, 4) camera pose per view, (V, 4, 4)") from None
     if T.ndim != 3 or T.shape[1:] != (4, 4) or not np.all(np.isfinite(T)):
         raise ValueError(f"T_ref_cams: expected finite camera poses (V, 4, 4), one per view, got shape {T.shape}")
+    R = T[:, :3, :3]
+    off = np.maximum(np.abs(T[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1),
+                     np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2)))
+    if np.any(off > RIGID_TOL) or np.any(np.linalg.det(R) < 0):
+        v = int(np.argmax(off)) if np.any(off > RIGID_TOL) else int(np.argmax(np.linalg.det(R) < 0))
+        raise ValueError(f"T_ref_cams: pose {v} is not a rigid transform (|R^T R - I| or last row off by "
+                         f"{off[v]:.2g}, det R = {np.linalg.det(R[v]):.3g}): camera poses T_ref_cam are expected, "
+                         f"not projection matrices")
     try:
         x = np.asarray(x_n, dtype=float)
     except (TypeError, ValueError):

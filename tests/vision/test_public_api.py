@@ -158,6 +158,12 @@ def test_argument_order_is_the_same_for_every_method():
             FUNCTIONS[method](np.stack([T[0], T[1], T[1]]), x)
     with pytest.raises(ValueError, match="exactly 2 views"):
         triangulate_midpoint(np.stack([T[0], T[1], T[1]]), np.stack([x[0], x[1], x[1]]))
+    K4 = np.stack([np.eye(4), np.eye(4)])
+    K4[1, :3, :3] = cam.K  # an intrinsic matrix where a pose belongs
+    with pytest.raises(ValueError, match="pose 1 is not a rigid transform"):
+        triangulate(K4, x)
+    with pytest.raises(ValueError, match="pose 0 is not a rigid transform"):
+        triangulate(np.stack([np.diag([1.0, 1.0, -1.0, 1.0]), T[1]]), x)  # a reflection
     with pytest.raises(ValueError, match="method: expected one of"):
         triangulate(T, x, "dlt")
     with pytest.raises(ValueError, match="cameras: 3 camera models for 2 views"):
@@ -295,6 +301,8 @@ def test_detect_sift_refuses_a_colour_array_without_its_channel_order(tmp_path):
         detect_sift(rgb.astype(np.float32), channel_order="rgb")
     from bench.errors import ConfigError
 
+    with pytest.raises(ConfigError, match="a folder, not an image file"):
+        detect_sift(tmp_path)
     with pytest.raises(ConfigError, match="missing.png: <file>: image not found"):
         detect_sift(tmp_path / "missing.png")
     (tmp_path / "junk.png").write_bytes(b"not an image at all")
