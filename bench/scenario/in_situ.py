@@ -50,6 +50,7 @@ from bench.robot.kinematics import ee_position, forward_kinematics
 from bench.robot.model import load_robot, random_errors
 from bench.robot.orientation import link5_frame
 from bench.scenario.results import write_result, write_table_csv
+from bench.scenario.scene_textures import naming_the_key, texture_paths
 from bench.scenario.schema import required
 from bench.sim.optics_presets import optics_preset
 from bench.vision.handeye import hand_eye_axxb, resolve_target_symmetry
@@ -74,7 +75,8 @@ SCHEMA = {
             "rig_distance_m": (float, 0.9), "eye_base_m": (list, [1.5, 0.7, 0.7])},
     "site": {"panel_width_m": (float, 1.2), "panel_height_m": (float, 0.8), "standoff_m": (float, 0.7),
              "panel_centre_m": (list, [1.55, 0.45, 0.85]), "base_offset_m": (float, 0.3),
-             "base_rot_deg": (float, 10.0), "parking_attempts": (int, 40)},
+             "base_rot_deg": (float, 10.0), "parking_attempts": (int, 40),
+             "textures": (dict, {})},  # face -> image file (bench.scenario.scene_textures)
     "survey": {"depth_resolution_mm": (float, 5.0), "directions": (int, 6), "offsets_mm": (list, [])},
     "task": {"valve": (str, "nearest"), "teach": (bool, True)},
     "locate": {"baseline_mm": (float, 150.0), "motion_m": (float, 0.15), "motion_deg": (float, 5.0)},
@@ -133,6 +135,7 @@ def validate(cfg) -> None:
         if cfg["sources"][key] not in allowed:
             raise ConfigError(src, f"sources.{key}", f"expected one of {', '.join(allowed)}, got "
                                                      f"{cfg['sources'][key]!r}")
+    texture_paths(cfg, "site.textures")
     for row in cfg["survey"]["offsets_mm"]:
         if not (isinstance(row, list) and len(row) == 2):
             raise ConfigError(src, "survey.offsets_mm", f"expected [x_mm, y_mm] pairs, got {row!r}")
@@ -284,7 +287,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     eye_ref = centre - np.array([site["standoff_m"], 0.0, 0.0])
     R_wp = np.column_stack([[0, -1, 0], [0, 0, 1], [-1, 0, 0]]).astype(float)  # panel x, y (up), z (out) in world
     T_world_panel = homogeneous(R_wp, centre)
-    panel = manifold_panel(rng, site["panel_width_m"], site["panel_height_m"], name="panel")
+    with naming_the_key(cfg, "site.textures"):
+        panel = manifold_panel(rng, site["panel_width_m"], site["panel_height_m"], name="panel",
+                               texture_overrides=texture_paths(cfg, "site.textures"))
     # the lab rig: fold line vertical, both boards facing the arm, in front of the nominal base
     rig_origin = _vec(cfg, "lab.eye_base_m", 3) + np.array([cfg["lab"]["rig_distance_m"], 0.0, -0.12])
     T_world_rig = homogeneous(rot_z(3 * np.pi / 4), rig_origin)  # both boards face the arm (-x of the world)

@@ -51,6 +51,7 @@ from bench.fileio import atomic_save_figure
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
 from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
+from bench.scenario.scene_textures import naming_the_key, texture_paths
 from bench.scenario.schema import required
 from bench.vision.features import Features
 from bench.vision.insitu import MapConfig
@@ -90,6 +91,7 @@ SCHEMA = {
         "sensor_noise": (bool, True),           # shot and read noise (false: noise-free 8-bit images)
         "supersample": (int, 2),
         "reference_object": (str, "panel"),     # panel (procedural manifold panel) | rig (calibration rig)
+        "textures": (dict, {}),                  # panel face -> image file (bench.scenario.scene_textures)
         "reference_distance_mm": (float, 700.0),
         "panel_size_m": (list, [0.8, 0.6]),
         "table_errors": (bool, True),           # random positioning errors of the table (false: exact table)
@@ -198,6 +200,7 @@ def _check(cfg):
     _vec(cfg, "sim.mount_bias_deg", 3)
     _vec(cfg, "sim.camera_centre_error_mm", 3)
     _vec(cfg, "sim.panel_size_m", 2)
+    texture_paths(cfg, "sim.textures")
     _ints(cfg, "sim.positions")
     _ints(cfg, "pipeline.map_exclude")
 
@@ -420,7 +423,8 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     if s["reference_object"] == "panel":
         w, h = _vec(cfg, "sim.panel_size_m", 2)
         try:
-            ref_obj = manifold_panel(rng, w, h, name="ref")
+            with naming_the_key(cfg, "sim.textures"):
+                ref_obj = manifold_panel(rng, w, h, name="ref", texture_overrides=texture_paths(cfg, "sim.textures"))
         except ValueError as exc:
             raise ConfigError(cfg["_file"], "sim.panel_size_m", str(exc)) from None
     else:
