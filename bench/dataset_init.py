@@ -127,7 +127,10 @@ def _joint_log(path: Path, units: str | None):
     """``{view: (q_deg (6,), line)}`` from a joint log, through the importer's parser and checks."""
     from bench.robot.importers import _check_joints, _read_table
 
-    table = _read_table(path, "joints", units)["joint"]
+    try:
+        table = _read_table(path, "joints", units)["joint"]
+    except ConfigError as exc:  # the importer's own command calls the flag --units
+        raise ConfigError(exc.source, exc.field, exc.problem.replace("pass --units", "pass --joint-units")) from None
     q_deg = _check_joints(table)
     return {n: (q, ln) for n, q, ln in zip(table.names, q_deg, table.lines, strict=True)}
 
@@ -190,7 +193,7 @@ def init_dataset(out, images=None, joints=None, joint_units: str | None = None, 
     by_key = {}
     for key, (q, ln) in readings.items():
         stem = next((s for s, f in photos.items() if key in (s, f.name)), None)
-        view = stem if stem is not None else key
+        view = stem if stem is not None else (Path(key).stem if Path(key).suffix.lower() in IMAGE_SUFFIXES else key)
         if view in by_key:
             raise ConfigError(jname, f"line {ln}", f"a second row for view {view!r} (first on line {by_key[view][1]})")
         by_key[view] = (q, ln)
@@ -199,8 +202,8 @@ def init_dataset(out, images=None, joints=None, joint_units: str | None = None, 
         view_roles[v] = _role_of(v, role_list, str(images) if v in photos else jname) if role_list else ""
     for v, (_, ln) in by_key.items():
         if v not in photos and view_roles[v] not in READINGS_ONLY_ROLES:
-            raise ConfigError(jname, f"line {ln}", f"view {v!r}: no photo {v}.jpg/.png in {images} (a row without "
-                                                   f"a photo is only allowed for role task)")
+            raise ConfigError(jname, f"line {ln}", f"view {v!r}: no photo {v} (.jpg, .jpeg, .png) in {images} (a "
+                                                   f"row without a photo is only allowed for role task)")
     if kind == "in_situ":
         for v in photos:
             if v not in by_key:
