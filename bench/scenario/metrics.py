@@ -142,6 +142,11 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("parking_attempts", "count", "ROV parkings drawn until views and valve were reachable"),
         Metric("map_points", "count", "map points ¹p"),
         Metric("inliers", "count", "RANSAC + elimination inliers of the alignment"),
+        Metric("integrity_ok", "1 / 0", "1 when the localisation's integrity tests all pass (bench.vision.integrity)"),
+        Metric("integrity_refused", "1 / 0", "1 when the integrity tests refuse the pose (do not use it)"),
+        Metric("protection_radius_mm", "mm", "protection radius of the base position (covariance inflated by the "
+               "integrity tests; null when refused)"),
+        Metric("protection_angle_deg", "deg", "protection angle of the base rotation (null when refused)"),
         Metric("insitu_solve_s", "s", "two new views → base pose (match, triangulate, align, refine), map given"),
         Metric("base_pos_err_mm", "mm", "located base displacement vs the truth, position"),
         Metric("base_rot_err_deg", "deg", "located base displacement vs the truth, rotation"),
