@@ -172,9 +172,13 @@ def _add_force_flag(parsers) -> None:
                             "bench did not write, nor another command's output)")
 
 
-def _output_guard(args, stack) -> None:
-    """``locate --out`` and ``calibrate-camera --out`` write their folder at the end: refuse a foreign one now, mark
-    what they wrote when they end (:func:`bench.fileio.writing_output_dir`); the other commands claim their own."""
+def _preflight(args, stack) -> None:
+    """Checks before any work: a negative ``--seed`` (any command); ``locate --out`` and ``calibrate-camera --out``
+    write their folder at the end: refuse a foreign one now, mark what they wrote when they end
+    (:func:`bench.fileio.writing_output_dir`); the other commands claim their own."""
+    seed = getattr(args, "seed", None)
+    if seed is not None and seed < 0:
+        raise BenchError(f"--seed: expected a non-negative integer, got {seed}")
     if args.command in ("locate", "calibrate-camera") and getattr(args, "out", None):
         from bench.fileio import writing_output_dir
 
@@ -292,7 +296,7 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     stack = contextlib.ExitStack()
     try:
-        _output_guard(args, stack)
+        _preflight(args, stack)
         if args.command == "run":
             from bench.scenario.runner import run_scenario_file
 

@@ -59,7 +59,7 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
     metrics = module.BUDGET_METRICS
     variants = {"full": {}, **{s: dict(o) for s, o in sources.items()},
                 "none": {k: v for o in sources.values() for k, v in o.items()}}
-    check_seeds_and_workers(seeds, workers)
+    check_seeds_and_workers(seeds, workers, backend, address)
     for overrides in variants.values():  # every variant's values, before anything is created
         base = {**getattr(module, "BUDGET_FIXED", {}), **(fixed or {}), **overrides}
         load_scenario(scenario, seeds[0], [f"{k}={json.dumps(v)}" for k, v in base.items()])

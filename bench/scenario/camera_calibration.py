@@ -180,6 +180,11 @@ def _check(cfg):
         raise ConfigError(src, "pipeline.model", f"expected heikkila, radial or pinhole, got {p['model']!r}")
 
 
+def validate(cfg) -> None:
+    """The value checks, run by ``load_scenario`` before anything is created or rendered (also by sweeps)."""
+    _check(cfg)
+
+
 def media(cfg) -> tuple:
     """The media of the scenario, ``("air",)``, ``("water",)`` or ``("air", "water")``."""
     return MEDIA[cfg["camera"]["medium"]]

@@ -111,6 +111,41 @@ def _vec(cfg, key, n):
     return np.array(v, dtype=float)
 
 
+def _check_ranges(cfg) -> None:
+    """Signs, counts and units of the numbers the schema only types (each message names the user's key and unit)."""
+    src = cfg["_file"]
+    nonneg = {"truth.error_trans_mm": "mm", "truth.error_rot_deg": "deg", "truth.focal_error_pct": "%",
+              "truth.principal_error_px": "px", "encoders.noise_deg": "deg", "encoders.resolution_deg": "deg",
+              "site.base_offset_m": "m", "site.base_rot_deg": "deg", "locate.motion_m": "m",
+              "locate.motion_deg": "deg", "pipeline.r_lim": "(a ratio)", "bound.mc_trials": "trials"}
+    for key, unit in nonneg.items():
+        sec, k = key.split(".")
+        if cfg[sec][k] < 0:
+            raise ConfigError(src, key, f"must be >= 0 {unit}, got {cfg[sec][k]}")
+    for key in ("encoders.noise_deg", "encoders.resolution_deg"):
+        sec, k = key.split(".")
+        if cfg[sec][k] > 5.0:  # EncoderModel refuses > 0.1 rad: say it in the user's unit
+            raise ConfigError(src, key, f"{cfg[sec][k]} deg is implausible for an encoder (the unit is deg)")
+    for key, unit in {"site.panel_width_m": "m", "site.panel_height_m": "m", "lab.rig_distance_m": "m",
+                      "pipeline.d_r_mm": "mm"}.items():
+        sec, k = key.split(".")
+        if cfg[sec][k] <= 0:
+            raise ConfigError(src, key, f"must be > 0 {unit}, got {cfg[sec][k]}")
+    if cfg["pipeline"]["ransac_iterations"] < 1:
+        raise ConfigError(src, "pipeline.ransac_iterations",
+                          f"must be >= 1, got {cfg['pipeline']['ransac_iterations']}")
+    # the lab calibration identifies the arm from the tracker points (3 equations each) and the camera from the rig
+    robot = load_robot(Path(src).parent / cfg["robot"])
+    n_params = len(closed_form_reduction(robot).kept)
+    n = cfg["lab"]["tracker_poses"]
+    if 3 * n < n_params:
+        raise ConfigError(src, "lab.tracker_poses", f"{n} poses give {3 * n} equations for {n_params} identifiable "
+                                                    f"errors; need at least {-(-n_params // 3)}")
+    if cfg["lab"]["rig_views"] < 3:
+        raise ConfigError(src, "lab.rig_views", f"{cfg['lab']['rig_views']} views; the camera calibration needs the "
+                                                "rig in at least 3")
+
+
 def validate(cfg) -> None:
     """Value checks beyond the schema (one-line ConfigError naming the key); also run by ``bench sweep`` up front."""
     src = cfg["_file"]
@@ -125,6 +160,7 @@ def validate(cfg) -> None:
             raise ConfigError(src, key, f"must be > 0, got {cfg[sec][k]}")
     if cfg["lab"]["tracker_sigma_mm"] > 50:
         raise ConfigError(src, "lab.tracker_sigma_mm", "implausible: the unit is mm")
+    _check_ranges(cfg)
     if cfg["pipeline"]["method"] not in ("svd", "horn", "rodrigues"):
         raise ConfigError(src, "pipeline.method", "expected svd, horn or rodrigues")
     if cfg["pipeline"]["refine"] not in ("none", "pose", "bundle"):

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.errors import ConfigError
+from bench.errors import BenchError, ConfigError
 from bench.fileio import claimed_output_dir
 from bench.scenario.schema import apply_overrides, load_yaml, validate
 
@@ -38,7 +38,7 @@ def load_scenario(path, seed=None, overrides=()) -> dict:
     cfg = validate(raw, module.SCHEMA, str(path))
     if seed is not None:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise ConfigError("--seed", "<seed>", f"expected a non-negative integer, got {seed!r}")
+            raise BenchError(f"--seed: expected a non-negative integer, got {seed!r}")
         cfg["seed"] = int(seed)
     elif "seed" in cfg and (not isinstance(cfg["seed"], int) or cfg["seed"] < 0):
         raise ConfigError(path, "seed", f"expected a non-negative integer, got {cfg['seed']!r}")

@@ -62,6 +62,8 @@ def parse_param(spec: str, source: str = "--param") -> tuple:
     key = key.strip()
     if not key:
         raise ConfigError(source, spec, "empty key")
+    if not raw.strip() or any(not item.strip() for item in raw.split(",")) and not raw.strip().startswith("["):
+        raise ConfigError(source, key, f"an empty value in {raw!r} (expected V1,V2,...)")
     try:
         parsed = yaml.safe_load(raw)
     except yaml.YAMLError:
@@ -292,17 +294,21 @@ def _ray_backend(tasks, started: bool):
             ray.shutdown()
 
 
-def check_seeds_and_workers(seeds: list, workers) -> None:
-    """Refuse, before anything is created, seeds that are not non-negative integers and a worker count below 1
-    (``None`` = one worker per core); the messages name the command-line options."""
+def check_seeds_and_workers(seeds: list, workers, backend: str = "local", address=None) -> None:
+    """Refuse, before anything is created, seeds that are not non-negative integers, a worker count below 1
+    (``None`` = one worker per core) and options of the other backend; the messages name the command-line options."""
+    if backend == "local" and address:
+        raise BenchError(f"--address {address}: a Ray cluster's address; add --backend ray (or drop --address)")
+    if backend == "ray" and workers is not None:
+        raise BenchError("--workers: the local backend's process count; Ray runs on the cluster's CPUs")
     if not len(seeds):
-        raise ConfigError("--seeds", "<count>", "must be >= 1, got no seeds")
+        raise BenchError("--seeds: must be >= 1, got no seeds")
     for s in seeds:
         if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0:
-            raise ConfigError("--seed", "<first seed>", f"expected a non-negative integer, got {s!r}")
+            raise BenchError(f"--seed: expected a non-negative integer (the first seed), got {s!r}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
                                 or workers < 1):
-        raise ConfigError("--workers", "<count>", f"must be >= 1 (omit it for one per core), got {workers!r}")
+        raise BenchError(f"--workers: must be >= 1 (omit it for one per core), got {workers!r}")
 
 
 def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", address=None, workers=None,
@@ -323,7 +329,7 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
         raise ConfigError(scenario, "<file>", "not found")
     if backend not in ("local", "ray"):
         raise ConfigError("--backend", backend, "expected 'local' or 'ray'")
-    check_seeds_and_workers(seeds, workers)
+    check_seeds_and_workers(seeds, workers, backend, address)
     from bench.fileio import check_output_dir, claim_output_dir
     from bench.scenario.runner import load_scenario
 
