@@ -41,30 +41,12 @@ import yaml
 
 from bench.dataset import load_dataset
 from bench.errors import ConfigError
-from bench.fileio import atomic_write_text
+from bench.fileio import atomic_write_text, claimed_output_dir
 from bench.geometry.transforms import homogeneous, invert, rotation_angle
 
 #: A position error above this is a failure whatever the protection radius (the alert limit of the issue, mm).
 SILENT_MM = 3.0
 N_WATER = 1.333
-MARKER = ".bench-faults"
-
-
-def _claim(out: Path, force: bool) -> Path:
-    """``--out``: a new or empty folder, or an earlier output of ``bench faults`` (replaced with ``force`` only)."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(out, "--out", "is a file, not a folder")
-    if out.is_dir() and any(out.iterdir()):
-        if not (out / MARKER).is_file():
-            raise ConfigError(out, "--out", "a non-empty folder that bench faults did not write; choose a new or "
-                                            "empty folder")
-        if not force:
-            raise ConfigError(out, "--out", "holds an earlier output of bench faults; --force replaces it")
-        shutil.rmtree(out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / MARKER).write_text("bench faults output\n")
-    return out
 
 
 def _site_views(ds):
@@ -279,10 +261,10 @@ def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None
     """Inject each fault into a copy of ``dataset``, localise, score; writes ``out/faults.csv`` and ``faults.json``.
 
     Returns the rows (dicts). ``camera`` / ``robot``: the lab calibration's files (default: calibrated here from the
-    dataset's rig views and tracker points).
+    dataset's rig views and tracker points). ``out`` is claimed as ``bench faults``' output
+    (:func:`bench.fileio.claimed_output_dir`): a foreign folder is refused; ``force`` replaces only an earlier output
+    of ``bench faults``.
     """
-    from bench.vision.locate_dataset import locate_dataset
-
     dataset = Path(dataset)
     ds = load_dataset(dataset)
     if not (dataset / "truth" / "truth.yaml").is_file():
@@ -292,7 +274,15 @@ def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None
     for f in names:
         if f not in FAULTS:
             raise ConfigError("--fault", f, f"unknown fault (known: {', '.join(FAULTS)})")
-    out = _claim(out, force)
+    # --out: claimed as bench faults' output before any work (bench.fileio); removed again if the run fails
+    with claimed_output_dir(out, "faults", force=force, identity=str(dataset.resolve())) as out:
+        rows = _run_faults(dataset, out, names, roles, seed, camera, robot, verbose)
+    return rows
+
+
+def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose) -> list:
+    from bench.vision.locate_dataset import locate_dataset
+
     if camera is None or robot is None:
         cal0 = lab_calibration(dataset, out / "calibrated")
         camera, robot = camera or cal0["camera"], robot or cal0["robot"]

@@ -123,7 +123,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     report = {"dataset": str(ds.root), "success": res.success, "message": res.message, "map_points": len(kmap),
               "map_stats": kmap.stats, "n_matches": res.n_matches, "inliers": res.n_inliers,
               "condition": res.condition, "method": "pnp" if pnp else method, **integ.report(),
-              "timings_s": res.timings_s}
+              "timings_s": res.timings_s, "tasks": {}}  # no task is offered without a pose
     if res.success:
         T = res.T_world_base
         std = np.sqrt(np.clip(np.diag(res.covariance), 0.0, None))

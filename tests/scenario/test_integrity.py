@@ -23,9 +23,9 @@ from bench.vision.locate_dataset import locate_dataset  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO = ROOT / "scenarios" / "ta40_in_situ_manifold.yaml"
-# one rig view: the test gives the pipeline the true calibration (oracle files) instead of a lab campaign; in air, where
-# the true camera is central and the oracle files are exact
-SMALL = ["camera.preset=air_webcam", "camera.supersample=1", "lab.rig_views=1", "lab.tracker_poses=10",
+# three rig views (the fewest the kind accepts; unused): the test gives the pipeline the true calibration (oracle
+# files) instead of a lab campaign; in air, where the true camera is central and the oracle files are exact
+SMALL = ["camera.preset=air_webcam", "camera.supersample=1", "lab.rig_views=3", "lab.tracker_poses=10",
          "outputs.cache=false", "survey.offsets_mm=[[130, 0], [-130, 0], [0, 130], [0, -130]]"]
 
 
@@ -39,7 +39,8 @@ def rendered(tmp_path_factory):
     truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
     cam = read_camera_yaml(ds.camera_path)
     camera = write_camera_yaml(tmp / "cal" / "camera.yaml", cam.replace(K=np.array(truth["camera_K_effective"]),
-                                                                        dist=np.array(truth["camera_dist"])))
+                                                                        dist=np.array(truth["camera_dist"]),
+                                                                        model=None))
     robot = write_calibrated_robot(tmp / "cal" / "robot.yaml", ds.robot_path, ds.robot(), np.array(truth["errors"]),
                                    np.array(truth["T_link5_cam_effective"]), notes="test oracle")
     return tmp, camera, robot
@@ -156,3 +157,27 @@ def test_silent_failure_definition():
     assert F.is_silent({**row, "protection_radius_mm": 5.0, "pos_err_mm": 3.5})  # beyond 3 mm whatever the radius
     assert F.is_silent({**row, "rot_err_deg": 0.06})
     assert not F.is_silent({**row, "integrity": "warning", "pos_err_mm": 50.0})
+
+
+def test_fault_out_uses_the_shared_output_claim(rendered, tmp_path, capsys):
+    """bench faults claims --out through bench.fileio: another command's output is refused even with --force, an
+    earlier bench faults output of another dataset needs --force, and a refused call leaves the folder as it was."""
+    from bench.fileio import OUTPUT_MARKER, mark_output_dir, output_marker
+
+    tmp, camera, robot = rendered
+    other = tmp_path / "rendered"
+    other.mkdir()
+    (other / "manifest.yaml").write_text("x")
+    mark_output_dir(other, "sim render", identity="demo")
+    before = {p.name: p.read_bytes() for p in other.iterdir()}
+    assert main(["faults", str(tmp / "ds"), "--out", str(other), "--force", "--fault", "clean"]) == 2
+    assert "bench sim render" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in other.iterdir()} == before
+    earlier = tmp_path / "earlier"
+    earlier.mkdir()
+    (earlier / "faults.csv").write_text("fault\n")
+    mark_output_dir(earlier, "faults", identity=str(tmp_path / "another_dataset"))
+    assert main(["faults", str(tmp / "ds"), "--out", str(earlier), "--fault", "clean"]) == 2
+    assert "--force" in capsys.readouterr().err
+    assert output_marker(earlier)["identity"] == str(tmp_path / "another_dataset")
+    assert (tmp / "faults" / OUTPUT_MARKER).is_file() and output_marker(tmp / "faults")["command"] == "faults"
