@@ -128,8 +128,32 @@ def test_recording_loads_back_with_the_run_s_values(smoke_run):
     colors = np.array(e["/world/map/p2"]["Points3D:colors"][0], dtype=np.uint32)
     green = (40 << 24) | (200 << 16) | (60 << 8) | 255
     assert int(np.sum(colors == green)) == m["inliers"]
-    assert "/world/task/valve" in e and "/world/task/arm_compensated" in e and "/summary" in e
-    assert len(e["/world/arm/true"]["LineStrips3D:strips"]) == len(views)
+    assert "/world/task/valve" in e and "/world/task/arm_uncompensated/link6" in e and "/summary" in e
+    # the compensated arm exists when the task was re-targeted (not on a refused localisation)
+    assert ("/world/task/arm_compensated/link6" in e) == bool(np.isfinite(m["valve_tool_err_mm"]))
+    # the arm as meshes: one pose of every link per view, its meshes once
+    assert len(e["/world/arm/link6"]["Transform3D:translation"]) == len(views)
+    assert len(e["/world/arm/link6/solid"]["Mesh3D:vertex_positions"]) == 1
+    # the panel as the simulator built it: its textured backplate, its valves where truth.yaml has them
+    assert "Mesh3D:albedo_texture_buffer" in e["/world/site/panel/panel_backplate"]
+    for valve, v in truth["valves_world"].items():  # seeded draws: the body's stem axis and the true handle
+        body = f"/world/site/panel_{valve}"
+        assert np.allclose(rotation(body)[:, 2], v["axis"], atol=1e-6)
+        assert np.allclose(np.cross(np.array(v["centre"]) - translation(body), v["axis"]), 0, atol=1e-6)
+    assert "/world/lab/rig/rig_board_a/solid" in e
+    # the zoomed base view: the arrow is the error exaggerated by the factor the view's name states
+    from bench.scenario.recording import load_blueprint
+
+    bp = load_blueprint(out / "recording.rrd")
+    zoom = [n for n in bp if n.startswith("base error x")]
+    assert len(zoom) == 1 and bp[zoom[0]]["origin"] == "/base_error"
+    k = float(zoom[0].split("x")[1].split()[0])
+    arrow = np.array(e["/base_error/error"]["Arrows3D:vectors"][0][0])
+    assert np.linalg.norm(arrow) / k * 1e3 == pytest.approx(m["base_pos_err_mm"], rel=1e-6)
+    assert bp["site: arm, panel, cameras, map, base frames"]["origin"] == "/world"
+    locate = [n for n in bp if n.startswith("locate")]
+    assert len(locate) == 2 and all(f"{bp[n]['origin']}/image/matches" in e for n in locate)
+    assert all(f"{bp[n]['origin']}/image/residuals" in e for n in locate)
 
 
 def test_every_error_source_off_is_exact(tmp_path):
