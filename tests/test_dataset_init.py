@@ -147,3 +147,17 @@ def test_init_needs_the_target_for_rig_views_and_a_camera_of_the_photos_size(tmp
     assert main(argv) == 2
     assert "the camera file says 640x480" in capsys.readouterr().err
     assert not (tmp_path / "ds").exists()
+
+
+def test_urdf_export_without_effort_and_velocity_warns(tmp_path, capsys):
+    """URDF needs effort and velocity limits that the robot file does not know: 0 is never written silently."""
+    out = tmp_path / "a.urdf"
+    assert main(["export", str(default_robot_path()), "--format", "urdf", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: URDF joint limits" in err and "--velocity-deg-s" in err
+    assert 'effort="0"' in out.read_text() and "0 = unknown" in out.read_text()
+    out2 = tmp_path / "b.urdf"
+    assert main(["export", str(default_robot_path()), "--format", "urdf", "--out", str(out2), "--velocity-deg-s",
+                 "30", "--effort-nm", "2000"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert 'effort="2000"' in out2.read_text() and 'effort="0"' not in out2.read_text()

@@ -340,14 +340,19 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     az = np.linspace(-25, 25, n_rig) * DEG
     el = 12 * DEG * np.sin(np.linspace(0, 2 * np.pi, n_rig, endpoint=False))
     q_seed = q_home
+    unreachable = []  # requested rig views the arm cannot take (reported, not silently dropped)
     for k in range(n_rig):
         d = cfg["lab"]["rig_distance_m"]
         direction = np.array([np.cos(el[k]) * np.cos(az[k]), np.cos(el[k]) * np.sin(az[k]), np.sin(el[k])])
         eye = rig_centre - d * direction
         sol = _plan(robot, np.eye(4), eye, rig_centre, mount_nominal, q_seed if k else None)
         if not sol.success:
+            unreachable.append(f"rig{k:02d} ({sol.message})")
             continue
         views.append((f"rig{k:02d}", "rig", np.eye(4), sol.q))
+    if unreachable and verbose:
+        print(f"warning: {len(unreachable)} of {n_rig} requested rig views not reachable, not rendered (truth/"
+              f"sim_checks.json: rig_views_unreachable): {'; '.join(unreachable)}", file=sys.stderr)
         q_seed = sol.q
 
     # --- site: parking 1 (survey, task taught) and parking 2 (locate, task executed) ---------------------------------
@@ -473,6 +478,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                   if role in ("reference", "surround")]
         checks["panel_sift_keypoints"] = float(np.median(counts))
         checks["views_rendered"] = float(len(render_s))
+        checks["rig_views_unreachable"] = float(len(unreachable))
         checks["plan_s"] = t_plan
         checks["parking_attempts"] = float(parkings)
         w.write_text("truth/sim_checks.json", json.dumps(checks, indent=2) + "\n")
