@@ -69,13 +69,15 @@ SCHEMA = {
               "mount_bias_mm": (list, [2.0, -1.5, 3.0]),
               "mount_bias_deg": (list, [0.5, -0.8, 1.0]), "focal_error_pct": (float, 1.5),
               "principal_error_px": (float, 4.0)},
-    "camera": {"preset": (str, "air_webcam"), "supersample": (int, 2)},
+    "camera": {"preset": (str, "air_webcam"), "supersample": (int, 2), "imaging": (str, "realistic"),
+               "imaging_off": (list, [])},
     "encoders": {"noise_deg": (float, 0.002), "resolution_deg": (float, 0.001)},
     "lab": {"tracker_poses": (int, 100), "tracker_sigma_mm": (float, 0.05), "rig_views": (int, 10),
             "rig_distance_m": (float, 0.9), "eye_base_m": (list, [1.5, 0.7, 0.7])},
     "site": {"panel_width_m": (float, 1.2), "panel_height_m": (float, 0.8), "standoff_m": (float, 0.7),
              "panel_centre_m": (list, [1.55, 0.45, 0.85]), "base_offset_m": (float, 0.3),
              "base_rot_deg": (float, 10.0), "parking_attempts": (int, 40),
+             "water": (str, "preset"),  # the water body (bench.sim.medium.WATER_PRESETS), or the camera preset's own
              "textures": (dict, {})},  # face -> image file (bench.scenario.scene_textures)
     "survey": {"depth_resolution_mm": (float, 5.0), "directions": (int, 6), "offsets_mm": (list, [])},
     "task": {"valve": (str, "nearest"), "teach": (bool, True)},
@@ -109,6 +111,37 @@ def _vec(cfg, key, n):
     if len(v) != n or not all(isinstance(x, (int, float)) and np.isfinite(x) for x in v):
         raise ConfigError(cfg["_file"], key, f"expected {n} numbers, got {v!r}")
     return np.array(v, dtype=float)
+
+
+def imaging(cfg):
+    """The scenario's imaging profile (``camera.imaging``, ``camera.imaging_off``: :mod:`bench.sim.imaging`)."""
+    from bench.sim.imaging import profile_from_config
+
+    return profile_from_config(cfg["camera"], cfg["_file"], "camera.imaging")
+
+
+def site_optics(cfg):
+    """The camera preset's optics (``camera.preset``) in the scenario's water (``site.water``).
+
+    ``site.water: preset`` keeps the preset's own water (``coastal`` for ``underwater_in_water``, none in air);
+    a name of :data:`bench.sim.medium.WATER_PRESETS` replaces it, which needs a camera in water (a port into the
+    sea). Unknown names and a water for a camera in air are one-line errors naming the key."""
+    from bench.sim.medium import WATER_PRESETS
+
+    src, water = cfg["_file"], cfg["site"]["water"]
+    try:
+        base = optics_preset(cfg["camera"]["preset"])
+    except ValueError as exc:
+        raise ConfigError(src, "camera.preset", str(exc)) from None
+    if water == "preset":
+        return base
+    if water not in WATER_PRESETS:
+        raise ConfigError(src, "site.water", f"unknown water {water!r} (known: preset, "
+                                             f"{', '.join(sorted(WATER_PRESETS))})")
+    if base.port is None or base.port.n_water == base.port.n_air:
+        raise ConfigError(src, "site.water", f"{water!r} needs a camera in water (camera.preset: underwater_in_water"
+                                             f"), but camera.preset {cfg['camera']['preset']!r} is in air")
+    return optics_preset(cfg["camera"]["preset"], overrides={"water": {"preset": water}})
 
 
 def _check_ranges(cfg) -> None:
@@ -149,6 +182,8 @@ def _check_ranges(cfg) -> None:
 def validate(cfg) -> None:
     """Value checks beyond the schema (one-line ConfigError naming the key); also run by ``bench sweep`` up front."""
     src = cfg["_file"]
+    imaging(cfg)
+    site_optics(cfg)
     for key in ("camera.supersample", "lab.tracker_poses", "lab.rig_views", "survey.directions",
                 "site.parking_attempts"):
         sec, k = key.split(".")
@@ -186,17 +221,17 @@ def _truth(cfg, robot, rng):
     mount = homogeneous(rot_z(t["mount_roll_deg"] * DEG), _vec(cfg, "truth.mount_mm", 3) * 1e-3)
     b = _vec(cfg, "truth.mount_bias_deg", 3) * DEG  # thesis theta_x0, theta_y0, theta_z0 (Eq. 197, as labelled)
     bias = homogeneous(rot_y(b[1]) @ rot_x(b[0]) @ rot_z(b[2]), _vec(cfg, "truth.mount_bias_mm", 3) * 1e-3)
-    try:
-        optics = optics_preset(cfg["camera"]["preset"])
-    except ValueError as exc:
-        raise ConfigError(cfg["_file"], "camera.preset", str(exc)) from None
+    optics = site_optics(cfg)  # camera.preset in site.water
     nominal_cam = load_preset(optics.nominal_camera)  # the specification the pipeline is given
     lens = load_preset(optics.lens_camera)  # the lens inside the housing (= the whole camera in air)
     K = lens.K.copy()
     K[0, 0] *= 1 + rng.uniform(-1, 1) * t["focal_error_pct"] / 100
     K[1, 1] *= 1 + rng.uniform(-1, 1) * t["focal_error_pct"] / 100
     K[:2, 2] += rng.uniform(-1, 1, 2) * t["principal_error_px"]
-    true_cam = lens.replace(K=K, name=f"{lens.name} (true)")
+    from bench.sim.imaging import lens_distortion
+
+    dist = lens_distortion(imaging(cfg), lens.dist)  # realistic imaging: the real webcam's measured distortion
+    true_cam = lens.replace(K=K, dist=dist, model=None, name=f"{lens.name} (true)")
     return eps, mount, mount @ bias, nominal_cam, true_cam, optics
 
 
@@ -329,7 +364,11 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     # the lab rig: fold line vertical, both boards facing the arm, in front of the nominal base
     rig_origin = _vec(cfg, "lab.eye_base_m", 3) + np.array([cfg["lab"]["rig_distance_m"], 0.0, -0.12])
     T_world_rig = homogeneous(rot_z(3 * np.pi / 4), rig_origin)  # both boards face the arm (-x of the world)
-    rig = calibration_rig(name="rig")
+    from bench.sim.imaging import target_geometry
+
+    profile = imaging(cfg)
+    rig = calibration_rig(name="rig", errors=None if not profile.stages else target_geometry(
+        profile, 7, np.random.default_rng(np.random.SeedSequence([cfg["seed"], 0x7A12]))))
     rig_centre = transform_points(T_world_rig, rig.features["corners"]).mean(axis=0)
 
     views = []  # (name, role, T_world_base, q_true)
@@ -403,7 +442,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         key = (role == "rig",) + tuple(np.round(T_wb, 12).ravel())
         if key not in scenes:
             scenes[key] = ArmScene(robot, eps, T_wb, mount_true, true_cam, objects[role], ss, optics.chain, cache_dir,
-                                   T_link5_mount=mount_nominal, port=port)
+                                   T_link5_mount=mount_nominal, port=port, imaging=imaging(cfg))
         images[name] = scenes[key].render(q, seed=cfg["seed"] * 1000 + n)
         readings[name] = enc.read(q, rng_enc)
         if verbose:

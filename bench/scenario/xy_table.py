@@ -90,6 +90,8 @@ SCHEMA = {
         "port": (bool, True),                   # keep the preset's housing glass (false: no port)
         "sensor_noise": (bool, True),           # shot and read noise (false: noise-free 8-bit images)
         "supersample": (int, 2),
+        "imaging": (str, "realistic"),          # realistic | ideal (bench.sim.imaging)
+        "imaging_off": (list, []),              # stages of the realistic profile switched off (ablation)
         "reference_object": (str, "panel"),     # panel (procedural manifold panel) | rig (calibration rig)
         "textures": (dict, {}),                  # panel face -> image file (bench.scenario.scene_textures)
         "reference_distance_mm": (float, 700.0),
@@ -160,8 +162,25 @@ def _ints(cfg, key):
     return [int(x) for x in v]
 
 
+def imaging(cfg):
+    """The scenario's imaging profile (``sim.imaging``, ``sim.imaging_off``: :mod:`bench.sim.imaging`)."""
+    from bench.sim.imaging import profile_from_config
+
+    return profile_from_config(cfg["sim"], cfg["_file"], "sim.imaging")
+
+
+def _rig_errors(cfg, profile, salt):
+    """Geometry errors of a printed rig (:func:`bench.sim.imaging.target_geometry`) from a generator of its own."""
+    from bench.sim.imaging import target_geometry
+
+    if not profile.stages:
+        return None
+    return target_geometry(profile, 7, np.random.default_rng(np.random.SeedSequence([cfg["seed"], salt])))
+
+
 def _check(cfg):
     src, s, p = cfg["_file"], cfg["sim"], cfg["pipeline"]
+    imaging(cfg)
     choices = {"sim.poses": ("table4", "table10"), "sim.reference_object": ("panel", "rig"),
                "pipeline.camera": CAMERA_CHOICES, "pipeline.mount_bias": BIAS_CHOICES,
                "pipeline.features": FEATURE_CHOICES, "pipeline.camera_model": ("heikkila", "radial", "pinhole"),
@@ -379,7 +398,10 @@ def _true_camera(cfg, rng, lens: CameraModel) -> CameraModel:
     K[1, 1] *= 1 + rng.uniform(-1, 1) * s["focal_error_pct"] / 100
     K[:2, 2] += rng.uniform(-1, 1, 2) * s["principal_error_px"]
     dist = lens.dist * (1 + rng.uniform(-1, 1, lens.dist.shape) * s["distortion_error_pct"] / 100)
-    return lens.replace(K=K, dist=dist, name=f"{lens.name} (true)")
+    from bench.sim.imaging import lens_distortion
+
+    dist = lens_distortion(imaging(cfg), dist)  # realistic imaging: the real webcam's measured distortion on top
+    return lens.replace(K=K, dist=dist, model=None, name=f"{lens.name} (true)")
 
 
 def _calibration_poses(n, distance_m, rng):
@@ -415,6 +437,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     numbers, tm, run = _campaign(cfg, rng)
     errors = tm.errors
     optics = _optics(cfg)
+    profile = imaging(cfg)
     nominal_cam = load_preset(optics.nominal_camera)
     lens = _true_camera(cfg, rng, load_preset(optics.lens_camera))
     b = _vec(cfg, "sim.mount_bias_deg", 3) * DEG
@@ -428,7 +451,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         except ValueError as exc:
             raise ConfigError(cfg["_file"], "sim.panel_size_m", str(exc)) from None
     else:
-        ref_obj = calibration_rig(name="ref")
+        ref_obj = calibration_rig(name="ref", errors=_rig_errors(cfg, profile, 0x7A13))
     # the experimenter puts the object where the camera sees it: its centre (the panel's face centre, the rig's
     # pattern centroid) on the reference view's TRUE optical axis, reference_distance_mm from the camera centre;
     # its orientation faces the table (-z), as reference_pose() sets it
@@ -447,7 +470,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         return compose([obj], offscreen=(spec.width, spec.height), center=(0.0, dist_m / 2, 0.4), extent=2.0)
 
     # the calibration rig (a scene of its own) stands as it would in front of the table; views around its centre
-    rig = calibration_rig(name="calrig")
+    rig = calibration_rig(name="calrig", errors=_rig_errors(cfg, profile, 0x7A12))
     T_table_rig = reference_pose(rig, 1.0)
     T_world_rig = DEFAULT_T_WORLD_TABLE @ T_table_rig
     c_table = transform_points(T_table_rig, rig.features["corners"]).mean(axis=0)
@@ -460,8 +483,8 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         return compose([place(rig, T_world_rig)], extra, offscreen=(spec.width, spec.height),
                        center=T_world_rig[:3, 3], extent=2.0)
 
-    scene = OpticsCamera(table_xml, lens, optics, s["supersample"], cache_dir, "xy_cam", z_min)
-    cal_scene = OpticsCamera(cal_xml, lens, optics, s["supersample"], cache_dir, "xy_cam", z_min)
+    scene = OpticsCamera(table_xml, lens, optics, s["supersample"], cache_dir, "xy_cam", z_min, profile)
+    cal_scene = OpticsCamera(cal_xml, lens, optics, s["supersample"], cache_dir, "xy_cam", z_min, profile)
     jadr = [scene.model.joint(n).qposadr[0] for n in tm.joint_names]
     images = {}
     n_total = len(numbers) + len(cal_poses)

@@ -22,7 +22,8 @@ import numpy as np
 from bench.camera.model import CameraModel
 from bench.sim.distortion import DistortionStage
 from bench.sim.flatport import FlatPortStage
-from bench.sim.medium import MediumChain, apply_medium, cos_beam, path_length_m
+from bench.sim.imaging import apparent_depth_m, finish_image
+from bench.sim.medium import MediumChain, cos_beam, path_length_m
 from bench.sim.mjcf import robot_object
 from bench.sim.render import SceneRenderer
 from bench.sim.scenes.base import compose, place
@@ -52,8 +53,11 @@ class ArmScene:
     """
 
     def __init__(self, robot, eps, T_world_base, T_link5_cam, camera: CameraModel, objects, supersample: int = 2,
-                 chain: MediumChain | None = None, cache_dir=None, T_link5_mount=None, port=None, z_min: float = 0.3):
+                 chain: MediumChain | None = None, cache_dir=None, T_link5_mount=None, port=None, z_min: float = 0.3,
+                 imaging=None):
         import mujoco
+
+        from bench.sim.imaging import ImagingChain
 
         self.robot, self.camera = robot, camera
         self.port = port
@@ -84,6 +88,10 @@ class ArmScene:
         h.update(np.ascontiguousarray(camera.K).tobytes())
         h.update(np.ascontiguousarray(camera.dist).tobytes())
         h.update(repr((camera.width, camera.height, supersample, self.chain, port)).encode())
+        # imaging: an ImagingProfile (bench.sim.imaging); None or "ideal" is the ideal chain (its cache keys unchanged)
+        self.imaging = None if imaging is None or not imaging.stages else ImagingChain(imaging, camera.K, camera.size)
+        if self.imaging is not None:
+            h.update(imaging.key().encode())
         self._key = h.hexdigest()
         self.cache_dir = Path(cache_dir) if cache_dir else None
         self._renderer = None
@@ -118,10 +126,10 @@ class ArmScene:
             path = z * self._path_per_z  # = path_length_m(z, self._rays)
         else:
             out = self.stage.apply(rgb, depth, self.spec.K)
-            img, path = out.image, out.water_path
-        img = apply_medium(img, path, rng, self.chain, self._cos if self.chain.light is not None else None)
-        if img.dtype != np.uint8:
-            img = np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
+            img, path, z = out.image, out.water_path, out.depth
+        focus = None if self.imaging is None else apparent_depth_m(self.port, z, path)
+        img = finish_image(self.imaging, img, path, focus, rng, self.chain,
+                           self._cos if self.chain.light is not None else None)
         self.render_s.append(time.perf_counter() - t0)
         if self.cache_dir is not None:
             self.cache_dir.mkdir(parents=True, exist_ok=True)

@@ -18,7 +18,9 @@ from bench.scenario.runner import load_scenario, run_scenario_file  # noqa: E402
 ROOT = Path(__file__).resolve().parents[2]
 WEBCAM = ROOT / "scenarios" / "camera_calibration_webcam.yaml"
 UNDERWATER = ROOT / "scenarios" / "camera_calibration_underwater.yaml"
-SMOKE = ["views.count=4", "camera.supersample=2", "pipeline.compare_extractors=false"]
+# the issue-4 accuracy targets of the calibration pipeline are checked on the ideal image chain (issue 12: the
+# realistic chain's rig is not flat and its residual is the real camera's ~0.4 px by design)
+SMOKE = ["views.count=4", "camera.supersample=2", "pipeline.compare_extractors=false", "camera.imaging=ideal"]
 CONTRACT = ("reproj_rms_px", "focal_err_pct", "opencv_reproj_rms_px", "corner_rms_px", "model_floor_rms_px",
             "heikkila_within_1std", "heikkila_within_2std", "heikkila_within_3std", "oracle_within_2std",
             "err_fx_px", "std_fx_px", "jk_std_fx_px", "err_k1", "std_k1")
@@ -101,7 +103,7 @@ def test_sim_render_and_calibrate_camera_cli(tmp_path):
 
     ds = tmp_path / "ds"
     assert main(["sim", "render", str(WEBCAM), "--out", str(ds), "--seed", "5", "--set", "views.count=3",
-                 "--set", "camera.supersample=2"]) == 0
+                 "--set", "camera.supersample=2", "--set", "camera.imaging=ideal"]) == 0
     assert {p.name for p in ds.iterdir()} >= {"manifest.yaml", "images", "table.csv", "camera.yaml", "target.yaml",
                                                "truth"}
     assert main(["calibrate-camera", str(ds), "--out", str(tmp_path / "cal"), "--model", "pinhole"]) == 0

@@ -53,16 +53,36 @@ def board_corners(rows=BOARD_SQUARES, cols=BOARD_SQUARES, square_m=SQUARE_M):
     return np.stack([(j.ravel() + 1) * square_m, (i.ravel() + 1) * square_m, np.zeros(i.size)], -1)
 
 
-def _board_geoms(prefix, rows, cols, s, margin, thickness, mat_black, mat_white, mat_back):
-    """Geoms of one board in its board frame (face z = 0 towards -z)."""
+def _board_geoms(prefix, rows, cols, s, margin, thickness, mat_black, mat_white, mat_back, lines=None,
+                 bow_m: float = 0.0):
+    """Geoms of one board in its board frame (face z = 0 towards -z).
+
+    ``lines = (xs, ys)``: the printed column and row line positions (m, ``cols + 1`` and ``rows + 1``; default the
+    even grid ``k s``); square (i, j) spans ``xs[j]..xs[j+1]`` x ``ys[i]..ys[i+1]``, so the squares still tile the
+    pattern. ``bow_m``: the pattern bows into the board (``> 0``, away from the viewer) or out of it as the cylinder
+    :func:`bow_z` about the board's y axis; each square is tilted to the local slope about its centre (adjacent
+    squares then meet to within the curvature's ``bow s^2 / W^2``, < 1 um for a 1 mm bow)."""
     d = SQUARE_DEPTH_M / 2
+    xs, ys = (np.arange(cols + 1) * s, np.arange(rows + 1) * s) if lines is None else lines
+    W, H = cols * s, rows * s
     g = []
     for i in range(rows):
         for j in range(cols):
             mat = mat_black if (i + j) % 2 == 0 else mat_white
-            g.append(f'<geom name="{prefix}_sq_{i}_{j}" type="box" size="{fmt([s / 2, s / 2, d])}" '
-                     f'pos="{fmt([(j + 0.5) * s, (i + 0.5) * s, d])}" material="{mat}"/>\n')
-    W, H = cols * s, rows * s
+            hx, hy = (xs[j + 1] - xs[j]) / 2, (ys[i + 1] - ys[i]) / 2
+            xc, yc = (xs[j + 1] + xs[j]) / 2, (ys[i + 1] + ys[i]) / 2
+            if bow_m == 0.0:
+                g.append(f'<geom name="{prefix}_sq_{i}_{j}" type="box" size="{fmt([hx, hy, d])}" '
+                         f'pos="{fmt([xc, yc, d])}" material="{mat}"/>\n')
+                continue
+            slope = float(np.gradient(bow_z(np.array([xc - 1e-4, xc, xc + 1e-4]), W, bow_m), 1e-4)[1])
+            a = np.arctan(slope)
+            T = np.eye(4)
+            T[:3, :3] = [[np.cos(a), 0, -np.sin(a)], [0, 1, 0], [np.sin(a), 0, np.cos(a)]]  # local x along the slope
+            T[:3, 3] = [xc, yc, float(bow_z(xc, W, bow_m))]
+            T[:3, 3] += T[:3, :3] @ [0.0, 0.0, d]
+            g.append(f'<geom name="{prefix}_sq_{i}_{j}" type="box" size="{fmt([hx, hy, d])}" {pose_attrs(T)} '
+                     f'material="{mat}"/>\n')
     strips = {"top": ((W / 2, -margin / 2), (W / 2 + margin, margin / 2)),
               "bottom": ((W / 2, H + margin / 2), (W / 2 + margin, margin / 2)),
               "left": ((-margin / 2, H / 2), (margin / 2, H / 2)),
@@ -70,10 +90,17 @@ def _board_geoms(prefix, rows, cols, s, margin, thickness, mat_black, mat_white,
     for k, ((cx, cy), (hx, hy)) in strips.items():
         g.append(f'<geom name="{prefix}_border_{k}" type="box" size="{fmt([hx, hy, d])}" pos="{fmt([cx, cy, d])}" '
                  f'material="{mat_white}"/>\n')
-    back = (thickness - SQUARE_DEPTH_M) / 2
+    back = (thickness - SQUARE_DEPTH_M) / 2 + abs(bow_m)
     g.append(f'<geom name="{prefix}_backing" type="box" size="{fmt([W / 2 + margin, H / 2 + margin, back])}" '
-             f'pos="{fmt([W / 2, H / 2, SQUARE_DEPTH_M + back])}" material="{mat_back}"/>\n')
+             f'pos="{fmt([W / 2, H / 2, SQUARE_DEPTH_M + abs(bow_m) + back])}" material="{mat_back}"/>\n')
     return "".join(g)
+
+
+def bow_z(x, width_m: float, bow_m: float):
+    """Out-of-plane offset (m, along the board's z) of a cylindrical bow of sagitta ``bow_m`` across a pattern of
+    width ``width_m``: ``bow (1 - (2 x / W - 1)^2)``, zero at the pattern's left and right edges."""
+    u = 2 * np.asarray(x, float) / width_m - 1
+    return bow_m * (1 - u ** 2)
 
 
 def _materials(name):
@@ -112,7 +139,7 @@ def rig_board_poses(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M)
 
 
 def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M, thickness_m=0.01,
-                    name: str = "rig") -> SceneObject:
+                    name: str = "rig", errors: dict | None = None) -> SceneObject:
     """The two-plane calibration rig of section 5.2: two perpendicular ``squares x squares`` chessboards.
 
     Parameters
@@ -125,25 +152,48 @@ def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M,
         White border around each pattern, board thickness (m).
     name : str
         Object name (prefix of the MJCF names).
+    errors : dict, optional
+        The printed and assembled rig's geometry errors (:func:`bench.sim.imaging.target_geometry`):
+        ``line_offsets_m`` ``{"a": (xs, ys), "b": (xs, ys)}`` (offsets of the ``squares + 1`` column and row lines,
+        m), ``scale`` (printout / file), ``bow_sagitta_m`` ``{"a", "b"}`` and ``fold_error_rad`` (board B turned
+        about the fold). ``features["corners"]`` are then the true printed corners; None: the exact rig.
 
     Returns
     -------
     SceneObject
         ``features``: ``corners`` (2 (squares-1)^2, 3) rig frame, board A then B, each row-major;
         ``corners_board_a``, ``corners_board_b`` (same, split); ``T_rig_board_a``, ``T_rig_board_b`` (4, 4);
-        ``pattern_size`` per board (OpenCV); ``square_m``.
+        ``pattern_size`` per board (OpenCV); ``square_m`` (nominal).
     """
     _check_board_args(squares, squares, square_m, margin_m, thickness_m)
     T_a, T_b = rig_board_poses(squares, square_m, margin_m)
+    e = errors or {}
+    if e.get("fold_error_rad", 0.0):
+        c, s_ = np.cos(e["fold_error_rad"]), np.sin(e["fold_error_rad"])
+        Rz = np.eye(4)
+        Rz[:2, :2] = [[c, -s_], [s_, c]]
+        T_b = Rz @ T_b  # about the fold (the rig's z axis through its origin)
+    scale = float(e.get("scale", 1.0))
     body = [f'<body name="{name}">\n']
+    corners = {}
+    n = squares + 1
     for key, T in (("a", T_a), ("b", T_b)):
+        off = e.get("line_offsets_m", {}).get(key, (np.zeros(n), np.zeros(n)))
+        xs = (np.arange(n) * square_m + np.asarray(off[0], float)) * scale
+        ys = (np.arange(n) * square_m + np.asarray(off[1], float)) * scale
+        bow = float(e.get("bow_sagitta_m", {}).get(key, 0.0))
+        lines = None if not errors else (xs, ys)
         geoms = _board_geoms(f"{name}_{key}", squares, squares, square_m, margin_m, thickness_m, f"{name}_black",
-                             f"{name}_white", f"{name}_back")
+                             f"{name}_white", f"{name}_back", lines, bow)
         body.append(f'<body name="{name}_board_{key}" {pose_attrs(T)}>\n{geoms}</body>\n')
+        if errors:
+            gx, gy = np.meshgrid(xs[1:-1], ys[1:-1])
+            local = np.c_[gx.ravel(), gy.ravel(), bow_z(gx.ravel(), squares * square_m, bow)]
+        else:
+            local = board_corners(squares, squares, square_m)
+        corners[key] = local @ T[:3, :3].T + T[:3, 3]
     body.append("</body>\n")
-    local = board_corners(squares, squares, square_m)
-    ca = local @ T_a[:3, :3].T + T_a[:3, 3]
-    cb = local @ T_b[:3, :3].T + T_b[:3, 3]
+    ca, cb = corners["a"], corners["b"]
     features = {"corners": np.vstack([ca, cb]), "corners_board_a": ca, "corners_board_b": cb,
                 "T_rig_board_a": T_a, "T_rig_board_b": T_b, "pattern_size": (squares - 1, squares - 1),
                 "square_m": float(square_m)}

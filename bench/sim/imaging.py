@@ -1,0 +1,463 @@
+"""Imaging profiles: how a real camera and a real target err beyond the ideal render (issue 12).
+
+``imaging: ideal`` is the bench's clean chain (supersampled pinhole render -> lens stage -> medium -> sensor noise).
+``imaging: realistic`` (the default of every rendering kind) adds the error sources a real camera and a real
+calibration target have, each a physical model with its parameters in SI-derived units and its source stated, each
+switchable on its own (``camera.imaging_off: [jpeg, defocus, ...]``, :data:`STAGES`):
+
+Target (applied to the rig's geometry, :func:`target_geometry`, never to the image):
+
+* ``print_lines`` - the printed pattern's row and column lines are not evenly spaced: a printer's paper feed
+  advances unevenly (banding), so each row line of corners is offset along the feed by a random amount (rms
+  ``feed_rms_mm``), each column line across the feed by less (``scan_rms_mm``). Measured on the real webcam photos
+  (tools/real_camera_stats.py, ``print_row_offsets_rms_mm`` 0.28 mm and ``print_col_offsets_rms_mm`` 0.02 mm for a
+  25 mm square: the per-row residual pattern is the same in 17 of the 19 photos);
+* ``print_scale`` - the printout's scale differs from the file's (``scale_rms_pct``; office printers ~0.1-0.3 %);
+* ``flatness`` - paper on a board is not flat: a cylindrical bow of sagitta ``bow_sagitta_mm`` (random sign) across
+  each board (real photos: quadratic bow fit, median 0.6 mm, an upper bound);
+* ``fold`` - the two boards of the rig are not exactly perpendicular (``fold_error_rms_deg``; a hand-assembled rig).
+
+Optics (applied to the image at the camera's resolution, in linear radiance):
+
+* ``distortion`` - lens distortion the ideal chain leaves out: the true lens gets the real webcam's measured radial
+  and decentering distortion (:data:`WEBCAM_DISTORTION`, its k1, k2, p1, p2 with a k3 term of the same order) plus a
+  thin prism (Weng, Cohen & Herniou, PAMI 14(10) 1992: ``s1 r^2, s3 r^2``) applied as an image warp;
+* ``chromatic`` - lateral chromatic aberration: R and B magnified by ``1 + c`` about the principal point (real
+  photos: |c| < 1e-4, kept at the measured value);
+* ``defocus`` - thin-lens circle of confusion (:func:`coc_diameter_px`) from focal length, f-number and focus
+  distance at each pixel's depth (a pillbox PSF), plus the lens's residual optical blur (a Gaussian, ``lens_sigma_px``:
+  diffraction ``0.42 lambda N`` and aberrations, set so that the whole chain's edge spread matches the real photos'
+  0.46 px);
+* ``motion`` - camera shake during the exposure: a random angular rate (rms ``angular_rate_rms_deg_per_s`` per axis)
+  moves the image by ``f omega`` px/s, a line blur over ``exposure_s``;
+* ``rolling_shutter`` - row ``r`` is exposed ``(r - H/2) readout_s / H`` after the middle row: the same image
+  velocity displaces it by that time (:func:`row_times_s`);
+* ``vignetting`` - relative illumination ``1 - a r^2`` (r over the half diagonal; ``a`` from the real photos' white
+  squares, which includes the lighting's fall-off);
+
+Sensor (replaces the three-channel sensor of :mod:`bench.sim.medium` by a colour-filter-array sensor):
+
+* ``bayer`` - an RGGB mosaic sampled from the linear image; noise per photosite; demosaiced by OpenCV's edge-aware
+  ``cvtColor(COLOR_BayerBG2RGB_EA)`` (OpenCV's Bayer names count from the second row and column: ``BG`` is an RGGB
+  sensor, tested);
+* ``prnu_dsnu`` - fixed-pattern noise: photo-response non-uniformity (gain, rms ``prnu_pct``) and dark-signal
+  non-uniformity (offset, rms ``dsnu_e``), drawn once per camera from ``pattern_seed`` (the same in every frame);
+  EMVA 1288 datasheets of small CMOS sensors give PRNU ~0.5-1 % and DSNU ~1-5 e-;
+* ``jpeg`` - the camera's JPEG at ``quality`` (``cv2.imencode``; the real photos' quantisation tables are IJG
+  quality 90 exactly).
+
+Reproducibility: every random draw comes from child generators of the frame's seed (``rng.spawn``) or of
+``pattern_seed``; nothing depends on the number of threads.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from bench.errors import ConfigError
+
+#: the stages of the realistic profile, in the order they are applied (each can be switched off alone)
+STAGES = ("print_lines", "print_scale", "flatness", "fold", "distortion", "chromatic", "defocus", "motion",
+          "rolling_shutter", "vignetting", "bayer", "prnu_dsnu", "jpeg")
+TARGET_STAGES = ("print_lines", "print_scale", "flatness", "fold")
+IMAGING_NAMES = ("realistic", "ideal")
+#: version of this module's algorithms, part of the render cache key of realistic images (bump when a code change
+#: alters them): 2 = bilinear warp (was bicubic)
+IMAGING_VERSION = 2
+
+#: the real webcam photos' calibration (tools/real_camera_stats.py, Heikkilä model, 19 views, RMS 0.557 px):
+#: k1, k2, p1, p2 in normalised coordinates; k3 = 0 (not fitted there: 7 x 7 corners cannot separate it)
+WEBCAM_DISTORTION = (0.0019, -0.153, -0.0056, -0.0158, 0.0)
+
+#: The realistic profile of a 640 x 480 USB webcam (the thesis's Logitech, the real photos' camera). Units in keys.
+REALISTIC = {
+    # target: tools/real_camera_stats.py on the real photos (print line offsets for a 25 mm square, bow upper bound)
+    "print_lines": {"feed_rms_mm": 0.28, "scan_rms_mm": 0.03},
+    "print_scale": {"scale_rms_pct": 0.2},
+    "flatness": {"bow_sagitta_mm": 0.6},
+    "fold": {"fold_error_rms_deg": 0.2},
+    # optics
+    "distortion": {"dist": list(WEBCAM_DISTORTION), "thin_prism": [0.0005, 0.0, -0.0005, 0.0]},
+    "chromatic": {"lateral_ca_r": -7.7e-5, "lateral_ca_b": -5.0e-5},
+    # 1/6" sensor of 3.6 um pixels, f = 975 px * 3.6 um = 3.5 mm, f/2.4, fixed focus at 1.0 m (webcam datasheet-like)
+    "defocus": {"pixel_pitch_um": 3.6, "f_number": 2.4, "focus_distance_m": 1.0, "lens_sigma_px": 0.3},
+    "motion": {"angular_rate_rms_deg_per_s": 0.05, "exposure_s": 0.02},
+    "rolling_shutter": {"readout_s": 0.03},
+    "vignetting": {"falloff_at_corner": 0.19},
+    # sensor
+    "bayer": {"pattern": "RGGB", "demosaic": "edge_aware"},
+    "prnu_dsnu": {"prnu_pct": 0.8, "dsnu_e": 3.0, "pattern_seed": 12},
+    "jpeg": {"quality": 90},
+}
+
+_KEYS = {"print_lines": ("feed_rms_mm", "scan_rms_mm"), "print_scale": ("scale_rms_pct",),
+         "flatness": ("bow_sagitta_mm",), "fold": ("fold_error_rms_deg",), "distortion": ("dist", "thin_prism"),
+         "chromatic": ("lateral_ca_r", "lateral_ca_b"),
+         "defocus": ("pixel_pitch_um", "f_number", "focus_distance_m", "lens_sigma_px"),
+         "motion": ("angular_rate_rms_deg_per_s", "exposure_s"), "rolling_shutter": ("readout_s",),
+         "vignetting": ("falloff_at_corner",), "bayer": ("pattern", "demosaic"),
+         "prnu_dsnu": ("prnu_pct", "dsnu_e", "pattern_seed"), "jpeg": ("quality",)}
+_BOUNDS = {"feed_rms_mm": (0, 5), "scan_rms_mm": (0, 5), "scale_rms_pct": (0, 5), "bow_sagitta_mm": (0, 20),
+           "fold_error_rms_deg": (0, 10), "lateral_ca_r": (-0.01, 0.01), "lateral_ca_b": (-0.01, 0.01),
+           "pixel_pitch_um": (0.5, 50), "f_number": (0.7, 64), "focus_distance_m": (0.05, 1e3),
+           "lens_sigma_px": (0, 5), "angular_rate_rms_deg_per_s": (0, 100), "exposure_s": (0, 1), "readout_s": (0, 1),
+           "falloff_at_corner": (0, 0.9), "prnu_pct": (0, 20), "dsnu_e": (0, 1e3)}
+_DEMOSAIC = {"bilinear": cv2.COLOR_BayerBG2RGB, "edge_aware": cv2.COLOR_BayerBG2RGB_EA,
+             "vng": cv2.COLOR_BayerBG2RGB_VNG}
+
+
+@dataclass(frozen=True)
+class ImagingProfile:
+    """A validated imaging profile: ``stages`` maps each enabled stage of :data:`STAGES` to its parameters."""
+
+    name: str
+    stages: dict
+
+    def on(self, stage: str) -> bool:
+        return stage in self.stages
+
+    def __getitem__(self, stage):
+        return self.stages[stage]
+
+    def key(self) -> str:
+        """A text that determines the images (part of the render cache keys)."""
+        return repr((IMAGING_VERSION, self.name, sorted((k, sorted(v.items())) for k, v in self.stages.items())))
+
+
+def imaging_profile(name: str = "realistic", off=(), source: str = "imaging", field: str = "imaging",
+                    overrides: dict | None = None) -> ImagingProfile:
+    """The profile ``name`` (``realistic`` or ``ideal``) with the stages in ``off`` switched off.
+
+    Raises
+    ------
+    ConfigError
+        One line naming ``source`` and ``field`` for an unknown profile or stage name, or a bad override.
+    """
+    if name not in IMAGING_NAMES:
+        raise ConfigError(source, field, f"expected realistic or ideal, got {name!r}")
+    if isinstance(off, str) or not all(isinstance(s, str) for s in off):
+        raise ConfigError(source, f"{field}_off", f"expected a list of stage names, got {off!r}")
+    bad = [s for s in off if s not in STAGES]
+    if bad:
+        raise ConfigError(source, f"{field}_off", f"unknown stage {bad[0]!r} (known: {', '.join(STAGES)})")
+    if name == "ideal":
+        return ImagingProfile("ideal", {})
+    stages = copy.deepcopy(REALISTIC)
+    for stage, vals in (overrides or {}).items():
+        if stage not in stages or not isinstance(vals, dict):
+            raise ConfigError(source, f"{field}.{stage}",
+                              f"unknown stage or not a mapping (known: {', '.join(STAGES)})")
+        for k, v in vals.items():
+            if k not in _KEYS[stage]:
+                raise ConfigError(source, f"{field}.{stage}.{k}", f"unknown key (known: {', '.join(_KEYS[stage])})")
+            stages[stage][k] = v
+    for stage, vals in stages.items():
+        for k, v in vals.items():
+            if k in _BOUNDS:
+                lo, hi = _BOUNDS[k]
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+                    raise ConfigError(source, f"{field}.{stage}.{k}", f"expected a number in [{lo:g}, {hi:g}], "
+                                                                      f"got {v!r}")
+    q = stages["jpeg"]["quality"]
+    if isinstance(q, bool) or not isinstance(q, int) or not 1 <= q <= 100:
+        raise ConfigError(source, f"{field}.jpeg.quality", f"expected an integer in 1..100, got {q!r}")
+    if stages["bayer"]["demosaic"] not in _DEMOSAIC or stages["bayer"]["pattern"] != "RGGB":
+        raise ConfigError(source, f"{field}.bayer", f"expected pattern RGGB and demosaic one of {', '.join(_DEMOSAIC)}")
+    return ImagingProfile("realistic", {k: v for k, v in stages.items() if k not in off})
+
+
+def profile_from_config(section: dict, source: str, field: str) -> ImagingProfile:
+    """The profile of a scenario section holding ``imaging`` and ``imaging_off`` (``camera`` or ``sim``)."""
+    return imaging_profile(section.get("imaging", "realistic"), section.get("imaging_off", []), source, field)
+
+
+# ------------------------------------------------------------------------------------------------ target geometry
+
+
+def target_geometry(profile: ImagingProfile, squares: int, rng: np.random.Generator) -> dict:
+    """Random geometry errors of one printed two-board rig (board A, board B), drawn from ``rng``.
+
+    Returns a dict for :func:`bench.sim.scenes.rig.calibration_rig`: ``line_offsets_m`` ``{"a": (xs, ys), "b": ...}``
+    (offsets of the ``squares + 1`` column and row lines, m), ``scale`` (printout / file), ``bow_sagitta_m`` per board
+    and ``fold_error_rad``. Every draw is made whether or not its stage is on (the others do not change when one is
+    switched off).
+    """
+    n = squares + 1
+    z = {b: (rng.standard_normal(n), rng.standard_normal(n)) for b in ("a", "b")}
+    s, bow, fold = rng.standard_normal(), rng.choice([-1.0, 1.0], 2), rng.standard_normal()
+    out = {"line_offsets_m": {b: (np.zeros(n), np.zeros(n)) for b in ("a", "b")}, "scale": 1.0,
+           "bow_sagitta_m": {"a": 0.0, "b": 0.0}, "fold_error_rad": 0.0}
+    if profile.on("print_lines"):
+        p = profile["print_lines"]
+        # the rows (y) run along the paper feed, the columns (x) across it
+        out["line_offsets_m"] = {b: (z[b][0] * p["scan_rms_mm"] * 1e-3, z[b][1] * p["feed_rms_mm"] * 1e-3)
+                                 for b in ("a", "b")}
+    if profile.on("print_scale"):
+        out["scale"] = 1.0 + s * profile["print_scale"]["scale_rms_pct"] / 100
+    if profile.on("flatness"):
+        out["bow_sagitta_m"] = {"a": bow[0] * profile["flatness"]["bow_sagitta_mm"] * 1e-3,
+                                "b": bow[1] * profile["flatness"]["bow_sagitta_mm"] * 1e-3}
+    if profile.on("fold"):
+        out["fold_error_rad"] = float(np.deg2rad(fold * profile["fold"]["fold_error_rms_deg"]))
+    return out
+
+
+def lens_distortion(profile: ImagingProfile, dist) -> np.ndarray:
+    """The true lens's distortion ``(5,)`` under ``profile``: the given one plus the webcam's measured distortion."""
+    d = np.zeros(5)
+    d[:len(np.ravel(dist))] = np.ravel(dist)
+    if profile.on("distortion"):
+        d = d + np.asarray(profile["distortion"]["dist"], float)
+    return d
+
+
+# ------------------------------------------------------------------------------------------------ closed forms
+
+
+def coc_diameter_px(depth_m, focal_length_m: float, f_number: float, focus_distance_m: float,
+                    pixel_pitch_m: float) -> np.ndarray:
+    """Thin-lens circle of confusion diameter (px) of a point at ``depth_m`` (m) for a lens focused at
+    ``focus_distance_m``: ``c = (f / N) |d - d_f| / d * f / (d_f - f)`` on the sensor, over the pixel pitch.
+    (Aperture diameter ``f / N``; image distance ``v_f = f d_f / (d_f - f)``; similar triangles.) Infinite depth
+    gives the limit ``(f / N) f / (d_f - f)``."""
+    d = np.asarray(depth_m, float)
+    f = focal_length_m
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(np.isinf(d), 1.0, np.abs(d - focus_distance_m) / d)
+    return (f / f_number) * ratio * f / (focus_distance_m - f) / pixel_pitch_m
+
+
+def row_times_s(height: int, readout_s: float) -> np.ndarray:
+    """Exposure time of each row (s) relative to the middle row: ``(r - (H - 1) / 2) readout_s / H``."""
+    return (np.arange(height) - (height - 1) / 2) * readout_s / height
+
+
+def disk_kernel(radius_px: float, sub: int = 8) -> np.ndarray:
+    """A pillbox PSF of ``radius_px`` (normalised), each tap the covered fraction of its pixel (``sub^2`` samples)."""
+    R = int(np.ceil(radius_px + 0.5))
+    t = (np.arange(sub) + 0.5) / sub - 0.5
+    g = np.arange(-R, R + 1)
+    xx = (g[:, None, None, None] + t[None, None, :, None]) ** 2 + (g[None, :, None, None] + t[None, None, None, :]) ** 2
+    k = (xx <= radius_px ** 2).mean(axis=(2, 3)).T
+    if k.sum() == 0:
+        k[R, R] = 1.0
+    return (k / k.sum()).astype(np.float32)
+
+
+def line_kernel(dx_px: float, dy_px: float, sub: int = 16) -> np.ndarray:
+    """Motion blur PSF: a uniform segment from ``-(dx, dy)/2`` to ``+(dx, dy)/2`` px, bilinearly splatted."""
+    L = max(abs(dx_px), abs(dy_px))
+    R = int(np.ceil(L / 2)) + 1
+    k = np.zeros((2 * R + 1, 2 * R + 1), np.float64)
+    n = max(2, int(np.ceil(L * sub)))
+    for s in (np.arange(n) + 0.5) / n - 0.5:
+        x, y = R + s * dx_px, R + s * dy_px
+        x0, y0 = int(np.floor(x)), int(np.floor(y))
+        fx, fy = x - x0, y - y0
+        k[y0, x0] += (1 - fx) * (1 - fy)
+        k[y0, x0 + 1] += fx * (1 - fy)
+        k[y0 + 1, x0] += (1 - fx) * fy
+        k[y0 + 1, x0 + 1] += fx * fy
+    return (k / k.sum()).astype(np.float32)
+
+
+def mosaic(rgb) -> np.ndarray:
+    """RGGB colour-filter-array samples ``(H, W)`` of an RGB image ``(H, W, 3)``: R at even rows and columns."""
+    img = np.asarray(rgb)
+    out = img[..., 1].copy()
+    out[0::2, 0::2] = img[0::2, 0::2, 0]
+    out[1::2, 1::2] = img[1::2, 1::2, 2]
+    return out
+
+
+def demosaic(raw_u8, method: str = "edge_aware") -> np.ndarray:
+    """RGB uint8 ``(H, W, 3)`` from an RGGB mosaic ``(H, W)`` uint8 with OpenCV (:data:`_DEMOSAIC`)."""
+    return cv2.cvtColor(np.ascontiguousarray(raw_u8), _DEMOSAIC[method])
+
+
+# ------------------------------------------------------------------------------------------------ the image chain
+
+
+class ImagingChain:
+    """The realistic optics and sensor stages of one camera (``K`` (3, 3), ``size`` (W, H)), prepared once.
+
+    :meth:`apply` takes the linear radiance image of the lens stage (after the medium's lamp and water, before the
+    sensor) with each pixel's object distance and returns the camera's 8-bit RGB output.
+    """
+
+    def __init__(self, profile: ImagingProfile, K, size):
+        self.profile = profile
+        self.K = np.asarray(K, float)
+        self.W, self.H = (int(v) for v in size)
+        u, v = np.meshgrid(np.arange(self.W, dtype=np.float32), np.arange(self.H, dtype=np.float32))
+        self._u, self._v = u, v
+        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+        self._x, self._y = (u - cx) / fx, (v - cy) / fy
+        # static displacement of each output pixel (px): thin prism + lateral CA per channel
+        self._static = [np.zeros((self.H, self.W, 2), np.float32) for _ in range(3)]
+        if profile.on("distortion"):
+            s1, s2, s3, s4 = profile["distortion"]["thin_prism"]
+            r2 = self._x ** 2 + self._y ** 2
+            d = np.stack([(s1 * r2 + s2 * r2 ** 2) * fx, (s3 * r2 + s4 * r2 ** 2) * fy], -1).astype(np.float32)
+            for c in range(3):
+                self._static[c] += d
+        if profile.on("chromatic"):
+            for c, key in ((0, "lateral_ca_r"), (2, "lateral_ca_b")):
+                m = profile["chromatic"][key]
+                self._static[c] += np.stack([(u - cx) * m, (v - cy) * m], -1).astype(np.float32)
+        self._vignette = None
+        if profile.on("vignetting"):
+            r2n = ((u - (self.W - 1) / 2) ** 2 + (v - (self.H - 1) / 2) ** 2) / ((self.W / 2) ** 2 + (self.H / 2) ** 2)
+            self._vignette = (1.0 - profile["vignetting"]["falloff_at_corner"] * r2n).astype(np.float32)[..., None]
+        self._prnu = self._dsnu = None
+        if profile.on("prnu_dsnu"):
+            p = profile["prnu_dsnu"]
+            g = np.random.default_rng(int(p["pattern_seed"]))
+            self._prnu = (1.0 + g.standard_normal((self.H, self.W), dtype=np.float32) * np.float32(p["prnu_pct"] / 100))
+            self._dsnu = g.standard_normal((self.H, self.W), dtype=np.float32) * np.float32(p["dsnu_e"])
+        self._row_t = row_times_s(self.H, profile["rolling_shutter"]["readout_s"]).astype(np.float32) \
+            if profile.on("rolling_shutter") else None
+
+    # --- stages ------------------------------------------------------------------------------------------------------
+    def image_velocity(self, rng: np.random.Generator) -> np.ndarray:
+        """Image velocity ``(vx, vy)`` px/s of camera shake: angular rates ``omega ~ N(0, rms^2)`` about x and y, the
+        image moving by ``(f_x omega_y, -f_y omega_x)``."""
+        if not (self.profile.on("motion") or self.profile.on("rolling_shutter")):
+            return np.zeros(2)
+        rms = np.deg2rad(self.profile["motion"]["angular_rate_rms_deg_per_s"]) if self.profile.on("motion") \
+            else np.deg2rad(REALISTIC["motion"]["angular_rate_rms_deg_per_s"])
+        w = rng.standard_normal(2) * rms
+        return np.array([self.K[0, 0] * w[1], -self.K[1, 1] * w[0]])
+
+    def warp(self, img, velocity) -> np.ndarray:
+        """Geometric stages: thin prism, lateral CA and rolling-shutter row displacement, one remap per channel.
+
+        A scene point imaged at ``p`` by the ideal chain appears at ``p + d(p)``; the output pixel ``q`` samples the
+        input at ``q - d(q - d(q))`` (two fixed-point steps of the inverse)."""
+        rs = None
+        if self._row_t is not None and np.any(velocity):
+            rs = np.stack([np.broadcast_to(velocity[0] * self._row_t[:, None], (self.H, self.W)),
+                           np.broadcast_to(velocity[1] * self._row_t[:, None], (self.H, self.W))], -1)
+        if rs is None and not any(s.any() for s in self._static):
+            return img
+        out = np.empty_like(img)
+        for c in range(3):
+            d = self._static[c] if rs is None else self._static[c] + rs.astype(np.float32)
+            if not d.any():
+                out[..., c] = img[..., c]
+                continue
+            mx, my = self._u - d[..., 0], self._v - d[..., 1]
+            for _ in range(1):  # second fixed-point step: d evaluated at the first estimate (d is smooth)
+                dx = cv2.remap(d[..., 0], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                dy = cv2.remap(d[..., 1], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                mx, my = self._u - dx, self._v - dy
+            # bilinear: OpenCV 5's bicubic remap moves a blob's centroid by ~0.3x the shift's fraction (measured)
+            out[..., c] = cv2.remap(np.ascontiguousarray(img[..., c]), mx, my, cv2.INTER_LINEAR,
+                                    borderMode=cv2.BORDER_REFLECT)
+        return out
+
+    def blur(self, img, depth_m, velocity) -> np.ndarray:
+        """Defocus (pillbox of the circle of confusion at each pixel's depth, interpolated between radius levels),
+        the lens's Gaussian and the motion line, convolved together."""
+        base = None
+        if self.profile.on("motion") and np.any(velocity):
+            t = self.profile["motion"]["exposure_s"]
+            base = line_kernel(velocity[0] * t, velocity[1] * t)
+        sigma = self.profile["defocus"]["lens_sigma_px"] if self.profile.on("defocus") else 0.0
+        if not self.profile.on("defocus"):
+            return img if base is None else cv2.filter2D(img, -1, base, borderType=cv2.BORDER_REFLECT)
+        p = self.profile["defocus"]
+        pitch = p["pixel_pitch_um"] * 1e-6
+        f = self.K[0, 0] * pitch
+        z = np.asarray(depth_m, float)
+        z = np.where(np.isfinite(z) & (z > 0), z, np.inf)
+        radius = 0.5 * coc_diameter_px(z, f, p["f_number"], p["focus_distance_m"], pitch)
+        step = 0.25  # px between radius levels
+        pos = (radius / step).astype(np.float32)
+        lo, hi = int(np.floor(pos.min())), int(np.ceil(pos.max()))
+        out = np.zeros_like(img)
+        for lev in range(lo, hi + 1):
+            w = np.maximum(np.float32(0), np.float32(1) - np.abs(pos - lev))
+            if not w.any():
+                continue
+            k = disk_kernel(lev * step) if lev > 0 else np.ones((1, 1), np.float32)
+            if base is not None:
+                k = cv2.filter2D(np.pad(k, base.shape[0] // 2), -1, base, borderType=cv2.BORDER_CONSTANT)
+            b = cv2.filter2D(img, -1, k, borderType=cv2.BORDER_REFLECT) if k.size > 1 else img
+            if sigma > 0:
+                b = cv2.GaussianBlur(b, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+            out += w[..., None] * b
+        return out
+
+    def sensor(self, img, rng: np.random.Generator, spec) -> np.ndarray:
+        """Colour-filter-array sensor: mosaic, electrons (PRNU), shot + read noise and DSNU, gain, 8 bit,
+        demosaicing, JPEG. ``spec`` is the preset's :class:`bench.sim.medium.Sensor` (None: noise-free 8 bit)."""
+        from bench.sim.medium import SHOT_NOISE_NORMAL_ABOVE_E, jpeg
+
+        bayer = self.profile.on("bayer")
+        raw = mosaic(img) if bayer else img
+        if spec is None:
+            dn = np.clip(np.rint(raw * 255.0), 0, 255).astype(np.uint8)
+        else:
+            scale = spec.exposure_for(img) * spec.full_well_e
+            lam = np.minimum(raw * np.float32(scale), spec.full_well_e).astype(np.float32)
+            prnu = self._prnu if bayer or self._prnu is None else self._prnu[..., None]
+            dsnu = self._dsnu if bayer or self._dsnu is None else self._dsnu[..., None]
+            if prnu is not None:
+                lam = lam * prnu
+            zn = rng.standard_normal(lam.shape, dtype=np.float32)
+            read = np.float32(spec.read_noise_e)
+            e = lam + np.sqrt(lam + read * read) * zn
+            low = lam < SHOT_NOISE_NORMAL_ABOVE_E
+            if low.any():
+                e[low] = rng.poisson(lam[low]).astype(np.float32) + read * zn[low]
+            if dsnu is not None:
+                e = e + dsnu
+            dn = np.clip(np.rint(e * np.float32(spec.gain_dn_per_e)), 0, 255).astype(np.uint8)
+        rgb = demosaic(dn, self.profile["bayer"]["demosaic"]) if bayer else dn
+        q = self.profile["jpeg"]["quality"] if self.profile.on("jpeg") else 0
+        if spec is not None and spec.jpeg_quality and not q:
+            q = spec.jpeg_quality
+        return jpeg(np.ascontiguousarray(rgb), q)
+
+    def apply(self, img, depth_m, rng: np.random.Generator, spec) -> np.ndarray:
+        """The realistic stages on linear radiance ``img (H, W, 3)`` with object distances ``depth_m (H, W)`` (m,
+        inf = background): warp, blur, vignetting, sensor. Returns RGB uint8."""
+        img = np.asarray(img)
+        img = img.astype(np.float32) * np.float32(1 / 255) if img.dtype == np.uint8 else img.astype(np.float32)
+        g_motion, g_noise = rng.spawn(2)
+        vel = self.image_velocity(g_motion)
+        img = self.warp(img, vel)
+        img = self.blur(img, depth_m, vel)
+        if self._vignette is not None:
+            img = img * self._vignette
+        return self.sensor(img, g_noise, spec)
+
+
+def apparent_depth_m(port, depth_z_m, water_path_m) -> np.ndarray:
+    """Object distance (m) the lens must focus on: the z-depth in air; through a flat port the paraxial virtual
+    image's distance ``d0 + t / n_glass + water path / n_water`` (a flat refracting surface images a point at
+    ``1 / n`` of its distance)."""
+    if port is None:
+        return np.asarray(depth_z_m, float)
+    return port.d0 + port.t / port.n_glass + np.asarray(water_path_m, float) / port.n_water
+
+
+def finish_image(chain: ImagingChain | None, img, water_path_m, focus_depth_m, rng, medium_chain, cos_theta):
+    """The last stages of a rendered view: the medium (lamp, water) and the sensor - the ideal chain's
+    (:func:`bench.sim.medium.apply_medium`) when ``chain`` is None, else the medium without its sensor followed by
+    the realistic optics and colour-filter-array sensor (:meth:`ImagingChain.apply`). Returns RGB uint8."""
+    from bench.sim.medium import MediumChain, apply_medium
+
+    if chain is None:
+        out = apply_medium(img, water_path_m, rng, medium_chain, cos_theta)
+        if out.dtype != np.uint8:
+            out = np.clip(np.round(out * 255.0), 0, 255).astype(np.uint8)
+        return out
+    lit = apply_medium(img, water_path_m, rng, MediumChain(medium_chain.medium, medium_chain.light, None,
+                                                          medium_chain.max_blur_px), cos_theta)
+    return chain.apply(lit, focus_depth_m, rng, medium_chain.sensor)

@@ -1,0 +1,178 @@
+"""The realistic imaging stages (bench.sim.imaging) against closed forms and independent references."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from bench.errors import ConfigError
+from bench.sim import imaging as im
+from bench.sim.medium import Sensor
+
+K = np.array([[975.3, 0.0, 329.3], [0.0, 975.3, 236.9], [0.0, 0.0, 1.0]])
+SIZE = (640, 480)
+
+
+def only(*stages, **overrides):
+    """The realistic profile with every stage but ``stages`` off."""
+    return im.imaging_profile("realistic", [s for s in im.STAGES if s not in stages], overrides=overrides or None)
+
+
+def test_profiles_and_one_line_errors():
+    assert im.imaging_profile("ideal").stages == {}
+    assert set(im.imaging_profile("realistic").stages) == set(im.STAGES)
+    assert "jpeg" not in im.imaging_profile("realistic", ["jpeg"]).stages
+    with pytest.raises(ConfigError, match="camera.imaging.*realistic or ideal"):
+        im.imaging_profile("fancy", source="s.yaml", field="camera.imaging")
+    with pytest.raises(ConfigError, match="camera.imaging_off.*'jpg'"):
+        im.imaging_profile("realistic", ["jpg"], source="s.yaml", field="camera.imaging")
+    with pytest.raises(ConfigError, match="imaging_off.*list"):
+        im.imaging_profile("realistic", "jpeg")
+    with pytest.raises(ConfigError, match="imaging.defocus.f_number"):
+        im.imaging_profile("realistic", overrides={"defocus": {"f_number": 0.1}})
+    with pytest.raises(ConfigError, match="imaging.jpeg.quality"):
+        im.imaging_profile("realistic", overrides={"jpeg": {"quality": 101}})
+
+
+def test_coc_thin_lens_closed_form():
+    f, N, df, pitch = 3.5e-3, 2.4, 1.0, 3.6e-6
+    # by hand: aperture A = f / N; image distances v = f d / (d - f); blur c = A |v - v_f| / v
+    for d in (0.4, 0.7, 1.0, 2.5, 10.0):
+        v, vf = f * d / (d - f), f * df / (df - f)
+        c = (f / N) * abs(v - vf) / v / pitch
+        assert im.coc_diameter_px(d, f, N, df, pitch) == pytest.approx(c, rel=1e-12)
+    assert im.coc_diameter_px(1.0, f, N, df, pitch) == 0.0
+    assert im.coc_diameter_px(np.inf, f, N, df, pitch) == pytest.approx((f / N) * f / (df - f) / pitch)
+
+
+def test_disk_kernel_second_moment():
+    for R in (2.5, 4.0, 6.0):  # Sheppard's 1/12 holds once the disk spans several pixels
+        k = im.disk_kernel(R)
+        n = k.shape[0] // 2
+        x = np.arange(-n, n + 1)
+        assert k.sum() == pytest.approx(1.0, abs=1e-6)
+        # a uniform disk of radius R has variance R^2 / 4 per axis (plus 1/12 px^2 of the pixel's own extent)
+        assert float((k.sum(0) * x ** 2).sum()) == pytest.approx(R ** 2 / 4 + 1 / 12, rel=0.03)
+
+
+def test_defocus_blur_is_the_disk_of_the_thin_lens_radius():
+    prof = only("defocus", defocus={"lens_sigma_px": 0.0})
+    chain = im.ImagingChain(prof, K, SIZE)
+    p = prof["defocus"]
+    f, pitch = K[0, 0] * p["pixel_pitch_um"] * 1e-6, p["pixel_pitch_um"] * 1e-6
+    # the depth whose circle of confusion has radius 1.0 px exactly (nearer than the focus distance)
+    A, df = f / p["f_number"], p["focus_distance_m"]
+    g = 2.0 * pitch * (df - f) / (A * f)  # |d - df| / d
+    d = df / (1 + g)
+    assert 0.5 * im.coc_diameter_px(d, f, p["f_number"], df, pitch) == pytest.approx(1.0, rel=1e-9)
+    rng = np.random.default_rng(3)
+    img = rng.uniform(0, 1, (SIZE[1], SIZE[0], 3)).astype(np.float32)
+    out = chain.blur(img, np.full(img.shape[:2], d), np.zeros(2))
+    ref = cv2.filter2D(img, -1, im.disk_kernel(1.0), borderType=cv2.BORDER_REFLECT)
+    assert np.abs(out - ref).max() < 1e-5
+    # at the focus distance nothing is blurred
+    assert np.abs(chain.blur(img, np.full(img.shape[:2], df), np.zeros(2)) - img).max() < 1e-6
+
+
+def test_jpeg_stage_is_opencv_encoder_at_that_quality():
+    prof = only("jpeg")
+    chain = im.ImagingChain(prof, K, SIZE)
+    rng = np.random.default_rng(0)
+    img = cv2.GaussianBlur(rng.uniform(0, 1, (SIZE[1], SIZE[0], 3)).astype(np.float32), (0, 0), 2)
+    out = chain.sensor(img, rng, None)
+    u8 = np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
+    ok, buf = cv2.imencode(".jpg", u8[..., ::-1].copy(), [cv2.IMWRITE_JPEG_QUALITY, 90])
+    ref = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1]
+    assert np.array_equal(out, ref)
+
+
+def test_bayer_mosaic_and_round_trip():
+    rgb = np.zeros((8, 10, 3), np.uint8)
+    rgb[..., 0], rgb[..., 1], rgb[..., 2] = 200, 120, 40
+    raw = im.mosaic(rgb)
+    assert raw[0, 0] == 200 and raw[0, 1] == 120 and raw[1, 0] == 120 and raw[1, 1] == 40  # RGGB
+    for method in ("bilinear", "edge_aware", "vng"):
+        back = im.demosaic(raw, method)
+        assert np.array_equal(back[2:-2, 2:-2], rgb[2:-2, 2:-2]), method
+    # a smooth colour image survives the round trip to within a few DN
+    rng = np.random.default_rng(1)
+    smooth = cv2.resize(rng.uniform(30, 220, (6, 8, 3)).astype(np.float32), (320, 240), interpolation=cv2.INTER_CUBIC)
+    smooth = np.clip(smooth, 0, 255).astype(np.uint8)
+    back = im.demosaic(im.mosaic(smooth), "edge_aware").astype(int)
+    assert np.abs(back - smooth)[4:-4, 4:-4].mean() < 1.5
+
+
+def test_rolling_shutter_row_timing():
+    t = im.row_times_s(480, 0.03)
+    assert t[0] == pytest.approx(-239.5 * 0.03 / 480) and t[-1] == pytest.approx(239.5 * 0.03 / 480)
+    assert np.allclose(np.diff(t), 0.03 / 480)
+    prof = only("rolling_shutter")
+    chain = im.ImagingChain(prof, K, SIZE)
+    img = np.zeros((SIZE[1], SIZE[0], 3), np.float32)
+    img[:, 300:340] = 1.0  # a vertical bar
+    img = cv2.GaussianBlur(img, (0, 0), 1.5)
+    v = np.array([400.0, 0.0])  # px/s: 12 px over the readout
+    out = chain.warp(img, v)
+    u = np.arange(SIZE[0])
+    for r in (0, 120, 240, 360, 479):
+        c0 = np.sum(img[r, :, 1] * u) / img[r, :, 1].sum()
+        c1 = np.sum(out[r, :, 1] * u) / out[r, :, 1].sum()
+        assert c1 - c0 == pytest.approx(v[0] * t[r], abs=0.02)
+
+
+def test_thin_prism_and_lateral_ca_displacements():
+    s1 = 0.002
+    prof = only("distortion", "chromatic", distortion={"thin_prism": [s1, 0.0, 0.0, 0.0]},
+                chromatic={"lateral_ca_r": 0.001, "lateral_ca_b": 0.0})
+    chain = im.ImagingChain(prof, K, SIZE)
+    img = np.zeros((SIZE[1], SIZE[0], 3), np.float32)
+    p = np.array([560.0, 400.0])
+    cv2.circle(img, (int(p[0]), int(p[1])), 3, (1, 1, 1), -1)
+    img = cv2.GaussianBlur(img, (0, 0), 1.5)
+    out = chain.warp(img, np.zeros(2))
+    vv, uu = np.mgrid[0:SIZE[1], 0:SIZE[0]]
+
+    def centroid(a):
+        return np.array([np.sum(a * uu), np.sum(a * vv)]) / a.sum()
+
+    c = centroid(img[..., 1])
+    x, y = (c[0] - K[0, 2]) / K[0, 0], (c[1] - K[1, 2]) / K[1, 1]
+    d_prism = np.array([s1 * (x * x + y * y) * K[0, 0], 0.0])
+    assert np.allclose(centroid(out[..., 1]) - c, d_prism, atol=0.03)  # G: the thin prism
+    assert np.allclose(centroid(out[..., 0]) - c, d_prism + 0.001 * (c - K[:2, 2]), atol=0.03)  # R: + lateral CA
+
+
+def test_chain_reproducible_from_seed_and_fixed_pattern_per_camera():
+    prof = im.imaging_profile("realistic")
+    chain = im.ImagingChain(prof, K, SIZE)
+    rng = np.random.default_rng(5)
+    img = rng.uniform(0.1, 0.9, (SIZE[1], SIZE[0], 3)).astype(np.float32)
+    depth = np.full(SIZE[::-1], 0.9)
+    spec = Sensor()
+    a = chain.apply(img, depth, np.random.default_rng(11), spec)
+    b = im.ImagingChain(prof, K, SIZE).apply(img, depth, np.random.default_rng(11), spec)
+    c = chain.apply(img, depth, np.random.default_rng(12), spec)
+    assert a.dtype == np.uint8 and a.shape == img.shape
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    # PRNU/DSNU: the same pattern in every frame of the camera (from pattern_seed, not the frame's seed)
+    assert np.array_equal(chain._prnu, im.ImagingChain(prof, K, SIZE)._prnu)
+
+
+def test_target_geometry_moves_the_printed_corners():
+    from bench.sim.scenes.rig import calibration_rig
+
+    exact = calibration_rig()
+    zero = calibration_rig(errors=im.target_geometry(im.imaging_profile("ideal"), 7, np.random.default_rng(0)))
+    assert np.allclose(zero.features["corners"], exact.features["corners"], atol=1e-15)
+    e = im.target_geometry(only("print_lines"), 7, np.random.default_rng(0))
+    rig = calibration_rig(errors=e)
+    d = rig.features["corners_board_a"] - exact.features["corners_board_a"]
+    # board A's rows run along -z of the rig, its columns along -x: corner (i, j) moves by (ys[i+1], xs[j+1])
+    xs, ys = e["line_offsets_m"]["a"]
+    assert np.allclose(d[:, 2], -np.repeat(ys[1:-1], 6), atol=1e-12)
+    assert np.allclose(d[:, 0], -np.tile(xs[1:-1], 6), atol=1e-12)
+    assert 0.1e-3 < np.std(ys) < 0.6e-3
+    bow = calibration_rig(errors=im.target_geometry(only("flatness"), 7, np.random.default_rng(0)))
+    dz = bow.features["corners_board_a"] - exact.features["corners_board_a"]
+    assert 0.2e-3 < np.abs(dz[:, 1]).max() <= 0.6e-3 + 1e-12  # board A's normal is the rig's y
