@@ -142,6 +142,50 @@ def _merged_from_map(kept, M, tol=1e-12) -> dict:
     return out
 
 
+def select_columns(Js, preferred=None, rel_tol: float = 1e-9, n_poses: int | None = None):
+    """Numerical rank of a (column-scaled) stacked Jacobian ``Js`` and a maximal set of independent columns.
+
+    Columns are taken greedily in the ``preferred`` order (default: a column-pivoted QR's), each kept if it raises
+    the rank (singular values above ``rel_tol * s_max * max(shape)``). Works for any stacked Jacobian: the DH arm's
+    (:func:`numeric_identifiability`) or a URDF chain's with its nuisance parameters projected out.
+
+    Returns
+    -------
+    kept : ndarray of int, ascending
+    rank : int
+    sv : ndarray
+        Singular values of ``Js``.
+
+    Raises
+    ------
+    ValueError
+        When every row is independent (too few poses; ``n_poses`` names the count in the message).
+    """
+    sv = np.linalg.svd(Js, compute_uv=False)
+    tol = rel_tol * sv[0] * max(Js.shape)
+    rank = int(np.sum(sv > tol))
+    if rank >= Js.shape[0]:
+        n_poses = n_poses or Js.shape[0]
+        per_pose = max(Js.shape[0] // n_poses, 1)
+        raise ValueError(f"n_poses: {n_poses} poses give {Js.shape[0]} rows and all are independent, so the rank "
+                         f"counts the rows, not the identifiable errors; use at least "
+                         f"{Js.shape[1] // per_pose + 1} poses ({Js.shape[1]} parameters)")
+    if preferred is None:
+        _, _, piv = scipy.linalg.qr(Js, pivoting=True, mode="economic")
+        order = list(piv)
+    else:
+        order = list(preferred) + [k for k in range(Js.shape[1]) if k not in set(preferred)]
+    kept: list[int] = []
+    for k in order:
+        trial = Js[:, kept + [k]]
+        s = np.linalg.svd(trial, compute_uv=False)
+        if np.sum(s > tol) == len(kept) + 1:
+            kept.append(k)
+        if len(kept) == rank:
+            break
+    return np.array(sorted(kept), dtype=int), rank, sv
+
+
 def numeric_identifiability(
     robot: Robot,
     rng: np.random.Generator,
@@ -175,28 +219,7 @@ def numeric_identifiability(
     reach = max(float(np.sum(np.abs(robot.a)) + np.sum(np.abs(robot.d))), 1e-3)
     scale = np.tile([1.0, 1.0, 1.0, reach, reach, reach], robot.n + 1)
     Js = J / scale
-    sv = np.linalg.svd(Js, compute_uv=False)
-    tol = rel_tol * sv[0] * max(Js.shape)
-    rank = int(np.sum(sv > tol))
-    if rank >= Js.shape[0]:
-        per_pose = Js.shape[0] // n_poses
-        raise ValueError(f"n_poses: {n_poses} poses give {Js.shape[0]} rows and all are independent, so the rank "
-                         f"counts the rows, not the identifiable errors; use at least "
-                         f"{Js.shape[1] // per_pose + 1} poses ({Js.shape[1]} parameters)")
-    if preferred is None:
-        _, _, piv = scipy.linalg.qr(Js, pivoting=True, mode="economic")
-        order = list(piv)
-    else:
-        order = list(preferred) + [k for k in range(Js.shape[1]) if k not in set(preferred)]
-    kept: list[int] = []
-    for k in order:
-        trial = Js[:, kept + [k]]
-        s = np.linalg.svd(trial, compute_uv=False)
-        if np.sum(s > tol) == len(kept) + 1:
-            kept.append(k)
-        if len(kept) == rank:
-            break
-    kept_arr = np.array(sorted(kept))
+    kept_arr, rank, sv = select_columns(Js, preferred, rel_tol, n_poses)
     dropped = np.setdiff1d(np.arange(J.shape[1]), kept_arr)
     C, *_ = np.linalg.lstsq(J[:, kept_arr], J[:, dropped], rcond=None)  # J_dropped = J_kept C
     M = np.zeros((len(kept_arr), J.shape[1]))
