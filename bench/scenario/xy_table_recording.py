@@ -1,11 +1,16 @@
 """The rerun recording of an ``xy_table`` run, in the table frame (OpenCV axes: x right, y down, z forward).
 
-Entities: ``world/reference`` (the reference object's outline or corners, true); per view (timeline ``view``)
-``world/views/<view>/true`` (the camera at its true pose, frustum, image) and ``world/views/<view>/estimated`` (the
-pose from the readings, the nominal table and the estimated mount rotation R0); ``world/estimates/<method>`` - the
-estimated positions of every pair's camera (anchored at the true reference camera) and ``world/estimates/true`` the
-true ones; ``plots/err_<axis>_mm/<method>`` - the RMS error over the combinations on the timeline ``d_mm`` (the
-sweep axis of Tables 5-8 / 11-14, thesis values beside as ``plots/thesis_err_<axis>_mm/<method>``); ``summary``.
+Entities: ``world/reference`` (the reference object's outline or corners, true); per view (static: each view is its
+own entity) ``world/views/<view>/true`` (the camera at its true pose, frustum, image) and
+``world/views/<view>/estimated`` (the pose from the readings, the nominal table and the estimated mount rotation R0);
+``world/estimates/<method>`` - the estimated positions of every pair's camera (anchored at the true reference camera)
+and ``world/estimates/true`` the true ones; ``plots/err_<axis>_mm/<method>`` - the RMS error over the combinations
+on the timeline ``d_o_mm``, the intraocular distance (the sweep axis of Tables 5-8 / 11-14, thesis values beside as
+``plots/thesis_err_<axis>_mm/<method>``); ``summary``.
+
+The viewer opens (application id ``xy_table: <scenario>``) on the error against the intraocular distance - one plot
+per axis, ours and the thesis's per method - beside the camera track (true and estimated cameras, the estimated
+positions per method) and the metrics.
 """
 
 from __future__ import annotations
@@ -33,19 +38,19 @@ def record_xy_table(path, cfg, ds, truth, result, camera, summary, metrics):
     K_true = np.array(truth["camera_K"])
     size = tuple(int(v) for v in truth["camera_size"])
     T_true = {n: np.array(T) for n, T in truth["T_table_cam"].items()}
-    with Recording(path, cfg["name"], f"{cfg['name']}-seed{cfg['seed']}", world="opencv") as rec:
+    with Recording(path, f"xy_table: {cfg['name']}", f"{cfg['name']}-seed{cfg['seed']}", world="opencv") as rec:
         outline, corners = _outline(truth)
         if outline is not None:
             rec.lines("world/reference", [outline], color=(200, 200, 200), static=True)
         else:
             rec.points("world/reference", corners, radius=0.003, static=True)
         views = [v for v in ds.views if v.name in T_true]
-        for n, v in enumerate(views):
-            rec.set_time("view", n)
-            rec.camera(f"world/views/{v.name}/true", T_true[v.name], K_true, size, v.image_path, plane_distance=0.05)
+        for v in views:  # static: a view's image is never without its pinhole
+            rec.camera(f"world/views/{v.name}/true", T_true[v.name], K_true, size, v.image_path, plane_distance=0.05,
+                       static=True)
             if v.name in result.T_table_cam:
                 rec.camera(f"world/views/{v.name}/estimated", result.T_table_cam[v.name], camera.K, size,
-                           plane_distance=0.05)
+                           plane_distance=0.05, static=True)
         ref = [v.name for v in views if v.role == "reference"] or [views[0].name]
         c_ref = T_true[ref[0]][:3, 3]
         est = {}
@@ -55,8 +60,16 @@ def record_xy_table(path, cfg, ds, truth, result, camera, summary, metrics):
         for m, pts in est.items():
             rec.points(f"world/estimates/{m}", np.array(pts), color=COLOURS.get(m, GREY), radius=0.002, static=True)
         rec.points("world/estimates/true", np.array([T[:3, 3] for T in T_true.values()]), radius=0.003, static=True)
+        rr = rec.rr
+        for m in sorted(set(summary["method"])):  # ours as lines, the thesis's as markers, one colour per method
+            for ax in "xyz":
+                rec.stream.log(f"plots/err_{ax}_mm/{m}", rr.SeriesLines(colors=[COLOURS.get(m, GREY)], widths=[2.0],
+                                                                         names=[f"{m} (ours)"]), static=True)
+                rec.stream.log(f"plots/thesis_err_{ax}_mm/{m}", rr.SeriesPoints(
+                    colors=[COLOURS.get(m, GREY)], markers=["cross"], marker_sizes=[4.0], names=[f"{m} (thesis)"]),
+                    static=True)
         for i, (d, m) in enumerate(zip(summary["d_mm"], summary["method"], strict=True)):
-            rec.set_time("d_mm", int(round(d)))
+            rec.set_time("d_o_mm", int(round(d)))
             for ax in "xyz":
                 rec.scalar(f"plots/err_{ax}_mm/{m}", summary[f"err_{ax}_mm"][i])
                 if f"thesis_err_{ax}_mm" in summary and summary[f"thesis_err_{ax}_mm"][i] is not None:
@@ -64,4 +77,23 @@ def record_xy_table(path, cfg, ds, truth, result, camera, summary, metrics):
         rows = "\n".join(f"| {k} | {v:.6g} |" for k, v in sorted(metrics.items()) if isinstance(v, float))
         rec.text("summary", f"# {cfg['name']} (seed {cfg['seed']})\n\n{result.message}\n\n| metric | value |\n"
                             f"|---|---|\n{rows}\n")
+        rec.blueprint(blueprint(sorted(est)))
     return path
+
+
+def blueprint(methods):
+    """Error against the intraocular distance (x, y, z; ours and the thesis's) beside the camera track."""
+    import rerun.blueprint as rrb
+
+    plots = [rrb.TimeSeriesView(origin="/plots", name=f"{ax} error (mm) vs intraocular distance d_o (mm)",
+                                contents=[f"+ /plots/err_{ax}_mm/**", f"+ /plots/thesis_err_{ax}_mm/**"],
+                                axis_x=rrb.TimeAxis(link=rrb.components.LinkAxis.LinkToGlobal),
+                                plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.RightTop))
+             for ax in "xyz"]
+    track = rrb.Spatial3DView(origin="/world", name="camera track: true and estimated cameras, estimated positions "
+                                                    f"({', '.join(methods)})")
+    return rrb.Blueprint(rrb.Horizontal(rrb.Vertical(*plots), rrb.Vertical(track, rrb.TextDocumentView(
+        origin="/summary", name="metrics"), row_shares=[3, 2]), column_shares=[1, 1]),
+                         rrb.TimePanel(timeline="d_o_mm", play_state="following"),
+                         rrb.SelectionPanel(state="collapsed"), rrb.BlueprintPanel(state="collapsed"),
+                         auto_layout=False, auto_views=False)
