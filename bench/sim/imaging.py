@@ -66,8 +66,8 @@ STAGES = ("print_lines", "print_scale", "flatness", "fold", "distortion", "chrom
 TARGET_STAGES = ("print_lines", "print_scale", "flatness", "fold")
 IMAGING_NAMES = ("realistic", "ideal")
 #: version of this module's algorithms, part of the render cache key of realistic images (bump when a code change
-#: alters them): 2 = bilinear warp (was bicubic)
-IMAGING_VERSION = 2
+#: alters them): 2 = bilinear warp (was bicubic); 3 = the lens Gaussian once after the defocus levels
+IMAGING_VERSION = 3
 
 #: the real webcam photos' calibration (tools/real_camera_stats.py, Heikkilä model, 19 views, RMS 0.557 px):
 #: k1, k2, p1, p2 in normalised coordinates; k3 = 0 (not fitted there: 7 x 7 corners cannot separate it)
@@ -388,9 +388,9 @@ class ImagingChain:
             if base is not None:
                 k = cv2.filter2D(np.pad(k, base.shape[0] // 2), -1, base, borderType=cv2.BORDER_CONSTANT)
             b = cv2.filter2D(img, -1, k, borderType=cv2.BORDER_REFLECT) if k.size > 1 else img
-            if sigma > 0:
-                b = cv2.GaussianBlur(b, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
             out += w[..., None] * b
+        if sigma > 0:  # the lens's Gaussian, shift-invariant: once after the depth-dependent pillbox
+            out = cv2.GaussianBlur(out, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
         return out
 
     def sensor(self, img, rng: np.random.Generator, spec) -> np.ndarray:
