@@ -252,15 +252,24 @@ def _ray_connect(address) -> bool:
     ``RAY_AUTH_TOKEN_PATH`` set - is taken as that intent here. A token in the default file ``~/.ray/auth_token``
     alone is not sent to an address the user typed (as in Ray).
     """
+    token_given = bool(address and "RAY_AUTH_MODE" not in os.environ
+                       and (os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH")))
+    imported = "ray" in sys.modules
+    if token_given:
+        os.environ["RAY_AUTH_MODE"] = "token"  # read by Ray when it is imported ...
     try:
         import ray
     except ImportError:
         raise BenchError("--backend ray needs Ray: pip install -e '.[cluster]'") from None
     if ray.is_initialized():
         return False
-    if address and "RAY_AUTH_MODE" not in os.environ and (os.environ.get("RAY_AUTH_TOKEN")
-                                                           or os.environ.get("RAY_AUTH_TOKEN_PATH")):
-        os.environ["RAY_AUTH_MODE"] = "token"
+    if token_given and imported:  # ... so refresh its configuration if it was imported before (as Ray itself does)
+        try:
+            from ray._raylet import Config
+
+            Config.initialize("")
+        except (ImportError, AttributeError):
+            pass
     try:
         ray.init(address=address, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
     except Exception as exc:  # noqa: BLE001 - Ray raises ConnectionError, RuntimeError, AuthenticationError, ...
