@@ -5,7 +5,8 @@ Every method has the same call and the same result:
 ``method(T_ref_cams, x_n) -> Triangulation``
 
 * ``T_ref_cams`` - the V camera poses, ``(V, 4, 4)`` or a sequence of V ``(4, 4)``: camera frame (OpenCV optical
-  frame: x right, y down, z forward) in a common reference frame, ``p_ref = T_ref_cam @ p_cam``.
+  frame: x right, y down, z forward) in a common reference frame, ``p_ref = T_ref_cam @ p_cam``; rigid transforms
+  (a projection or intrinsic matrix in their place is refused, see :data:`RIGID_TOL`).
 * ``x_n`` - the N matched points in every view, view-major: ``(V, N, 2)`` or a sequence of V ``(N, 2)``, as
   *normalized, undistorted* coordinates (``K^-1 [u v 1]^T`` after removing lens distortion). Row ``n`` of every view
   is the same scene point.
