@@ -50,3 +50,14 @@ def test_sweep_api_refuses_before_the_store(tmp_path, seeds, workers, backend, a
         run_sweep(SCEN / "tracker_base_frame.yaml", [], seeds, tmp_path / "sw", backend, address, workers,
                   progress=False)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_in_situ_summary_says_why_render_fps_is_missing():
+    """Issue 17 (small things): a run whose views all came from the render cache printed ``render_fps nan``."""
+    from bench.scenario.in_situ import summary_lines
+
+    warm = summary_lines({"base_pos_err_mm": 0.5, "views_rendered": 0.0})
+    assert not any("nan" in line for line in warm)
+    assert any(line.split()[0] == "render_fps" and "render cache" in line for line in warm)
+    cold = summary_lines({"base_pos_err_mm": 0.5, "render_fps": 3.25, "views_rendered": 12.0})
+    assert "3.25" in next(line for line in cold if line.split()[0] == "render_fps")

@@ -805,12 +805,21 @@ def run(cfg, out_dir, verbose=True):
                         artifacts)
     if verbose:
         print(f"{cfg['name']} (seed {cfg['seed']}): {res.message}")
-        for k in ("base_pos_err_mm", "base_rot_err_deg", "base_pos_std_mm", "valve_tool_err_mm",
-                  "valve_tool_err_uncompensated_mm", "map_points", "inliers", "insitu_solve_s",
-                  "mount_pos_err_mm", "mount_rot_err_deg", "focal_err_pct", "reproj_rms_px", "arm_heldout_rms_mm",
-                  "sim_vs_fk_max_err_m", "marker_projection_rms_px", "render_fps", "panel_sift_keypoints"):
-            if k in metrics:
-                print(f"  {k:<28} {metrics[k]:.6g}")
-            elif k == "render_fps":  # every view came from the render cache: nothing was timed
-                print(f"  {k:<28} not measured: all views from the render cache (outputs.cache=false renders them)")
+        print("\n".join(summary_lines(metrics)))
     return path
+
+
+def summary_lines(metrics: dict) -> list:
+    """The metrics ``bench run`` prints, one line each; a metric the run could not measure says why (``render_fps``
+    when every view came from the render cache) instead of printing ``nan``."""
+    lines = []
+    for k in ("base_pos_err_mm", "base_rot_err_deg", "base_pos_std_mm", "valve_tool_err_mm",
+              "valve_tool_err_uncompensated_mm", "map_points", "inliers", "insitu_solve_s", "mount_pos_err_mm",
+              "mount_rot_err_deg", "focal_err_pct", "reproj_rms_px", "arm_heldout_rms_mm", "sim_vs_fk_max_err_m",
+              "marker_projection_rms_px", "render_fps", "panel_sift_keypoints"):
+        if k in metrics:
+            lines.append(f"  {k:<28} {metrics[k]:.6g}")
+        elif k == "render_fps":  # every view came from the render cache: nothing was timed
+            lines.append(f"  {k:<28} not measured: all views came from the render cache (outputs.cache=false "
+                         "renders them)")
+    return lines
