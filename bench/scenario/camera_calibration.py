@@ -98,7 +98,7 @@ SCHEMA = {
     "views": {"count": (int, 7), "spread": (float, 0.8), "depth_range_mm": (float, 100.0)},
     "pipeline": {"extractor": (str, "thesis"), "model": (str, "heikkila"), "refine_corners": (bool, True),
                  "compare_extractors": (bool, True)},
-    "outputs": {"cache": (bool, True), "plots": (bool, True)},
+    "outputs": {"cache": (bool, True), "plots": (bool, True), "rerun": (bool, True)},
 }
 
 MEDIA = {"air": ("air",), "water": ("water",), "both": ("air", "water")}
@@ -804,6 +804,11 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
                                   image=first[..., ::-1], scale=1.0,
                                   title=f"{fig} - {det.names[0]}: extracted corners -> corrected (x1)")
             artifacts["figure53"] = "figure53_correction.png"
+    if cfg["outputs"]["rerun"]:  # residual fields per view (bench.scenario.camera_calibration_recording)
+        from bench.scenario.camera_calibration_recording import record_camera_calibration
+
+        record_camera_calibration(out_dir / "recording.rrd", cfg, medium, ds, det.names, Xs, uvs, cal, m)
+        artifacts["recording"] = "recording.rrd"
     timings = {"detect_s": t_detect, "calibrate_s": t_cal, "opencv_calibrate_s": t_cv,
                "evaluate_s": time.perf_counter() - t0}
     summary = {"medium": medium, "extractor": p["extractor"], "model": model, "views_used": det.names,

@@ -155,3 +155,25 @@ def test_rig_out_of_view_names_the_view(tmp_path):
     cfg = load_scenario(UNDERWATER, overrides=["camera.housing=false"])
     with pytest.raises(ConfigError, match="camera.housing: the camera cannot be submerged without its housing"):
         cc.render(cfg, tmp_path / "ds", verbose=False)
+
+
+def test_recording_opens_on_the_residual_fields(webcam_run):
+    """The .rrd holds one residual field per view used - the calibration's residuals magnified by the factor its
+    view's name states - and the blueprint that opens on them."""
+    from bench.scenario.recording import load_blueprint, load_entities
+
+    out, res = webcam_run
+    assert res["artifacts"]["recording"] == "recording.rrd"
+    e = load_entities(out / "recording.rrd")
+    bp = load_blueprint(out / "recording.rrd")
+    views = list(res["tables"]["views"]["view"])
+    fields = {n: v for n, v in bp.items() if v["class"] == "2D"}
+    assert sorted(v["origin"] for v in fields.values()) == sorted(f"/views/{v}" for v in views)
+    for name, v in fields.items():
+        k = float(name.split("residuals x")[1].split()[0])
+        uv = np.array(e[f"{v['origin']}/image/corners"]["Points2D:positions"][0])
+        arrows = np.array(e[f"{v['origin']}/image/residuals"]["Arrows2D:vectors"][0]) / k
+        rms = float(np.sqrt(np.mean(np.sum(arrows**2, axis=1))))
+        assert len(arrows) == len(uv) and rms == pytest.approx(res["tables"]["views"]["chi_px"][
+            views.index(v["origin"].split("/")[-1])], rel=1e-3)
+    assert "/summary" in e and any(v["class"] == "3D" for v in bp.values())
