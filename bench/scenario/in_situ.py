@@ -499,6 +499,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                                                "T_world_ee": task["T_world_ee"].tolist(),
                                                "q_true": task["q_true"].tolist()},
             "encoders": {"noise_std_rad": enc.noise_std_rad, "resolution_rad": enc.resolution_rad},
+            "water": None if optics.chain.medium is None else optics.chain.medium.name,
             "port": None if port is None else {"d0": port.d0, "t": port.t, "n_air": port.n_air,
                                                "n_glass": port.n_glass, "n_water": port.n_water,
                                                "tilt": port.tilt.tolist(), "decentre": port.decentre.tolist()},
