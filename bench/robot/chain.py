@@ -45,6 +45,11 @@ class SerialChain:
         Tip link in the last joint's child frame.
     q_min, q_max : ndarray (n,)
         Limits (rad or m).
+    body_mass : ndarray (n,), optional
+        Mass (kg) moved by joint k and not by joint k+1 (its child link, the links fixed to it and the side
+        branches at their zero position), from the URDF's ``<inertial>``; None when the file has none.
+    body_com : ndarray (n, 3), optional
+        Centre of that mass in joint k's child frame (m).
     """
 
     name: str
@@ -57,6 +62,8 @@ class SerialChain:
     F_tip: np.ndarray
     q_min: np.ndarray
     q_max: np.ndarray
+    body_mass: np.ndarray | None = None
+    body_com: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -171,6 +178,60 @@ def points_and_jacobian(chain: SerialChain, q, u, eps=None):
     return p, J, T
 
 
+def gravity_torques(chain: SerialChain, q, g_base=(0.0, 0.0, -9.81)):
+    """Static joint loads of the nominal chain under gravity, ``(m, n)``: N m about a revolute axis, N along a
+    prismatic one (the load that the joint's compliance answers to; the payload beyond the URDF is not known).
+
+    ``g_base``: gravity in the base frame (m/s^2); URDF bases are z-up (REP 103)."""
+    if chain.body_mass is None:
+        raise ValueError(f"{chain.name}: the URDF has no <inertial> masses on the chain: no gravity model")
+    q = chain.check_q(q)
+    g = np.asarray(g_base, dtype=float)
+    T = np.broadcast_to(np.eye(4), q.shape[:-1] + (4, 4))
+    origins, axes, coms = [], [], []
+    for k in range(chain.n):
+        T = T @ chain.F[k]
+        origins.append(T[..., :3, 3])
+        axes.append(T[..., :3, :3] @ chain.axes[k])
+        T = T @ motion(chain, k, q[..., k])
+        coms.append(T[..., :3, :3] @ chain.body_com[k] + T[..., :3, 3])
+    tau = np.zeros(q.shape)
+    for k in range(chain.n):
+        f = np.zeros(q.shape[:-1] + (3,))
+        mom = np.zeros(q.shape[:-1] + (3,))
+        for b in range(k, chain.n):
+            fb = chain.body_mass[b] * g
+            f = f + fb
+            mom = mom + np.cross(coms[b] - origins[k], fb)
+        tau[..., k] = np.sum(axes[k] * (f if chain.joint_types[k] == "prismatic" else mom), axis=-1)
+    return tau
+
+
+def joint_jacobian(chain: SerialChain, q, u, eps=None):
+    """``dp / dq`` of points ``u (k, 3)`` on the tip link, ``(m, k, 3, n)`` (m per rad, or per m if prismatic)."""
+    q = chain.check_q(q)
+    u = np.asarray(u, dtype=float).reshape(-1, 3)
+    e = _eps(chain, eps)
+    T = np.broadcast_to(np.eye(4), q.shape[:-1] + (4, 4))
+    origins, axes = [], []
+    for k in range(chain.n):
+        T = T @ chain.F[k]
+        if np.any(e[k]):
+            T = T @ error_matrix(e[k])
+        origins.append(T[..., :3, 3])
+        axes.append(T[..., :3, :3] @ chain.axes[k])
+        T = T @ motion(chain, k, q[..., k])
+    T = T @ chain.F_tip
+    if np.any(e[chain.n]):
+        T = T @ error_matrix(e[chain.n])
+    p = np.einsum("...ij,kj->...ki", T[..., :3, :3], u) + T[..., None, :3, 3]
+    J = np.empty(p.shape + (chain.n,))
+    for k in range(chain.n):
+        a = np.broadcast_to(axes[k][..., None, :], p.shape)
+        J[..., k] = a if chain.joint_types[k] == "prismatic" else np.cross(a, p - origins[k][..., None, :])
+    return J
+
+
 def chain_to_dict(chain: SerialChain) -> dict:
     """The chain as a YAML-ready mapping (mm and degrees, units in the keys)."""
     def placement(T):
@@ -185,6 +246,9 @@ def chain_to_dict(chain: SerialChain) -> dict:
         joints.append({"name": chain.joint_names[k], "type": chain.joint_types[k], "origin": placement(chain.F[k]),
                        "axis": [float(v) for v in chain.axes[k]], f"min_{unit}": float(lim[0]),
                        f"max_{unit}": float(lim[1])})
+        if chain.body_mass is not None:
+            joints[-1]["body_mass_kg"] = float(chain.body_mass[k])
+            joints[-1]["body_com_mm"] = [float(v) for v in chain.body_com[k] * 1e3]
     return {"name": chain.name, "base_link": chain.base_link, "tip_link": chain.tip_link, "joints": joints,
             "tip_origin": placement(chain.F_tip)}
 
@@ -214,7 +278,7 @@ def chain_from_dict(data, source: str = "<chain>") -> SerialChain:
             raise ConfigError(source, f"chain.{key}", "missing")
     if not isinstance(data["joints"], list) or not data["joints"]:
         raise ConfigError(source, "chain.joints", "expected a non-empty list")
-    names, types, F, axes, lo, hi = [], [], [], [], [], []
+    names, types, F, axes, lo, hi, mass, com = [], [], [], [], [], [], [], []
     for i, j in enumerate(data["joints"]):
         where = f"chain.joints[{i}]"
         if not isinstance(j, dict):
@@ -235,6 +299,12 @@ def chain_from_dict(data, source: str = "<chain>") -> SerialChain:
         axes.append(a)
         lo.append(numbers([j[f"min_{unit}"]], 1, f"{where}.min_{unit}")[0] * scale)
         hi.append(numbers([j[f"max_{unit}"]], 1, f"{where}.max_{unit}")[0] * scale)
+        if "body_mass_kg" in j:
+            mass.append(numbers([j["body_mass_kg"]], 1, f"{where}.body_mass_kg")[0])
+            com.append(numbers(j.get("body_com_mm"), 3, f"{where}.body_com_mm") * 1e-3)
+    if mass and len(mass) != len(names):
+        raise ConfigError(source, "chain.joints", "body_mass_kg given for some joints only")
     return SerialChain(str(data["name"]), str(data["base_link"]), str(data["tip_link"]), tuple(names), tuple(types),
                        np.array(F), np.array(axes), placement(data["tip_origin"], "chain.tip_origin"),
-                       np.array(lo), np.array(hi))
+                       np.array(lo), np.array(hi), np.array(mass) if mass else None,
+                       np.array(com) if com else None)

@@ -45,6 +45,9 @@ def add_parsers(sub) -> None:
                         "1 deg Gaussian prior (default)")
     g.add_argument("--weights", choices=("auto", "none"), default="none",
                    help="auto: per-posture weights from a marker_std_mm column; none: equal weights (default)")
+    g.add_argument("--compliance", choices=("auto", "off"), default="auto",
+                   help="auto: also estimate the joints' compliance under gravity when the URDF has <inertial> "
+                        "masses (base z-up); off: geometry only")
     g.add_argument("--refuse-outliers", action="store_true", help="drop (and name) outlier postures and refit")
     ck = sub.add_parser("check-robot", help="score a URDF calibration on held-out postures (everything frozen)")
     ck.add_argument("--robot", required=True, help="robot.yaml written by calibrate-robot --urdf")
@@ -72,7 +75,7 @@ def _calibrate_urdf(args) -> int:
     meas = read_measurements(args.measurements, chain, markers, args.units, args.joint_units)
     out = prepare_out_dir(args.out)
     cal = identify(chain, meas, args.model, args.weights, None if args.sigma_mm is None else args.sigma_mm * 1e-3,
-                   args.refuse_outliers)
+                   args.refuse_outliers, compliance=args.compliance == "auto" and chain.body_mass is not None)
     robot_path, report_path = write_calibration(out, cal, args.urdf, args.units, args.joint_units,
                                                 args.measurements)
     rep = json.loads(report_path.read_text())
@@ -80,6 +83,8 @@ def _calibrate_urdf(args) -> int:
           f"{rep['n_postures']} postures; {rep['n_parameters']} parameters ({rep['n_error_parameters']} errors, "
           f"model {args.model})")
     print(f"RMS {rep['rms_mm']:.4g} mm (nominal {rep['rms_nominal_mm']:.4g} mm), max {rep['max_mm']:.4g} mm")
+    if cal.compliance:
+        print("compliance under gravity (rad/N m): " + ", ".join(f"{n} {c:.3g}" for n, c in cal.compliance.items()))
     if cal.outliers:  # in the final fit (after any refusal)
         print(f"outliers: {', '.join(cal.outliers)} (kept; --refuse-outliers drops them)")
     if cal.refused:

@@ -37,7 +37,7 @@ import scipy.optimize
 
 from bench.errors import BenchError, ConfigError
 from bench.geometry.transforms import homogeneous, skew
-from bench.robot.chain import SerialChain, points_and_jacobian
+from bench.robot.chain import SerialChain, gravity_torques, joint_jacobian, points_and_jacobian
 from bench.robot.identifiability import select_columns
 from bench.robot.model import error_names
 
@@ -207,9 +207,20 @@ def _exp_so3(phi):
     return R, Jl
 
 
-def predict(chain, q, eps, T_meas_base, U):
-    """Marker points in the measurement frame, (m, k, 3) (m)."""
-    p, _, _ = points_and_jacobian(chain, q, U, eps)
+def compliant_q(chain, q, compliance=None):
+    """Joint positions under gravity: ``q + c_j tau_j(q)`` for the joints of ``compliance = {name: c}`` (rad per
+    N m, m per N; ``tau``: :func:`bench.robot.chain.gravity_torques`)."""
+    if not compliance:
+        return q
+    idx = [chain.joint_names.index(n) for n in compliance]
+    q = np.array(q, dtype=float)
+    q[..., idx] += gravity_torques(chain, q)[..., idx] * np.array(list(compliance.values()))
+    return q
+
+
+def predict(chain, q, eps, T_meas_base, U, compliance=None):
+    """Marker points in the measurement frame, (m, k, 3) (m); ``compliance`` as :func:`compliant_q`."""
+    p, _, _ = points_and_jacobian(chain, compliant_q(chain, q, compliance), U, eps)
     return p @ T_meas_base[:3, :3].T + T_meas_base[:3, 3]
 
 
@@ -248,33 +259,49 @@ def closed_form_start(chain: SerialChain, q, P):
     return T0, U
 
 
-def _solve(chain, q, P, w, T0, U0, kept, eps0, prior, max_nfev=200):
-    """least_squares over (frame, offsets, eps[kept]); ``prior`` = per-parameter prior std (len n_errors) or None."""
+def _solve(chain, q, P, w, T0, U0, kept, eps0, prior, max_nfev=200, tau=None, c0=None):
+    """least_squares over (frame, offsets, eps[kept], compliances); ``prior`` = per-parameter prior std (len
+    n_errors) or None; ``tau (m, n_c)`` the gravity loads of the compliant joints (columns of ``c0``'s joints)."""
     m, k, _ = P.shape
+    comp = None if tau is None else np.asarray(c0[0], dtype=int)
+    n_c = 0 if comp is None else len(comp)
     n_e = chain.n_errors
     cols = np.asarray(kept, dtype=int)
     w = np.ones(m) if w is None else np.asarray(w, dtype=float)
     R0 = T0[:3, :3]
     eps_base = np.zeros(n_e) if eps0 is None else np.asarray(eps0, dtype=float).copy()
 
+    n_x = 6 + 3 * k + len(cols)
+
     def unpack(x):
         R, Jl = _exp_so3(x[:3])
         eps = eps_base.copy()
-        eps[cols] = x[6 + 3 * k:]
+        eps[cols] = x[6 + 3 * k: n_x]
         return R @ R0, x[3:6], x[6: 6 + 3 * k].reshape(k, 3), eps, Jl
+
+    def q_eff(x):
+        if comp is None:
+            return q
+        qe = q.copy()
+        qe[:, comp] += tau * x[n_x:]
+        return qe
 
     def fun_jac(x):
         R, t, U, eps, Jl = unpack(x)
-        p, Je, T = points_and_jacobian(chain, q, U, eps)
+        qe = q_eff(x)
+        p, Je, T = points_and_jacobian(chain, qe, U, eps)
         pm = p @ R.T + t
         r = ((pm - P) * w[:, None, None]).reshape(-1)
-        J = np.zeros((m, k, 3, 6 + 3 * k + len(cols)))
+        J = np.zeros((m, k, 3, n_x + n_c))
         J[..., :3] = -skew(pm - t) @ Jl  # d(Exp(phi) R0 p)/dphi
         J[..., 3:6] = np.eye(3)
         RRt = R @ T[:, :3, :3]  # (m, 3, 3)
         for j in range(k):
             J[:, j, :, 6 + 3 * j: 9 + 3 * j] = RRt
-        J[..., 6 + 3 * k:] = np.einsum("ab,mkbc->mkac", R, Je[..., cols])
+        J[..., 6 + 3 * k: n_x] = np.einsum("ab,mkbc->mkac", R, Je[..., cols])
+        if comp is not None:
+            Jq = joint_jacobian(chain, qe, U, eps)[..., comp] * tau[:, None, None, :]
+            J[..., n_x:] = np.einsum("ab,mkbc->mkac", R, Jq)
         J = (J * w[:, None, None, None]).reshape(-1, J.shape[-1])
         if prior is not None:
             pr = 1.0 / prior[cols]
@@ -296,11 +323,13 @@ def _solve(chain, q, P, w, T0, U0, kept, eps0, prior, max_nfev=200):
             fun(x)
         return cache["rj"][1]
 
-    x0 = np.concatenate([np.zeros(3), T0[:3, 3], np.asarray(U0, float).reshape(-1), eps_base[cols]])
+    x0 = np.concatenate([np.zeros(3), T0[:3, 3], np.asarray(U0, float).reshape(-1), eps_base[cols],
+                         np.zeros(n_c) if comp is None else np.asarray(c0[1], float)])
     res = scipy.optimize.least_squares(fun, x0, jac=jac, method="trf", x_scale="jac", xtol=1e-15, ftol=1e-15,
                                        gtol=1e-15, max_nfev=max_nfev)
     R, t, U, eps, _ = unpack(res.x)
     _, J = fun_jac(res.x)
+    res.compliance = res.x[n_x:]
     return homogeneous(R, t), U, eps, res, J
 
 
@@ -370,6 +399,7 @@ class MarkerCalibration:
     timings_s: dict = field(default_factory=dict)
     cost: float = float("nan")
     refused_errors: dict = field(default_factory=dict)  # label -> RMS residual (m) of a refused posture
+    compliance: dict = field(default_factory=dict)  # joint name -> rad per N m (m per N if prismatic)
 
     @property
     def rms_m(self) -> float:
@@ -379,6 +409,8 @@ class MarkerCalibration:
         """Standard deviation (m, 3D) of the predicted marker positions at ``q (h, n)`` from the estimate's
         covariance (frame, offsets and errors): the bound a held-out check should meet."""
         k = len(self.U)
+        if self.compliance:
+            raise ValueError("predicted_error: not available with compliance (a non-geometric model)")
         p, Je, T = points_and_jacobian(self.chain, q, self.U, self.eps)
         R = self.T_meas_base[:3, :3]
         pm = p @ R.T + self.T_meas_base[:3, 3]
@@ -394,7 +426,8 @@ class MarkerCalibration:
 
 
 def identify(chain: SerialChain, meas: Measurements, model: str = "reduced", weights: str = "auto",
-             sigma_m: float | None = None, refuse_outliers: bool = False, rng=None) -> MarkerCalibration:
+             sigma_m: float | None = None, refuse_outliers: bool = False, rng=None,
+             prior_scale: float = 1.0, compliance: bool = False) -> MarkerCalibration:
     """Closed-form start, identifiability, iterative identification and outlier screening (module docstring).
 
     Parameters
@@ -404,6 +437,11 @@ def identify(chain: SerialChain, meas: Measurements, model: str = "reduced", wei
         ``auto``: per-posture weights ``1 / sigma_i`` from the file's standard deviations when given; ``none``: equal.
     sigma_m : float, optional
         Standard deviation of a coordinate (m) for the covariance; default the residuals' (a-posteriori).
+    prior_scale : float
+        Multiplies the prior's standard deviations (``model="prior"``).
+    compliance : bool
+        Also estimate a compliance per revolute joint that gravity loads (``q + c tau(q)``; the loads from the URDF's
+        inertials, the base z-up): joint elasticity, the largest non-geometric error of light arms.
     """
     if model not in MODELS:
         raise BenchError(f"--model: expected one of {MODELS}, got {model!r}")
@@ -424,19 +462,32 @@ def identify(chain: SerialChain, meas: Measurements, model: str = "reduced", wei
     elif weights not in ("auto", "none"):
         raise BenchError(f"--weights: expected auto or none, got {weights!r}")
     prior = _prior_std(chain) if model == "prior" else None
+    comp_idx = np.zeros(0, dtype=int)
+    if compliance:
+        if chain.body_mass is None:
+            raise BenchError("--compliance: the URDF has no <inertial> masses on the chain (no gravity loads)")
+        tau_all = gravity_torques(chain, q)
+        rms_tau = np.sqrt(np.mean(tau_all**2, axis=0))
+        rev = np.array([t == "revolute" for t in chain.joint_types])
+        comp_idx = np.flatnonzero(rev & (rms_tau > 1e-2 * rms_tau[rev].max()))
+        n_par += len(comp_idx)
     labels = list(meas.labels)
     idx = np.arange(m)
     refused, outliers = [], []
     nominal = np.linalg.norm(predict(chain, q, None, T0, U0) - P, axis=-1)
     for _ in range(3):
         ww = None if w is None else w[idx]
+        extra = {}
+        if len(comp_idx):
+            extra = {"tau": tau_all[idx][:, comp_idx], "c0": (comp_idx, np.zeros(len(comp_idx)))}
         scale_prior = None
         if prior is not None:  # the prior is relative to the data's noise: sigma from a first unregularised pass
-            T1, U1, e1, r1, _ = _solve(chain, q[idx], P[idx], ww, T0, U0, kept, None, None)
+            T1, U1, e1, r1, _ = _solve(chain, q[idx], P[idx], ww, T0, U0, kept, None, None, **extra)
             s_hat = np.sqrt(2 * r1.cost / max(r1.fun.size - n_par, 1))
-            scale_prior = prior / s_hat
-        T, U, eps, res, J = _solve(chain, q[idx], P[idx], ww, T0, U0, cols, None, scale_prior)
-        resid = np.linalg.norm(predict(chain, q[idx], eps, T, U) - P[idx], axis=-1)
+            scale_prior = prior_scale * prior / s_hat
+        T, U, eps, res, J = _solve(chain, q[idx], P[idx], ww, T0, U0, cols, None, scale_prior, **extra)
+        comp = {chain.joint_names[j]: float(c) for j, c in zip(comp_idx, res.compliance, strict=True)}
+        resid = np.linalg.norm(predict(chain, q[idx], eps, T, U, comp) - P[idx], axis=-1)
         per = np.sqrt(np.mean(resid**2, axis=1))
         robust = 1.4826 * np.median(np.abs(per - np.median(per))) + np.median(per)
         bad = per > OUTLIER_K * robust
@@ -450,13 +501,13 @@ def identify(chain: SerialChain, meas: Measurements, model: str = "reduced", wei
     JtJ = J.T @ J
     cov = np.linalg.pinv(JtJ) * s2
     # with weights (median 1) s2 is the variance of a coordinate at the median posture's standard deviation
-    full_resid = np.linalg.norm(predict(chain, q, eps, T, U) - P, axis=-1)
+    full_resid = np.linalg.norm(predict(chain, q, eps, T, U, comp) - P, axis=-1)
     msg = f"least squares ({model}): {res.message}"
     refused_err = {lbl: float(np.sqrt(np.mean(full_resid[i] ** 2))) for i, lbl in enumerate(labels) if lbl in refused}
     return MarkerCalibration(chain, list(meas.markers), model, eps, T, U, kept, merged, cov, full_resid[idx],
                              [labels[i] for i in idx], outliers, refused, nominal[idx], msg,
                              {"closed_form_start_s": t_start, "calibration_s": time.perf_counter() - t0},
-                             float(res.cost), refused_err)
+                             float(res.cost), refused_err, comp)
 
 
 # ------------------------------------------------------------------------------------------------ files
@@ -502,20 +553,27 @@ def write_calibration(out, cal: MarkerCalibration, urdf_path, units: str, joint_
             "units": {"points": units, "joints": joint_units},
         },
     }
+    if cal.compliance:  # q + c tau(q): tau from the chain's body masses, gravity -z of the base (URDF z-up)
+        robot["calibration"]["compliance"] = {
+            n: {("m_per_n" if cal.chain.joint_types[cal.chain.joint_names.index(n)] == "prismatic"
+                 else "rad_per_nm"): float(c)} for n, c in cal.compliance.items()}
     atomic_write_text(out / "robot.yaml", yaml.safe_dump(robot, sort_keys=False))
     k = len(cal.U)
     cols = cal.kept if cal.model == "reduced" else np.arange(cal.chain.n_errors)
     par_names = ([f"T_meas_base.rot_{a}_rad" for a in "xyz"] + [f"T_meas_base.{a}_mm" for a in "xyz"]
-                 + [f"marker{j + 1}.{a}_mm" for j in range(k) for a in "xyz"] + [_err_key(names[c]) for c in cols])
+                 + [f"marker{j + 1}.{a}_mm" for j in range(k) for a in "xyz"] + [_err_key(names[c]) for c in cols]
+                 + [f"compliance.{n}_rad_per_nm" for n in cal.compliance])
     std = np.sqrt(np.diag(cal.covariance))
+    n_e = 6 + 3 * k + len(cols)
     std_u = np.concatenate([std[:3], std[3:6] * 1e3, std[6: 6 + 3 * k] * 1e3,
-                            [s * (1e3 if names[c][0] in "xyz" else 1.0) for s, c in zip(std[6 + 3 * k:], cols,
-                                                                                     strict=True)]])
+                            [s * (1e3 if names[c][0] in "xyz" else 1.0) for s, c in zip(std[6 + 3 * k: n_e], cols,
+                                                                                     strict=True)], std[n_e:]])
     per = np.sqrt(np.mean(cal.residuals**2, axis=1))
     report = {
         "method": ("closed-form start (linear in R, t and R u) + least squares on the exact model (Eq. 10, URDF "
                    f"form); model {cal.model!r}: " + ("the numerically identifiable errors" if cal.model == "reduced"
-                                                      else "all errors with a 2 mm / 1 deg Gaussian prior")),
+                                                      else "all errors with a 2 mm / 1 deg Gaussian prior")
+                   + ("; joint compliance under gravity" if cal.compliance else "")),
         "urdf": str(urdf_path), "measurements": str(measurements_path), "message": cal.message,
         "rms_mm": cal.rms_m * 1e3, "max_mm": float(cal.residuals.max() * 1e3),
         "rms_first_marker_mm": float(np.sqrt(np.mean(cal.residuals[:, 0] ** 2)) * 1e3),
@@ -527,6 +585,7 @@ def write_calibration(out, cal: MarkerCalibration, urdf_path, units: str, joint_
         "covariance_parameters": par_names,
         "covariance_units": "SI: rad for rotations, m for translations (the names' mm are for the std only)",
         "covariance": cal.covariance.tolist(),
+        "compliance_rad_per_nm": cal.compliance,
         "outliers": cal.outliers, "outliers_refused": cal.refused,
         "refused_errors_mm": {k_: v * 1e3 for k_, v in cal.refused_errors.items()},
         "per_posture": [{"posture": lbl, "error_mm": float(e * 1e3)} for lbl, e in zip(cal.labels, per,
@@ -538,7 +597,8 @@ def write_calibration(out, cal: MarkerCalibration, urdf_path, units: str, joint_
 
 
 def load_calibration(path):
-    """``(chain, eps, T_meas_base, U, markers, units)`` from a ``robot.yaml`` written by :func:`write_calibration`."""
+    """``(chain, eps, T_meas_base, U, markers, units, compliance)`` from a ``robot.yaml`` written by
+    :func:`write_calibration`."""
     import yaml
 
     from bench.geometry.quaternion import quaternion_to_matrix
@@ -579,7 +639,15 @@ def load_calibration(path):
                                                "[{columns, offset_mm}] and units") from None
     if abs(np.linalg.norm(qw) - 1.0) > 1e-6 or any(len(m) != 3 for m in markers):
         raise ConfigError(path, "calibration.T_meas_base.quaternion_wxyz", "must be a unit quaternion")
-    return chain, eps, homogeneous(quaternion_to_matrix(qw), t), U, markers, units
+    compliance = {}
+    for name, entry in (cal.get("compliance") or {}).items():
+        v = list(entry.values())[0] if isinstance(entry, dict) and len(entry) == 1 else None
+        if name not in chain.joint_names or isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ConfigError(path, f"calibration.compliance.{name}", "expected a chain joint with {rad_per_nm: c}")
+        compliance[name] = float(v)
+    if compliance and chain.body_mass is None:
+        raise ConfigError(path, "calibration.compliance", "needs the chain's body_mass_kg / body_com_mm")
+    return chain, eps, homogeneous(quaternion_to_matrix(qw), t), U, markers, units, compliance
 
 
 def check(robot_yaml, measurements, points=None, units=None, joint_units=None) -> dict:
@@ -588,14 +656,14 @@ def check(robot_yaml, measurements, points=None, units=None, joint_units=None) -
     ``points`` default to the calibrated markers' columns; given, they must name the same number of markers (in the
     same order). ``units`` / ``joint_units`` default to the calibration's.
     """
-    chain, eps, T, U, markers, cal_units = load_calibration(robot_yaml)
+    chain, eps, T, U, markers, cal_units, compliance = load_calibration(robot_yaml)
     cols = markers if points is None else parse_points(points)
     if len(cols) != len(markers):
         raise BenchError(f"--points: {len(cols)} marker(s) given, the calibration has {len(markers)} "
                          f"({'; '.join(','.join(m) for m in markers)})")
     meas = read_measurements(measurements, chain, cols, units or cal_units["points"],
                              joint_units or cal_units["joints"])
-    err = np.linalg.norm(predict(chain, meas.q, eps, T, U) - meas.P, axis=-1)  # (m, k)
+    err = np.linalg.norm(predict(chain, meas.q, eps, T, U, compliance) - meas.P, axis=-1)  # (m, k)
     per = np.sqrt(np.mean(err**2, axis=1))
     return {"robot": str(robot_yaml), "measurements": str(measurements),
             "rms_mm": float(np.sqrt(np.mean(err**2)) * 1e3), "max_mm": float(err.max() * 1e3),

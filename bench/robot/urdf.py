@@ -112,5 +112,46 @@ def load_urdf_chain(path, base_link: str, tip_link: str) -> SerialChain:
         pending = np.eye(4)
     if not names:
         raise ConfigError(src, "--tip-link", f"no moving joint between {base_link!r} and {tip_link!r}")
+    mass, com = _bodies(src, root, path_joints)
     return SerialChain(str(root.get("name", path.stem)), base_link, tip_link, tuple(names), tuple(types),
-                       np.array(F), np.array(axes), pending, np.array(lo), np.array(hi))
+                       np.array(F), np.array(axes), pending, np.array(lo), np.array(hi), mass, com)
+
+
+def _bodies(src, root, path_joints):
+    """Lumped mass (kg) and centre of mass (m, in the child frame of each moving joint) of what each moving joint of
+    the chain carries up to the next one: its child link, links fixed to it along the chain and every side branch
+    (at zero joint positions). ``(None, None)`` when no link has an ``<inertial>`` mass."""
+    children = {}
+    for j in root.findall("joint"):
+        children.setdefault(j.find("parent").get("link"), []).append(j)
+    inertial = {}
+    for lk in root.findall("link"):
+        m_el = lk.find("inertial/mass")
+        if m_el is not None:
+            try:
+                m = float(m_el.get("value", 0.0))
+            except ValueError:
+                raise ConfigError(src, f"link {lk.get('name')!r} inertial mass", "not a number") from None
+            o = lk.find("inertial/origin")
+            c = _floats(src, f"link {lk.get('name')!r} inertial origin", None if o is None else o.get("xyz"), 3,
+                        [0, 0, 0])
+            inertial[lk.get("name")] = (m, c)
+    if not any(m > 0 for m, _ in inertial.values()):
+        return None, None
+    moving = [j for j in path_joints if j.get("type") != "fixed"]
+    stop = {id(j) for j in moving}
+    masses, coms = [], []
+    for j in moving:
+        total, moment = 0.0, np.zeros(3)
+        stack = [(j.find("child").get("link"), np.eye(4))]
+        while stack:
+            link, T = stack.pop()
+            m, c = inertial.get(link, (0.0, np.zeros(3)))
+            total += m
+            moment += m * (T[:3, :3] @ c + T[:3, 3])
+            for cj in children.get(link, []):
+                if id(cj) not in stop:
+                    stack.append((cj.find("child").get("link"), T @ _origin(src, cj, cj.get("name"))))
+        masses.append(total)
+        coms.append(moment / total if total > 0 else np.zeros(3))
+    return np.array(masses), np.array(coms)

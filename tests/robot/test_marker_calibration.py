@@ -252,3 +252,49 @@ def test_cli_bad_inputs_are_one_line_errors(tmp_path, urdf, chain, rng, capsys):
     assert main(["check-robot", "--robot", str(urdf), "--measurements", str(good), "--out", str(tmp_path / "o")]) == 2
     assert "format" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def _with_inertials(tmp_path):
+    text = URDF
+    for name, m, c in (("l1", 2.0, "0.05 0 0"), ("l2", 3.0, "0.15 0 0.01"), ("l2b", 0.5, "0 0 0"),
+                       ("l3", 1.5, "0.1 0 0"), ("l4", 1.0, "0 0 0.04"), ("tool", 0.8, "0 0.02 0.05"),
+                       ("camera", 0.3, "0 0 0.02")):
+        text = text.replace(f'<link name="{name}"/>', f'<link name="{name}"><inertial><origin xyz="{c}"/>'
+                                                      f'<mass value="{m}"/><inertia ixx="0.01" iyy="0.01" izz="0.01" '
+                                                      'ixy="0" ixz="0" iyz="0"/></inertial></link>')
+    p = tmp_path / "arm_inertial.urdf"
+    p.write_text(text)
+    return p
+
+
+def test_gravity_loads_match_pinocchio(tmp_path, rng):
+    pin = pytest.importorskip("pinocchio")
+    from bench.robot.chain import gravity_torques
+
+    urdf = _with_inertials(tmp_path)
+    ch = load_urdf_chain(urdf, "world", "tool")
+    model = pin.buildModelFromUrdf(str(urdf))
+    data = model.createData()
+    for q in ch.random_configurations(rng, 4):
+        qp = pin.neutral(model)
+        for name, v in zip(JOINTS, q, strict=True):
+            j = model.joints[model.getJointId(name)]
+            qp[j.idx_q: j.idx_q + j.nq] = (np.cos(v), np.sin(v)) if j.nq == 2 else v
+        g = pin.computeGeneralizedGravity(model, data, qp)
+        ref = [g[model.joints[model.getJointId(n)].idx_v] for n in JOINTS]
+        assert np.abs(gravity_torques(ch, q) + ref).max() < 1e-10  # the load is minus the holding torque
+
+
+def test_compliance_under_gravity_is_recovered(tmp_path, rng):
+    from bench.robot.marker_calibration import compliant_q
+
+    ch = load_urdf_chain(_with_inertials(tmp_path), "world", "tool")
+    meas, (eps, T, U) = _simulate(ch, rng, 60, 2)
+    truth = {"j4": 5e-3}  # j1, j2, j3 turn about (near-)vertical axes in this arm: gravity does not load them
+    P = predict(ch, meas.q, eps, T, U, truth)
+    assert np.abs(compliant_q(ch, meas.q, truth) - meas.q).max() > 1e-3  # the effect is there (rad)
+    cal = identify(ch, Measurements(meas.q, P, meas.labels, meas.markers), model="reduced", compliance=True)
+    assert set(cal.compliance) == {"j4"} and abs(cal.compliance["j4"] - 5e-3) < 1e-9
+    qh = ch.random_configurations(rng, 100)
+    err = predict(ch, qh, cal.eps, cal.T_meas_base, cal.U, cal.compliance) - predict(ch, qh, eps, T, U, truth)
+    assert np.abs(err).max() < 1e-9
