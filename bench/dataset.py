@@ -35,7 +35,14 @@ import numpy as np
 import yaml
 
 from bench.errors import ConfigError
-from bench.fileio import check_output_dir, fix_mkdtemp_mode, mark_output_dir, output_marker
+from bench.fileio import (
+    check_output_dir,
+    check_replaceable,
+    fix_mkdtemp_mode,
+    mark_output_dir,
+    output_marker,
+    record_output_entries,
+)
 
 FORMAT = "insitu-bench-dataset/1"
 KINDS = ("in_situ", "camera_calibration", "xy_table", "kinematic")
@@ -436,7 +443,9 @@ class DatasetWriter:
         marker = output_marker(self.root) if self.root.is_dir() else None
         if marker and marker["command"] == command and not (overwrite or force):
             raise ConfigError(self.root, "<folder>", "already exists (pass --overwrite to replace it)")
-        check_output_dir(self.root, command, force=force, identity=self.identity, option="dataset folder")
+        if check_output_dir(self.root, command, force=force, identity=self.identity,
+                            option="dataset folder") in ("own", "replace"):
+            check_replaceable(self.root, "dataset folder")  # replaced whole: nothing of someone else's in it
         self.overwrite, self.force = overwrite, force
         self.tmp: Path | None = None
         self._views: list[dict] = []
@@ -519,6 +528,7 @@ class DatasetWriter:
         man["views"] = self._views
         self.write_text("manifest.yaml", yaml.safe_dump(man, sort_keys=False))
         mark_output_dir(self.tmp, self.command, self.identity)
+        record_output_entries(self.tmp)
 
     def __exit__(self, exc_type, exc, tb) -> bool:
         if exc_type is not None:
@@ -527,8 +537,9 @@ class DatasetWriter:
         try:
             self._finish()
             # again: the folder may have changed while the views were rendered
-            check_output_dir(self.root, self.command, force=self.force, identity=self.identity,
-                             option="dataset folder")
+            if check_output_dir(self.root, self.command, force=self.force, identity=self.identity,
+                                option="dataset folder") in ("own", "replace"):
+                check_replaceable(self.root, "dataset folder")
             if self.root.exists():
                 old = self.root.with_name(f".{self.root.name}.old-{os.getpid()}")
                 os.replace(self.root, old)

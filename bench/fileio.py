@@ -214,8 +214,50 @@ def check_output_dir(path, command: str, *, force: bool = False, identity: str |
         if not force:
             raise OutputRefused(f"{option} {path}: holds the output of bench {command} for {marker['identity']!r}, "
                                 f"not {identity!r}; --force replaces it, or choose another folder")
+        check_replaceable(path, option)
         return "replace"
-    return "replace" if force else "own"
+    if force:
+        check_replaceable(path, option)
+        return "replace"
+    return "own"
+
+
+def _ours(name: str, entries) -> bool:
+    """Whether a top-level entry is one the command recorded: the name itself, a companion of it (``x.sqlite-wal``
+    of ``x.sqlite``) or an atomic write's temporary file (``.x.1234.tmp...``)."""
+    return (name == OUTPUT_MARKER or name in entries or any(name.startswith(e + "-") for e in entries)
+            or (name.startswith(".") and ".tmp" in name))
+
+
+def foreign_entries(path) -> list:
+    """Top-level entries of a marked output folder that its command did not record as written (e.g. a note the user
+    put there since); ``[]`` when the command never finished and so recorded nothing (then it is all its own)."""
+    path = Path(path)
+    marker = output_marker(path) or {}
+    entries = marker.get("entries")
+    if not isinstance(entries, list):
+        return []
+    return sorted(p.name for p in path.iterdir() if not _ours(p.name, entries))
+
+
+def check_replaceable(path, option: str = "--out") -> None:
+    """Refuse to replace a marked output folder that holds something its command did not write."""
+    foreign = foreign_entries(path)
+    if foreign:
+        raise OutputRefused(f"{option} {path}: holds {_listing(foreign)}, which bench did not write there; move "
+                            "it away first (bench replaces only its own output)")
+
+
+def record_output_entries(path, exclude=()) -> None:
+    """Record in the marker the top-level entries the command has written (done when it finishes; ``exclude``: the
+    foreign entries that were there before it started), so that a later replacement can tell a file put there by
+    someone else (:func:`foreign_entries`)."""
+    path = Path(path)
+    marker = output_marker(path)
+    if marker is None:
+        return
+    marker["entries"] = sorted(p.name for p in path.iterdir() if p.name != OUTPUT_MARKER and p.name not in exclude)
+    atomic_write_text(path / OUTPUT_MARKER, json.dumps(marker, indent=2) + "\n")
 
 
 def mark_output_dir(path, command: str, identity: str | None = None) -> Path:
@@ -300,6 +342,7 @@ def writing_output_dir(path, command: str, *, force: bool = False, identity: str
     first."""
     path = Path(path)
     decision = check_output_dir(path, command, force=force, identity=identity, option=option)
+    before = foreign_entries(path) if decision == "own" else []
     if decision == "replace":
         shutil.rmtree(path)
     try:
@@ -307,6 +350,8 @@ def writing_output_dir(path, command: str, *, force: bool = False, identity: str
     finally:
         if decision != "own" and path.is_dir() and any(path.iterdir()) and output_marker(path) is None:
             mark_output_dir(path, command, identity)
+        if output_marker(path) is not None:
+            record_output_entries(path, exclude=before)
 
 
 @contextlib.contextmanager
@@ -318,6 +363,7 @@ def claimed_output_dir(path, command: str, *, force: bool = False, identity: str
     the command left it."""
     path = Path(path)
     decision = check_output_dir(path, command, force=force, identity=identity, option=option)
+    before = foreign_entries(path) if decision == "own" else []
     claim_output_dir(path, command, force=force, identity=identity, option=option)
     try:
         yield path
@@ -327,3 +373,4 @@ def claimed_output_dir(path, command: str, *, force: bool = False, identity: str
             if decision == "empty":
                 path.mkdir(exist_ok=True)
         raise
+    record_output_entries(path, exclude=before)

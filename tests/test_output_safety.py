@@ -131,9 +131,14 @@ def test_run(tmp_path, places, capsys):
     again = json.loads((out / "result.json").read_text())["metrics"]
     assert {k: v for k, v in again.items() if not k.endswith("_s")} == \
         {k: v for k, v in first["metrics"].items() if not k.endswith("_s")}
-    (out / "stale.csv").write_text("x")
-    assert main(base + ["--out", str(out), "--force"]) == 0  # --force: a fresh run
-    assert not (out / "stale.csv").exists()
+    (out / "stale.csv").write_text("x")  # a user's file in the run's folder: kept when the run re-runs ...
+    assert main(base + ["--out", str(out)]) == 0 and (out / "stale.csv").read_text() == "x"
+    refused(capsys, base + ["--out", str(out), "--force"], "holds 'stale.csv', which bench did not write there")
+    assert (out / "stale.csv").read_text() == "x"  # ... and --force does not delete it
+    (out / "stale.csv").unlink()
+    (out / "base_accuracy_vs_noise.csv").write_text("edited")
+    assert main(base + ["--out", str(out), "--force"]) == 0  # --force: a fresh run over the run's own files
+    assert (out / "base_accuracy_vs_noise.csv").read_text() != "edited"
     refused(capsys, ["sweep", str(TRACKER), "--out", str(out)], "holds the output of bench run, not of bench sweep")
     capsys.readouterr()
 
@@ -152,6 +157,11 @@ def test_sweep(tmp_path, places, capsys):
     assert (out / "sweep.sqlite").stat().st_size >= rows
     assert main(base + ["--out", str(out), "--force"]) == 0  # afresh: one run again
     assert "1 finished runs" in capsys.readouterr().out
+    (out / "notes.txt").write_text("mine")
+    assert main(base + ["--out", str(out), "--seeds", "2"]) == 0  # resumes around the user's file
+    capsys.readouterr()
+    refused(capsys, base + ["--out", str(out), "--force"], "holds 'notes.txt', which bench did not write there")
+    assert (out / "notes.txt").read_text() == "mine"
 
 
 def test_budget_refuses_before_any_run(tmp_path, places, capsys):
@@ -191,6 +201,12 @@ def test_sim_render_replaces_only_its_own_dataset(tmp_path, capsys, monkeypatch)
     assert main(base + ["--seed", "2"]) == 0  # its own dataset: replaced whole
     assert [v.name for v in load_dataset(tmp_path / "ds").views] == ["seed2"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]  # no temporary or old folder left
+    (tmp_path / "ds" / "my_notes.txt").write_text("mine")  # the user's, inside the dataset: never replaced
+    for extra in ([], ["--force"]):
+        refused(capsys, base + ["--seed", "3", *extra], "holds 'my_notes.txt', which bench did not write there")
+    assert (tmp_path / "ds" / "my_notes.txt").read_text() == "mine"
+    assert [v.name for v in load_dataset(tmp_path / "ds").views] == ["seed2"]
+    (tmp_path / "ds" / "my_notes.txt").unlink()
     refused(capsys, ["sim", "render", str(SCEN / "xy_table_webcam.yaml"), "--out", str(tmp_path / "ds")],
             "for 'ta40_in_situ_manifold', not 'xy_table_webcam'; --force replaces it")
     (tmp_path / "foreign").mkdir()
@@ -220,6 +236,10 @@ def test_locate(tmp_path, places, planar, capsys):
     assert main(base + ["--out", str(out)]) == 0  # its own output
     assert main(base + ["--out", str(out), "--force"]) == 0
     assert sorted(p.name for p in out.iterdir()) == [OUTPUT_MARKER, "locate.json"]
+    (out / "notes.txt").write_text("mine")
+    assert main(base + ["--out", str(out)]) == 0
+    refused(capsys, base + ["--out", str(out), "--force"], "holds 'notes.txt'")
+    assert (out / "notes.txt").read_text() == "mine"
     refused(capsys, ["calibrate-camera", str(planar), "--out", str(out)], "holds the output of bench locate")
 
 
@@ -251,7 +271,7 @@ def _inputs(tmp_path, ta40):
     joints = inp / "j.csv"
     joints.write_text("view," + ",".join(f"q{i}_deg" for i in range(1, 7)) + "\n"
                       + "".join(f"v{i}," + ",".join(map(str, r)) + "\n" for i, r in enumerate(np.rad2deg(q))))
-    return {"export": [str(robot), "--format", "urdf"], "export-camera": [str(camera), "--format", "ros"],
+    return {"export": [str(robot), "--format", "urdf", "--velocity-deg-s", "30", "--effort-nm", "2000"], "export-camera": [str(camera), "--format", "ros"],
             "import-tracker": [str(tracker)], "import-joints": [str(joints)]}
 
 

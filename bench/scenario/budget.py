@@ -45,7 +45,7 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
     claimed (:func:`bench.fileio.claim_output_dir`, command ``budget``, identity the scenario file's name): a new or
     empty folder or a previous budget of the same scenario (resumed); ``force`` starts a previous budget afresh.
     """
-    from bench.fileio import check_output_dir, claim_output_dir
+    from bench.fileio import check_output_dir, claim_output_dir, foreign_entries, record_output_entries
     from bench.scenario.runner import kind_module, load_scenario
     from bench.scenario.schema import load_yaml
     from bench.scenario.sweep import check_seeds_and_workers, run_sweep
@@ -71,6 +71,7 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
 
         started = _ray_connect(address)
     try:
+        before = foreign_entries(out)
         claim_output_dir(out, "budget", force=force, identity=scenario.name)
         rows = {}
         for name, overrides in variants.items():
@@ -90,6 +91,7 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
                             {"variants": table, "budget": budget_table}, {},
                             {"variants": "variants.csv", "budget": "budget.csv", "plot": Path(plot).name,
                              **{f"sweep_{v}": f"{v}/sweep.sqlite" for v in variants}})
+        record_output_entries(out, exclude=before)
         return {"result": str(path), "metrics": result_metrics, "table": budget_table}
     finally:
         if started:

@@ -339,7 +339,7 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
     if backend not in ("local", "ray"):
         raise ConfigError("--backend", backend, "expected 'local' or 'ray'")
     check_seeds_and_workers(seeds, workers, backend, address)
-    from bench.fileio import check_output_dir, claim_output_dir
+    from bench.fileio import check_output_dir, claim_output_dir, foreign_entries, record_output_entries
     from bench.scenario.runner import load_scenario
 
     for overrides, seed in grid(params, seeds[:1]):  # validate every value before launching anything
@@ -347,6 +347,7 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
     out = Path(out)
     check_output_dir(out, "sweep", force=force, identity=scenario.name)
     started = _ray_connect(address) if backend == "ray" else False  # a cluster that refuses: nothing written
+    before = foreign_entries(out)  # a user's file in an earlier sweep's folder stays the user's
     try:
         claim_output_dir(out, "sweep", force=force, identity=scenario.name)
         store = SweepStore(out / "sweep.sqlite")
@@ -375,6 +376,7 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
     store.close()
     summary = summarise(rows, [k for k, _ in params], out)
     summary["errors"] = [f"{r['params']} seed {r['seed']}: {r['message']}" for r in errors]
+    record_output_entries(out, exclude=before)
     return summary
 
 
