@@ -9,7 +9,7 @@ BUDGET_SEEDS ?= 10
 # Headless rendering through Mesa's EGL (Debian: libegl1 libgl1-mesa-dri).
 export MUJOCO_GL ?= egl
 
-.PHONY: demo test reproduce benchmark docs lint venv clean
+.PHONY: demo test reproduce benchmark docs screenshots lint venv clean
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -42,12 +42,17 @@ reproduce: $(STAMP)
 	$(BIN)/bench run scenarios/flatport_study.yaml --out $(OUT)/flatport_study
 	$(BIN)/bench run scenarios/flatport_study.yaml --out $(OUT)/flatport_study_k3 --set calibration.k3=true
 	$(BIN)/python tools/results_report.py --runs $(OUT)
+	$(BIN)/python tools/screenshots.py --runs $(OUT)/screenshots
 
 benchmark: $(STAMP)
 	$(BIN)/python tools/benchmark.py --out $(OUT)/benchmark.json
 
 docs: $(STAMP)
 	$(BIN)/python tools/gen_reference.py
+
+# The rerun viewer's default layout of each kind's recording, headless (needs xvfb and mesa-vulkan-drivers).
+screenshots: $(STAMP)
+	$(BIN)/python tools/screenshots.py --runs $(OUT)/screenshots
 
 lint: $(STAMP)
 	$(BIN)/ruff check bench tests tools

@@ -301,11 +301,11 @@ def blueprint(images, locate_names, zoom: float, res_scale: float, centre=None, 
         origin="/world", name="site: arm, panel, cameras, map, base frames",
         contents=["+ /world/**", "- /world/lab/**", "- /world/task/arm_compensated/**",
                   "- /world/task/arm_uncompensated/**", "- /world/task/arm_planned"],
-        eye_controls=rrb.EyeControls3D(position=(-0.6, -1.5, 1.7), look_target=(1.1, 0.35, 0.55),
+        eye_controls=rrb.EyeControls3D(position=(-0.9, -1.8, 1.8), look_target=(1.0, 0.3, 0.45),
                                        eye_up=(0.0, 0.0, 1.0)))
     c = np.zeros(3) if centre is None else 0.5 * np.asarray(centre, float)
     zoomed = rrb.Spatial3DView(origin="/base_error", name=f"base error x{zoom:g} (true locate base frame)",
-                               eye_controls=rrb.EyeControls3D(position=tuple(c + [0.13, -0.19, 0.11]),
+                               eye_controls=rrb.EyeControls3D(position=tuple(c + [0.19, -0.28, 0.16]),
                                                               look_target=tuple(c), eye_up=(0.0, 0.0, 1.0)))
     locate = [rrb.Spatial2DView(origin=f"/world/views/{n}/true", name=f"{n}: matches, residuals x{res_scale:g}",
                                 contents=["$origin/image/**"]) for n in locate_names]
