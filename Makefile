@@ -46,6 +46,8 @@ reproduce: $(STAMP)
 
 benchmark: $(STAMP)
 	$(BIN)/python tools/benchmark.py --out $(OUT)/benchmark.json
+	@$(BIN)/python -c "import figaroh" 2>/dev/null || $(BIN)/python -m pip install -q -e ".[figaroh]"
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python tools/figaroh_compare.py --out $(OUT)/figaroh_compare.json
 
 docs: $(STAMP)
 	$(BIN)/python tools/gen_reference.py
