@@ -32,9 +32,6 @@ from bench.robot.identification import identify_iterative
 from bench.robot.kinematics import ee_position
 from bench.robot.model import default_robot_path, load_robot
 
-#: Outputs of this command: a folder holding only these (or nothing) may be written again.
-OUTPUT_FILES = ("robot.yaml", "calibration.json", "check.json")
-
 
 @dataclass
 class DatasetCalibration:
@@ -51,25 +48,14 @@ class DatasetCalibration:
     report_path: Path
 
 
-def prepare_out_dir(out) -> Path:
-    """The output folder, refused when it is a file or a non-empty folder holding files this command did not write.
+def prepare_out_dir(out, command: str = "calibrate-robot") -> Path:
+    """The output folder, created; refused (:class:`bench.fileio.OutputRefused`, one line) when it is a file, a
+    non-empty folder that bench did not write or another command's output (:func:`bench.fileio.check_output_dir`).
+    The CLI also marks it as this command's output (:func:`bench.fileio.writing_output_dir`)."""
+    from bench.fileio import check_output_dir
 
-    Uses the shared helper of :mod:`bench.fileio` when it exists; else the same rule here.
-    """
-    from bench import fileio
-
-    helper = getattr(fileio, "check_out_dir", None)
     out = Path(out)
-    if helper is not None:
-        helper(out, OUTPUT_FILES)
-    else:
-        if out.exists() and not out.is_dir():
-            raise BenchError(f"--out {out}: is a file, not a folder")
-        if out.is_dir():
-            foreign = sorted(p.name for p in out.iterdir() if p.name not in OUTPUT_FILES)
-            if foreign:
-                raise BenchError(f"--out {out}: a non-empty folder that this command did not write (holds "
-                                 f"{foreign[0]!r}); choose a new or empty folder")
+    check_output_dir(out, command)
     out.mkdir(parents=True, exist_ok=True)
     return out
 

@@ -25,6 +25,8 @@ def add_parsers(sub) -> None:
     cr.add_argument("dataset", nargs="?", default=None,
                     help="dataset folder with tracker.csv (points in the base frame) and robot.yaml; omit with --urdf")
     cr.add_argument("--out", required=True, help="folder for robot.yaml (calibrated) and calibration.json")
+    cr.add_argument("--force", action="store_true", help="replace a previous output of calibrate-robot at --out "
+                                                         "(never a folder that bench did not write)")
     cr.add_argument("--robot", default=None, help="dataset mode: nominal DH robot file (default: the dataset's "
                                                   "robot.yaml, else models/ta40.yaml)")
     cr.add_argument("--sigma-mm", type=float, default=None,
@@ -57,6 +59,7 @@ def add_parsers(sub) -> None:
     ck.add_argument("--units", choices=("m", "mm"), default=None, help="default: the calibration's")
     ck.add_argument("--joint-units", choices=("rad", "deg"), default=None, help="default: the calibration's")
     ck.add_argument("--out", required=True, help="folder for check.json")
+    ck.add_argument("--force", action="store_true", help="replace a previous output of check-robot at --out")
 
 
 def _calibrate_urdf(args) -> int:
@@ -99,7 +102,7 @@ def _check(args) -> int:
     from bench.robot.marker_calibration import check
 
     rep = check(args.robot, args.measurements, args.points, args.units, args.joint_units)
-    out = prepare_out_dir(args.out)
+    out = prepare_out_dir(args.out, "check-robot")
     atomic_write_text(Path(out) / "check.json", json.dumps(rep, indent=2) + "\n")
     print(f"{rep['n_postures']} postures, {rep['n_markers']} marker(s): RMS {rep['rms_mm']:.4g} mm, max "
           f"{rep['max_mm']:.4g} mm; wrote {Path(out) / 'check.json'}")
@@ -107,7 +110,15 @@ def _check(args) -> int:
 
 
 def run(args) -> int:
-    """Execute a command registered by :func:`add_parsers`; returns the exit status."""
+    """Execute a command registered by :func:`add_parsers`; returns the exit status. The output folder is checked
+    before any work and marked as this command's when it ends (:func:`bench.fileio.writing_output_dir`)."""
+    from bench.fileio import writing_output_dir
+
+    with writing_output_dir(args.out, args.command, force=args.force):
+        return _run(args)
+
+
+def _run(args) -> int:
     if args.command == "check-robot":
         return _check(args)
     if args.urdf is not None:
