@@ -249,10 +249,11 @@ def _sim_render(args) -> None:
     module = kind_module(cfg["kind"])
     if not hasattr(module, "render"):
         raise BenchError(f"{args.scenario}: kind {cfg['kind']!r} has no simulated campaign to render")
-    from bench.fileio import claimed_output_dir
+    from bench.fileio import check_replaceable, claimed_output_dir
 
     cache = None if args.no_cache else Path(args.out).resolve().parent / ".render_cache"
     with claimed_output_dir(args.out, "sim render", force=args.force, identity=cfg["name"]):
+        check_replaceable(args.out)  # a dataset is replaced whole: refuse a user's file in it before rendering
         checks = module.render(cfg, args.out, verbose=True, cache_dir=cache)
     for k, v in checks.items():
         print(f"  {k:<32} {v:.6g}" if isinstance(v, float) else f"  {k:<32} {v}")

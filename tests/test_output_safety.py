@@ -202,6 +202,7 @@ def test_sim_render_replaces_only_its_own_dataset(tmp_path, capsys, monkeypatch)
     assert [v.name for v in load_dataset(tmp_path / "ds").views] == ["seed2"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]  # no temporary or old folder left
     (tmp_path / "ds" / "my_notes.txt").write_text("mine")  # the user's, inside the dataset: never replaced
+    monkeypatch.setattr(kind, "render", lambda *a, **k: pytest.fail("rendered before the refusal"))
     for extra in ([], ["--force"]):
         refused(capsys, base + ["--seed", "3", *extra], "holds 'my_notes.txt', which bench did not write there")
     assert (tmp_path / "ds" / "my_notes.txt").read_text() == "mine"
