@@ -172,8 +172,8 @@ class SceneMeshes:
                 if tex is not None and int(m.mesh_texcoordnum[k]) > 0:
                     ta = int(m.mesh_texcoordadr[k])
                     tc = m.mesh_texcoord[ta:ta + int(m.mesh_texcoordnum[k])]
+                    # MuJoCo's texture rows and v both run from the image's top, as rerun's do (checked on a render)
                     uv = tc[m.mesh_facetexcoord[fa:fa + fn].reshape(-1)].astype(np.float32)
-                    uv[:, 1] = 1.0 - uv[:, 1]  # MuJoCo's v runs up from the image's bottom row; rerun's down
                 else:
                     tex = None
             else:

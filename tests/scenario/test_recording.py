@@ -42,3 +42,91 @@ def test_failed_run_leaves_no_recording(tmp_path):
             rec.frame("world/base", np.eye(4))
             raise RuntimeError("pipeline crashed")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_nice_factor_is_the_largest_1_2_5_step_that_fits():
+    from bench.scenario.recording import nice_factor
+
+    assert nice_factor(0.43e-3, 0.15) == 200.0  # 0.086 m; 500 would give 0.215 m
+    assert nice_factor(4.2e-3, 0.15) == 20.0
+    assert nice_factor(0.3, 0.15) == 0.5
+    assert nice_factor(0.15, 0.15) == 1.0
+    assert nice_factor(0.0, 0.15) == 1.0 and nice_factor(float("nan"), 0.15) == 1.0
+    rng = np.random.default_rng(5)
+    for size in 10.0 ** rng.uniform(-6, 2, 50):
+        k = nice_factor(size, 20.0)
+        assert k * size <= 20.0 * (1 + 1e-12) and next_step(k) * size > 20.0
+
+
+def next_step(k):
+    m, e = float(f"{k:e}".split("e")[0]), int(f"{k:e}".split("e")[1])
+    return {1.0: 2.0, 2.0: 5.0, 5.0: 10.0}[round(m)] * 10.0**e
+
+
+def test_ellipsoid_mesh_and_blueprint_round_trip(tmp_path):
+    """The covariance ellipsoid's axes are the covariance's principal axes; a mesh keeps its triangles; the blueprint's
+    views come back by name with their origins and contents."""
+    import rerun.blueprint as rrb
+
+    from bench.geometry.quaternion import quaternion_to_matrix
+    from bench.scenario.recording import load_blueprint
+    from bench.scenario.scene_meshes import MeshPart
+
+    rng = np.random.default_rng(7)
+    R = random_rotation(rng)
+    cov = R @ np.diag([4e-6, 1e-6, 0.25e-6]) @ R.T
+    v = rng.normal(size=(6, 3)).astype(np.float32)
+    part = MeshPart("solid", v, np.tile(np.float32([0, 0, 1]), (6, 1)), np.full((6, 4), 200, np.uint8))
+    with Recording(tmp_path / "r.rrd", "test", "test-3") as rec:
+        rec.ellipsoid("e", [0.1, 0.2, 0.3], cov, 2.0, static=True)
+        rec.mesh("m", part)
+        rec.blueprint(rrb.Blueprint(rrb.Horizontal(
+            rrb.Spatial3DView(origin="/e", name="zoom x20", contents=["+ /e/**", "- /e/x"]),
+            rrb.TextDocumentView(origin="/summary", name="metrics"))))
+    e = load_entities(tmp_path / "r.rrd")
+    half = np.array(e["/e"]["Ellipsoids3D:half_sizes"][0][0])
+    x, y, z, w = e["/e"]["Ellipsoids3D:quaternions"][0][0]
+    Q = quaternion_to_matrix(np.array([w, x, y, z]))
+    assert np.allclose(Q @ np.diag((half / 2.0) ** 2) @ Q.T, cov, atol=1e-12)
+    assert np.allclose(np.array(e["/m"]["Mesh3D:vertex_positions"][0]), v)
+    assert np.array(e["/m"]["Mesh3D:triangle_indices"][0]).tolist() == [[0, 1, 2], [3, 4, 5]]
+    bp = load_blueprint(tmp_path / "r.rrd")
+    assert bp["zoom x20"] == {"class": "3D", "origin": "/e", "contents": ["+ /e/**", "- /e/x"]}
+    assert bp["metrics"]["class"] == "TextDocument" and bp["metrics"]["origin"] == "/summary"
+
+
+def test_scene_meshes_are_the_simulated_geometry():
+    """The arm's meshes posed by MuJoCo's kinematics put frame 6 where the DH model does; the rig's boards cover the
+    corners the rig generator reports; a textured face keeps its texture."""
+    pytest.importorskip("mujoco")
+    from pathlib import Path
+
+    from bench.robot.kinematics import link_frames
+    from bench.robot.model import load_robot, random_errors
+    from bench.scenario.scene_meshes import SceneMeshes
+    from bench.sim.mjcf import dh_static, error_transform, robot_object
+    from bench.sim.scenes.base import place
+    from bench.sim.scenes.panel import manifold_panel
+    from bench.sim.scenes.rig import calibration_rig
+
+    rng = np.random.default_rng(11)
+    robot = load_robot(Path(__file__).resolve().parents[2] / "models" / "ta40.yaml")
+    eps = random_errors(rng, trans=2e-3, rot=np.deg2rad(1.0))
+    arm = SceneMeshes([robot_object(robot, eps)])
+    q = robot.random_configurations(rng, 1)[0]
+    poses = arm.body_poses({f"joint{k + 1}": v for k, v in enumerate(q)})
+    T6 = poses["link6"] @ dh_static(robot, 6) @ error_transform(eps.reshape(7, 6)[6])
+    assert np.allclose(T6, link_frames(robot, q, eps)[-1], atol=1e-9)
+    assert sum(p.n_triangles for p in arm.parts["link2"]) > 100
+
+    T_w = homogeneous(random_rotation(rng), [1.0, 2.0, 0.5])
+    rig_obj = calibration_rig(name="rig")
+    rig = SceneMeshes([place(rig_obj, T_w, "rig_lab")])
+    corners = (T_w[:3, :3] @ rig_obj.features["corners"].T).T + T_w[:3, 3]
+    verts = np.concatenate([(T[:3, :3] @ p.vertices.T).T + T[:3, 3] for b, T in rig.body_poses().items()
+                            for p in rig.parts[b]])
+    assert np.all(np.min(np.linalg.norm(verts[None] - corners[:, None], axis=2), axis=1) < 0.03)
+    panel = SceneMeshes([manifold_panel(np.random.default_rng(1), 1.2, 0.8, name="panel")], max_texture_px=256)
+    back = [p for p in panel.parts["panel"] if p.name == "panel_backplate"][0]
+    assert back.texture.shape[2] == 3 and max(back.texture.shape[:2]) == 256
+    assert back.texcoords.min() >= 0 and back.texcoords.max() <= 1
