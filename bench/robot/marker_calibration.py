@@ -47,6 +47,8 @@ PRIOR_ROT_RAD = np.deg2rad(1.0)
 #: A posture is an outlier when its residual exceeds this many robust residual scales (1.4826 MAD of the norms).
 OUTLIER_K = 4.0
 MODELS = ("reduced", "prior")
+#: A calibration whose residual RMS exceeds this fraction of the arm's reach is refused (wrong units or links).
+MAX_RMS_OF_REACH = 0.02
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 ANGLE_UNITS = {"rad": 1.0, "deg": np.pi / 180}
 
@@ -179,6 +181,11 @@ def _check_units(path, chain, q, P, units, joint_units) -> None:
     if spread < reach / 200:
         raise ConfigError(path, "--units", f"the markers spread over {spread:.3g} m for an arm reaching {reach:.3g} m "
                                            f"(--units {units}): m given as mm, or the arm did not move?")
+    rev = [k for k, t in enumerate(chain.joint_types) if t == "revolute"]
+    if joint_units == "deg" and rev and np.abs(q[:, rev]).max() < np.deg2rad(2 * np.pi) and \
+            max(chain.q_max[k] - chain.q_min[k] for k in rev) > np.deg2rad(30):
+        raise ConfigError(path, "--joint-units", f"every revolute reading lies within +-{2 * np.pi:.3g} deg for "
+                                                 "joints that move much further: radians given as degrees?")
     for k, t in enumerate(chain.joint_types):
         lo, hi = chain.q_min[k], chain.q_max[k]
         width = hi - lo
@@ -501,6 +508,10 @@ def identify(chain: SerialChain, meas: Measurements, model: str = "reduced", wei
     JtJ = J.T @ J
     cov = np.linalg.pinv(JtJ) * s2
     # with weights (median 1) s2 is the variance of a coordinate at the median posture's standard deviation
+    if np.sqrt(np.mean(resid**2)) > MAX_RMS_OF_REACH * chain.reach:
+        raise BenchError(f"the calibrated model misses the markers by {np.sqrt(np.mean(resid**2)) * 1e3:.4g} mm RMS "
+                         f"(the arm reaches {chain.reach:.3g} m): wrong --units / --joint-units, wrong "
+                         "--base-link / --tip-link, or markers not on the tip link?")
     full_resid = np.linalg.norm(predict(chain, q, eps, T, U, comp) - P, axis=-1)
     msg = f"least squares ({model}): {res.message}"
     refused_err = {lbl: float(np.sqrt(np.mean(full_resid[i] ** 2))) for i, lbl in enumerate(labels) if lbl in refused}

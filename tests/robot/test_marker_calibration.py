@@ -234,6 +234,7 @@ def test_cli_bad_inputs_are_one_line_errors(tmp_path, urdf, chain, rng, capsys):
         (["--measurements", str(good), "--points", "x0,y0"], "three column names"),
         (["--measurements", str(mm)], "mm given as m"),
         (["--measurements", str(deg)], "--joint-units"),
+        (["--measurements", str(good), "--joint-units", "deg"], "radians given as degrees"),
         (["--measurements", str(nan)], "line 4, column j1"),
         (["--measurements", str(tmp_path / "none.csv")], "none.csv"),
     ]
