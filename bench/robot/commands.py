@@ -127,6 +127,11 @@ def _run(args) -> int:
         return _calibrate_urdf(args)
     if args.dataset is None:
         raise BenchError("calibrate-robot: give a DATASET folder (tracker.csv) or --urdf FILE with --measurements")
+    urdf_only = [o for o, v in (("--base-link", args.base_link), ("--tip-link", args.tip_link),
+                                ("--measurements", args.measurements), ("--points", args.points)) if v]
+    if urdf_only:
+        raise BenchError(f"calibrate-robot DATASET: {', '.join(urdf_only)} belong to the --urdf mode (the dataset "
+                         "mode reads tracker.csv and a DH robot file)")
     from bench.robot.calibrate_dataset import calibrate_robot_dataset
 
     sigma = 0.05 if args.sigma_mm is None else args.sigma_mm

@@ -664,14 +664,18 @@ def load_calibration(path):
 def check(robot_yaml, measurements, points=None, units=None, joint_units=None) -> dict:
     """Score a calibrated robot file on (held-out) postures with everything frozen: per-posture 3D errors (mm).
 
-    ``points`` default to the calibrated markers' columns; given, they must name the same number of markers (in the
-    same order). ``units`` / ``joint_units`` default to the calibration's.
+    ``points`` default to the calibrated markers' columns; given, they either name some of the calibrated markers
+    (by their columns: those are scored) or as many markers as were calibrated (renamed columns, in the same order).
+    ``units`` / ``joint_units`` default to the calibration's.
     """
     chain, eps, T, U, markers, cal_units, compliance = load_calibration(robot_yaml)
     cols = markers if points is None else parse_points(points)
-    if len(cols) != len(markers):
-        raise BenchError(f"--points: {len(cols)} marker(s) given, the calibration has {len(markers)} "
-                         f"({'; '.join(','.join(m) for m in markers)})")
+    if all(c in markers for c in cols):  # calibrated markers chosen by their columns (e.g. marker 1 of a plate)
+        U = U[[markers.index(c) for c in cols]]
+        markers = cols
+    elif len(cols) != len(markers):
+        raise BenchError(f"--points: {len(cols)} marker(s) given, neither the calibration's columns nor as many "
+                         f"markers as it has ({len(markers)}: {'; '.join(','.join(m) for m in markers)})")
     meas = read_measurements(measurements, chain, cols, units or cal_units["points"],
                              joint_units or cal_units["joints"])
     err = np.linalg.norm(predict(chain, meas.q, eps, T, U, compliance) - meas.P, axis=-1)  # (m, k)

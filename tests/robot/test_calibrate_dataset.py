@@ -69,6 +69,7 @@ def test_bad_inputs_are_one_line_errors(tmp_path, ta40, rng, capsys):
         ([str(tmp_path / "ds"), "--out", str(tmp_path / "file")], "file"),
         ([str(tmp_path / "ds"), "--out", str(tmp_path / "o1"), "--sigma-mm", "0"], "--sigma-mm"),
         ([str(tmp_path / "nope"), "--out", str(tmp_path / "o2")], "nope"),
+        ([str(tmp_path / "ds"), "--points", "x1,y1,z1", "--out", str(tmp_path / "o2")], "--urdf mode"),
     ]
     for argv, word in cases:
         assert main(["calibrate-robot", *argv]) == 2

@@ -45,6 +45,10 @@ def test_cli_defaults_on_the_real_session(tmp_path, capsys):
                              "--out", str(tmp_path / "plate")]) == 0
     plate = json.loads((tmp_path / "plate" / "calibration.json").read_text())
     assert plate["n_markers"] == 4 and plate["rms_mm"] < 2.5
+    assert main(["check-robot", "--robot", str(tmp_path / "plate" / "robot.yaml"), "--measurements", str(SESSION),
+                 "--points", "x1,y1,z1", "--out", str(tmp_path / "chk1")]) == 0  # marker 1 of the plate alone
+    chk1 = json.loads((tmp_path / "chk1" / "check.json").read_text())
+    assert chk1["n_markers"] == 1 and abs(chk1["rms_mm"] - plate["rms_first_marker_mm"]) < 1e-9
     import yaml
 
     U = np.array([m["offset_mm"] for m in yaml.safe_load((tmp_path / "plate" / "robot.yaml").read_text())[
