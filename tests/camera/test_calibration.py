@@ -163,6 +163,41 @@ def test_same_optimum_as_opencv_on_synthetic_data():
         assert np.abs(ours.dist - ref.dist).max() < 1e-5, model
 
 
+def test_gauss_newton_step_is_the_least_squares_solution():
+    rng = np.random.default_rng(31)
+    J = rng.normal(size=(40, 6)) * np.array([1e3, 1.0, 1e-3, 5.0, 1e2, 0.1])  # badly scaled columns
+    r = rng.normal(size=40)
+    step, decrease = cal.gauss_newton_step(J, r)
+    x = np.linalg.lstsq(J, -r, rcond=None)[0]
+    assert np.allclose(step, x, rtol=1e-8, atol=0)
+    # the predicted decrease is the exact decrease of a linear problem
+    assert decrease == pytest.approx(0.5 * (r @ r) - 0.5 * np.sum((r + J @ step) ** 2), rel=1e-9)
+
+
+def test_converges_where_the_step_criterion_random_walks(monkeypatch):
+    """Corners of a realistic-imaging rig campaign (camera_calibration_webcam, seed 8, thesis extractor): LM reaches
+    the optimum in ~28 iterations and then stepped at rounding level (~1e-10 relative, above the 1e-12 step
+    tolerance) until 200 iterations ran out; the Gauss-Newton decrease criterion stops it there."""
+    data = np.load(Path(__file__).resolve().parents[1] / "data" / "calibration" / "realistic_webcam_rig_seed8.npz")
+    arrays = [data[f"arr_{i}"] for i in range(len(data.files))]
+    Xs, uvs = arrays[: len(arrays) // 2], arrays[len(arrays) // 2:]
+    r = cal.calibrate_camera(Xs, uvs, SIZE, "heikkila")
+    assert r.success and "Gauss-Newton" in r.message and r.iterations < 60, (r.message, r.iterations)
+    # at the optimum: no step (Gauss-Newton or damped) lowers the cost measurably, and the gradient is ~0
+    problem = cal._Problem(Xs, uvs, "heikkila", False, False)
+    s = cal._State(r.K[0, 0], r.K[1, 1], r.K[0, 2], r.K[1, 2], 0.0, r.dist[:4].copy(), r.T_cam_target[:, :3, :3].copy(),
+                   r.T_cam_target[:, :3, 3].copy())
+    res, J = problem.residuals(s, jacobian=True)
+    assert 0.5 * res @ res == pytest.approx(r.cost, rel=1e-12)
+    assert cal.gauss_newton_step(J, res)[1] < 1e-12 * r.cost
+    assert r.rms_px == pytest.approx(0.2913, abs=1e-4)  # the realistic rig images' calibration residual
+    # the old criterion alone (decrease tolerance 0) runs out of iterations at the same optimum
+    monkeypatch.setattr(cal, "GN_DECREASE_TOL", 0.0)
+    stuck = cal.calibrate_camera(Xs, uvs, SIZE, "heikkila", max_iterations=60, initial=(r.K, r.dist, r.T_cam_target))
+    assert not stuck.success and "not converged" in stuck.message
+    assert stuck.rms_px == pytest.approx(r.rms_px, rel=1e-10)
+
+
 def test_degenerate_inputs_fail_clearly():
     rng = np.random.default_rng(26)
     Xs, uvs, _ = random_views(rng, TRUE_K, TRUE_DIST, board_points(), 3)
