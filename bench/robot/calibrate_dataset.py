@@ -77,8 +77,49 @@ def check_plausible(robot, eps, err_nominal, source) -> None:
                           f"{np.rad2deg(rot):.3g} deg; at most {0.1 * reach * 1e3:.4g} mm and 11.5 deg): {hint}")
 
 
+def _estimate_frame(robot, q, p, names, sigma_mm):
+    """Tracker points in an unknown tracker frame: the DH arm as a chain with the thesis's error frames
+    (:func:`bench.robot.chain.chain_from_dh`), the tracker-to-base transform and the measured point's offset
+    estimated jointly with the identifiable errors (:func:`bench.robot.marker_calibration.identify`, closed-form
+    start from any rotation). Returns ``(eps (6 (n+1),), T_tracker_base, errors (m,) m, nominal errors, report)``;
+    the offset's difference to the file's ``ee_point_mm`` is written as translation errors of frame n (exact: the
+    last frame's errors are otherwise merged into the offset)."""
+    from bench.geometry.quaternion import matrix_to_quaternion
+    from bench.robot.chain import chain_from_dh
+    from bench.robot.marker_calibration import Measurements, identify
+    from bench.robot.model import error_names
+
+    chain = chain_from_dh(robot)
+    meas = Measurements(q, p[:, None, :], list(names), [("x_mm", "y_mm", "z_mm")])
+    cal = identify(chain, meas, model="reduced", weights="none", sigma_m=sigma_mm * 1e-3,
+                   nominal_offsets=robot.p_ee[None])
+    eps = cal.eps.copy()
+    n = robot.n
+    eps[6 * n: 6 * n + 3] += cal.U[0] - robot.p_ee
+    all_names = error_names(n + 1)
+    std = np.sqrt(np.diag(cal.covariance))
+    T = cal.T_meas_base
+    report = {
+        "method": "tracker frame estimated: closed-form start (any rotation) + least squares on the exact model "
+                  "(Eq. 10) of the numerically identifiable errors, the tracker-to-base transform and the point",
+        "T_tracker_base": {"translation_mm": [float(v) for v in T[:3, 3] * 1e3],
+                           "quaternion_wxyz": [float(v) for v in matrix_to_quaternion(T[:3, :3])]},
+        "n_parameters": int(6 + 3 + len(cal.kept)), "message": cal.message,
+        "kept": [{"name": all_names[c], "value": float(eps[c] * (1e3 if all_names[c][0] in "xyz" else 1.0)),
+                  "std": float(sd * (1e3 if all_names[c][0] in "xyz" else 1.0)),
+                  "unit": "mm" if all_names[c][0] in "xyz" else "rad"}
+                 for c, sd in zip(cal.kept, std[9:], strict=True)],
+        "merged": cal.merged,
+        "covariance_parameters": ["T_tracker_base.rot_x_rad", "T_tracker_base.rot_y_rad", "T_tracker_base.rot_z_rad",
+                                  "T_tracker_base.x_m", "T_tracker_base.y_m", "T_tracker_base.z_m", "point.x_m",
+                                  "point.y_m", "point.z_m"] + [all_names[c] for c in cal.kept],
+        "covariance": cal.covariance.tolist(),
+    }
+    return eps, T, cal.residuals[:, 0], cal.nominal_residuals[:, 0], report
+
+
 def calibrate_robot_dataset(dataset, out, robot_file=None, sigma_mm: float = 0.05,
-                            verbose: bool = False) -> DatasetCalibration:
+                            verbose: bool = False, tracker_frame: str = "base") -> DatasetCalibration:
     """Identify the arm's generalized errors from the dataset's tracker campaign and write the calibrated files.
 
     Parameters
@@ -92,6 +133,10 @@ def calibrate_robot_dataset(dataset, out, robot_file=None, sigma_mm: float = 0.0
     sigma_mm : float
         Standard deviation of each tracker coordinate (mm): the weights, the a-priori covariance and the chi-square
         consistency check (an identification whose residuals exceed 100 sigma is refused).
+    tracker_frame : {"base", "estimate"}
+        ``base``: the points are in the robot base frame (the lab's arcs, §2.9, set it up; the thesis's method,
+        Table 2). ``estimate``: in the tracker's own frame, whose pose is estimated with the errors (the base-frame
+        errors merge into it); ``calibration.json`` then holds ``T_tracker_base``.
     """
     from bench.dataset import load_dataset
 
@@ -107,7 +152,11 @@ def calibrate_robot_dataset(dataset, out, robot_file=None, sigma_mm: float = 0.0
     q, p = ds.tracker["q"], ds.tracker["p"]
     if q.shape[1] != robot.n:
         raise ConfigError(nominal, "joints", f"{robot.n} joints, tracker.csv has readings of {q.shape[1]}")
+    if tracker_frame not in ("base", "estimate"):
+        raise BenchError(f"--tracker-frame: expected base or estimate, got {tracker_frame!r}")
     out = prepare_out_dir(out)
+    if tracker_frame == "estimate":
+        return _write_estimated(ds, robot, nominal, q, p, sigma_mm, out, t0, verbose)
     red = closed_form_reduction(robot)
     res = identify_iterative(robot, q, p, red, sigma=sigma_mm * 1e-3)
     if not res.success:
@@ -145,3 +194,27 @@ def calibrate_robot_dataset(dataset, out, robot_file=None, sigma_mm: float = 0.0
         print(f"wrote {out / 'robot.yaml'} and {out / 'calibration.json'}")
     return DatasetCalibration(True, res.message, res.eps, report["rms_mm"], report["max_mm"], len(q),
                               len(red.kept), out / "robot.yaml", out / "calibration.json")
+
+
+def _write_estimated(ds, robot, nominal, q, p, sigma_mm, out, t0, verbose) -> DatasetCalibration:
+    """The ``tracker_frame="estimate"`` branch of :func:`calibrate_robot_dataset`: identify, check, write."""
+    eps, T, err, err0, rep = _estimate_frame(robot, q, p, ds.tracker["point"], sigma_mm)
+    check_plausible(robot, eps, err0, ds.root / "tracker.csv")
+    rms = float(np.sqrt(np.mean(err**2)) * 1e3)
+    write_calibrated_robot(out / "robot.yaml", nominal, robot, eps,
+                           notes=f"identified from {len(q)} tracker points of {ds.root.name} in the tracker's frame "
+                                 f"(its pose estimated: see calibration.json T_tracker_base); RMS {rms:.4g} mm")
+    report = {"dataset": str(ds.root), "nominal_robot": str(nominal), "tracker_frame": "estimate", "rms_mm": rms,
+              "max_mm": float(err.max() * 1e3), "rms_nominal_mm": float(np.sqrt(np.mean(err0**2)) * 1e3),
+              "n_postures": int(len(q)), "sigma_mm": float(sigma_mm), **rep,
+              "covariance_units": "SI (rad, m)",
+              "per_posture": [{"point": n, "error_mm": float(e * 1e3)} for n, e in zip(ds.tracker["point"], err,
+                                                                                         strict=True)],
+              "timings_s": {"calibration_s": time.perf_counter() - t0}}
+    atomic_write_text(out / "calibration.json", json.dumps(report, indent=2) + "\n")
+    if verbose:
+        print(f"{len(q)} postures, tracker frame estimated, {report['n_parameters']} parameters: RMS {rms:.4g} mm "
+              f"(nominal {report['rms_nominal_mm']:.4g} mm), max {report['max_mm']:.4g} mm")
+        print(f"wrote {out / 'robot.yaml'} and {out / 'calibration.json'}")
+    return DatasetCalibration(True, rep["message"], eps, rms, report["max_mm"], len(q), report["n_parameters"],
+                              out / "robot.yaml", out / "calibration.json")

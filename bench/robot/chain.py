@@ -96,6 +96,22 @@ class SerialChain:
         return q
 
 
+def chain_from_dh(robot) -> SerialChain:
+    """The DH arm ``robot`` (:class:`bench.robot.model.Robot`) as a chain whose error frames are the thesis's:
+    ``F_1 = I``, ``F_(k+1) = Rz(theta_offset_k) Tz(d_k) Tx(a_k) Rx(alpha_k)``, axes z, so that
+    ``F_1 E_0 M_1 F_2 E_1 ... = E_0 A_1 E_1 ...`` (Eq. 10) with the same 6 (n + 1) errors in the same order. The
+    measured point ``p_ee`` is not part of the chain (a marker offset)."""
+    from bench.geometry.transforms import rot_x, rot_z
+
+    X = [homogeneous(rot_z(robot.theta_offset[k]), [0.0, 0.0, 0.0])
+         @ homogeneous(np.eye(3), [robot.a[k], 0.0, robot.d[k]]) @ homogeneous(rot_x(robot.alpha[k]), [0.0] * 3)
+         for k in range(robot.n)]
+    F = np.array([np.eye(4)] + X[:-1])
+    return SerialChain(robot.name, "base", "link_n", tuple(robot.joint_names), ("revolute",) * robot.n, F,
+                       np.tile([0.0, 0.0, 1.0], (robot.n, 1)), X[-1], np.asarray(robot.q_min, float),
+                       np.asarray(robot.q_max, float))
+
+
 def motion(chain: SerialChain, k: int, qk):
     """Joint motion ``M_k(q_k)``, shape ``qk.shape + (4, 4)``: rotation by ``q_k`` rad about the axis (Rodrigues) or
     translation by ``q_k`` m along it."""

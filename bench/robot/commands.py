@@ -29,6 +29,9 @@ def add_parsers(sub) -> None:
                                                          "(never a folder that bench did not write)")
     cr.add_argument("--robot", default=None, help="dataset mode: nominal DH robot file (default: the dataset's "
                                                   "robot.yaml, else models/ta40.yaml)")
+    cr.add_argument("--tracker-frame", choices=("base", "estimate"), default="base",
+                    help="dataset mode: tracker.csv is in the robot base frame (default, found from the arcs) or in "
+                         "the tracker's own frame, whose pose is then estimated")
     cr.add_argument("--sigma-mm", type=float, default=None,
                     help="standard deviation of a measured coordinate, mm (dataset mode default 0.05; URDF mode "
                          "default: estimated from the residuals)")
@@ -135,5 +138,6 @@ def _run(args) -> int:
     from bench.robot.calibrate_dataset import calibrate_robot_dataset
 
     sigma = 0.05 if args.sigma_mm is None else args.sigma_mm
-    res = calibrate_robot_dataset(args.dataset, args.out, args.robot, sigma, verbose=True)
+    res = calibrate_robot_dataset(args.dataset, args.out, args.robot, sigma, verbose=True,
+                                  tracker_frame=args.tracker_frame)
     return 0 if res.success else 1

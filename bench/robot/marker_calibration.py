@@ -434,7 +434,7 @@ class MarkerCalibration:
 
 def identify(chain: SerialChain, meas: Measurements, model: str = "reduced", weights: str = "auto",
              sigma_m: float | None = None, refuse_outliers: bool = False, rng=None,
-             prior_scale: float = 1.0, compliance: bool = False) -> MarkerCalibration:
+             prior_scale: float = 1.0, compliance: bool = False, nominal_offsets=None) -> MarkerCalibration:
     """Closed-form start, identifiability, iterative identification and outlier screening (module docstring).
 
     Parameters
@@ -446,6 +446,10 @@ def identify(chain: SerialChain, meas: Measurements, model: str = "reduced", wei
         Standard deviation of a coordinate (m) for the covariance; default the residuals' (a-posteriori).
     prior_scale : float
         Multiplies the prior's standard deviations (``model="prior"``).
+    nominal_offsets : ndarray (k, 3), optional
+        Marker offsets (m) known by design, at which the identifiability is analysed (default: the closed-form
+        start's estimate). A point by design on a joint axis (the TA-40's O6) has fewer identifiable errors than
+        one a millimetre off it; the design decides, not the estimate.
     compliance : bool
         Also estimate a compliance per revolute joint that gravity loads (``q + c tau(q)``; the loads from the URDF's
         inertials, the base z-up): joint elasticity, the largest non-geometric error of light arms.
@@ -457,7 +461,7 @@ def identify(chain: SerialChain, meas: Measurements, model: str = "reduced", wei
     m, k, _ = P.shape
     T0, U0 = closed_form_start(chain, q, P)
     t_start = time.perf_counter() - t0
-    kept, merged = identifiable_errors(chain, U0, T0, rng)
+    kept, merged = identifiable_errors(chain, U0 if nominal_offsets is None else nominal_offsets, T0, rng)
     cols = kept if model == "reduced" else np.arange(chain.n_errors)
     n_par = 6 + 3 * k + len(kept)
     if 3 * m * k <= n_par:

@@ -98,3 +98,36 @@ def test_too_few_postures_is_refused(tmp_path, ta40, rng, capsys, n):
     _dataset(tmp_path / "ds", ta40, rng, n=n)
     assert main(["calibrate-robot", str(tmp_path / "ds"), "--out", str(tmp_path / "cal")]) == 2
     assert "need at least 9 poses" in capsys.readouterr().err
+
+
+def test_tracker_frame_estimated_from_any_rotation(tmp_path, ta40, rng, capsys):
+    """tracker.csv in the tracker's own frame (turned by a random rotation, 3 m away): --tracker-frame estimate finds
+    it with the errors; noise-free, the calibrated file and T_tracker_base reproduce held-out tracker points."""
+    from bench.geometry.quaternion import quaternion_to_matrix
+    from bench.geometry.transforms import homogeneous, random_rotation
+    from bench.robot.chain import chain_from_dh
+    from bench.robot.marker_calibration import identifiable_errors
+
+    kept, _ = identifiable_errors(chain_from_dh(ta40), ta40.p_ee[None])
+    eps = random_errors(rng)
+    mask = np.zeros(ta40.n_errors, bool)
+    mask[kept] = True
+    eps[~mask] = 0.0  # truth in the identifiable set (as Table 2 draws none in frame 6)
+    T = homogeneous(random_rotation(rng), rng.uniform(-3, 3, 3))
+    q = ta40.random_configurations(rng, 60)
+    with DatasetWriter(tmp_path / "ds", kind="kinematic") as w:
+        w.add_view("dummy", None, q=np.zeros(6))
+        w.write_tracker([f"p{i:03d}" for i in range(60)], ee_position(ta40, q, eps) @ T[:3, :3].T + T[:3, 3], q)
+    assert main(["calibrate-robot", str(tmp_path / "ds"), "--out", str(tmp_path / "base")]) == 2  # not base frame
+    assert "tracker.csv" in capsys.readouterr().err
+    assert main(["calibrate-robot", str(tmp_path / "ds"), "--tracker-frame", "estimate", "--out",
+                 str(tmp_path / "cal")]) == 0
+    rep = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    # 25 of Table 2 less the base frame's 6 (now in T_tracker_base) and frame 6's 3 (the point): 16
+    assert rep["rms_mm"] < 1e-6 and rep["n_parameters"] == 9 + len(kept) and len(kept) == 16
+    fr = rep["T_tracker_base"]
+    T_hat = homogeneous(quaternion_to_matrix(fr["quaternion_wxyz"]), np.array(fr["translation_mm"]) * 1e-3)
+    robot, eps_hat, _ = load_calibrated_robot(tmp_path / "cal" / "robot.yaml")
+    qh = ta40.random_configurations(rng, 100)
+    pred = ee_position(robot, qh, eps_hat) @ T_hat[:3, :3].T + T_hat[:3, 3]
+    assert np.abs(pred - (ee_position(ta40, qh, eps) @ T[:3, :3].T + T[:3, 3])).max() < 1e-9
