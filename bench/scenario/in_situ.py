@@ -78,8 +78,12 @@ SCHEMA = {
              "panel_centre_m": (list, [1.55, 0.45, 0.85]), "base_offset_m": (float, 0.3),
              "base_rot_deg": (float, 10.0), "parking_attempts": (int, 40),
              "water": (str, "preset"),  # the water body (bench.sim.medium.WATER_PRESETS), or the camera preset's own
+             # panel: the panel at panel_centre_m, the reference eye standoff_m in front of it; eye: the reference eye
+             # at eye_m (a point the arm reaches comfortably) and the panel standoff_m ahead of it (+x of the world)
+             "placement": (str, "panel"), "eye_m": (list, [1.05, 0.45, 1.0]),
              "textures": (dict, {})},  # face -> image file (bench.scenario.scene_textures)
-    "survey": {"depth_resolution_mm": (float, 5.0), "directions": (int, 6), "offsets_mm": (list, [])},
+    "survey": {"depth_resolution_mm": (float, 5.0), "directions": (int, 6), "offsets_mm": (list, []),
+               "radius_limit_mm": (float, 0.0)},  # > 0: the Eq. 199 radius capped at what the arm can sweep
     "task": {"valve": (str, "nearest"), "teach": (bool, True)},
     "locate": {"baseline_mm": (float, 150.0), "motion_m": (float, 0.15), "motion_deg": (float, 5.0)},
     "pipeline": {"method": (str, "svd"), "extractor": (str, "opencv"), "refine": (str, "bundle"),
@@ -207,6 +211,12 @@ def validate(cfg) -> None:
             raise ConfigError(src, f"sources.{key}", f"expected one of {', '.join(allowed)}, got "
                                                      f"{cfg['sources'][key]!r}")
     texture_paths(cfg, "site.textures")
+    if cfg["site"]["placement"] not in ("panel", "eye"):
+        raise ConfigError(src, "site.placement", f"expected panel or eye, got {cfg['site']['placement']!r}")
+    _vec(cfg, "site.eye_m", 3)
+    if cfg["survey"]["radius_limit_mm"] < 0:
+        raise ConfigError(src, "survey.radius_limit_mm", f"must be >= 0 mm (0 = no limit), got "
+                                                         f"{cfg['survey']['radius_limit_mm']}")
     for row in cfg["survey"]["offsets_mm"]:
         if not (isinstance(row, list) and len(row) == 2):
             raise ConfigError(src, "survey.offsets_mm", f"expected [x_mm, y_mm] pairs, got {row!r}")
@@ -272,6 +282,8 @@ def _survey_offsets(cfg, nominal_cam) -> np.ndarray:
         return np.c_[np.array(rows, dtype=float) * 1e-3, np.zeros(len(rows))]
     radius = float(required_baseline(cfg["site"]["standoff_m"], nominal_cam.fx,
                                      cfg["survey"]["depth_resolution_mm"] * 1e-3))  # Eq. 199
+    if cfg["survey"]["radius_limit_mm"] > 0:  # the arm sweeps what it can: a coarser depth resolution (Eq. 199)
+        radius = min(radius, cfg["survey"]["radius_limit_mm"] * 1e-3)
     a = np.linspace(0, 2 * np.pi, cfg["survey"]["directions"], endpoint=False)
     return np.c_[radius * np.cos(a), radius * np.sin(a), np.zeros(len(a))]
 
@@ -310,6 +322,44 @@ def _teach(robot, eps, T_wb1, T_wb2, valves, q_seed, rolls: int = 12):
                 return {"valve": name, "centre_world": p_w, "T_world_ee": T_w_ee, "q_true": q_teach}
             break  # parking 2 reaches this handle with no roll if it fails for a reachable one
     return None
+
+
+def _why_unreachable(robot, eps, cfg, eyes, centre, valves, mount) -> str:
+    """The reason, in numbers, that no parking reached the views and valve: the first view the nominal parking (no
+    ROV offset) cannot reach, with the wrist's reach (:func:`bench.sim.views.reach_diagnosis`); else the valve's
+    distance against the tool's reach; else the parking perturbation."""
+    from bench.sim.views import reach_diagnosis, wrist_reach
+
+    site = cfg["site"]
+    placed = f"site.eye_m {site['eye_m']}" if site["placement"] == "eye" else \
+        f"site.panel_centre_m {site['panel_centre_m']}"
+    where = f"site.standoff_m {site['standoff_m']:g} m, {placed}"
+    q_seed = None
+    for eye in eyes:
+        sol = _plan(robot, np.eye(4), eye, centre, mount, q_seed)
+        if not sol.success:
+            d = reach_diagnosis(robot, eye, centre, mount)
+            return f"{where}: even at the nominal parking, {d['message']}"
+        q_seed = sol.q if q_seed is None else q_seed
+    if cfg["task"]["teach"] and valves:
+        _, r_max = wrist_reach(robot)
+        tool = r_max + float(np.linalg.norm(robot.p_ee + np.array([0.0, 0.0, robot.d[5]])))
+        def from_shoulder(p):  # the shoulder (joint-2 axis) turns with joint 1 at a1 from the base's z axis
+            az = np.arctan2(p[1], p[0])
+            return float(np.linalg.norm(p - robot.a[0] * np.array([np.cos(az), np.sin(az), 0.0])))
+
+        dist = min(from_shoulder(v[1]) for v in valves)
+        if dist > tool - 0.05:
+            return (f"{where}: at the nominal parking the nearest valve is {dist:.2f} m from the shoulder, the tool "
+                    f"tip reaches at most "
+                    f"{tool:.2f} m (task.teach: false localises without the task)")
+        return (f"{where}: the views are reachable at the nominal parking, but no drawn parking also reaches a valve "
+                f"at both parkings (valve {dist:.2f} m from the shoulder, tool reach {tool:.2f} m): reduce "
+                "site.base_offset_m / base_rot_deg / locate.motion_m, or task.teach: false")
+    return (f"{where}: the views are reachable at the nominal parking but not at {site['parking_attempts']} drawn "
+            f"parkings (+-{site['base_offset_m']:g} m, +-{site['base_rot_deg']:g} deg, then "
+            f"+-{cfg['locate']['motion_m']:g} m, +-{cfg['locate']['motion_deg']:g} deg): reduce them or raise "
+            "site.parking_attempts")
 
 
 def _plan(robot, T_world_base, eye_w, target_w, mount, q_seed):
@@ -354,8 +404,12 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     site = cfg["site"]
 
     # --- site geometry: the panel faces the arm (normal -x of the world), within reach of the nominal base ----------
-    centre = _vec(cfg, "site.panel_centre_m", 3)  # world = the nominal base frame, before the ROV parks
-    eye_ref = centre - np.array([site["standoff_m"], 0.0, 0.0])
+    if site["placement"] == "eye":  # the reference eye where the arm reaches it, the panel standoff_m ahead
+        eye_ref = _vec(cfg, "site.eye_m", 3)
+        centre = eye_ref + np.array([site["standoff_m"], 0.0, 0.0])
+    else:
+        centre = _vec(cfg, "site.panel_centre_m", 3)  # world = the nominal base frame, before the ROV parks
+        eye_ref = centre - np.array([site["standoff_m"], 0.0, 0.0])
     R_wp = np.column_stack([[0, -1, 0], [0, 0, 1], [-1, 0, 0]]).astype(float)  # panel x, y (up), z (out) in world
     T_world_panel = homogeneous(R_wp, centre)
     with naming_the_key(cfg, "site.textures"):
@@ -425,7 +479,8 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
             ok = False  # no valve within reach at both parkings: the pilot parks again
     if not ok:
         raise ConfigError(cfg["_file"], "site", f"no reachable set of views (and valve) in {parkings} random parkings: "
-                                                "reduce site.base_offset_m / base_rot_deg or move site.panel_centre_m")
+                                                + _why_unreachable(robot, eps, cfg, survey_eyes + locate_eyes, centre,
+                                                                   valves, mount_nominal))
     views += site_views
     t_plan = time.perf_counter() - t0
 

@@ -144,3 +144,76 @@ def surrounding_eyes(T_base_ref_cam, offsets_m) -> np.ndarray:
     off = np.asarray(offsets_m, dtype=float).reshape(-1, 2)
     return T[:3, 3] + off[:, :1] * T[:3, 0] + off[:, 1:] * T[:3, 1]
 
+
+
+def wrist_reach(robot: Robot, n_samples: int = 721):
+    """The shell the wrist centre (link-5 origin) can occupy: its distance (m) from the shoulder (frame-1 origin,
+    on the joint-2 axis) over the elbow's range, ``(r_min, r_max)``.
+
+    Joints 2 and 3 move the wrist in the arm's plane; its distance from the shoulder depends on ``q3`` alone (the
+    elbow): ``|a2 x + T_2_4(q3) origin|``, sampled over joint 3's limits.
+    """
+    from bench.robot.kinematics import link_frames
+
+    q = np.tile(0.5 * (robot.q_min + robot.q_max), (n_samples, 1))
+    q[:, 1] = 0.0 if robot.q_min[1] <= 0.0 <= robot.q_max[1] else robot.q_min[1]
+    q[:, 2] = np.linspace(robot.q_min[2], robot.q_max[2], n_samples)
+    F = link_frames(robot, q)
+    d = np.linalg.norm(F[:, 4, :3, 3] - F[:, 1, :3, 3], axis=1)
+    return float(d.min()), float(d.max())
+
+
+def reach_diagnosis(robot: Robot, eye_base, target_base, T_link5_cam, n_roll: int = 72) -> dict:
+    """Why a view may be out of reach, in numbers: where the wrist centre must be for the camera to sit at
+    ``eye_base`` looking at ``target_base``, against the arm's shell (:func:`wrist_reach`) and joint 1's range.
+
+    The roll about the optical axis is free (five joints in front of link 5), so the wrist centre lies on a circle
+    around the optical axis; the circle's point that best fits the shell is reported.
+
+    Returns
+    -------
+    dict
+        ``wrist_dist_m`` (distance from the shoulder of the best wrist point), ``reach_min_m``, ``reach_max_m``,
+        ``azimuth_deg`` (the wrist's azimuth about joint 1 from the base x axis), ``q1_min_deg``, ``q1_max_deg``,
+        ``shortfall_m`` (how far the best point lies outside the shell; 0 inside), ``message``.
+    """
+    from bench.robot.kinematics import link_frames
+
+    eye = _check_point(eye_base, "eye_base")
+    view = _check_point(target_base, "target_base") - eye
+    view /= np.linalg.norm(view)
+    T_l5_cam = np.asarray(T_link5_cam, dtype=float)
+    t_cam_l5 = -(T_l5_cam[:3, :3].T @ T_l5_cam[:3, 3])  # link-5 origin in the camera frame
+    r_min, r_max = wrist_reach(robot)
+    base = look_at(eye, eye + view)
+    best = None
+    for roll in np.linspace(0, 2 * np.pi, n_roll, endpoint=False):
+        c, s = np.cos(roll), np.sin(roll)
+        R = base[:3, :3] @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        wrist = eye + R @ t_cam_l5
+        az = float(np.arctan2(wrist[1], wrist[0]))
+        q1 = np.clip(az, robot.q_min[0], robot.q_max[0])
+        q = 0.5 * (robot.q_min + robot.q_max)
+        q[0] = q1
+        shoulder = link_frames(robot, q)[1, :3, 3]
+        d = float(np.linalg.norm(wrist - shoulder))
+        short = max(r_min - d, d - r_max, 0.0)
+        az_out = float(max(robot.q_min[0] - az, az - robot.q_max[0], 0.0))
+        key = (short + az_out * np.hypot(*wrist[:2]), short)
+        if best is None or key < best[0]:
+            best = (key, d, short, az)
+    _, d, short, az = best
+    out = {"wrist_dist_m": d, "reach_min_m": r_min, "reach_max_m": r_max, "azimuth_deg": float(np.rad2deg(az)),
+           "q1_min_deg": float(np.rad2deg(robot.q_min[0])), "q1_max_deg": float(np.rad2deg(robot.q_max[0])),
+           "shortfall_m": short}
+    where = (f"the camera at {np.round(eye, 3).tolist()} m needs the wrist centre {d:.2f} m from the shoulder "
+             f"(azimuth {np.rad2deg(az):.0f} deg); the arm's wrist reaches {r_min:.2f}-{r_max:.2f} m "
+             f"(joint 1 {out['q1_min_deg']:.0f}..{out['q1_max_deg']:.0f} deg)")
+    if short > 0:
+        out["message"] = f"{where}: {short * 1e3:.0f} mm " + ("beyond its reach" if d > r_max else
+                                                            "closer to the shoulder than the folded elbow allows")
+    elif not robot.q_min[0] <= az <= robot.q_max[0]:
+        out["message"] = f"{where}: outside joint 1's range"
+    else:
+        out["message"] = f"{where}: within the shell, so joints 2-5's limits (not the reach) exclude the view"
+    return out

@@ -42,3 +42,55 @@ def test_site_water_refuses_in_one_line_naming_the_key(overrides, says):
         load_scenario(SCENARIO, seed=1, overrides=overrides)
     msg = str(exc.value)
     assert "site.water" in msg and says in msg and "\n" not in msg
+
+
+class _Planned(Exception):
+    """Raised by a stand-in renderer: the planning of every view succeeded (nothing is rendered)."""
+
+
+@pytest.fixture
+def plan_only(monkeypatch):
+    import bench.sim.campaign as campaign
+
+    def stand_in(*args, **kwargs):
+        raise _Planned
+
+    monkeypatch.setattr(campaign, "ArmScene", stand_in)
+
+    def plan(overrides, seed=1):
+        cfg = load_scenario(SCENARIO, seed=seed, overrides=["lab.rig_views=3", *overrides])
+        with pytest.raises(_Planned):
+            IN_SITU.render(cfg, "unused", verbose=False)
+    return plan
+
+
+@pytest.mark.parametrize("standoff", [0.5, 0.7, 1.0, 1.5])
+def test_standoffs_of_the_envelope_are_reachable(plan_only, standoff):
+    """With the reference eye placed where the arm reaches it (site.placement: eye) every standoff of the envelope
+    plans its survey and locate views, also with the base moved 0.5 m / 20 deg between survey and localisation."""
+    plan_only(["site.placement=eye", f"site.standoff_m={standoff}", "task.teach=false",
+               "survey.radius_limit_mm=200", "locate.motion_m=0.5", "locate.motion_deg=20"], seed=3)
+
+
+def test_unreachable_views_are_refused_in_numbers(tmp_path):
+    cfg = load_scenario(SCENARIO, seed=1, overrides=["lab.rig_views=3", "site.parking_attempts=2",
+                                                     "site.placement=eye", "site.eye_m=[2.5, 0.45, 0.85]"])
+    with pytest.raises(ConfigError) as exc:
+        IN_SITU.render(cfg, tmp_path / "ds", verbose=False)
+    msg = str(exc.value)
+    assert "wrist centre 2.25 m from the shoulder" in msg and "reaches 1.04-1.52 m" in msg and "723 mm beyond" in msg
+    assert not (tmp_path / "ds").exists()
+
+
+def test_placement_and_radius_limit_are_checked():
+    for overrides, key in ((["site.placement=floating"], "site.placement"), (["site.eye_m=[1, 2]"], "site.eye_m"),
+                           (["survey.radius_limit_mm=-5"], "survey.radius_limit_mm")):
+        with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+            load_scenario(SCENARIO, seed=1, overrides=overrides)
+    from bench.camera.presets import load_preset
+
+    cfg = load_scenario(SCENARIO, seed=1, overrides=["site.standoff_m=1.5", "survey.radius_limit_mm=200"])
+    r = np.linalg.norm(IN_SITU._survey_offsets(cfg, load_preset("underwater_in_water")), axis=1)
+    np.testing.assert_allclose(r, 0.2)
+    cfg = load_scenario(SCENARIO, seed=1, overrides=["site.standoff_m=0.5", "survey.radius_limit_mm=200"])
+    assert np.all(np.linalg.norm(IN_SITU._survey_offsets(cfg, load_preset("underwater_in_water")), axis=1) < 0.2)
