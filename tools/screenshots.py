@@ -68,6 +68,7 @@ def screenshot(rrd: Path, png: Path, timeout_s: float = 240.0) -> None:
         raise SystemExit(f"{viewer} not found: the rerun viewer ships with rerun-sdk (pip install rerun-sdk)")
     w, h = WINDOW
     raw = png.with_name(f".{png.stem}.raw.png")
+    png.parent.mkdir(parents=True, exist_ok=True)  # the viewer does not create it (it panics)
     env = dict(os.environ, RUST_LOG="error")  # no log toasts over the picture
     cmd = [xvfb, "-a", "-s", f"-screen 0 {5 * w}x{5 * h}x24", str(viewer), "--new", "--window-size", f"{w}x{h}",
            "--screenshot-to", str(raw), str(rrd)]
@@ -75,14 +76,14 @@ def screenshot(rrd: Path, png: Path, timeout_s: float = 240.0) -> None:
         subprocess.run(cmd, check=True, env=env, timeout=timeout_s, stdout=subprocess.DEVNULL,
                        stderr=subprocess.PIPE)
     except subprocess.CalledProcessError as exc:
-        tail = exc.stderr.decode(errors="replace").strip().splitlines()[-1:] if exc.stderr else []
-        raise SystemExit(f"{rrd}: the viewer failed ({'; '.join(tail) or exc.returncode})") from None
+        lines = exc.stderr.decode(errors="replace").strip().splitlines() if exc.stderr else []
+        why = "; ".join(ln.strip() for ln in lines if "panicked" in ln)[-300:] or "; ".join(lines[-1:])
+        raise SystemExit(f"{rrd}: the viewer failed ({why or exc.returncode})") from None
     img = cv2.imread(str(raw), cv2.IMREAD_COLOR)
     if img is None:
         raise SystemExit(f"{rrd}: the viewer wrote no screenshot")
     if img.shape[1] != w:
         img = cv2.resize(img, (w, round(img.shape[0] * w / img.shape[1])), interpolation=cv2.INTER_AREA)
-    png.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(png), img)
     raw.unlink(missing_ok=True)
 

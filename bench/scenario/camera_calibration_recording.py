@@ -4,16 +4,22 @@ The viewer opens (application id ``camera_calibration: <scenario>``) on a grid o
 rig image with its detected corners and the residual vectors of the calibrated model (detected minus predicted,
 ``p_e - p_p`` as in Figures 44/53, magnified by a factor stated in every view's name: a 1-2-5 step that makes the
 median residual about 15 px long), beside a 3D view in the camera frame (OpenCV axes: the camera at the origin, the
-rig's corners at each view's estimated pose) and the metrics. Everything is static: the views are entities of their
-own, ``views/<view>`` (a pinhole with the calibrated ``K`` and the image size) with ``views/<view>/image``,
-``.../corners`` and ``.../residuals``; ``world/targets/<view>`` the corners at the estimated pose (m); ``summary``.
+two-plane rig drawn as its boards at each view's estimated pose) and the metrics. The recording's name is
+``camera_calibration: <scenario>, <medium>, seed <N>``. Everything is static: the views are entities of their own,
+``views/<view>`` (a pinhole with the calibrated ``K`` and the image size) with ``views/<view>/image``,
+``.../corners`` and ``.../residuals``; ``world/rig/<part>`` the rig's boards - the simulator's nominal rig
+(:func:`bench.sim.scenes.rig.calibration_rig`, its black and white squares, borders and backing read back from the
+MuJoCo model by :class:`~bench.scenario.scene_meshes.SceneMeshes`) in the rig frame, stored once and drawn at every
+view's estimated ``T_cam_target`` (``InstancePoses3D``, one instance per view in the order of the views);
+``world/targets/<view>`` the corners at the estimated pose (m), ``world/labels`` the view names at the rigs' tops;
+``summary``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from bench.scenario.recording import GREEN, Recording, nice_factor
+from bench.scenario.recording import GREEN, Recording, nice_factor, run_name
 
 YELLOW = (240, 210, 40)
 #: Residual arrows are magnified so that the median one spans about this many pixels.
@@ -47,9 +53,17 @@ def record_camera_calibration(path, cfg, medium: str, ds, names, Xs, uvs, cal, m
     k = nice_factor(float(np.median(r_all)) if len(r_all) else 0.0, RESIDUAL_TARGET_PX)
     size = cal.camera.size
     name = cfg["name"]
+    rig = rig_mesh()
     with Recording(path, f"camera_calibration: {name}", f"{name}-{medium}-seed{cfg['seed']}",
-                   world="opencv") as rec:
+                   world="opencv", name=run_name("camera_calibration", cfg, medium)) as rec:
         rec.camera("world/camera", np.eye(4), cal.K, size, static=True, plane_distance=0.1)
+        if names:  # the rig's boards, stored once, at every view's estimated pose
+            for part in rig:
+                rec.mesh(f"world/rig/{part.name}", part)
+                rec.instances(f"world/rig/{part.name}", cal.T_cam_target)
+            tops = np.array([np.asarray(T, float) @ [0.0, 0.0, 0.24, 1.0] for T in cal.T_cam_target])[:, :3]
+            rec.stream.log("world/labels", rec.rr.Points3D(tops, labels=list(names), radii=0.003,
+                                                           colors=[(240, 240, 240)], show_labels=True), static=True)
         for i, (v, X, uv, r) in enumerate(zip(names, Xs, uvs, cal.residuals_px, strict=True)):
             # each view a pinhole of its own at the origin: its image, corners and residual field (2D only)
             rec.camera(f"views/{v}", np.eye(4), cal.K, size, ds.view(v).image_path, static=True)
@@ -69,14 +83,26 @@ def record_camera_calibration(path, cfg, medium: str, ds, names, Xs, uvs, cal, m
     return path
 
 
+def rig_mesh() -> list:
+    """The simulator's nominal two-plane rig (:func:`bench.sim.scenes.rig.calibration_rig`) as meshes in the rig frame
+    (the pipeline's target frame, :func:`bench.camera.corners.two_plane_rig`)."""
+    from bench.scenario.scene_meshes import SceneMeshes
+    from bench.sim.scenes.rig import calibration_rig
+
+    return SceneMeshes([calibration_rig(name="rig")]).merged()
+
+
 def blueprint(names, rms_px, k: float):
     """Residual fields per view (a grid) beside the camera frame's 3D view and the metrics."""
     import rerun.blueprint as rrb
 
     fields = [rrb.Spatial2DView(origin=f"/views/{v}", name=f"{v}: residuals x{k:g} (rms {rms:.3g} px)",
                                 contents=["$origin/image/**"]) for v, rms in zip(names, rms_px, strict=True)]
-    side = rrb.Vertical(rrb.Spatial3DView(origin="/world", name="camera frame: rig corners at each view's pose"),
+    side = rrb.Vertical(rrb.Spatial3DView(origin="/world", name="camera frame: the rig at each view's estimated pose",
+                                          eye_controls=rrb.EyeControls3D(position=(-0.75, -0.5, -0.35),
+                                                                         look_target=(0.0, 0.0, 0.75),
+                                                                         eye_up=(0.0, -1.0, 0.0))),
                         rrb.TextDocumentView(origin="/summary", name="metrics"), row_shares=[1, 1])
-    return rrb.Blueprint(rrb.Horizontal(rrb.Grid(*fields), side, column_shares=[3, 1]),
+    return rrb.Blueprint(rrb.Horizontal(rrb.Grid(*fields), side, column_shares=[2, 1]),
                          rrb.TimePanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
                          rrb.BlueprintPanel(state="collapsed"), auto_layout=False, auto_views=False)

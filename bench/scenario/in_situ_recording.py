@@ -1,6 +1,7 @@
 """The rerun recording of an ``in_situ`` run: the site as simulated, truth against estimate, opened on the question.
 
-The viewer opens on the blueprint :func:`blueprint` sends (application id ``in_situ: <scenario>``, timeline
+The viewer opens on the blueprint :func:`blueprint` sends (application id ``in_situ: <scenario>``, recording name
+``in_situ: <scenario>, seed <N>``, timeline
 ``view_index`` - the dataset's image views in order, the locate pair last):
 
 * tab **localisation** (active): a large 3D view of the site (``world``: the arm's link meshes at the current view's
@@ -43,7 +44,7 @@ from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector
 from bench.geometry.transforms import invert
 from bench.robot.kinematics import link_frames
 from bench.robot.orientation import link5_frame
-from bench.scenario.recording import GREEN, RED, Recording, arm_strip, nice_factor
+from bench.scenario.recording import GREEN, RED, Recording, arm_strip, nice_factor, run_name
 
 BLUE = (60, 120, 230)
 ORANGE = (240, 150, 30)
@@ -173,7 +174,7 @@ def record_in_situ(path, cfg, ds, truth, lab, res, report, details, reached, met
 
     site, rig, _ = site_scene(cfg, truth)
     arm = arm_scene(robot, eps_true, mount_true, K_eff, size)
-    with Recording(path, f"in_situ: {name}", f"{name}-seed{cfg['seed']}") as rec:
+    with Recording(path, f"in_situ: {name}", f"{name}-seed{cfg['seed']}", name=run_name("in_situ", cfg)) as rec:
         rec.bodies("world/site", site, static=True)
         rec.bodies("world/lab/rig", rig, static=True)
         rec.frame("world/base/survey_true", T_wb1, 0.2, static=True)

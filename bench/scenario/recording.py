@@ -44,11 +44,14 @@ class Recording:
         rerun application id (the scenario name).
     recording_id : str
         Identifies the run (e.g. ``"<scenario>-seed<N>"``).
+    name : str, optional
+        The recording's readable name, shown by the viewer in its recordings list and selection panel (e.g.
+        ``"in_situ: <scenario>, seed 2"``; :func:`run_name`); default ``recording_id``.
     world : {"z_up", "opencv"}
         Axes of ``world``: z up (a site, MuJoCo's world) or OpenCV's x right, y down, z forward (the x-y table).
     """
 
-    def __init__(self, path, application_id: str, recording_id: str, world: str = "z_up"):
+    def __init__(self, path, application_id: str, recording_id: str, world: str = "z_up", name: str | None = None):
         import rerun as rr
 
         self.rr = rr
@@ -57,6 +60,7 @@ class Recording:
         self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
         self.stream = rr.RecordingStream(application_id, recording_id=recording_id)
         self.stream.save(str(self._tmp))
+        self.stream.send_recording_name(name or recording_id)
         coords = {"z_up": rr.ViewCoordinates.RIGHT_HAND_Z_UP, "opencv": rr.ViewCoordinates.RDF}
         if world not in coords:
             raise ValueError(f"world: expected one of {', '.join(coords)}, got {world!r}")
@@ -169,6 +173,12 @@ class Recording:
                 for part in scene.parts[body]:
                     self.mesh(f"{prefix}/{body}/{part.name}", part, albedo=albedo)
 
+    def instances(self, entity: str, T_world_instances) -> None:
+        """Draw the content of ``entity`` (e.g. a mesh) once per pose ``T_world_instances (N, 4, 4)`` (static;
+        rerun's ``InstancePoses3D``: the mesh is stored once)."""
+        T = np.asarray(T_world_instances, float).reshape(-1, 4, 4)
+        self.stream.log(entity, self.rr.InstancePoses3D(translations=T[:, :3, 3], mat3x3=T[:, :3, :3]), static=True)
+
     def blueprint(self, blueprint) -> None:
         """Send the layout the viewer opens on (a ``rerun.blueprint.Blueprint``), made active and default."""
         self.stream.send_blueprint(blueprint, make_active=True, make_default=True)
@@ -205,6 +215,17 @@ class Recording:
         else:
             self.abort()
         return False
+
+
+def run_name(kind: str, cfg: dict, *extra: str) -> str:
+    """The readable recording name of a run: ``"<kind>: <scenario>, seed <N>"`` and ``extra`` (e.g. the medium)."""
+    return ", ".join([f"{kind}: {cfg['name']}", *extra, f"seed {cfg['seed']}"])
+
+
+def recording_name(path) -> str | None:
+    """The recording name a ``.rrd`` carries (:func:`run_name`), or None."""
+    names = [v for v in load_entities(path).get("/__properties", {}).get("RecordingInfo:name", []) if v]
+    return _one(names[-1]) if names else None
 
 
 def arm_strip(T_world_frames) -> np.ndarray:

@@ -374,14 +374,15 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
     rows = [r for r in store.rows() if r["status"] == "done"]
     errors = [r for r in store.rows() if r["status"] != "done"]
     store.close()
-    summary = summarise(rows, [k for k, _ in params], out)
+    summary = summarise(rows, [k for k, _ in params], out, scenario.stem)
     summary["errors"] = [f"{r['params']} seed {r['seed']}: {r['message']}" for r in errors]
     record_output_entries(out, exclude=before)
     return summary
 
 
-def summarise(rows: list, keys: list, out: Path) -> dict:
-    """Median and spread (min, max, 25 %, 75 %) per grid point and metric -> CSV, and one plot per metric."""
+def summarise(rows: list, keys: list, out: Path, scenario: str = "") -> dict:
+    """Median and spread (min, max, 25 %, 75 %) per grid point and metric -> CSV, and one plot per metric
+    (``scenario``: its name, for the recording)."""
     from bench.scenario.results import write_table_csv
 
     groups = {}
@@ -416,7 +417,7 @@ def summarise(rows: list, keys: list, out: Path) -> dict:
     plots, recording = [], None
     if keys and metrics and all(_is_number(v) for v in table[keys[0]]):
         plots = _plot(table, keys, metrics, out)
-        recording = _record(table, keys, metrics, out)
+        recording = _record(table, keys, metrics, out, scenario)
     return {"store": str(out / "sweep.sqlite"), "summary": str(out / "summary.csv"), "plots": plots,
             "recording": recording, "rows": len(rows), "table": table}
 
@@ -428,25 +429,12 @@ def _bound_pairs(metrics) -> list:
             and m.replace("_err_", "_bound_", 1) in names]
 
 
-def _record(table, keys, metrics, out) -> str:
-    """``sweep.rrd``: the median of every metric (and its bound) over the first swept key, in rerun."""
-    from bench.scenario.recording import Recording
+def _record(table, keys, metrics, out, scenario: str = "") -> str:
+    """``sweep.rrd``: the median of every metric (and its bound) over the first swept key, in rerun, with a blueprint
+    (:mod:`bench.scenario.sweep_recording`)."""
+    from bench.scenario.sweep_recording import record_sweep
 
-    key = keys[0]
-    xs = table[key]
-    integer = all(float(v).is_integer() for v in xs)
-    others = list(zip(*(table[k] for k in keys[1:]), strict=True)) if len(keys) > 1 else [()] * len(xs)
-    with Recording(out / "sweep.rrd", "bench sweep", f"sweep-{out.name}") as rec:
-        rec.text("summary", f"# sweep over {key}\n\nmedian over seeds of every metric; timeline `{key}`"
-                            + ("" if integer else " (grid index; the value is logged as `sweep/value`)"))
-        for i, (x, other) in enumerate(zip(xs, others, strict=True)):
-            rec.set_time(key, int(x) if integer else i)
-            if not integer:
-                rec.scalar("sweep/value", x)
-            suffix = "/".join(f"{k}={v}" for k, v in zip(keys[1:], other, strict=True))
-            for m in metrics:
-                rec.scalar(f"metrics/{m}" + (f"/{suffix}" if suffix else ""), table[f"{m}_median"][i])
-    return str(out / "sweep.rrd")
+    return str(record_sweep(out / "sweep.rrd", table, keys, metrics, _bound_pairs(metrics), scenario))
 
 
 def _sort_key(v):

@@ -422,11 +422,38 @@ def _calibration_poses(n, distance_m, rng):
     return out
 
 
+def reference_object(cfg, rng):
+    """The reference object as :func:`render` draws it, from ``rng`` in the state render has it there: the textured
+    manifold panel (``sim.reference_object: panel``, a seeded draw) or the rig with its printing errors."""
+    from bench.sim.scenes.panel import manifold_panel
+    from bench.sim.scenes.rig import calibration_rig
+
+    if cfg["sim"]["reference_object"] == "panel":
+        w, h = _vec(cfg, "sim.panel_size_m", 2)
+        try:
+            with naming_the_key(cfg, "sim.textures"):
+                return manifold_panel(rng, w, h, name="ref", texture_overrides=texture_paths(cfg, "sim.textures"))
+        except ValueError as exc:
+            raise ConfigError(cfg["_file"], "sim.panel_size_m", str(exc)) from None
+    return calibration_rig(name="ref", errors=_rig_errors(cfg, imaging(cfg), 0x7A13))
+
+
+def replay_reference_object(cfg, truth: dict):
+    """The reference object of a rendered campaign, drawn again from the scenario's seed exactly as :func:`render`
+    drew it (the table's and the lens's draws first); None when the replay is out of step with the dataset (its
+    true camera matrix is not ``truth["camera_K"]``, e.g. a dataset rendered by another version)."""
+    rng = np.random.default_rng(cfg["seed"])
+    _campaign(cfg, rng)
+    lens = _true_camera(cfg, rng, load_preset(_optics(cfg).lens_camera))
+    if not np.array_equal(lens.K, np.array(truth["camera_K"], float)):
+        return None
+    return reference_object(cfg, rng)
+
+
 def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     """Simulate the campaign and write the dataset (with ``truth/``); returns the simulator's figures."""
     from bench.sim.camera import mujoco_camera_xml
     from bench.sim.scenes.base import compose, place
-    from bench.sim.scenes.panel import manifold_panel
     from bench.sim.scenes.rig import calibration_rig
     from bench.sim.scenes.xy_table import DEFAULT_T_WORLD_TABLE, reference_pose, xy_table
 
@@ -443,15 +470,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     b = _vec(cfg, "sim.mount_bias_deg", 3) * DEG
     R0_true = rot_y(b[1]) @ rot_x(b[0]) @ rot_z(b[2])  # Eq. 197, factors as labelled
     T_mount_cam = homogeneous(R0_true, _vec(cfg, "sim.camera_centre_error_mm", 3) * 1e-3)
-    if s["reference_object"] == "panel":
-        w, h = _vec(cfg, "sim.panel_size_m", 2)
-        try:
-            with naming_the_key(cfg, "sim.textures"):
-                ref_obj = manifold_panel(rng, w, h, name="ref", texture_overrides=texture_paths(cfg, "sim.textures"))
-        except ValueError as exc:
-            raise ConfigError(cfg["_file"], "sim.panel_size_m", str(exc)) from None
-    else:
-        ref_obj = calibration_rig(name="ref", errors=_rig_errors(cfg, profile, 0x7A13))
+    ref_obj = reference_object(cfg, rng)
     # the experimenter puts the object where the camera sees it: its centre (the panel's face centre, the rig's
     # pattern centroid) on the reference view's TRUE optical axis, reference_distance_mm from the camera centre;
     # its orientation faces the table (-z), as reference_pose() sets it

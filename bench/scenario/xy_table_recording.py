@@ -1,16 +1,21 @@
 """The rerun recording of an ``xy_table`` run, in the table frame (OpenCV axes: x right, y down, z forward).
 
-Entities: ``world/reference`` (the reference object's outline or corners, true); per view (static: each view is its
-own entity) ``world/views/<view>/true`` (the camera at its true pose, frustum, image) and
-``world/views/<view>/estimated`` (the pose from the readings, the nominal table and the estimated mount rotation R0);
-``world/estimates/<method>`` - the estimated positions of every pair's camera (anchored at the true reference camera)
-and ``world/estimates/true`` the true ones; ``plots/err_<axis>_mm/<method>`` - the RMS error over the combinations
-on the timeline ``d_o_mm``, the intraocular distance (the sweep axis of Tables 5-8 / 11-14, thesis values beside as
-``plots/thesis_err_<axis>_mm/<method>``); ``summary``.
+Entities: ``world/reference/<body>/<part>`` the reference object as the simulator drew it - the textured manifold
+panel or the two-plane rig, its meshes read back from the MuJoCo model
+(:class:`~bench.scenario.scene_meshes.SceneMeshes`) at its true pose ``T_table_reference``; the panel's texture is a
+seeded draw, redrawn by :func:`bench.scenario.xy_table.replay_reference_object` (checked against the dataset's true
+camera matrix; when the replay is out of step, the outline or corners of ``truth.yaml`` are drawn as
+``world/reference/outline`` instead); per view (static: each view is its own entity) ``world/views/<view>/true`` (the
+camera at its true pose, frustum, image) and ``world/views/<view>/estimated`` (the pose from the readings, the nominal
+table and the estimated mount rotation R0); ``world/estimates/<method>`` - the estimated positions of every pair's
+camera (anchored at the true reference camera) and ``world/estimates/true`` the true ones;
+``plots/err_<axis>_mm/<method>`` - the RMS error over the combinations on the timeline ``d_o_mm``, the intraocular
+distance (the sweep axis of Tables 5-8 / 11-14, thesis values beside as ``plots/thesis_err_<axis>_mm/<method>``);
+``summary``.
 
-The viewer opens (application id ``xy_table: <scenario>``) on the error against the intraocular distance - one plot
-per axis, ours and the thesis's per method - beside the camera track (true and estimated cameras, the estimated
-positions per method) and the metrics.
+The viewer opens (application id ``xy_table: <scenario>``, recording name ``xy_table: <scenario>, seed <N>``) on the
+error against the intraocular distance - one plot per axis, ours and the thesis's per method - beside the camera track
+(true and estimated cameras, the estimated positions per method) and the metrics.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.geometry.transforms import transform_points
-from bench.scenario.recording import GREY, Recording
+from bench.scenario.recording import GREY, Recording, run_name
 
 COLOURS = {"quaternion": (230, 120, 40), "quaternion_ratio": (240, 190, 40), "lms": (60, 120, 230),
            "lms_ratio": (40, 200, 60)}
@@ -33,17 +38,31 @@ def _outline(truth):
     return transform_points(T, c), None
 
 
+def reference_scene(cfg, truth):
+    """The reference object's meshes (in its own frame) as the simulator drew it, or None (replay out of step)."""
+    from bench.scenario.scene_meshes import SceneMeshes
+    from bench.scenario.xy_table import replay_reference_object
+
+    obj = replay_reference_object(cfg, truth)
+    return None if obj is None else SceneMeshes([obj])
+
+
 def record_xy_table(path, cfg, ds, truth, result, camera, summary, metrics):
     """Write the recording of one run (see the module docstring); returns its path."""
     K_true = np.array(truth["camera_K"])
     size = tuple(int(v) for v in truth["camera_size"])
     T_true = {n: np.array(T) for n, T in truth["T_table_cam"].items()}
-    with Recording(path, f"xy_table: {cfg['name']}", f"{cfg['name']}-seed{cfg['seed']}", world="opencv") as rec:
-        outline, corners = _outline(truth)
-        if outline is not None:
-            rec.lines("world/reference", [outline], color=(200, 200, 200), static=True)
+    scene = reference_scene(cfg, truth)
+    with Recording(path, f"xy_table: {cfg['name']}", f"{cfg['name']}-seed{cfg['seed']}", world="opencv",
+                   name=run_name("xy_table", cfg)) as rec:
+        if scene is not None:
+            rec.bodies("world/reference", scene, np.array(truth["T_table_reference"], float), static=True)
         else:
-            rec.points("world/reference", corners, radius=0.003, static=True)
+            outline, corners = _outline(truth)
+            if outline is not None:
+                rec.lines("world/reference/outline", [outline], color=(200, 200, 200), static=True)
+            else:
+                rec.points("world/reference/outline", corners, radius=0.003, static=True)
         views = [v for v in ds.views if v.name in T_true]
         for v in views:  # static: a view's image is never without its pinhole
             rec.camera(f"world/views/{v.name}/true", T_true[v.name], K_true, size, v.image_path, plane_distance=0.05,

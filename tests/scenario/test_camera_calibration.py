@@ -177,3 +177,19 @@ def test_recording_opens_on_the_residual_fields(webcam_run):
         assert len(arrows) == len(uv) and rms == pytest.approx(res["tables"]["views"]["chi_px"][
             views.index(v["origin"].split("/")[-1])], rel=1e-3)
     assert "/summary" in e and any(v["class"] == "3D" for v in bp.values())
+    # the rig as its boards, once per view at the pose whose corners are drawn (the estimated T_cam_target)
+    from bench.scenario.camera_calibration_recording import rig_mesh
+    from bench.scenario.recording import recording_name
+
+    rig = e["/world/rig/solid"]
+    assert len(rig["Mesh3D:vertex_positions"][0]) == len(rig_mesh()[0].vertices)
+    t = np.array(rig["InstancePoses3D:translations"][0])
+    R = np.array(rig["InstancePoses3D:mat3x3"][0]).reshape(-1, 3, 3).transpose(0, 2, 1)
+    assert len(t) == len(views)
+    from bench.sim.scenes.rig import calibration_rig
+
+    corners = calibration_rig(name="rig").features["corners"]
+    for i, v in enumerate(views):
+        drawn = np.array(e[f"/world/targets/{v}"]["Points3D:positions"][0])
+        assert np.allclose(np.sort(corners @ R[i].T + t[i], axis=0), np.sort(drawn, axis=0), atol=1e-5)
+    assert recording_name(out / "recording.rrd") == "camera_calibration: camera_calibration_webcam, air, seed 3"

@@ -130,3 +130,74 @@ def test_scene_meshes_are_the_simulated_geometry():
     back = [p for p in panel.parts["panel"] if p.name == "panel_backplate"][0]
     assert back.texture.shape[2] == 3 and max(back.texture.shape[:2]) == 256
     assert back.texcoords.min() >= 0 and back.texcoords.max() <= 1
+
+
+def test_recording_name_and_instances_round_trip(tmp_path):
+    """The readable recording name (kind, scenario, extra, seed) and a mesh's instance poses come back as logged."""
+    from bench.scenario.recording import recording_name, run_name
+    from bench.scenario.scene_meshes import MeshPart
+
+    rng = np.random.default_rng(13)
+    name = run_name("camera_calibration", {"name": "webcam", "seed": 4}, "water")
+    assert name == "camera_calibration: webcam, water, seed 4"
+    Ts = np.stack([homogeneous(random_rotation(rng), rng.normal(size=3)) for _ in range(3)])
+    part = MeshPart("solid", rng.normal(size=(3, 3)).astype(np.float32), np.tile(np.float32([0, 0, 1]), (3, 1)),
+                    np.full((3, 4), 90, np.uint8))
+    with Recording(tmp_path / "r.rrd", "test", "test-4", name=name) as rec:
+        rec.mesh("rig/solid", part)
+        rec.instances("rig/solid", Ts)
+    assert recording_name(tmp_path / "r.rrd") == name
+    e = load_entities(tmp_path / "r.rrd")["/rig/solid"]
+    assert np.allclose(e["InstancePoses3D:translations"][0], Ts[:, :3, 3], atol=1e-6)
+    R = np.array(e["InstancePoses3D:mat3x3"][0]).reshape(-1, 3, 3).transpose(0, 2, 1)  # column-major
+    assert np.allclose(R, Ts[:, :3, :3], atol=1e-6)
+    with Recording(tmp_path / "s.rrd", "test", "test-5") as rec:  # no name: the recording id
+        rec.frame("a", np.eye(4), static=True)
+    assert recording_name(tmp_path / "s.rrd") == "test-5"
+
+
+def test_merged_rig_is_the_posed_boards():
+    """SceneMeshes.merged: the rig's boards in the rig frame, one coloured mesh, every triangle of every body posed;
+    its printed faces hold the rig's corners and its black squares are black."""
+    pytest.importorskip("mujoco")
+    from bench.scenario.camera_calibration_recording import rig_mesh
+    from bench.sim.scenes.rig import calibration_rig
+
+    parts = rig_mesh()
+    assert [p.name for p in parts] == ["solid"] and parts[0].texture is None
+    v, c = parts[0].vertices, parts[0].colors
+    assert len(v) == len(c) and len(v) % 3 == 0 and parts[0].n_triangles > 1000
+    corners = calibration_rig(name="rig").features["corners"]
+    d = np.min(np.linalg.norm(v[None, ::7] - corners[:, None], axis=2), axis=1)
+    assert np.all(d < 0.02)  # a vertex (a square's corner) near every printed corner, in the rig frame
+    dark = (c[:, :3] < 20).all(axis=1)
+    assert 0.2 < dark.mean() < 0.6  # about half the faces' tiles are black
+
+
+@pytest.mark.parametrize("xs, timeline", [([20, 50, 100], "d_mm"), ([0.5, 1.5], "d_mm (grid index)")])
+def test_sweep_recording_blueprint(tmp_path, xs, timeline):
+    """sweep.rrd opens on one plot per metric against the swept key, the bound in its error's plot, timings apart;
+    application id and recording name name the scenario; the timeline is the swept key (or its grid index)."""
+    from bench.scenario.recording import load_blueprint, recording_name
+    from bench.scenario.sweep import summarise
+
+    rng = np.random.default_rng(17)
+    rows = [{"params": {"d_mm": d}, "metrics": {"pos_err_mm": float(rng.uniform(1, 3)), "pos_bound_mm": 1.0,
+                                                "focal_err_pct": float(rng.uniform()), "run_s": 2.0}}
+            for d in xs for _ in range(3)]
+    res = summarise(rows, ["d_mm"], tmp_path, "my_scenario")
+    bp = load_blueprint(res["recording"])
+    plots = {n: v for n, v in bp.items() if v["class"] == "TimeSeries"}
+    assert plots["pos_err_mm and pos_bound_mm vs d_mm"]["contents"] == ["+ /metrics/pos_err_mm/**",
+                                                                      "+ /metrics/pos_bound_mm/**"]
+    assert "focal_err_pct vs d_mm" in plots and "run_s vs d_mm" in plots
+    assert not any(n.startswith("pos_bound_mm") for n in plots)  # the bound is drawn with its error only
+    assert recording_name(res["recording"]) == "sweep: my_scenario over d_mm"
+    e = load_entities(res["recording"])
+    assert [v[0] for v in e["/metrics/pos_err_mm"]["Scalars:scalars"]] == pytest.approx(
+        res["table"]["pos_err_mm_median"])
+    from rerun.chunk import RrdReader
+
+    timelines = {t for c in RrdReader(str(res["recording"])).stream().to_chunks()
+                 for t in c.to_record_batch().schema.names if ":" not in t and not t.startswith("rerun")}
+    assert timeline in timelines

@@ -180,7 +180,7 @@ def test_recording_loads_back(webcam):
     assert logged == pytest.approx([t["err_z_mm"][i] for i in rows])
     views = [k for k in e if k.startswith("/world/views/") and k.endswith("/true")]
     assert len(views) == len([k for k in e if k.startswith("/world/views/") and k.endswith("/estimated")]) > 5
-    assert "/world/estimates/lms_ratio" in e and "/world/reference" in e
+    assert "/world/estimates/lms_ratio" in e and "/world/reference/ref" in e
     # the viewer opens on the error against the intraocular distance, beside the camera track
     from bench.scenario.recording import load_blueprint
 
@@ -191,6 +191,22 @@ def test_recording_loads_back(webcam):
         assert f"+ /plots/err_{n[0]}_mm/**" in v["contents"] and f"/plots/err_{n[0]}_mm/lms_ratio" in e
     track = [v for v in bp.values() if v["class"] == "3D"]
     assert len(track) == 1 and track[0]["origin"] == "/world"
+    # the reference object is the simulator's textured panel at its true pose, redrawn from the seed
+    from bench.scenario.recording import recording_name
+
+    truth = yaml.safe_load((out / "dataset" / "truth" / "truth.yaml").read_text())
+    T = np.array(truth["T_table_reference"])
+    assert np.allclose(e["/world/reference/ref"]["Transform3D:translation"][0], T[:3, 3], atol=1e-6)
+    textured = [k for k, c in e.items() if k.startswith("/world/reference/") and "Mesh3D:albedo_texture_buffer" in c]
+    assert textured and "/world/reference/outline" not in e
+    assert recording_name(out / res["artifacts"]["recording"]) == "xy_table: xy_table_webcam, seed 3"
+    from bench.scenario.runner import load_scenario
+    from bench.scenario.xy_table import replay_reference_object
+
+    cfg = load_scenario(WEBCAM, seed=3, overrides=SMOKE_WEBCAM)
+    assert replay_reference_object(cfg, truth) is not None
+    truth["camera_K"][0][0] += 1e-9  # a dataset rendered by other draws: no panel rather than a wrong one
+    assert replay_reference_object(cfg, truth) is None
 
 
 def test_table_readout_exact(tmp_path):
