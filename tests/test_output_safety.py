@@ -272,7 +272,8 @@ def _inputs(tmp_path, ta40):
     joints = inp / "j.csv"
     joints.write_text("view," + ",".join(f"q{i}_deg" for i in range(1, 7)) + "\n"
                       + "".join(f"v{i}," + ",".join(map(str, r)) + "\n" for i, r in enumerate(np.rad2deg(q))))
-    return {"export": [str(robot), "--format", "urdf", "--velocity-deg-s", "30", "--effort-nm", "2000"], "export-camera": [str(camera), "--format", "ros"],
+    return {"export": [str(robot), "--format", "urdf", "--velocity-deg-s", "30", "--effort-nm", "2000"],
+            "export-camera": [str(camera), "--format", "ros"],
             "import-tracker": [str(tracker)], "import-joints": [str(joints)]}
 
 
