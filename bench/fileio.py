@@ -203,6 +203,8 @@ def check_output_dir(path, command: str, *, force: bool = False, identity: str |
     if not names:
         return "empty"
     marker = output_marker(path)
+    if marker is None and _legacy_output(path, command, identity):
+        marker = {"command": command, "identity": identity}  # written before markers existed: adopted as it is
     if marker is None:
         extra = f" (--force only replaces a previous output of bench {command})" if force else ""
         raise OutputRefused(f"{option} {path}: a non-empty folder that bench did not write (holds {_listing(names)}); "
@@ -260,6 +262,50 @@ def record_output_entries(path, exclude=()) -> None:
     atomic_write_text(path / OUTPUT_MARKER, json.dumps(marker, indent=2) + "\n")
 
 
+def _legacy_output(path: Path, command: str, identity) -> bool:
+    """Whether an unmarked folder is recognisably an output of ``command`` written before output markers existed
+    (so that a sweep started by an older version still resumes): its signature file, and for a run the scenario's
+    name in its result.json."""
+    def doc(name):
+        try:
+            return json.loads((path / name).read_text())
+        except (OSError, ValueError):
+            return None
+
+    if command == "sweep":
+        db = path / "sweep.sqlite"
+        if not db.is_file():
+            return False
+        import sqlite3
+
+        try:
+            con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+            try:
+                return con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'runs'").fetchone() \
+                    is not None
+            finally:
+                con.close()
+        except sqlite3.Error:
+            return False
+    if command == "run":
+        res = doc("result.json")
+        return isinstance(res, dict) and identity is not None and res.get("scenario") == identity
+    if command == "budget":
+        res = doc("result.json")
+        return isinstance(res, dict) and str(res.get("scenario", "")).startswith("budget:")
+    if command == "sim render":
+        try:
+            import yaml
+
+            man = yaml.safe_load((path / "manifest.yaml").read_text())
+        except Exception:  # noqa: BLE001 - not a readable manifest: not a dataset bench rendered
+            return False
+        return isinstance(man, dict) and str(man.get("created_by", "")).startswith("bench sim render")
+    if command in ("locate", "calibrate-camera"):
+        return isinstance(doc("locate.json" if command == "locate" else "calibration.json"), dict)
+    return False
+
+
 def mark_output_dir(path, command: str, identity: str | None = None) -> Path:
     """Write the marker into the folder ``path`` (which must exist): it is the output of ``command``."""
     doc = {"command": command, "identity": identity, "created_at": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
@@ -277,6 +323,8 @@ def claim_output_dir(path, command: str, *, force: bool = False, identity: str |
     path = Path(path)
     decision = check_output_dir(path, command, force=force, identity=identity, option=option)
     if decision == "own":
+        if output_marker(path) is None:  # an adopted output of an older version
+            mark_output_dir(path, command, identity)
         return path
     if decision == "replace":
         shutil.rmtree(path)
@@ -348,7 +396,7 @@ def writing_output_dir(path, command: str, *, force: bool = False, identity: str
     try:
         yield path
     finally:
-        if decision != "own" and path.is_dir() and any(path.iterdir()) and output_marker(path) is None:
+        if path.is_dir() and any(path.iterdir()) and output_marker(path) is None:  # new, or adopted from before
             mark_output_dir(path, command, identity)
         if output_marker(path) is not None:
             record_output_entries(path, exclude=before)

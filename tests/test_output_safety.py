@@ -86,6 +86,31 @@ def test_claim_rules(tmp_path):
         check_output_dir(tmp_path / "broken", "run", force=True)
 
 
+def test_outputs_of_older_versions_are_adopted_by_their_signature(tmp_path):
+    """Folders written before markers existed: a sweep (its store), a run of the same scenario (its result.json)."""
+    import sqlite3
+
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    sqlite3.connect(sweep / "sweep.sqlite").execute("CREATE TABLE runs (run_id TEXT)").connection.close()
+    assert check_output_dir(sweep, "sweep") == "own"
+    claim_output_dir(sweep, "sweep", identity="s.yaml")
+    assert json.loads((sweep / OUTPUT_MARKER).read_text())["command"] == "sweep"
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "result.json").write_text(json.dumps({"scenario": "s1", "metrics": {}}))
+    assert check_output_dir(run, "run", identity="s1") == "own"
+    with pytest.raises(OutputRefused, match="bench did not write"):
+        check_output_dir(run, "run", identity="s2")  # another scenario's result: not adopted
+    with pytest.raises(OutputRefused, match="bench did not write"):
+        check_output_dir(run, "sweep")
+    other = tmp_path / "other"
+    other.mkdir()
+    sqlite3.connect(other / "sweep.sqlite").execute("CREATE TABLE notes (x TEXT)").connection.close()
+    with pytest.raises(OutputRefused, match="bench did not write"):
+        check_output_dir(other, "sweep")
+
+
 def test_output_files_are_claimed_by_content(tmp_path):
     out = tmp_path / "robot.urdf"
     write_output_file(out, "<robot/>", "export")
