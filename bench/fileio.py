@@ -31,7 +31,17 @@ sidecar ``.NAME.bench-output.json`` with the command and the SHA-256 of what was
   file edited since bench wrote it, is refused unless ``force=True``, which replaces it;
 * anything else - a non-empty folder bench did not mark, another command's output, a file where a folder is
   expected or a folder where a file is expected - is refused, ``force`` or not: :class:`OutputRefused`, one line
-  naming the option, the path and what is in the way.
+  naming the option, the path and what is in the way;
+* a command that finishes records in the marker the entries it wrote: a replacement (``force``, a dataset
+  re-rendered whole) is refused while the folder holds anything else (a note the user put there since), which a
+  re-run into the folder leaves alone;
+* an unmarked folder written by an older version is adopted by its signature (a sweep's ``sweep.sqlite`` with its
+  ``runs`` table, a run's ``result.json`` of the same scenario, ...: :func:`_legacy_output`), so old sweeps resume.
+
+New commands: ``dataset init``-like commands that build a folder whole pass ``command=`` to
+:class:`bench.dataset.DatasetWriter`; commands that write a folder step by step use :func:`claimed_output_dir`
+(``with claimed_output_dir(args.out, "my-command", force=args.force) as out: ...``: a failure removes what it
+created); a command that writes its folder at the very end uses :func:`writing_output_dir`.
 """
 
 from __future__ import annotations
