@@ -75,6 +75,8 @@ WARN_SPREAD = 0.05
 #: Conditioning (test 6): warning / refused beyond.
 WARN_CONDITION = 1e4
 REFUSE_CONDITION = 1e8
+#: Optimism of the pose covariance (its standard deviations times this): see :func:`protection_levels`.
+KAPPA = 1.0
 #: Model floor of the protection levels (the residual kinematic calibration error, see the module docstring).
 FLOOR_MM = 0.5
 FLOOR_DEG = 0.01
@@ -196,6 +198,43 @@ def _robust_rms(e):
     return float(np.sqrt(np.mean(e**2))) if len(e) else float("nan")
 
 
+def protection_levels(covariance, tests: dict, kappa: float | None = None, floor_mm: float | None = None,
+                      floor_deg: float | None = None):
+    """Protection radius (m) and angle (rad) from the pose covariance and the integrity tests' statistics.
+
+    ``k * kappa * f_chi * f_white * sigma_max + floor`` per block (position, rotation), with ``sigma_max`` the
+    largest standard deviation of the block, ``k^2`` the chi-square quantile of 3 degrees of freedom at
+    ``1 - INTEGRITY_RISK``, ``f_chi`` / ``f_white`` the test-3 / test-4 inflations in ``tests``
+    (``inflation_chi2``, ``inflation_whiteness``), and ``kappa`` (default :data:`KAPPA`) the covariance's measured
+    optimism (docs/integrity.md: fitted on clean envelope runs so that the covariance's 95 % region holds 95 % of
+    their errors). The disagreement of test 2 (``relative_pose_mm`` / ``_deg``) is added in quadrature, a third of
+    it. Also records ``k_factor`` and ``kappa`` into ``tests``.
+
+    Parameters
+    ----------
+    covariance : array_like (6, 6)
+        Rotation vector (rad) then translation (m) of the base pose.
+    tests : dict
+        The statistics :func:`assess` computed (names carry units).
+    """
+    kappa = KAPPA if kappa is None else float(kappa)
+    floor_mm = FLOOR_MM if floor_mm is None else float(floor_mm)
+    floor_deg = FLOOR_DEG if floor_deg is None else float(floor_deg)
+    cov = np.asarray(covariance, float)
+    sig_rot = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 0.0)))
+    sig_pos = float(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 0.0)))
+    k = float(np.sqrt(chi2.ppf(1 - INTEGRITY_RISK, 3)))
+    f = kappa * float(tests.get("inflation_chi2", 1.0)) * float(tests.get("inflation_whiteness", 1.0))
+    tests.update(k_factor=k, kappa=kappa)
+    pr = k * f * sig_pos + floor_mm * 1e-3
+    pa = k * f * sig_rot + np.deg2rad(floor_deg)
+    d_t = tests.get("relative_pose_mm")
+    if d_t is not None and np.isfinite(d_t):  # a kinematic relative pose off by d moves the solution by about d
+        pr = float(np.hypot(pr, d_t * 1e-3 / 3))
+        pa = float(np.hypot(pa, np.deg2rad(tests["relative_pose_deg"]) / 3))
+    return float(pr), float(pa)
+
+
 def assess(kmap: KeypointMap, surround: list, view_a: ViewObservation, view_b: ViewObservation, result,
            focal_px: float, image_size, config: MapConfig | None = None, seed: int = 0) -> Integrity:
     """Integrity tests and protection levels of a two-view localisation (see the module docstring).
@@ -315,17 +354,8 @@ def assess(kmap: KeypointMap, surround: list, view_a: ViewObservation, view_b: V
         warn.append(f"ill-conditioned pose problem (condition {result.condition:.3g})")
 
     # --- protection levels -------------------------------------------------------------------------------------------
-    cov = np.asarray(result.covariance, float)
-    sig_rot = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 0.0)))
-    sig_pos = float(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 0.0)))
-    f_chi = max(1.0, ratio) if np.isfinite(ratio) else 1.0
-    k = float(np.sqrt(chi2.ppf(1 - INTEGRITY_RISK, 3)))
-    tests.update(inflation_chi2=f_chi, inflation_whiteness=f_white, k_factor=k)
-    pr = k * f_chi * f_white * sig_pos + FLOOR_MM * 1e-3
-    pa = k * f_chi * f_white * sig_rot + np.deg2rad(FLOOR_DEG)
-    if np.isfinite(d_t):  # a kinematic relative pose off by d moves the solution by about d: add what exceeds noise
-        pr = float(np.hypot(pr, d_t / 3))
-        pa = float(np.hypot(pa, d_r / 3))
+    tests.update(inflation_chi2=max(1.0, ratio) if np.isfinite(ratio) else 1.0, inflation_whiteness=f_white)
+    pr, pa = protection_levels(result.covariance, tests)
     if refuse:
         return Integrity("refused", refuse + warn, float("inf"), float("inf"), tests)
     if pr * 1e3 > ALERT_MM or np.rad2deg(pa) > ALERT_DEG:
