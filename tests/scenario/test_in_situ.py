@@ -53,6 +53,31 @@ def test_smoke_accuracy(smoke_run):
     assert set(res) == {"scenario", "seed", "metrics", "tables", "timings_s", "artifacts"}
 
 
+def test_smoke_realistic_imaging_default(tmp_path):
+    """The default imaging (realistic: target print/bow/fold errors, webcam distortion, defocus, motion, rolling
+    shutter, Bayer, JPEG - bench.sim.imaging) runs the whole in-situ chain; its accuracy is a sweep's business
+    (docs/realistic_imaging.md), the smoke run checks that every stage copes and the goals' figures are finite."""
+    cfg = load_scenario(SCENARIO)
+    assert cfg["camera"]["imaging"] == "realistic" and cfg["camera"]["imaging_off"] == []
+    overrides = [o for o in SMOKE if not o.startswith("camera.imaging")] + ["bound.enabled=false",
+                                                                           "outputs.rerun=false"]
+    path = run_scenario_file(SCENARIO, out=tmp_path / "run", seed=2, overrides=overrides, verbose=False, quiet=True)
+    res = json.loads(Path(path).read_text())
+    m = res["metrics"]
+    truth = yaml.safe_load((tmp_path / "run" / "dataset" / "truth" / "truth.yaml").read_text())
+    from bench.camera.presets import load_preset
+    from bench.scenario.in_situ import site_optics
+    from bench.sim.imaging import WEBCAM_DISTORTION
+
+    lens = load_preset(site_optics(load_scenario(SCENARIO, overrides=overrides)).lens_camera)
+    assert np.allclose(np.array(truth["camera_dist"]) - lens.dist, WEBCAM_DISTORTION)  # the realistic true lens
+    for k in ("base_pos_err_mm", "base_rot_err_deg", "valve_tool_err_mm", "reproj_rms_px", "mount_pos_err_mm"):
+        assert np.isfinite(m[k]), k
+    assert m["map_points"] > 50 and m["inliers"] > 20
+    # realistic corners are noisier than ideal ones (0.06 px): the rig calibration sees it
+    assert 0.1 < m["reproj_rms_px"] < 1.0
+
+
 def _numbers(obj):
     if isinstance(obj, dict):
         for v in obj.values():
