@@ -220,12 +220,12 @@ def _interchange(args) -> int:
             if val is not None and not val > 0:
                 raise BenchError(f"{opt}: expected a positive limit, got {val}")
         vel = None if args.velocity_deg_s is None else radians(args.velocity_deg_s)
-        if args.format == "urdf" and (vel is None or args.effort_nm is None):
+        path = export_robot(args.robot, args.format, args.out, args.name, vel, args.effort_nm, force=args.force)
+        print(f"wrote {path} ({args.format.upper()})")
+        if args.format == "urdf" and (vel is None or args.effort_nm is None):  # after the write: errors come alone
             print("bench: warning: URDF joint limits: effort and velocity are not known to the robot file; written as "
                   "0 (= unknown, with a comment), which a consumer may read as 'cannot move' or 'unlimited': give "
                   "--velocity-deg-s and --effort-nm", file=sys.stderr)
-        path = export_robot(args.robot, args.format, args.out, args.name, vel, args.effort_nm, force=args.force)
-        print(f"wrote {path} ({args.format.upper()})")
     elif args.command == "export-camera":
         from bench.camera.export import export_camera
 
