@@ -50,6 +50,7 @@ MODELS = ("reduced", "prior")
 #: A calibration whose residual RMS exceeds this fraction of the arm's reach is refused (wrong units or links).
 MAX_RMS_OF_REACH = 0.02
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
+LSQ_METHOD = "lm"  # MINPACK: the same minimum as "trf" here, ~2x faster on a loaded machine
 ANGLE_UNITS = {"rad": 1.0, "deg": np.pi / 180}
 
 
@@ -332,7 +333,7 @@ def _solve(chain, q, P, w, T0, U0, kept, eps0, prior, max_nfev=200, tau=None, c0
 
     x0 = np.concatenate([np.zeros(3), T0[:3, 3], np.asarray(U0, float).reshape(-1), eps_base[cols],
                          np.zeros(n_c) if comp is None else np.asarray(c0[1], float)])
-    res = scipy.optimize.least_squares(fun, x0, jac=jac, method="trf", x_scale="jac", xtol=1e-15, ftol=1e-15,
+    res = scipy.optimize.least_squares(fun, x0, jac=jac, method=LSQ_METHOD, x_scale="jac", xtol=1e-15, ftol=1e-15,
                                        gtol=1e-15, max_nfev=max_nfev)
     R, t, U, eps, _ = unpack(res.x)
     _, J = fun_jac(res.x)
