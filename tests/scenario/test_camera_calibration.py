@@ -152,9 +152,10 @@ def test_rig_out_of_view_names_the_view(tmp_path):
     with pytest.raises(ConfigError, match=r"view 1: the rig leaves the image even centred"):
         cc.render(cfg, tmp_path / "ds", verbose=False)
     assert not (tmp_path / "ds").exists()  # nothing half-written
-    cfg = load_scenario(UNDERWATER, overrides=["camera.housing=false"])
+    # a configuration error is refused when the scenario loads, before anything renders (issue 17.3)
     with pytest.raises(ConfigError, match="camera.housing: the camera cannot be submerged without its housing"):
-        cc.render(cfg, tmp_path / "ds", verbose=False)
+        load_scenario(UNDERWATER, overrides=["camera.housing=false"])
+    assert not (tmp_path / "ds").exists()
 
 
 def test_recording_opens_on_the_residual_fields(webcam_run):
