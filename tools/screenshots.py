@@ -1,10 +1,10 @@
 """Screenshots of every scenario kind's rerun recording as the viewer opens it (``make screenshots``).
 
-For each kind (in-situ, x-y table, camera calibration) this runs the kind's smoke configuration (the one its tests
-use; ``--reuse`` keeps a recording that is already there), then opens the recording in rerun's own viewer
-(``.venv/bin/rerun``) under a virtual X display and lets it write a screenshot of its default layout - the blueprint
-the recording carries - with ``--screenshot-to``. The PNGs go to ``docs/figures/inspection_<kind>.png``
-(downsampled to the window's size), shown in ``docs/inspection.md``.
+For each kind (in-situ, x-y table, camera calibration, and a small ``bench sweep``: ``SWEEP``) this runs the kind's
+smoke configuration (the one its tests use; ``--reuse`` keeps a recording that is already there), then opens the
+recording in rerun's own viewer (``.venv/bin/rerun``) under a virtual X display and lets it write a screenshot of its
+default layout - the blueprint the recording carries - with ``--screenshot-to``. The PNGs go to
+``docs/figures/inspection_<kind>.png`` (downsampled to the window's size), shown in ``docs/inspection.md``.
 
 Needs ``xvfb-run`` and a Vulkan driver (Debian: ``apt-get install xvfb mesa-vulkan-drivers``: the viewer then runs on
 Mesa's software rasteriser). The virtual screen is larger than the window so that the pointer (at the screen's
@@ -36,6 +36,8 @@ KINDS = {
     "camera_calibration": ("scenarios/camera_calibration_webcam.yaml", 3,
                            ["views.count=4", "camera.supersample=2", "pipeline.compare_extractors=false"]),
 }
+#: the sweep's screenshot: the x-y table's smoke configuration over the reference distance (3 runs, one seed)
+SWEEP = ("scenarios/xy_table_webcam.yaml", 3, "sim.reference_distance_mm=600,700,800")
 WINDOW = (1600, 1000)
 
 
@@ -53,6 +55,25 @@ def run_kind(kind: str, runs: Path, reuse: bool = False) -> Path:
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     if not rrd.is_file():
         raise SystemExit(f"{kind}: the run wrote no recording ({rrd})")
+    return rrd
+
+
+def run_sweep(runs: Path, reuse: bool = False) -> Path:
+    """The small sweep of ``SWEEP`` (``bench sweep``, 2 workers); returns its ``sweep.rrd``."""
+    scenario, seed, param = SWEEP
+    out = runs / "sweep"
+    rrd = out / "sweep.rrd"
+    if reuse and rrd.is_file():
+        return rrd
+    cmd = [str(BIN / "bench"), "sweep", str(ROOT / scenario), "--param", param, "--seed", str(seed), "--workers", "2",
+           "--out", str(out), "--force"]
+    for o in KINDS["xy_table"][2]:
+        if not o.startswith("sim.reference_distance_mm"):
+            cmd += ["--set", o]
+    print(f"sweep: {scenario} over {param} ...", flush=True)
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    if not rrd.is_file():
+        raise SystemExit(f"sweep: the sweep wrote no recording ({rrd})")
     return rrd
 
 
@@ -92,11 +113,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=Path, default=ROOT / "runs" / "screenshots", help="folder of the smoke runs")
     ap.add_argument("--figures", type=Path, default=ROOT / "docs" / "figures", help="where the PNGs go")
-    ap.add_argument("--only", nargs="+", choices=sorted(KINDS), default=sorted(KINDS), help="kinds to render")
+    ap.add_argument("--only", nargs="+", choices=sorted(KINDS) + ["sweep"], default=sorted(KINDS) + ["sweep"],
+                    help="kinds to render (and the sweep)")
     ap.add_argument("--reuse", action="store_true", help="keep recordings already in --runs")
     args = ap.parse_args(argv)
     for kind in args.only:
-        rrd = run_kind(kind, args.runs, args.reuse)
+        rrd = run_sweep(args.runs, args.reuse) if kind == "sweep" else run_kind(kind, args.runs, args.reuse)
         png = args.figures / f"inspection_{kind}.png"
         screenshot(rrd, png)
         print(f"{kind}: {png.relative_to(ROOT) if png.is_relative_to(ROOT) else png}")

@@ -92,11 +92,11 @@ def blueprint(key: str, timeline: str, metrics: list, bounds: list, integer: boo
         return rrb.TimeSeriesView(origin="/metrics", name=f"{name} vs {key}", contents=contents,
                                   plot_legend=rrb.PlotLegend(visible=m in bound_of, corner=rrb.Corner2D.RightTop))
 
-    accuracy = [plot(m) for m in shown if not m.endswith("_s")]
-    timings = [plot(m) for m in shown if m.endswith("_s")]
-    tabs = [rrb.Grid(*accuracy, name="metrics")] if accuracy else []
-    if timings:
-        tabs.append(rrb.Grid(*timings, name="timings"))
+    groups = {"against bounds": [m for m in shown if m in bound_of],
+              "errors": [m for m in shown if m not in bound_of and "err" in m and not m.endswith("_s")],
+              "other metrics": [m for m in shown if "err" not in m and not m.endswith("_s")],
+              "timings": [m for m in shown if m.endswith("_s")]}
+    tabs = [rrb.Grid(*[plot(m) for m in ms], name=name) for name, ms in groups.items() if ms]
     if not integer:
         tabs.append(rrb.TimeSeriesView(origin="/sweep", name=f"{key} per grid index", contents=["+ /sweep/**"]))
     tabs.append(rrb.TextDocumentView(origin="/summary", name="summary"))
