@@ -83,7 +83,9 @@ def test_error_is_smallest_near_the_calibration_distance_and_grows_with_d0(smoke
             ratio = m[f"rms_px_at_{where}_d0_50mm_{a}"] / m[f"rms_px_at_{where}_d0_5mm_{a}"]
             assert ratio > (5.0 if a == "aligned" else 1.3), (a, where, ratio)
     # aligned, k3: the polynomial model is good to 0.1 px over the whole range for d0 = 5 mm, not for 50 mm
-    assert m["polynomial_ok_from_m_d0_5mm_aligned"] == pytest.approx(0.2)
+    # (at 0.2 m the 5 mm port's RMS sits at the 0.1 px threshold itself: the interpolated window edge lands within
+    # a micrometre of 0.2 m, on either side depending on the last Gauss-Newton polish of the calibration)
+    assert m["polynomial_ok_from_m_d0_5mm_aligned"] == pytest.approx(0.2, abs=1e-5)
     assert m["polynomial_ok_to_m_d0_5mm_aligned"] == pytest.approx(3.0)
     assert m["refractive_needed_everywhere_d0_5mm_aligned"] == 0.0
     lo, hi = m["refractive_needed_below_m_d0_50mm_aligned"], m["refractive_needed_above_m_d0_50mm_aligned"]
