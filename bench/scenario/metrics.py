@@ -139,6 +139,8 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "views were rendered (not all from the render cache)"),
         Metric("panel_sift_keypoints", "count", "SIFT keypoints in a panel view"),
         Metric("views_rendered", "count", "views rendered (not taken from the cache)"),
+        Metric("rig_views_unreachable", "count", "requested lab rig views beyond the joint limits (not rendered; "
+                                                 "named on stderr)"),
         Metric("plan_s", "s", "view planning time"),
         Metric("parking_attempts", "count", "ROV parkings drawn until views and valve were reachable"),
         Metric("map_points", "count", "map points ¹p"),
