@@ -42,7 +42,7 @@ from bench.camera.corners import extract_corners_opencv, extract_corners_thesis,
 from bench.camera.io import write_camera_yaml
 from bench.camera.plots import plot_residual_vectors
 from bench.dataset import View, load_dataset
-from bench.errors import BenchError, ConfigError
+from bench.errors import ConfigError
 from bench.fileio import atomic_write_text, write_table_csv
 from bench.geometry.transforms import homogeneous, rot_z
 
@@ -52,8 +52,6 @@ TARGET_KEYS = {"chessboard": ({"inner", "square_mm"}, {}),
 _TARGET_SYNONYMS = {"planar": "chessboard"}
 #: image files of a plain folder of photos
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-#: Outputs of this command: a folder holding only these (or nothing) may be written again.
-OUTPUT_FILES = ("camera.yaml", "calibration.json", "per_view.csv", "residuals.png", "robot.yaml")
 
 
 def parse_target(t, source):
@@ -285,22 +283,13 @@ def detect_dataset_corners(root, extractor: str = "thesis", camera=None, target:
 
 
 def prepare_out_dir(out) -> Path:
-    """The output folder, refused when it is a file or a non-empty folder holding files this command did not write
-    (the shared rule of :mod:`bench.fileio` when it has one)."""
-    from bench import fileio
+    """The output folder, created; refused (:class:`bench.fileio.OutputRefused`, one line) when it is a file, a
+    non-empty folder that bench did not write or another command's output (:func:`bench.fileio.check_output_dir`).
+    The CLI also marks it as this command's output (:func:`bench.fileio.writing_output_dir`)."""
+    from bench.fileio import check_output_dir
 
-    helper = getattr(fileio, "check_out_dir", None)
     out = Path(out)
-    if helper is not None:
-        helper(out, OUTPUT_FILES)
-    else:
-        if out.exists() and not out.is_dir():
-            raise BenchError(f"--out {out}: is a file, not a folder")
-        if out.is_dir():
-            foreign = sorted(p.name for p in out.iterdir() if p.name not in OUTPUT_FILES)
-            if foreign:
-                raise BenchError(f"--out {out}: a non-empty folder that this command did not write (holds "
-                                 f"{foreign[0]!r}); choose a new or empty folder")
+    check_output_dir(out, "calibrate-camera")
     out.mkdir(parents=True, exist_ok=True)
     return out
 
