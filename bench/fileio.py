@@ -210,8 +210,8 @@ def check_output_dir(path, command: str, *, force: bool = False, identity: str |
         raise OutputRefused(f"{option} {path}: is a file, not a folder (bench {command} writes a folder); "
                             "choose a new or empty folder")
     names = sorted(p.name for p in path.iterdir())
-    if not names:
-        return "empty"
+    if not [n for n in names if not _atomic_temporary(n)]:
+        return "empty"  # nothing, or only a temporary file of a write killed before its rename (e.g. the marker's)
     marker = output_marker(path)
     if marker is None and _legacy_output(path, command, identity):
         marker = {"command": command, "identity": identity}  # written before markers existed: adopted as it is
@@ -232,6 +232,11 @@ def check_output_dir(path, command: str, *, force: bool = False, identity: str |
         check_replaceable(path, option)
         return "replace"
     return "own"
+
+
+def _atomic_temporary(name: str) -> bool:
+    """Whether a folder entry is the temporary file of one of this module's atomic writes (``.NAME.xxxx.tmp``)."""
+    return name.startswith(".") and name.endswith(".tmp")
 
 
 def _ours(name: str, entries) -> bool:

@@ -86,6 +86,21 @@ def test_claim_rules(tmp_path):
         check_output_dir(tmp_path / "broken", "run", force=True)
 
 
+def test_a_claim_killed_before_its_marker_landed_is_claimed_again(tmp_path):
+    """SIGKILL between the folder's creation and the marker's rename leaves only the marker's temporary file: the
+    resumed command (a sweep's run) claims the folder again instead of refusing it as foreign, forever."""
+    run = tmp_path / "runs" / "abc"
+    run.mkdir(parents=True)
+    (run / f".{OUTPUT_MARKER}.k2j4x.tmp").write_text("")
+    assert check_output_dir(run, "run", identity="s1") == "empty"
+    claim_output_dir(run, "run", identity="s1")
+    assert json.loads((run / OUTPUT_MARKER).read_text())["identity"] == "s1"
+    (run / "notes.txt").write_text("mine")  # anything else still makes it foreign
+    (run / OUTPUT_MARKER).unlink()
+    with pytest.raises(OutputRefused, match="bench did not write"):
+        check_output_dir(run, "run", identity="s1")
+
+
 def test_outputs_of_older_versions_are_adopted_by_their_signature(tmp_path):
     """Folders written before markers existed: a sweep (its store), a run of the same scenario (its result.json)."""
     import sqlite3
