@@ -56,7 +56,7 @@ def _check_store(db):
         con.close()
     rows = {r[0]: r for r in _rows(db)}
     for r in rows.values():
-        assert r[3] == "done" and len(json.loads(r[4])) > 5
+        assert r[3] == "done" and len(json.loads(r[4])) > 5, r  # the row (with its message) if not
     return rows
 
 
