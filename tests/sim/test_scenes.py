@@ -376,3 +376,19 @@ def test_lab_table_with_panel_reference_compiles():
     img = _render(m, d, "cam")
     n = len(cv2.SIFT_create(**SIFT_ARGS).detect(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY), None))
     assert n >= 300, n
+
+
+def test_planar_board_with_print_errors_matches_the_rig_board():
+    """A printed board's errors (line offsets, scale, bow) put its corners where the rig's board A has them."""
+    from bench.geometry.transforms import invert, transform_points
+    from bench.sim.imaging import imaging_profile, target_geometry
+
+    e = target_geometry(imaging_profile("realistic", ["fold"]), 7, np.random.default_rng(5))
+    rig = calibration_rig(errors=e)
+    board = planar_board(7, 7, errors={"line_offsets_m": e["line_offsets_m"]["a"], "scale": e["scale"],
+                                       "bow_sagitta_m": e["bow_sagitta_m"]["a"]})
+    expected = transform_points(invert(rig.features["T_rig_board_a"]), rig.features["corners_board_a"])
+    assert np.allclose(board.features["corners"], expected, atol=1e-12)
+    assert np.abs(board.features["corners"] - planar_board(7, 7).features["corners"]).max() > 1e-4  # perturbed
+    with pytest.raises(ValueError, match="line_offsets_m"):
+        planar_board(7, 7, errors={"line_offsets_m": (np.zeros(8), np.zeros(5))})

@@ -110,17 +110,36 @@ def _materials(name):
 
 
 def planar_board(rows=BOARD_SQUARES, cols=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M, thickness_m=0.01,
-                 name: str = "board") -> SceneObject:
+                 name: str = "board", errors: dict | None = None) -> SceneObject:
     """A planar chessboard of ``rows x cols`` squares (m), fragment in its board frame (module docstring).
 
+    ``errors`` (optional): the printed board's geometry errors as for one board of :func:`calibration_rig`
+    (:func:`bench.sim.imaging.target_geometry`): ``line_offsets_m`` ``(xs, ys)`` (offsets of the ``cols + 1``
+    column and ``rows + 1`` row lines, m), ``scale`` (printout / file) and ``bow_sagitta_m`` (float, the cylindrical
+    bow of :func:`bow_z`); ``features["corners"]`` are then the true printed corners.
+
     ``features``: ``corners`` ((rows-1)(cols-1), 3) m, row-major; ``pattern_size`` (cols-1, rows-1) as OpenCV's
-    ``patternSize`` (corners per row, per column); ``square_m``; ``outline`` (4, 3) the pattern's outer corners.
+    ``patternSize`` (corners per row, per column); ``square_m`` (nominal); ``outline`` (4, 3) the pattern's outer
+    corners (nominal).
     """
     _check_board_args(rows, cols, square_m, margin_m, thickness_m)
+    corners = board_corners(rows, cols, square_m)
+    lines, bow = None, 0.0
+    if errors:
+        off = errors.get("line_offsets_m", (np.zeros(cols + 1), np.zeros(rows + 1)))
+        scale = float(errors.get("scale", 1.0))
+        if np.shape(off[0]) != (cols + 1,) or np.shape(off[1]) != (rows + 1,):
+            raise ValueError(f"board: errors.line_offsets_m: expected {cols + 1} and {rows + 1} offsets, got "
+                             f"{np.shape(off[0])} and {np.shape(off[1])}")
+        xs = (np.arange(cols + 1) * square_m + np.asarray(off[0], float)) * scale
+        ys = (np.arange(rows + 1) * square_m + np.asarray(off[1], float)) * scale
+        lines, bow = (xs, ys), float(errors.get("bow_sagitta_m", 0.0))
+        gx, gy = np.meshgrid(xs[1:-1], ys[1:-1])
+        corners = np.c_[gx.ravel(), gy.ravel(), bow_z(gx.ravel(), cols * square_m, bow)]
     geoms = _board_geoms(name, rows, cols, square_m, margin_m, thickness_m, f"{name}_black", f"{name}_white",
-                         f"{name}_back")
+                         f"{name}_back", lines, bow)
     W, H = cols * square_m, rows * square_m
-    features = {"corners": board_corners(rows, cols, square_m), "pattern_size": (cols - 1, rows - 1),
+    features = {"corners": corners, "pattern_size": (cols - 1, rows - 1),
                 "square_m": float(square_m), "outline": np.array([[0, 0, 0], [W, 0, 0], [W, H, 0], [0, H, 0.0]])}
     return SceneObject(name=name, worldbody_xml=f'<body name="{name}">\n{geoms}</body>\n', asset_xml=_materials(name),
                        files={}, features=features)
