@@ -55,24 +55,6 @@ class MeshPart:
     texcoords: np.ndarray | None = None
     texture: np.ndarray | None = None
 
-    def merged(self, qpos: dict | None = None) -> list:
-        """The whole scene in the model frame at joint angles ``qpos``: one ``"solid"`` :class:`MeshPart` of every
-        untextured part (vertex colours kept), then each textured part on its own (a rigid object drawn many times,
-        e.g. the rig at every view's pose, is then one mesh with instance poses)."""
-        solid, textured = [], []
-        for body, T in self.body_poses(qpos).items():
-            R, p = T[:3, :3], T[:3, 3]
-            for part in self.parts[body]:
-                moved = MeshPart(part.name, (part.vertices @ R.T + p).astype(np.float32),
-                                 (part.normals @ R.T).astype(np.float32), part.colors, part.texcoords, part.texture)
-                (textured if part.texture is not None else solid).append(moved)
-        out = []
-        if solid:
-            v, n, c = (np.concatenate(x) for x in zip(*((p.vertices, p.normals, p.colors) for p in solid),
-                                                       strict=True))
-            out.append(MeshPart("solid", v, n, c))
-        return out + textured
-
     @property
     def n_triangles(self) -> int:
         return len(self.vertices) // 3
