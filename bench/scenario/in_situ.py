@@ -270,6 +270,16 @@ def _effective_camera(port) -> np.ndarray:
     return homogeneous(np.eye(3), [0.0, 0.0, z_v])
 
 
+def _paraxial_K(K, mag) -> np.ndarray:
+    """The intrinsics (3, 3) of the central camera paraxially equivalent to lens ``K`` behind a flat port of
+    magnification ``mag`` (n_water / n_air): the focal lengths (and skew) scale, the principal point - where the
+    optical axis meets the image, unmoved by a port normal to it - does not (``diag(mag, mag, 1) @ K`` would move it
+    to ``mag`` times its distance from the image corner: ~100 px)."""
+    K = np.array(K, dtype=float)
+    K[:2, :2] *= mag
+    return K
+
+
 def _survey_offsets(cfg, nominal_cam) -> np.ndarray:
     """Eye offsets (m) of the surrounding views in the reference camera's image plane, (k, 3).
 
@@ -394,7 +404,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     if cfg["sources"]["camera"] == "perfect" and port is not None:
         # a perfect optics model: the flat port (no single viewpoint) is replaced by the central camera of its
         # paraxial focal length, so that the true camera is one the pipeline's model can represent
-        true_cam, port, mag = true_cam.replace(K=np.diag([mag, mag, 1.0]) @ true_cam.K), None, 1.0
+        true_cam, port, mag = true_cam.replace(K=_paraxial_K(true_cam.K, mag)), None, 1.0
     perfect = cfg["sources"]["encoders"] == "perfect"
     enc = EncoderModel(0.0 if perfect else cfg["encoders"]["noise_deg"] * DEG,
                        0.0 if perfect else cfg["encoders"]["resolution_deg"] * DEG)
@@ -539,7 +549,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
             "T_link5_cam_nominal": mount_nominal.tolist(),
             "camera_K": true_cam.K.tolist(), "camera_dist": true_cam.dist.tolist(),
             "image_size": [int(true_cam.width), int(true_cam.height)],
-            "camera_K_effective": (np.diag([mag, mag, 1.0]) @ true_cam.K).tolist(),
+            "camera_K_effective": _paraxial_K(true_cam.K, mag).tolist(),
             "T_world_rig": T_world_rig.tolist(), "T_world_panel": T_world_panel.tolist(),
             "views": {name: {"role": role, "T_world_base": T_wb.tolist(), "q_true": q.tolist()}
                       for name, role, T_wb, q in views},

@@ -247,6 +247,9 @@ class LocateResult:
     inliers: np.ndarray | None = None
     p1: np.ndarray | None = None  # matched map points (ref frame) used in the alignment
     p2: np.ndarray | None = None  # their 2p estimates (camera-a frame)
+    #: the final solve's points: ``(map indices (N,), x_a (N, 2), x_b (N, 2))`` - which map points views a and b
+    #: observed (normalized keypoints), after RANSAC and the reprojection gate (:func:`locate` only)
+    used: tuple | None = None
 
 
 def baseline_check(baseline_m: float, depth_m: float, focal_px: float, resolution_m: float) -> tuple:
@@ -376,12 +379,14 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
     orient = res.orientation
     cov_ref_a, cond = orient.covariance, float(orient.condition)
     msg = f"{int(res.inliers.sum())} of {len(p1)} 3D matches kept, rms {res.rms * 1e3:.2f} mm"
+    used = np.flatnonzero(ok)[res.inliers]
     if refine != "none":
-        sel_ok = np.flatnonzero(ok)[res.inliers]
+        sel_ok = used
         rp = refine_pose(kmap.p_ref[i_map[sel_ok]], view_a.x_n[i_a[sel_ok]], view_b.x_n[i_b[sel_ok]], T_a_b, T_ref_a)
         if rp.success:
             T_ref_a, cov_ref_a, cond = rp.T_ref_a, rp.covariance, rp.condition
             msg += f"; refined on reprojection: rms {rp.rms:.3g} (normalized), {rp.iterations} iterations"
+            used = sel_ok[rp.kept]
             if not rp.kept.all():
                 msg += f", {int((~rp.kept).sum())} points beyond the reprojection gate dropped"
             if refine == "bundle":
@@ -402,7 +407,7 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
     if cond > WARN_CONDITION:
         msg += f"; WARNING ill-conditioned point spread (condition {cond:.3g})"
     return LocateResult(True, msg, T_world_base, T_ref_a, cov, cond, len(p1), int(res.inliers.sum()), timings,
-                        res.inliers, p1, p2)
+                        res.inliers, p1, p2, (i_map[used], view_a.x_n[i_a[used]], view_b.x_n[i_b[used]]))
 
 
 @dataclass(frozen=True)
