@@ -169,6 +169,11 @@ def report(runs, figure: Path | None) -> str:
         nees = np.array([r["nees_pos"] for r in succ])
         sig = np.array([r["sigma_mm"] for r in succ])
         err = np.array([r["err_mm"] for r in succ])
+        ratio = err / (np.array([r["tests"].get("k_factor", 4.03) for r in succ]) * sig)
+        lines += ["", f"Among the {len(succ)} runs not refused: position error median / p95 / max {np.median(err):.2f}"
+                      f" / {np.percentile(err, 95):.2f} / {err.max():.2f} mm; error / (k sigma_max) (k = 4.03, no "
+                      f"inflation) median {np.median(ratio):.2f}, max {ratio.max():.2f}; error / protection radius "
+                      f"max {max(r['err_mm'] / r['pr_mm'] for r in succ if r.get('pr_mm')):.2f}."]
         lines += ["", f"Position NEES over the {len(succ)} runs not refused: median {np.median(nees):.1f} (chi2_3 "
                       f"median 2.37), 95th percentile {np.quantile(nees, 0.95):.1f} (chi2_3: {Q95:.2f}); largest "
                       f"covariance standard deviation median {np.median(sig):.3f} mm against a median error "
@@ -231,14 +236,16 @@ def plot(runs, path: Path) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("sweep", type=Path)
+    ap.add_argument("sweep", type=Path, nargs="+", help="one or more bench sweep folders (their runs pooled)")
     ap.add_argument("--doc", type=Path, help="markdown file with the envelope markers to fill")
     ap.add_argument("--figure", type=Path, help="Stanford plot (PNG)")
     args = ap.parse_args(argv)
-    if not (args.sweep / "sweep.sqlite").is_file():
-        print(f"integrity_summary: {args.sweep}: no sweep.sqlite (not a bench sweep folder)", file=sys.stderr)
-        return 2
-    runs = load_runs(args.sweep)
+    runs = []
+    for sweep in args.sweep:
+        if not (sweep / "sweep.sqlite").is_file():
+            print(f"integrity_summary: {sweep}: no sweep.sqlite (not a bench sweep folder)", file=sys.stderr)
+            return 2
+        runs += load_runs(sweep)
     text = report(runs, args.figure)
     print(text)
     if args.doc:

@@ -110,3 +110,4 @@ def test_summary_measures_coverage_silent_failures_and_fits_kappa(tmp_path):
     assert "STALE TEXT" not in text and text.endswith(f"{S.END}\nafter\n") and "| all | 60 |" in text
     assert (tmp_path / "figures" / "stanford.png").stat().st_size > 1000
     assert S.main([str(tmp_path)]) == 2  # not a sweep folder
+    assert S.main([str(sweep), str(tmp_path)]) == 2
