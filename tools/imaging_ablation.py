@@ -106,6 +106,13 @@ def main(argv=None) -> int:
     for e in args.extra:
         if "=" not in e:
             raise SystemExit(f"--set: expected KEY=VALUE, got {e!r}")
+    from bench.errors import BenchError
+    from bench.scenario.runner import load_scenario
+
+    try:  # a bad --set is one error now, not one per run
+        load_scenario(SCENARIO, overrides=FIXED + list(args.extra))
+    except BenchError as e:
+        raise SystemExit(f"--set: {e}") from None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     results = run_all(args.seeds, args.extra, out)

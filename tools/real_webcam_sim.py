@@ -134,6 +134,15 @@ def main(argv=None) -> int:
         raise SystemExit(f"--supersample: expected 1..8, got {args.supersample}")
     if not 5.0 <= args.square_mm <= 100.0:
         raise SystemExit(f"--square-mm: expected 5..100 mm, got {args.square_mm}")
+    from bench.errors import BenchError
+    from bench.sim.imaging import imaging_profile
+
+    try:
+        imaging_profile(args.imaging, list(args.off), source="real_webcam_sim", field="--imaging")
+    except BenchError as e:
+        raise SystemExit(str(e).replace("--imaging_off", "--off")) from None
+    if any(s < 0 for s in args.seeds):
+        raise SystemExit(f"--seeds: expected non-negative integers, got {args.seeds}")
     res, _ = real_calibration()
     real = rcs.residual_statistics(res.residuals_px, PATTERN)
     sims = {}
