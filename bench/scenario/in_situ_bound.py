@@ -24,7 +24,7 @@ import numpy as np
 
 from bench.camera.model import CameraModel
 from bench.geometry.quaternion import rotation_vector_to_matrix
-from bench.geometry.transforms import rotation_angle
+from bench.geometry.transforms import rotation_angle, transform_points
 from bench.robot.orientation import link5_frame
 from bench.scenario.bounds import (  # noqa: F401 - the generic parts, re-exported for the in-situ scenario
     Block,
@@ -46,29 +46,74 @@ def panel_points(corners_world, n: int, rng: np.random.Generator, margin: float 
 
 class _Model(MultiViewModel):
     """Pixels of every (view, point) observation as a function of the parameters: blocks ``xi`` (the locate
-    parking's base pose, 6), ``q`` (joints, 6 per view), ``d_eps`` (identified arm errors), then the points."""
+    parking's base pose, 6), ``q`` (joints, 6 per view), ``d_eps`` (identified arm errors), optionally ``d_K``
+    (``dfx, dfy, dcx, dcy`` px: the intrinsics' error, applied to the pixels as ``c + dc + (f + df) / f (uv - c)``,
+    exact for a lens whose distortion acts before K) and ``d_mount`` (the camera mount's error, a right perturbation
+    ``T_mount [[exp(w), v], [0, 1]]``, rad then m), then the points."""
 
-    def __init__(self, robot, eps_true, kept, mount, project, T_site_b2, views, X_site, size):
+    def __init__(self, robot, eps_true, kept, mount, project, T_site_b2, views, X_site, size, K=None,
+                 with_mount=False, vis=None):
         self.robot, self.eps0, self.kept, self.mount = robot, eps_true, kept, mount
         self.T_b2 = T_site_b2
         self.q0 = np.array([q for q, _ in views])
         self.locate = np.array([loc for _, loc in views], dtype=bool)
+        self.K = None if K is None else np.asarray(K, float)
+        self.with_mount = bool(with_mount)
         blocks = [Block("xi", 6), Block("q", 6, per_view=True), Block("d_eps", len(kept))]
-        super().__init__(self._poses, blocks, [np.zeros(6), self.q0, np.zeros(len(kept))], X_site, project, size)
+        values = [np.zeros(6), self.q0, np.zeros(len(kept))]
+        if self.K is not None:
+            blocks.append(Block("d_K", 4, step=1e-3))
+            values.append(np.zeros(4))
+        if self.with_mount:
+            blocks.append(Block("d_mount", 6))
+            values.append(np.zeros(6))
+        super().__init__(self._poses, blocks, values, X_site, project, size, vis=vis)
 
-    def _poses(self, xi, q, d_eps):
+    def _split(self, values):
+        xi, q, d_eps, *rest = values
+        d_K = rest.pop(0) if self.K is not None else None
+        d_mount = rest.pop(0) if self.with_mount else None
+        return xi, q, d_eps, d_K, d_mount
+
+    def _poses(self, *values):
+        xi, q, d_eps, _, d_mount = self._split(values)
         eps = self.eps0.copy()
         eps[self.kept] += d_eps
         T_b2 = self.T_b2.copy()
         T_b2[:3, :3] = rotation_vector_to_matrix(xi[:3]) @ T_b2[:3, :3]
         T_b2[:3, 3] += xi[3:]
-        T_site_cam = link5_frame(self.robot, q, eps) @ self.mount  # (V, 4, 4)
+        mount = self.mount
+        if d_mount is not None:
+            D = np.eye(4)
+            D[:3, :3], D[:3, 3] = rotation_vector_to_matrix(d_mount[:3]), d_mount[3:]
+            mount = mount @ D
+        T_site_cam = link5_frame(self.robot, q, eps) @ mount  # (V, 4, 4)
         T_site_cam[self.locate] = T_b2 @ T_site_cam[self.locate]
         return T_site_cam
 
+    def pixels(self, *args):
+        uv = super().pixels(*args)
+        d_K = self._split(args[:-1])[3]
+        if d_K is None:
+            return uv
+        f, c = np.array([self.K[0, 0], self.K[1, 1]]), self.K[:2, 2]
+        return c + d_K[2:] + (1 + d_K[:2] / f) * (uv - c)
+
+
+def observation_pattern(kmap, n_views: int, locate_idx) -> np.ndarray:
+    """``vis (n_views, M)``: which view observed which map point, as the matching found it - every point in the
+    reference (row 0), in the surrounding views that contributed to it (``kmap.observations``, rows 1..K) and in the
+    two locate views (the last two rows) where the final solve used it (``locate_idx``, map indices)."""
+    vis = np.zeros((n_views, len(kmap)), dtype=bool)
+    vis[0] = True
+    for i, (views, _) in enumerate(kmap.observations):
+        vis[1 + np.asarray(views, int), i] = True
+    vis[-2:, np.asarray(locate_idx, int)] = True
+    return vis
+
 
 def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2, views, X_site, size, sigma_px,
-                  sigma_enc) -> dict:
+                  sigma_enc, cov_K=None, K=None, cov_mount=None, vis=None) -> dict:
     """Cramér-Rao bound of the located base pose (see the module docstring; :func:`bench.scenario.bounds.crb`).
 
     Parameters
@@ -90,6 +135,13 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
     size : (w, h)
     sigma_px, sigma_enc : float
         Pixel noise (px, per axis) and encoder noise (rad, per joint, quantisation included).
+    cov_K : ndarray (4, 4), optional
+        Covariance (px^2) of the calibrated ``fx, fy, cx, cy`` (the lab calibration's own); with ``K`` (3, 3) the
+        true central camera's intrinsics. Omitted: the intrinsics are exact.
+    cov_mount : ndarray (6, 6), optional
+        Covariance of the calibrated mount (right perturbation: rotation vector rad, then m). Omitted: exact.
+    vis : ndarray (V, M) bool, optional
+        The observation pattern (:func:`observation_pattern`); default every point in every view it projects into.
 
     Returns
     -------
@@ -97,13 +149,114 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
         ``cov (6, 6)`` (rotation vector rad, then base origin m), ``pos_bound_m``, ``rot_bound_rad``,
         ``observations``.
     """
+    with_K = cov_K is not None
     model = _Model(robot, np.asarray(eps_true, float), np.asarray(kept), mount, project, T_site_b2, views, X_site,
-                   size)
-    # the encoders observe the joints, the lab identification observed the arm errors; the base pose is free
-    res = crb(model, sigma_px, {"q": np.eye(6) / sigma_enc**2, "d_eps": np.linalg.inv(cov_eps_dot)})
+                   size, K=K if with_K else None, with_mount=cov_mount is not None, vis=vis)
+    # the encoders observe the joints, the lab identification observed the arm errors, the lab calibrations the
+    # intrinsics and the mount; the base pose is free
+    priors = {"q": np.eye(6) / sigma_enc**2, "d_eps": np.linalg.inv(cov_eps_dot)}
+    if with_K:
+        priors["d_K"] = np.linalg.inv(cov_K)
+    if cov_mount is not None:
+        priors["d_mount"] = np.linalg.inv(cov_mount)
+    res = crb(model, sigma_px, priors)
     cov = res["cov"][:6, :6]
     return {"cov": cov, "pos_bound_m": float(np.sqrt(np.trace(cov[3:, 3:]))),
             "rot_bound_rad": float(np.sqrt(np.trace(cov[:3, :3]))), "observations": res["observations"]}
+
+
+def best_central_camera(lens: CameraModel, port, depth_range, n: int = 3000, rng=None) -> tuple:
+    """The central camera closest to lens + flat ``port`` over a depth range: ``(camera, T_lens_central (4, 4))``.
+
+    Least squares over ``fx, fy, cx, cy, k1, k2, k3`` and the central camera's pose in the lens frame (rotation
+    vector, centre) of the pixel difference between the central projection and the true one (lens + port) for
+    ``n`` points spread over the image at depths ``depth_range`` (m): what a calibration on noise-free data at
+    those ranges would find at best. Without a port: the lens itself, identity.
+    """
+    from scipy.optimize import least_squares
+
+    from bench.sim.flatport import lens_port_projector
+
+    if port is None:
+        return lens, np.eye(4)
+    rng = np.random.default_rng(0) if rng is None else rng
+    true = lens_port_projector(lens, port)
+    mag = port.n_water / port.n_air
+    K0 = lens.K.copy()
+    K0[:2, :2] *= mag
+    x_max = (lens.width / 2) / K0[0, 0]
+    y_max = (lens.height / 2) / K0[1, 1]
+    z = rng.uniform(*depth_range, n)
+    p = np.c_[rng.uniform(-x_max, x_max, n) * z, rng.uniform(-y_max, y_max, n) * z, z]
+    uv = true(p)
+    w, h = lens.size
+    ok = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] > 0) & (uv[:, 0] < w - 1) & (uv[:, 1] > 0) & (uv[:, 1] < h - 1)
+    p, uv = p[ok], uv[ok]
+    d0 = np.r_[lens.dist, np.zeros(5 - len(lens.dist))] if len(lens.dist) < 5 else np.array(lens.dist, float)
+
+    def camera(x):
+        K = K0.copy()
+        K[0, 0], K[1, 1], K[0, 2], K[1, 2] = x[:4]
+        d = d0.copy()
+        d[[0, 1, 4]] = x[4:7]
+        return lens.replace(K=K, dist=d, name="best central camera")
+
+    def pose(x):
+        T = np.eye(4)  # T_lens_central
+        T[:3, :3], T[:3, 3] = rotation_vector_to_matrix(x[7:10]), x[10:13]
+        return T
+
+    def residual(x):
+        T = pose(x)
+        p_c = (p - T[:3, 3]) @ T[:3, :3]
+        return (camera(x).project(p_c) - uv).ravel()
+
+    z_v = (port.d0 + port.t) - (port.d0 + port.t * port.n_air / port.n_glass) * port.n_water / port.n_air
+    x0 = np.r_[K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], d0[[0, 1, 4]], np.zeros(3), 0.0, 0.0, z_v]
+    sol = least_squares(residual, x0, x_scale=np.r_[np.full(4, 10.0), np.full(3, 0.01), np.full(3, 1e-3),
+                                                   np.full(3, 1e-3)], method="lm")
+    return camera(sol.x), pose(sol.x)
+
+
+def model_floor(robot, eps_true, mount, lens: CameraModel, port, T_site_b2, views, names, X_site, method="svd",
+                ransac: dict | None = None, refine="bundle", rng=None) -> dict:
+    """The model floor: the base error the pipeline's estimator leaves on *noise-free* features through the true
+    optics (lens + flat port), with exact joints, arm errors and the best central camera model
+    (:func:`best_central_camera` over the points' depths; its mount the true one moved onto that camera). Without a
+    port it is ~0 (the central model is exact); with one it is what no central camera model removes.
+
+    ``views``, ``names`` as :func:`mc_ideal_estimator`. Returns ``pos_m``, ``rot_rad`` (NaN when the localisation
+    fails), the central camera's RMS pixel misfit over the observations, ``misfit_px``, the central ``camera`` and
+    ``T_lens_central`` (4, 4).
+    """
+    from bench.sim.flatport import lens_port_projector
+
+    q_true = np.array([q for q, _ in views])
+    is_loc = np.array([loc for _, loc in views], dtype=bool)
+    T_site_cam = link5_frame(robot, q_true, eps_true) @ mount
+    T_site_cam[is_loc] = T_site_b2 @ T_site_cam[is_loc]
+    depths = np.concatenate([transform_points(np.linalg.inv(T), X_site)[:, 2] for T in T_site_cam])
+    central, T_lens_c = best_central_camera(lens, port, (float(np.min(depths)), float(np.max(depths))))
+    project = lens_port_projector(lens, port)
+    obs, misfit = [], []
+    for k, name in enumerate(names):
+        f = ideal_features(X_site, T_site_cam[k], project, lens.size)
+        obs.append(ViewObservation(name, f, central.undistort_pixels(f.uv),
+                                   link5_frame(robot, q_true[k], eps_true) @ mount @ T_lens_c))
+        uv_c = central.project(transform_points(np.linalg.inv(T_site_cam[k] @ T_lens_c), X_site))
+        misfit.append(np.linalg.norm(uv_c[:len(X_site)] - project(transform_points(np.linalg.inv(T_site_cam[k]),
+                                                                                   X_site)), axis=1))
+    n_survey = int(np.sum(~is_loc))
+    kmap = build_map(obs[0], obs[1:n_survey])
+    res = locate(kmap, obs[n_survey], obs[n_survey + 1], method=method, rng=rng if rng is not None else 0,
+                 refine=refine, **(ransac or {}))
+    m = np.concatenate(misfit)
+    out = {"misfit_px": float(np.sqrt(np.nanmean(m**2))), "pos_m": float("nan"), "rot_rad": float("nan"),
+           "camera": central, "T_lens_central": T_lens_c}
+    if res.success:
+        out["pos_m"] = float(np.linalg.norm(res.T_world_base[:3, 3] - T_site_b2[:3, 3]))
+        out["rot_rad"] = float(rotation_angle(res.T_world_base[:3, :3].T @ T_site_b2[:3, :3]))
+    return out
 
 
 def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraModel, T_site_b2, views, names,

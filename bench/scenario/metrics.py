@@ -162,8 +162,17 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("keypoint_sigma_px", "px", "SIFT keypoint noise measured against the true epipolar curves (robust σ)",
                "`bound.enabled`"),
         Metric("keypoint_sigma_matches", "count", "matches behind that σ", "`bound.enabled`"),
-        Metric("base_pos_bound_mm", "mm", "Cramér-Rao bound of the base position", "`bound.enabled`"),
-        Metric("base_rot_bound_deg", "deg", "Cramér-Rao bound of the base rotation", "`bound.enabled`"),
+        Metric("base_pos_bound_mm", "mm", "the limit of the base position: Cramér-Rao bound ⊕ model floor "
+               "(root-sum-square)", "`bound.enabled`"),
+        Metric("base_rot_bound_deg", "deg", "the limit of the base rotation: bound ⊕ floor", "`bound.enabled`"),
+        Metric("base_pos_crb_mm", "mm", "Cramér-Rao bound of the base position (pixels as matched, encoders, arm, "
+               "intrinsics and mount covariances)", "`bound.enabled`"),
+        Metric("base_rot_crb_deg", "deg", "Cramér-Rao bound of the base rotation", "`bound.enabled`"),
+        Metric("base_pos_floor_mm", "mm", "model floor: base position error on noise-free features through the true "
+               "optics with the best central camera", "`bound.enabled`"),
+        Metric("base_rot_floor_deg", "deg", "model floor, rotation", "`bound.enabled`"),
+        Metric("floor_misfit_px", "px", "RMS pixel misfit of the best central camera to the true optics over the "
+               "observations", "`bound.enabled`"),
         Metric("base_pos_bound_mc_mm", "mm", "Monte Carlo of the pipeline's estimator on ideal features, position",
                "`bound.enabled`"),
         Metric("base_rot_bound_mc_deg", "deg", "the same, rotation", "`bound.enabled`"),

@@ -101,3 +101,55 @@ def test_ideal_features_and_measured_noise(scene):
     est, n = keypoint_sigma_px(obs["v0"], [obs["v1"], obs["v2"]], poses, cam, cam.project)
     assert n == 2 * len(Xd)
     assert est == pytest.approx(sigma, rel=0.2)
+
+
+def test_intrinsics_and_mount_blocks(scene):
+    """The intrinsics and mount blocks: block Jacobian = column by column; their priors only raise the bound, and a
+    very tight prior gives back the bound with them exact; a sparser observation pattern raises it too."""
+    robot, eps, cam, T_site_b2, X, views, kept, cov_eps = scene
+    model = _Model(robot, eps, kept, MOUNT, cam.project, T_site_b2, views, X, cam.size, K=cam.K, with_mount=True)
+    J = model.jacobian_columnwise(*model.values0, X)
+    assert np.allclose(model.jacobian(*model.values0, X), J, rtol=1e-5, atol=1e-5)
+    args = (robot, eps, kept, cov_eps, MOUNT, cam.project, T_site_b2, views, X, cam.size, 0.3, 1e-4)
+    exact = crb_base_pose(*args)
+    loose = crb_base_pose(*args, cov_K=np.diag([4.0, 4, 1, 1]), K=cam.K, cov_mount=np.diag([1e-6] * 3 + [1e-6] * 3))
+    tight = crb_base_pose(*args, cov_K=np.eye(4) * 1e-12, K=cam.K, cov_mount=np.eye(6) * 1e-16)
+    assert loose["pos_bound_m"] > exact["pos_bound_m"]  # shared by survey and locate views: largely cancels
+    assert tight["pos_bound_m"] == pytest.approx(exact["pos_bound_m"], rel=1e-3)
+    vis = np.ones((len(views), len(X)), bool)
+    vis[-2:, ::2] = False  # half the points not observed in the locate views
+    sparse = crb_base_pose(*args, vis=vis)
+    assert sparse["observations"] == vis.sum() and sparse["pos_bound_m"] > exact["pos_bound_m"] * 1.1
+
+
+def test_paraxial_intrinsics_keep_the_principal_point():
+    """The central camera of a lens behind a flat port: focal lengths times n_w / n_a, principal point unmoved."""
+    from bench.scenario.in_situ import _paraxial_K
+
+    K = np.array([[800.0, 0.5, 301.0], [0, 805, 229], [0, 0, 1]])
+    Ke = _paraxial_K(K, 1.34)
+    assert np.allclose(Ke[:2, 2], K[:2, 2]) and np.allclose(Ke[[0, 1], [0, 1]], 1.34 * K[[0, 1], [0, 1]])
+    assert Ke[0, 1] == pytest.approx(1.34 * 0.5) and Ke[2, 2] == 1
+
+
+def test_best_central_camera():
+    """No port: the lens itself. A flat port: the fitted central camera is much closer to the true optics than the
+    paraxial one, but not exact (the floor is the part no central model removes)."""
+    from bench.scenario.in_situ import _paraxial_K
+    from bench.scenario.in_situ_bound import best_central_camera
+    from bench.sim.flatport import lens_port_projector
+    from bench.sim.optics_presets import optics_preset
+
+    lens = load_preset("underwater_in_air")
+    cam, T = best_central_camera(lens, None, (0.5, 1.0))
+    assert cam is lens and np.array_equal(T, np.eye(4))
+    port = optics_preset("underwater_in_water").port
+    cam, T = best_central_camera(lens, port, (0.5, 1.0), n=800, rng=np.random.default_rng(74))
+    rng = np.random.default_rng(75)
+    z = rng.uniform(0.5, 1.0, 300)
+    p = np.c_[rng.uniform(-0.25, 0.25, (300, 2)) * z[:, None], z]
+    true = lens_port_projector(lens, port)(p)
+    fit = cam.project((p - T[:3, 3]) @ T[:3, :3])
+    parax = lens.replace(K=_paraxial_K(lens.K, port.n_water / port.n_air)).project(p)
+    e_fit, e_par = (np.sqrt(np.nanmean(np.sum((u - true) ** 2, axis=1))) for u in (fit, parax))
+    assert e_fit < 0.5 * e_par and e_fit > 1e-4
