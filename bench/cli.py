@@ -64,9 +64,10 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--method", choices=("svd", "horn", "rodrigues"), default="svd",
                      help="absolute-orientation estimator (rodrigues = the thesis's quaternion method)")
     loc.add_argument("--pnp", action="store_true", help="single-view PnP against the map instead of two views")
-    loc.add_argument("--refine", choices=("none", "pose", "bundle"), default="bundle",
-                     help="after the thesis's alignment: none, the pose on the reprojection error (map fixed), or "
-                          "the pose and the map points together (default)")
+    loc.add_argument("--refine", choices=("none", "pose", "bundle", "joints"), default="bundle",
+                     help="after the thesis's alignment: none, the pose on the reprojection error (map fixed), "
+                          "the pose and the map points together (default), or joints: also every view's joint angles "
+                          "under the encoder prior of the dataset's encoders.yaml")
     loc.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     loc.add_argument("--robot", default=None, help="calibrated robot file (default: the dataset's robot.yaml)")
     loc.add_argument("--camera", default=None, help="calibrated camera file (default: the dataset's camera.yaml)")

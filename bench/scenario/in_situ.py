@@ -202,8 +202,9 @@ def validate(cfg) -> None:
     _check_ranges(cfg)
     if cfg["pipeline"]["method"] not in ("svd", "horn", "rodrigues"):
         raise ConfigError(src, "pipeline.method", "expected svd, horn or rodrigues")
-    if cfg["pipeline"]["refine"] not in ("none", "pose", "bundle"):
-        raise ConfigError(src, "pipeline.refine", f"expected none, pose or bundle, got {cfg['pipeline']['refine']!r}")
+    if cfg["pipeline"]["refine"] not in ("none", "pose", "bundle", "joints"):
+        raise ConfigError(src, "pipeline.refine", f"expected none, pose, bundle or joints, got "
+                                                  f"{cfg['pipeline']['refine']!r}")
     if cfg["pipeline"]["extractor"] not in ("opencv", "thesis"):
         raise ConfigError(src, "pipeline.extractor", "expected opencv or thesis")
     for key, allowed in SOURCES.items():
@@ -539,6 +540,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         w.write_text("camera.yaml", camera_yaml_text(nominal_cam))
         shutil.copyfile(Path(cfg["_file"]).parent / cfg["robot"], w.path("robot.yaml"))
         w.write_text("target.yaml", TARGET_YAML)
+        # the encoders' datasheet (the configured specification, not the draws): refine 'joints' weighs the readings
+        w.write_text("encoders.yaml", f"noise_deg: {cfg['encoders']['noise_deg']}\n"
+                                      f"resolution_deg: {cfg['encoders']['resolution_deg']}\n")
         truth = {
             "units": "SI (m, rad)",
             "errors": eps.tolist(),
@@ -704,8 +708,9 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     kept = closed_form_reduction(robot).kept
     eps_true, mount = np.array(truth["errors"]), np.array(truth["T_link5_cam"])
     p = cfg["pipeline"]
+    thesis_refine = "bundle" if p["refine"] == "joints" else p["refine"]  # the joints are exact in these two
     floor = model_floor(robot, eps_true, mount, lens, port, T_site_b2, views, names, X_site, p["method"], ransac,
-                        p["refine"])
+                        thesis_refine)
     cam, cal, he = floor["camera"], lab["camera"], lab["mount"]
     k4 = [cal.parameter_names.index(n) for n in ("fx", "fy", "cx", "cy")]
     cov_K = cal.covariance[np.ix_(k4, k4)]
@@ -717,7 +722,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
                         cov_mount=cov_mount, vis=vis)
     mc = mc_ideal_estimator(robot, eps_true, kept, ident.covariance, mount, central, T_site_b2, views, names, X_site,
                             sigma_px, EncoderModel(**enc), np.random.default_rng([cfg["seed"], 13]),
-                            cfg["bound"]["mc_trials"], p["method"], ransac, p["refine"])
+                            cfg["bound"]["mc_trials"], p["method"], ransac, thesis_refine)
     f_pos, f_rot = (0.0 if not np.isfinite(v) else v for v in (floor["pos_m"], floor["rot_rad"]))
     out.update({"base_pos_crb_mm": crb["pos_bound_m"] * 1e3, "base_rot_crb_deg": np.rad2deg(crb["rot_bound_rad"]),
                 "base_pos_floor_mm": floor["pos_m"] * 1e3, "base_rot_floor_deg": np.rad2deg(floor["rot_rad"]),

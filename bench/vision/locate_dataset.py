@@ -66,13 +66,76 @@ def _retarget_tasks(ds, robot, eps, T_site_base, q_now) -> dict:
     return out
 
 
+#: the encoders' specification in a dataset (noise_deg, resolution_deg: the joint-readings' datasheet)
+ENCODERS_FILE = "encoders.yaml"
+
+
+def encoder_sigma_rad(root) -> float:
+    """The encoders' standard deviation per joint (rad) from the dataset's ``encoders.yaml`` specification:
+    ``sqrt(noise^2 + resolution^2 / 12)`` (noise and uniform quantisation); a missing file or a bad value is a
+    one-line error naming the file and key."""
+    import yaml
+
+    path = Path(root) / ENCODERS_FILE
+    if not path.is_file():
+        raise ConfigError(path, "<file>", "missing: refine 'joints' needs the encoders' specification (noise_deg, "
+                                          "resolution_deg)")
+    spec = yaml.safe_load(path.read_text()) or {}
+    vals = {}
+    for key in ("noise_deg", "resolution_deg"):
+        v = spec.get(key) if isinstance(spec, dict) else None
+        if not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0 or v > 5:
+            raise ConfigError(path, key, f"expected a number of degrees in [0, 5], got {v!r}")
+        vals[key] = np.deg2rad(float(v))
+    sigma = float(np.sqrt(vals["noise_deg"] ** 2 + vals["resolution_deg"] ** 2 / 12))
+    if sigma <= 0:
+        raise ConfigError(path, "noise_deg", "noise and resolution are both 0: the readings would be exact; use "
+                                             "refine 'bundle'")
+    return sigma
+
+
+def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc):
+    """The thesis estimator's pose refined by :func:`~bench.vision.joint_bundle.joint_bundle` (joints under the
+    encoder prior); on failure the thesis estimate is kept and the message says why."""
+    from dataclasses import replace
+
+    from bench.geometry.transforms import invert, transform_points
+    from bench.vision.joint_bundle import joint_bundle, observations_of
+
+    if res.used is None or len(res.used[0]) < 3:
+        return replace(res, message=res.message + "; joint bundle skipped (fewer than 3 points)")
+    t0 = time.perf_counter()
+    names = [roles["reference"][0].name, *(v.name for v in roles["surround"]), *(v.name for v in roles["locate"])]
+    views = [v for r in ("reference", "surround", "locate") for v in roles[r]]
+    q_read = np.array([v.q for v in views], dtype=float)
+    is_loc = np.array([v.role == "locate" for v in views])
+    view, point, x, idx = observations_of(kmap, res.used, len(roles["surround"]))
+    X = transform_points(kmap.T_world_ref, kmap.p_ref[idx])
+    sigma0 = 0.1  # px, a start: re-estimated from the residuals
+    try:
+        jb = joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, res.T_world_base, view, point, x, X, sigma_enc,
+                          sigma0, camera.fx)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return replace(res, message=f"{res.message}; joint bundle skipped ({exc})")
+    res.timings_s["joint_bundle_s"] = time.perf_counter() - t0
+    if not jb.success:
+        return replace(res, message=f"{res.message}; joint bundle skipped ({jb.message})")
+    T_base_a = obs[names[len(roles['surround']) + 1]].T_base_cam
+    T_ref_a = invert(kmap.T_world_ref) @ jb.T_site_base @ T_base_a
+    return replace(res, message=f"{res.message}; {jb.message[4:]}", T_world_base=jb.T_site_base, T_ref_cam=T_ref_a,
+                   covariance=jb.covariance)
+
+
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
                    seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine="bundle",
                    ransac: dict | None = None, details: dict | None = None, features_fn=None):
     """Build the map from the survey views and locate the base from the two ``locate`` views.
 
     ``camera_path`` / ``robot_path`` replace the dataset's own files (e.g. the results of an earlier calibration);
-    ``ransac`` passes ``iterations``, ``d_r`` (m), ``r_lim`` to :func:`~bench.vision.insitu.locate`. A ``details``
+    ``ransac`` passes ``iterations``, ``d_r`` (m), ``r_lim`` to :func:`~bench.vision.insitu.locate`. ``refine``:
+    ``none`` / ``pose`` / ``bundle`` (the thesis's estimators and refinements: :func:`~bench.vision.insitu.locate`)
+    or ``joints`` (``bundle``, then every view's joints refined under the encoder prior of the dataset's
+    ``encoders.yaml``: :mod:`bench.vision.joint_bundle`). A ``details``
     dict, if given, receives the intermediate objects (``map``, ``observations``, ``camera``, ``robot``, ``eps``,
     ``T_link5_cam``) for inspection and visualisation. ``features_fn`` replaces the SIFT detector (see
     :func:`observe`).
@@ -110,8 +173,11 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     if pnp:
         res = locate_pnp(kmap, a, config, focal_px=camera.fx)
     else:
-        res = locate(kmap, a, obs[roles["locate"][1].name], config, method=method, rng=seed, refine=refine,
-                     focal_px=camera.fx, **(ransac or {}))  # focal: the baseline checks' 1 px (Eq. 123, 199)
+        res = locate(kmap, a, obs[roles["locate"][1].name], config, method=method, rng=seed,
+                     refine="bundle" if refine == "joints" else refine, focal_px=camera.fx,
+                     **(ransac or {}))  # focal: the baseline checks' 1 px (Eq. 123, 199)
+        if refine == "joints" and res.success:
+            res = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, encoder_sigma_rad(ds.root))
     t_int = time.perf_counter()
     integ = assess(kmap, [obs[v.name] for v in roles["surround"]], a, None if pnp else obs[roles["locate"][1].name],
                    res, camera.fx, camera.size, config, seed)
