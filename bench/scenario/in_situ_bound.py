@@ -219,15 +219,16 @@ def best_central_camera(lens: CameraModel, port, depth_range, n: int = 3000, rng
 
 
 def model_floor(robot, eps_true, mount, lens: CameraModel, port, T_site_b2, views, names, X_site, method="svd",
-                ransac: dict | None = None, refine="bundle", rng=None) -> dict:
+                ransac: dict | None = None, refine="bundle", rng=None, central=None) -> dict:
     """The model floor: the base error the pipeline's estimator leaves on *noise-free* features through the true
     optics (lens + flat port), with exact joints, arm errors and the best central camera model
     (:func:`best_central_camera` over the points' depths; its mount the true one moved onto that camera). Without a
     port it is ~0 (the central model is exact); with one it is what no central camera model removes.
 
-    ``views``, ``names`` as :func:`mc_ideal_estimator`. Returns ``pos_m``, ``rot_rad`` (NaN when the localisation
-    fails), the central camera's RMS pixel misfit over the observations, ``misfit_px``, the central ``camera`` and
-    ``T_lens_central`` (4, 4).
+    ``central = (camera, T_lens_central)`` replaces the best central camera (e.g. the lab's calibrated camera and
+    its mount: what *that* model leaves on noise-free features). ``views``, ``names`` as :func:`mc_ideal_estimator`.
+    Returns ``pos_m``, ``rot_rad`` (NaN when the localisation fails), the central camera's RMS pixel misfit over
+    the observations, ``misfit_px``, the central ``camera`` and ``T_lens_central`` (4, 4).
     """
     from bench.sim.flatport import lens_port_projector
 
@@ -236,7 +237,8 @@ def model_floor(robot, eps_true, mount, lens: CameraModel, port, T_site_b2, view
     T_site_cam = link5_frame(robot, q_true, eps_true) @ mount
     T_site_cam[is_loc] = T_site_b2 @ T_site_cam[is_loc]
     depths = np.concatenate([transform_points(np.linalg.inv(T), X_site)[:, 2] for T in T_site_cam])
-    central, T_lens_c = best_central_camera(lens, port, (float(np.min(depths)), float(np.max(depths))))
+    central, T_lens_c = (best_central_camera(lens, port, (float(np.min(depths)), float(np.max(depths))))
+                         if central is None else central)
     project = lens_port_projector(lens, port)
     obs, misfit = [], []
     for k, name in enumerate(names):

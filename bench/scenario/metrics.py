@@ -171,6 +171,9 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("base_pos_floor_mm", "mm", "model floor: base position error on noise-free features through the true "
                "optics with the best central camera", "`bound.enabled`"),
         Metric("base_rot_floor_deg", "deg", "model floor, rotation", "`bound.enabled`"),
+        Metric("base_pos_floor_calibrated_mm", "mm", "the same with the lab's calibrated camera (mount by AX = XB "
+               "on the true arm): what the calibrated central model leaves", "`bound.enabled`"),
+        Metric("base_rot_floor_calibrated_deg", "deg", "the same, rotation", "`bound.enabled`"),
         Metric("floor_misfit_px", "px", "RMS pixel misfit of the best central camera to the true optics over the "
                "observations", "`bound.enabled`"),
         Metric("base_pos_bound_mc_mm", "mm", "Monte Carlo of the pipeline's estimator on ideal features, position",
