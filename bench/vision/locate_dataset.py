@@ -164,6 +164,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         raise ConfigError(ds.root / "manifest.yaml", "views", f"expected {1 if pnp else 2} views with role 'locate', "
                                                               f"found {len(roles['locate'])}")
     roles["locate"] = roles["locate"][: 1 if pnp else 2]
+    sigma_enc = encoder_sigma_rad(ds.root) if refine == "joints" and not pnp else None  # checked before the work
     obs = {v.name: observe(v, camera, robot, eps, T_link5_cam, features_fn=features_fn)
            for r in roles.values() for v in r}
     t_detect = time.perf_counter() - t0
@@ -177,7 +178,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                      refine="bundle" if refine == "joints" else refine, focal_px=camera.fx,
                      **(ransac or {}))  # focal: the baseline checks' 1 px (Eq. 123, 199)
         if refine == "joints" and res.success:
-            res = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, encoder_sigma_rad(ds.root))
+            res = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc)
     t_int = time.perf_counter()
     integ = assess(kmap, [obs[v.name] for v in roles["surround"]], a, None if pnp else obs[roles["locate"][1].name],
                    res, camera.fx, camera.size, config, seed)
