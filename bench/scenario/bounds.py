@@ -85,7 +85,7 @@ def _epipolar_curve(uv_ref, T_ref_k, rays_ref, project_k, depths):
 
 def keypoint_sigma_px(reference: ViewObservation, views: list, T_world_cam_true: dict, camera_true: CameraModel,
                       project, depth_range=(0.2, 3.0), config: MapConfig | None = None, matches=None,
-                      port=None) -> tuple:
+                      port=None, statistic: str = "robust", gross_px: float = 5.0) -> tuple:
     """Measured SIFT localisation noise (px, 1-sigma per image axis) and the number of matches it is based on.
 
     The distance of each matched keypoint from the *true* epipolar curve of its reference keypoint (rays through the
@@ -94,8 +94,13 @@ def keypoint_sigma_px(reference: ViewObservation, views: list, T_world_cam_true:
     lens) back-projects the reference keypoints, and with a flat ``port`` the rays are traced through it into the
     water (exact, the camera is not central there); ``project`` maps into the other views through the true optics.
     ``matches`` (one :class:`~bench.vision.features.Matches` per view, as
-    :func:`~bench.vision.insitu.reference_matches` gives them) saves matching again.
+    :func:`~bench.vision.insitu.reference_matches` gives them) saves matching again. ``statistic``: ``robust``
+    (1.4826 x the median distance: the core of the distribution) or ``rms`` (the root-mean-square distance: the
+    variance a least-squares estimator meets, heavy tails included); distances above ``gross_px`` are gross
+    mismatches either way and left out.
     """
+    if statistic not in ("robust", "rms"):
+        raise ValueError(f"statistic: expected 'robust' or 'rms', got {statistic!r}")
     depths = np.geomspace(*depth_range, 400)
 
     def rays(uv):
@@ -124,8 +129,10 @@ def keypoint_sigma_px(reference: ViewObservation, views: list, T_world_cam_true:
     if not d_all:
         return float("nan"), 0
     d = np.concatenate(d_all)
-    d = d[np.isfinite(d) & (d < 5.0)]  # gross mismatches are not localisation noise
+    d = d[np.isfinite(d) & (d < gross_px)]  # gross mismatches are not localisation noise
     # the distance is |n . (e_k - g e_ref)|: a half-normal of sigma * sqrt(1 + g^2) ~ sigma sqrt(2)
+    if statistic == "rms":
+        return float(np.sqrt(np.mean(d**2) / 2)) if len(d) else float("nan"), int(len(d))
     return float(np.median(d) / 0.6745 / np.sqrt(2)), int(len(d))
 
 

@@ -868,6 +868,11 @@ def run(cfg, out_dir, verbose=True):
         metrics["base_rot_std_deg"] = float(np.rad2deg(np.linalg.norm(std[:3])))
     else:
         metrics["base_pos_err_mm"] = metrics["base_rot_err_deg"] = float("nan")
+    thesis = details.get("thesis_result")  # pipeline.refine = joints: the thesis estimator (bundle) beside it
+    if thesis is not None and thesis.success:
+        T = thesis.T_world_base
+        metrics["base_pos_err_bundle_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
+        metrics["base_rot_err_bundle_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
     task_metrics, reached = _score_task(cfg, ds, truth, report, robot)
     metrics.update(task_metrics)
     if cfg["bound"]["enabled"] and "map" in details and len(details["map"]) >= 3:

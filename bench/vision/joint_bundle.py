@@ -111,9 +111,13 @@ def residuals_and_jacobian(problem: _Problem, xi, T_b2, q, X) -> tuple:
     return problem.x - u, J, J_pt, float(z.min())
 
 
-def _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res):
-    """The reduced system (points eliminated): ``S (n, n)``, gradient ``g (n,)`` and the points' back-substitution."""
+def _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res, keep=None):
+    """The reduced system (points eliminated): ``S (n, n)``, gradient ``g (n,)`` and the points' back-substitution.
+    Observations outside ``keep`` (N,) bool weigh nothing; a point left with fewer than two is held where it is."""
     n = J.shape[2]
+    if keep is not None:
+        w = keep.astype(float)
+        r, J, J_pt = r * w[:, None], J * w[:, None, None], J_pt * w[:, None, None]
     A = np.einsum("nki,nkj->ij", J, J) + prior_info
     g_c = np.einsum("nki,nk->i", J, r) + prior_res
     B = np.zeros((M, n, 3))
@@ -122,7 +126,7 @@ def _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res):
     np.add.at(C, problem.point, np.swapaxes(J_pt, 1, 2) @ J_pt)
     g_m = np.zeros((M, 3))
     np.add.at(g_m, problem.point, np.einsum("nki,nk->ni", J_pt, r))
-    Cinv = np.linalg.inv(C)
+    Cinv = np.linalg.inv(C + 1e-9 * np.eye(3))  # regularised: a point gated down to one view (B = 0) stays put
     BCinv = B @ Cinv
     S = A - np.einsum("mik,mjk->ij", BCinv, B)
     g = g_c - np.einsum("mik,mk->i", BCinv, g_m)
@@ -134,7 +138,8 @@ def _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res):
 
 
 def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, point, x, X, sigma_enc: float,
-                 sigma_px: float, focal_px: float, iterations: int = 10, rounds: int = 2) -> JointBundleResult:
+                 sigma_px: float, focal_px: float, iterations: int = 10, rounds: int = 3,
+                 gate: float | None = 3.5) -> JointBundleResult:
     """Base pose, joints of every view and map points by maximum likelihood (see the module docstring).
 
     Parameters
@@ -155,6 +160,12 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
         Encoder standard deviation (rad per joint, quantisation included) - from the encoders' specification.
     sigma_px, focal_px : float
         Starting pixel noise (px; re-estimated from the residuals) and the focal length (px) that converts it.
+    iterations, rounds : int
+        Gauss-Newton iterations per round; rounds of re-estimating the pixel noise and the gate.
+    gate : float or None
+        After each round, observations whose residual exceeds ``gate`` x the robust sigma (median residual / 1.1774)
+        weigh nothing in the next (keypoints' errors have heavy tails: measured ~0.09 px robust but 0.35 px RMS
+        within 5 px under realistic imaging); ``None`` keeps every observation.
     """
     q_read = np.asarray(q_read, float)
     X = np.array(X, dtype=float)
@@ -169,6 +180,7 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     problem = _Problem(robot, eps, T_link5_cam, is_locate, view, point, x)
     xi, q = np.zeros(6), q_read.copy()
     it_total, S, s_px = 0, None, float(sigma_px)
+    keep = np.ones(len(problem.view), dtype=bool)
     for _ in range(rounds):
         sn = s_px / focal_px
         w_enc = 1.0 / sigma_enc**2
@@ -181,7 +193,7 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
                 return JointBundleResult(False, "points behind a camera", T_site_b2, nan6, q, s_px, np.nan,
                                          len(r), it_total)
             prior_res = np.r_[np.zeros(6), (q - q_read).ravel() * w_enc * sn**2]
-            S, g, points_step = _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res)
+            S, g, points_step = _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res, keep)
             d = np.sqrt(np.diag(S))
             dc = -np.linalg.solve(S / np.outer(d, d), g / d) / d
             if not np.all(np.isfinite(dc)):
@@ -193,20 +205,26 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
             if np.abs(dc).max() < 1e-12:
                 break
         r = residuals(problem, xi, T_site_b2, q, X)
-        dof = max(r.size - 3 * M - 6, 1)
-        s_px = float(np.sqrt(np.sum(r**2) / dof)) * focal_px
+        e = np.linalg.norm(r, axis=1)
+        if gate:  # heavy tails (a keypoint on a similar-looking feature nearby): gate at gate x the robust sigma
+            sigma_robust = float(np.median(e[keep])) / 1.1774  # the Rayleigh median of a 2D Gaussian of sigma
+            keep = e <= gate * sigma_robust
+        dof = max(2 * int(keep.sum()) - 3 * M - 6, 1)
+        s_px = float(np.sqrt(np.sum(e[keep] ** 2) / dof)) * focal_px
     r, J, J_pt, _ = residuals_and_jacobian(problem, xi, T_site_b2, q, X)
     sn = s_px / focal_px
     prior_info = np.zeros((6 + 6 * V, 6 + 6 * V))
     prior_info[6:, 6:] = np.eye(6 * V) * sn**2 / sigma_enc**2
-    S, _, _ = _normal_equations(problem, r, J, J_pt, M, prior_info, np.zeros(6 + 6 * V))
+    S, _, _ = _normal_equations(problem, r, J, J_pt, M, prior_info, np.zeros(6 + 6 * V), keep)
+    r = r[keep]
     cov = sn**2 * np.linalg.inv(S)[:6, :6]
     T = np.array(T_site_b2, dtype=float)
     T[:3, :3] = rotation_vector_to_matrix(xi[:3]) @ T[:3, :3]
     T[:3, 3] += xi[3:]
     rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1)) / 2)) * focal_px
-    return JointBundleResult(True, f"ok; joint bundle of {M} points, {len(r)} observations, {V} views' joints, "
-                             f"sigma {s_px:.3g} px", T, 0.5 * (cov + cov.T), q, s_px, rms, len(r), it_total)
+    return JointBundleResult(True, f"ok; joint bundle of {M} points, {len(r)} of {len(keep)} observations kept, {V} "
+                             f"views' joints, sigma {s_px:.3g} px", T, 0.5 * (cov + cov.T), q, s_px, rms, len(r),
+                             it_total)
 
 
 def observations_of(kmap, used, n_surround: int) -> tuple:

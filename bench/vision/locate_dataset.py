@@ -137,7 +137,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     or ``joints`` (``bundle``, then every view's joints refined under the encoder prior of the dataset's
     ``encoders.yaml``: :mod:`bench.vision.joint_bundle`). A ``details``
     dict, if given, receives the intermediate objects (``map``, ``observations``, ``camera``, ``robot``, ``eps``,
-    ``T_link5_cam``) for inspection and visualisation. ``features_fn`` replaces the SIFT detector (see
+    ``T_link5_cam``; with ``joints`` also ``thesis_result``, the ``bundle`` estimate before the joints)
+    for inspection and visualisation. ``features_fn`` replaces the SIFT detector (see
     :func:`observe`).
     Returns ``(LocateResult, report dict)``; writes ``out/locate.json`` when ``out`` is given.
     """
@@ -178,6 +179,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                      refine="bundle" if refine == "joints" else refine, focal_px=camera.fx,
                      **(ransac or {}))  # focal: the baseline checks' 1 px (Eq. 123, 199)
         if refine == "joints" and res.success:
+            if details is not None:
+                details["thesis_result"] = res  # the thesis estimator's (bundle) result, reported beside
             res = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc)
     t_int = time.perf_counter()
     integ = assess(kmap, [obs[v.name] for v in roles["surround"]], a, None if pnp else obs[roles["locate"][1].name],

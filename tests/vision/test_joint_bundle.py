@@ -89,3 +89,20 @@ def test_encoder_specification_errors(tmp_path):
     (tmp_path / "encoders.yaml").write_text("noise_deg: fast\nresolution_deg: 0.001\n")
     with pytest.raises(ConfigError, match="noise_deg"):
         encoder_sigma_rad(tmp_path)
+
+
+def test_gate_rejects_gross_keypoints():
+    """A few keypoints 3-6 px off (a similar-looking feature nearby): the gate drops them, the plain least squares
+    is pulled; the gated sigma is the Gaussian one."""
+    rng = np.random.default_rng(83)
+    robot, eps, T_b2, X, view, point, x = _scene(rng)
+    sigma_enc = np.deg2rad(0.002)
+    xn = x + rng.normal(0, 0.1 / F, x.shape)
+    bad = rng.choice(len(x), 15, replace=False)
+    xn[bad] += rng.uniform(3, 6, (15, 2)) * rng.choice([-1, 1], (15, 2)) / F
+    out = {}
+    for gate in (None, 3.5):
+        jb = joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view, point, xn, X, sigma_enc, 0.3, F, gate=gate)
+        out[gate] = (np.linalg.norm(jb.T_site_base[:3, 3] - T_b2[:3, 3]), jb.sigma_px, jb.observations)
+    assert out[3.5][1] == pytest.approx(0.1, rel=0.2) and out[None][1] > 0.3
+    assert out[3.5][2] <= len(x) - 15 and out[3.5][0] < out[None][0]
