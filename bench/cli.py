@@ -68,6 +68,8 @@ def _parser() -> argparse.ArgumentParser:
                      help="after the thesis's alignment: none, the pose on the reprojection error (map fixed), "
                           "the pose and the map points together (default), or joints: also every view's joint angles "
                           "under the encoder prior of the dataset's encoders.yaml")
+    loc.add_argument("--priors", default=None, help="with --refine joints: calibration_priors.yaml (the lab "
+                     "calibrations' covariances) - the intrinsics and the mount are refined under them")
     loc.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     loc.add_argument("--robot", default=None, help="calibrated robot file (default: the dataset's robot.yaml)")
     loc.add_argument("--camera", default=None, help="calibrated camera file (default: the dataset's camera.yaml)")
@@ -330,7 +332,8 @@ def main(argv=None) -> int:
             from bench.vision.locate_dataset import locate_dataset
 
             res, rep = locate_dataset(args.dataset, args.out, method=args.method, pnp=args.pnp, seed=args.seed,
-                                      camera_path=args.camera, robot_path=args.robot, refine=args.refine)
+                                      camera_path=args.camera, robot_path=args.robot, refine=args.refine,
+                                      priors_path=args.priors)
             return 0 if res.success and rep["integrity"] != "refused" else 1  # refused: do not use the pose
         elif args.command == "faults":
             from bench.scenario.faults import run_faults

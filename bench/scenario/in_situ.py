@@ -87,13 +87,18 @@ SCHEMA = {
     "task": {"valve": (str, "nearest"), "teach": (bool, True)},
     "locate": {"baseline_mm": (float, 150.0), "motion_m": (float, 0.15), "motion_deg": (float, 5.0)},
     "pipeline": {"method": (str, "svd"), "extractor": (str, "opencv"), "refine": (str, "bundle"),
-                 "ransac_iterations": (int, 100), "d_r_mm": (float, 20.0), "r_lim": (float, 0.1)},
+                 "ransac_iterations": (int, 100), "d_r_mm": (float, 20.0), "r_lim": (float, 0.1),
+                 # the lab camera calibration also estimates the printed rig's structure (line offsets, bows, fold:
+                 # bench.camera.target_refinement), else it trusts the nominal rig
+                 "refine_rig": (bool, False)},
     # error sources, for the error budget: switching one off injects the truth explicitly (evaluator side), e.g.
     # kinematics=perfect gives the pipeline the true errors and mount instead of its calibration
     "sources": {"kinematics": (str, "calibrated"), "camera": (str, "calibrated"), "encoders": (str, "real"),
                 "features": (str, "sift")},
     # the Cramér-Rao bound of the base pose and a Monte Carlo of the ideal estimator (in_situ_bound)
-    "bound": {"enabled": (bool, True), "mc_trials": (int, 30)},
+    # ml_trials > 0: also a Monte Carlo of refine 'joints' under exactly the bound's model (base_*_crb_mc_*; ~2 s a
+    # trial), the check that the estimator reaches the bound
+    "bound": {"enabled": (bool, True), "mc_trials": (int, 30), "ml_trials": (int, 0)},
     "outputs": {"cache": (bool, True), "rerun": (bool, True)},
 }
 SOURCES = {"kinematics": ("calibrated", "perfect"), "camera": ("calibrated", "perfect"),
@@ -154,7 +159,8 @@ def _check_ranges(cfg) -> None:
     nonneg = {"truth.error_trans_mm": "mm", "truth.error_rot_deg": "deg", "truth.focal_error_pct": "%",
               "truth.principal_error_px": "px", "encoders.noise_deg": "deg", "encoders.resolution_deg": "deg",
               "site.base_offset_m": "m", "site.base_rot_deg": "deg", "locate.motion_m": "m",
-              "locate.motion_deg": "deg", "pipeline.r_lim": "(a ratio)", "bound.mc_trials": "trials"}
+              "locate.motion_deg": "deg", "pipeline.r_lim": "(a ratio)", "bound.mc_trials": "trials",
+              "bound.ml_trials": "trials"}
     for key, unit in nonneg.items():
         sec, k = key.split(".")
         if cfg[sec][k] < 0:
@@ -711,17 +717,14 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     thesis_refine = "bundle" if p["refine"] == "joints" else p["refine"]  # the joints are exact in these two
     floor = model_floor(robot, eps_true, mount, lens, port, T_site_b2, views, names, X_site, p["method"], ransac,
                         thesis_refine)
-    cam, cal, he = floor["camera"], lab["camera"], lab["mount"]
+    cam, cal = floor["camera"], lab["camera"]
     # what the lab's calibrated central camera leaves on the same noise-free features (its mount by AX = XB on the
     # true arm, so that only the camera model differs): the central fit through the port at the rig's range
     he_true = hand_eye_axxb(np.stack([link5_frame(robot, q, eps_true) for q in lab["rig_q"]]), lab["T_cam_target"])
     floor_cal = model_floor(robot, eps_true, mount, lens, port, T_site_b2, views, names, X_site, p["method"], ransac,
                             thesis_refine, central=(cal.camera, invert(mount) @ he_true.T_mount_cam)) \
         if he_true.success else {"pos_m": float("nan"), "rot_rad": float("nan")}
-    k4 = [cal.parameter_names.index(n) for n in ("fx", "fy", "cx", "cy")]
-    cov_K = cal.covariance[np.ix_(k4, k4)]
-    n_rig = lab["rig_views_used"]
-    cov_mount = np.diag(np.r_[np.full(3, he.rms_rot_rad**2), np.full(3, he.rms_trans_m**2)] / n_rig)
+    cov_K, cov_mount = lab["cov_K"], lab["cov_mount"]
     vis = observation_pattern(kmap, len(names), res.used[0]) if res.success and res.used is not None else None
     crb = crb_base_pose(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam.project,
                         T_site_b2, views, X_site, cam.size, sigma_px, sigma_enc, cov_K=cov_K, K=cam.K,
@@ -729,6 +732,13 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     mc = mc_ideal_estimator(robot, eps_true, kept, ident.covariance, mount, central, T_site_b2, views, names, X_site,
                             sigma_px, EncoderModel(**enc), np.random.default_rng([cfg["seed"], 13]),
                             cfg["bound"]["mc_trials"], p["method"], ransac, thesis_refine)
+    if cfg["bound"]["ml_trials"] > 0 and vis is not None:
+        from bench.scenario.in_situ_bound import mc_joint_bundle
+
+        ml = mc_joint_bundle(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam, T_site_b2,
+                             views, X_site, vis, sigma_px, sigma_enc, np.random.default_rng([cfg["seed"], 14]),
+                             cfg["bound"]["ml_trials"], cov_K, cov_mount)
+        out.update({"base_pos_crb_mc_mm": ml["pos_rms_m"] * 1e3, "base_rot_crb_mc_deg": np.rad2deg(ml["rot_rms_rad"])})
     f_pos, f_rot = (0.0 if not np.isfinite(v) else v for v in (floor["pos_m"], floor["rot_rad"]))
     out.update({"base_pos_crb_mm": crb["pos_bound_m"] * 1e3, "base_rot_crb_deg": np.rad2deg(crb["rot_bound_rad"]),
                 "base_pos_floor_mm": floor["pos_m"] * 1e3, "base_rot_floor_deg": np.rad2deg(floor["rot_rad"]),
@@ -802,6 +812,11 @@ def calibrate_lab(ds, robot, cfg, out):
     cal = calibrate_camera(Xs, uvs, size, model="heikkila")
     if not cal.success:
         raise ConfigError(ds.root, "rig views", f"camera calibration failed: {cal.message}")
+    if cfg["pipeline"]["refine_rig"]:  # the printout's structure with the camera; the nominal fit if that fails
+        from bench.camera.target_refinement import calibrate_camera_refining_rig
+
+        refined = calibrate_camera_refining_rig(Xs, uvs, size, model="heikkila").calibration
+        cal = refined if refined.success else cal
     t_cam = time.perf_counter() - t0 - t_arm
     T_base_l5 = np.stack([link5_frame(robot, v.q, eps_hat) for v in used])
     # the rig looks the same after a half turn about the horizontal bisector of its boards: make its frame consistent
@@ -815,10 +830,21 @@ def calibrate_lab(ds, robot, cfg, out):
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     write_camera_yaml(out / "camera.yaml", cal.camera)
+    # the calibrations' own covariances (refine 'joints' refines intrinsics and mount under them): fx fy cx cy from
+    # the camera calibration; the mount's from the AX = XB residuals, rms^2 / n per axis (it gives no covariance)
+    k4 = [cal.parameter_names.index(n) for n in ("fx", "fy", "cx", "cy")]
+    cov_K = cal.covariance[np.ix_(k4, k4)]
+    cov_mount = np.diag(np.r_[np.full(3, he.rms_rot_rad**2), np.full(3, he.rms_trans_m**2)] / len(used))
+    from bench.vision.joint_bundle import priors_yaml_text
+
+    (out / "calibration_priors.yaml").write_text(priors_yaml_text(
+        cov_K, cov_mount, f"camera calibration covariance (fx fy cx cy, px^2); mount: AX = XB residuals^2 / "
+                          f"{len(used)} views (rad^2, m^2)"))
     write_calibrated_robot(out / "robot.yaml", ds.robot_path, robot, eps_hat, he.T_mount_cam,
                            notes=f"identified from {len(ds.tracker['q'])} tracker points; mount from {len(used)} rig "
                                  "views (AX = XB)")
     return {"eps": eps_hat, "identification": ident, "camera": cal, "mount": he, "rig_views_used": len(used),
+            "cov_K": cov_K, "cov_mount": cov_mount,
             "rig_q": np.stack([v.q for v in used]), "T_cam_target": T_cam_target,
             "timings": {"arm_calibration_s": t_arm, "camera_calibration_s": t_cam,
                         "mount_calibration_s": time.perf_counter() - t0 - t_arm - t_cam}}
@@ -845,7 +871,8 @@ def run(cfg, out_dir, verbose=True):
     res, report = locate_dataset(ds_dir, out_dir, method=p["method"], seed=cfg["seed"],
                                  config=MapConfig(), verbose=False, camera_path=camera_path,
                                  robot_path=robot_path, refine=p["refine"], ransac=ransac, details=details,
-                                 features_fn=features_fn)
+                                 features_fn=features_fn,
+                                 priors_path=out_dir / "calibrated" / "calibration_priors.yaml")
 
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
     T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])

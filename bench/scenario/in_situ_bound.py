@@ -298,3 +298,65 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
     return {"pos_rms_m": float(np.sqrt(np.mean(pos**2))) if len(pos) else float("nan"),
             "rot_rms_rad": float(np.sqrt(np.mean(rot**2))) if len(rot) else float("nan"),
             "trials": trials, "failures": fails}
+
+
+def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraModel, T_site_b2, views, X_site, vis,
+                    sigma_px, sigma_enc, rng: np.random.Generator, trials: int = 20, cov_K=None,
+                    cov_mount=None, refine: bool = True) -> dict:
+    """RMS base error of ``refine: joints`` (:func:`bench.vision.joint_bundle.joint_bundle`) under exactly the
+    bound's model, over ``trials`` draws: the check that the estimator reaches :func:`crb_base_pose`.
+
+    Each draw: exact projections through the central ``camera`` of the points ``X_site`` in the pattern ``vis``
+    (V, M) plus Gaussian noise ``sigma_px``; joint readings ``q_true + N(0, sigma_enc)``; the arm errors, and with
+    ``cov_K`` / ``cov_mount`` the intrinsics and the mount, drawn from their calibrations' covariances and given to
+    the estimator as its (wrong by that much) calibration, which it refines under those priors (``refine``) or
+    keeps. Arguments as :func:`crb_base_pose`. Returns
+    ``pos_rms_m``, ``rot_rms_rad``, ``trials``, ``failures``.
+    """
+    from bench.vision.joint_bundle import joint_bundle
+
+    q_true = np.array([q for q, _ in views])
+    is_loc = np.array([loc for _, loc in views], dtype=bool)
+    T_site_cam = link5_frame(robot, q_true, eps_true) @ mount
+    T_site_cam[is_loc] = T_site_b2 @ T_site_cam[is_loc]
+    vis = np.asarray(vis, bool)
+    use = vis.sum(axis=0) >= 2
+    vis, X = vis[:, use], np.asarray(X_site, float)[use]
+    view, point = np.nonzero(vis)
+    uv0 = np.concatenate([camera.project(transform_points(np.linalg.inv(T_site_cam[v]), X[point[view == v]]))
+                          for v in range(len(views))])
+    order = np.concatenate([np.flatnonzero(view == v) for v in range(len(views))])
+    view, point = view[order], point[order]
+    L_eps = np.linalg.cholesky(cov_eps_dot)
+    L_K = None if cov_K is None else np.linalg.cholesky(cov_K)
+    L_m = None if cov_mount is None else np.linalg.cholesky(cov_mount)
+    pos, rot, fails = [], [], 0
+    for _ in range(trials):
+        eps = np.array(eps_true, float)
+        eps[kept] += L_eps @ rng.normal(size=len(kept))
+        K = camera.K.copy()
+        if L_K is not None:
+            dK = L_K @ rng.normal(size=4)
+            K[0, 0] += dK[0]
+            K[1, 1] += dK[1]
+            K[:2, 2] += dK[2:]
+        m = mount.copy()
+        if L_m is not None:
+            dm = L_m @ rng.normal(size=6)
+            D = np.eye(4)
+            D[:3, :3], D[:3, 3] = rotation_vector_to_matrix(dm[:3]), dm[3:]
+            m = m @ D
+        q_read = q_true + rng.normal(0, sigma_enc, q_true.shape)
+        uv = uv0 + rng.normal(0, sigma_px, uv0.shape)
+        jb = joint_bundle(robot, eps, m, q_read, is_loc, T_site_b2, view, point, uv, X, sigma_enc, sigma_px, K,
+                          camera.dist, cov_K=cov_K if refine else None, cov_mount=cov_mount if refine else None,
+                          gate=None)
+        if not jb.success:
+            fails += 1
+            continue
+        pos.append(np.linalg.norm(jb.T_site_base[:3, 3] - T_site_b2[:3, 3]))
+        rot.append(rotation_angle(jb.T_site_base[:3, :3].T @ T_site_b2[:3, :3]))
+    pos, rot = np.array(pos), np.array(rot)
+    return {"pos_rms_m": float(np.sqrt(np.mean(pos**2))) if len(pos) else float("nan"),
+            "rot_rms_rad": float(np.sqrt(np.mean(rot**2))) if len(rot) else float("nan"),
+            "trials": trials, "failures": fails}

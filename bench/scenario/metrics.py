@@ -171,6 +171,9 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("base_pos_crb_mm", "mm", "Cramér-Rao bound of the base position (pixels as matched, encoders, arm, "
                "intrinsics and mount covariances)", "`bound.enabled`"),
         Metric("base_rot_crb_deg", "deg", "Cramér-Rao bound of the base rotation", "`bound.enabled`"),
+        Metric("base_pos_crb_mc_mm", "mm", "Monte Carlo of refine joints under exactly the bound's model (RMS)",
+               "`bound.ml_trials` > 0"),
+        Metric("base_rot_crb_mc_deg", "deg", "the same, rotation", "`bound.ml_trials` > 0"),
         Metric("base_pos_floor_mm", "mm", "model floor: base position error on noise-free features through the true "
                "optics with the best central camera", "`bound.enabled`"),
         Metric("base_rot_floor_deg", "deg", "model floor, rotation", "`bound.enabled`"),

@@ -9,15 +9,19 @@ the disparity error is amplified by range / baseline). :func:`joint_bundle` esti
 * the base pose of the locate parking in the site (survey base) frame, ``T_site_b2`` (6: ``R' = exp(w) R``,
   ``t' = t + v`` - ``v`` is the base origin's shift, as in the scored error);
 * every view's six joint angles, with the readings as a Gaussian prior of ``sigma_enc`` (rad);
+* optionally the intrinsics and the mount, under the lab's covariances;
 * every map point (site frame), eliminated point by point (Schur complement),
 
 from every observation the matching produced: each map point in the reference view, in the surrounding views that
 contributed to it (:attr:`~bench.vision.insitu.KeypointMap.observations`) and in the two locate views where the
 final solve used it (:attr:`~bench.vision.insitu.LocateResult.used`). The camera poses are
 ``T_site_cam = link5(q, eps) T_link5_cam`` (survey) and ``T_site_b2 link5(q, eps) T_link5_cam`` (locate) through the
-calibrated arm (Eq. 188). Residuals are normalized image coordinates over ``sigma_n = sigma_px / f``; ``sigma_px`` is
-re-estimated from the residuals (two rounds). Jacobians: the projection and the point derivative analytic, the pose
-derivatives by central differences of the kinematics (6 joints of every view at once, 6 base coordinates) -
+calibrated arm (Eq. 188), and with the lab calibrations' covariances as priors also the intrinsics ``fx, fy, cx,
+cy`` and the camera mount (the survey's and the locate views' points observe them). Residuals are pixels through
+the calibrated camera (Eq. 50, 75-76); ``sigma_px`` is re-estimated from the residuals, with a gate against heavy
+tails. Jacobians: the projection and the point derivative analytic, the pose
+derivatives by central differences of the kinematics (6 joints of every view at once, 6 base and 6 mount
+coordinates) -
 :func:`residuals_and_jacobian` is checked against a difference quotient of :func:`residuals` in the tests.
 """
 
@@ -27,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.camera.model import check_dist, distort, distortion_jacobian, to_pixels
 from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.robot.orientation import link5_frame
 
@@ -37,8 +42,9 @@ class JointBundleResult:
 
     ``T_site_base`` (4, 4) the locate parking's base in the site frame; ``covariance`` (6, 6) its first-order
     covariance (rotation vector rad in the site frame, then the base origin m: the meaning of
-    :attr:`~bench.vision.insitu.LocateResult.covariance`); ``q`` (V, 6) the refined joint angles (rad);
-    ``sigma_px`` the pixel noise the residuals gave; ``rms_px`` the final residual RMS; ``observations``.
+    :attr:`~bench.vision.insitu.LocateResult.covariance`); ``q`` (V, 6) the refined joint angles (rad); ``K`` (3, 3)
+    and ``T_link5_cam`` (4, 4) the intrinsics and mount (refined when their priors were given); ``sigma_px`` the
+    pixel noise the residuals gave; ``rms_px`` the final residual RMS; ``observations`` those kept by the gate.
     """
 
     success: bool
@@ -50,25 +56,58 @@ class JointBundleResult:
     rms_px: float
     observations: int
     iterations: int
+    K: np.ndarray | None = None
+    T_link5_cam: np.ndarray | None = None
+
+
+def _se3(d) -> np.ndarray:
+    D = np.eye(4)
+    D[:3, :3], D[:3, 3] = rotation_vector_to_matrix(d[:3]), d[3:]
+    return D
 
 
 class _Problem:
-    """The observations and the kinematics of :func:`joint_bundle` (see the module docstring)."""
+    """The observations, the camera and the kinematics of :func:`joint_bundle` (see the module docstring).
+
+    Parameter vector: ``xi`` (6), the joints view by view (6 V), then ``d_K`` (``dfx, dfy, dcx, dcy`` px) if
+    ``with_K`` and ``d_mount`` (6: ``T_link5_cam [[exp(w), v], [0, 1]]``) if ``with_mount``."""
 
     step = 1e-7
 
-    def __init__(self, robot, eps, T_link5_cam, is_locate, view, point, x):
+    def __init__(self, robot, eps, T_link5_cam, is_locate, view, point, uv, K, dist=None, with_K=False,
+                 with_mount=False):
         self.robot, self.eps, self.mount = robot, np.asarray(eps, float), np.asarray(T_link5_cam, float)
         self.is_locate = np.asarray(is_locate, bool)
-        self.view, self.point, self.x = np.asarray(view, int), np.asarray(point, int), np.asarray(x, float)
+        self.view, self.point, self.uv = np.asarray(view, int), np.asarray(point, int), np.asarray(uv, float)
+        self.K = np.asarray(K, float)
+        self.dist = np.zeros(5) if dist is None or not len(dist) else check_dist(dist)
+        self.with_K, self.with_mount = bool(with_K), bool(with_mount)
         self.V = len(self.is_locate)
+        self.n = 6 + 6 * self.V + 4 * self.with_K + 6 * self.with_mount
 
-    def poses(self, xi, T_b2, q) -> np.ndarray:
+    def split(self, theta):
+        """``theta (n,)`` -> ``xi (6,), q (V, 6), d_K (4,), d_mount (6,)`` (zeros for a block not estimated)."""
+        xi, q = theta[:6], theta[6:6 + 6 * self.V].reshape(self.V, 6)
+        k = 6 + 6 * self.V
+        d_K = theta[k:k + 4] if self.with_K else np.zeros(4)
+        k += 4 * self.with_K
+        d_m = theta[k:k + 6] if self.with_mount else np.zeros(6)
+        return xi, q, d_K, d_m
+
+    def intrinsics(self, d_K) -> np.ndarray:
+        K = self.K.copy()
+        K[0, 0] += d_K[0]
+        K[1, 1] += d_K[1]
+        K[:2, 2] += d_K[2:]
+        return K
+
+    def poses(self, theta, T_b2) -> np.ndarray:
         """``T_cam_site`` (V, 4, 4) of every view."""
+        xi, q, _, d_m = self.split(theta)
         T = np.array(T_b2, dtype=float)
         T[:3, :3] = rotation_vector_to_matrix(xi[:3]) @ T[:3, :3]
         T[:3, 3] += xi[3:]
-        T_site_cam = link5_frame(self.robot, q, self.eps) @ self.mount
+        T_site_cam = link5_frame(self.robot, q, self.eps) @ self.mount @ _se3(d_m)
         T_site_cam[self.is_locate] = T @ T_site_cam[self.is_locate]
         return np.linalg.inv(T_site_cam)
 
@@ -76,39 +115,57 @@ class _Problem:
         R, t = T_cs[self.view, :3, :3], T_cs[self.view, :3, 3]
         return np.einsum("nij,nj->ni", R, X[self.point]) + t
 
-
-def residuals(problem: _Problem, xi, T_b2, q, X) -> np.ndarray:
-    """Normalized-coordinate residuals ``x - pi(p_cam)`` (N, 2) of every observation."""
-    p = problem.camera_points(problem.poses(xi, T_b2, q), X)
-    return problem.x - p[:, :2] / p[:, 2:3]
+    def pixels(self, p, d_K) -> np.ndarray:
+        return to_pixels(distort(p[:, :2] / p[:, 2:3], self.dist), self.intrinsics(d_K))
 
 
-def residuals_and_jacobian(problem: _Problem, xi, T_b2, q, X) -> tuple:
-    """Residuals (N, 2), ``J_par (N, 2, 6 + 6 V)`` (d residual / d (xi, q view by view)) and ``J_pt (N, 2, 3)``
-    (d residual of observation n / d its point), and the smallest depth (m) of a point in a camera."""
-    T_cs = problem.poses(xi, T_b2, q)
+def residuals(problem: _Problem, theta, T_b2, X) -> np.ndarray:
+    """Pixel residuals ``uv - K distort(pi(p_cam))`` (N, 2) of every observation."""
+    p = problem.camera_points(problem.poses(theta, T_b2), X)
+    return problem.uv - problem.pixels(p, problem.split(theta)[2])
+
+
+def residuals_and_jacobian(problem: _Problem, theta, T_b2, X) -> tuple:
+    """Residuals (N, 2), ``J_par (N, 2, n)`` (d residual / d parameters) and ``J_pt (N, 2, 3)`` (d residual of
+    observation n / d its point), and the smallest depth (m) of a point in a camera."""
+    T_cs = problem.poses(theta, T_b2)
     p = problem.camera_points(T_cs, X)
+    _, _, d_K, _ = problem.split(theta)
+    K = problem.intrinsics(d_K)
     z = p[:, 2]
-    u = p[:, :2] / z[:, None]
+    x_n = p[:, :2] / z[:, None]
+    x_d = distort(x_n, problem.dist)
     Jproj = np.zeros((len(p), 2, 3))
     Jproj[:, 0, 0] = Jproj[:, 1, 1] = 1.0 / z
-    Jproj[:, :, 2] = -u / z[:, None]
+    Jproj[:, :, 2] = -x_n / z[:, None]
+    A = K[:2, :2] @ distortion_jacobian(x_n, problem.dist) @ Jproj  # d uv / d p_cam (N, 2, 3)
     N, V, h = len(p), problem.V, problem.step
-    J = np.zeros((N, 2, 6 + 6 * V))
+    J = np.zeros((N, 2, problem.n))
+
+    def dp(e):
+        return (problem.camera_points(problem.poses(theta + e, T_b2), X)
+                - problem.camera_points(problem.poses(theta - e, T_b2), X)) / (2 * h)
+
     for c in range(6):  # the base pose: its rows are the locate views'
-        e = np.zeros(6)
+        e = np.zeros(problem.n)
         e[c] = h
-        dp = (problem.camera_points(problem.poses(xi + e, T_b2, q), X)
-              - problem.camera_points(problem.poses(xi - e, T_b2, q), X)) / (2 * h)
-        J[:, :, c] = -np.einsum("nij,nj->ni", Jproj, dp)
+        J[:, :, c] = -np.einsum("nij,nj->ni", A, dp(e))
     for c in range(6):  # joint c of every view at once: rows of view v depend on its own joints only
-        e = np.zeros_like(q)
-        e[:, c] = h
-        dp = (problem.camera_points(problem.poses(xi, T_b2, q + e), X)
-              - problem.camera_points(problem.poses(xi, T_b2, q - e), X)) / (2 * h)
-        J[np.arange(N), :, 6 + 6 * problem.view + c] = -np.einsum("nij,nj->ni", Jproj, dp)
-    J_pt = -Jproj @ T_cs[problem.view, :3, :3]
-    return problem.x - u, J, J_pt, float(z.min())
+        e = np.zeros(problem.n)
+        e[6 + c:6 + 6 * V:6] = h
+        J[np.arange(N), :, 6 + 6 * problem.view + c] = -np.einsum("nij,nj->ni", A, dp(e))
+    k = 6 + 6 * V
+    if problem.with_K:  # u = fx x_d + s y_d + cx, v = fy y_d + cy
+        J[:, 0, k], J[:, 1, k + 1], J[:, 0, k + 2], J[:, 1, k + 3] = -x_d[:, 0], -x_d[:, 1], -1.0, -1.0
+        k += 4
+    if problem.with_mount:
+        for c in range(6):
+            e = np.zeros(problem.n)
+            e[k + c] = h
+            J[:, :, k + c] = -np.einsum("nij,nj->ni", A, dp(e))
+    J_pt = -A @ T_cs[problem.view, :3, :3]
+    uv = to_pixels(x_d, K)
+    return problem.uv - uv, J, J_pt, float(z.min())
 
 
 def _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res, keep=None):
@@ -137,10 +194,11 @@ def _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res, keep=None):
     return 0.5 * (S + S.T), g, points_step
 
 
-def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, point, x, X, sigma_enc: float,
-                 sigma_px: float, focal_px: float, iterations: int = 10, rounds: int = 3,
+def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, point, uv, X, sigma_enc: float,
+                 sigma_px: float, K, dist=None, cov_K=None, cov_mount=None, iterations: int = 10, rounds: int = 3,
                  gate: float | None = 3.5) -> JointBundleResult:
-    """Base pose, joints of every view and map points by maximum likelihood (see the module docstring).
+    """Base pose, joints of every view, map points (and the intrinsics and mount under their lab priors) by maximum
+    likelihood (see the module docstring).
 
     Parameters
     ----------
@@ -153,13 +211,19 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     T_site_b2 : ndarray (4, 4)
         Starting base pose of the locate parking in the site frame (e.g. the thesis estimator's).
     view, point : ndarray (N,) int
-        Observation ``n`` is of point ``point[n]`` in view ``view[n]``; ``x (N, 2)`` its normalized keypoint.
+        Observation ``n`` is of point ``point[n]`` in view ``view[n]``; ``uv (N, 2)`` its keypoint (px).
     X : ndarray (M, 3)
         Starting points (site frame, m); every point must be observed in at least two views.
     sigma_enc : float
         Encoder standard deviation (rad per joint, quantisation included) - from the encoders' specification.
-    sigma_px, focal_px : float
-        Starting pixel noise (px; re-estimated from the residuals) and the focal length (px) that converts it.
+    sigma_px : float
+        Starting pixel noise (px; re-estimated from the residuals).
+    K, dist : ndarray (3, 3), (5,)
+        The calibrated camera (intrinsics px, OpenCV distortion).
+    cov_K : ndarray (4, 4), optional
+        The lab calibration's covariance of ``fx, fy, cx, cy`` (px^2): given, the four are refined under it as a prior.
+    cov_mount : ndarray (6, 6), optional
+        The mount's covariance (rotation vector rad, then m; right perturbation): given, the mount is refined.
     iterations, rounds : int
         Gauss-Newton iterations per round; rounds of re-estimating the pixel noise and the gate.
     gate : float or None
@@ -171,60 +235,64 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     X = np.array(X, dtype=float)
     V, M = len(q_read), len(X)
     nan6 = np.full((6, 6), np.nan)
-    if not (sigma_enc > 0 and sigma_px > 0 and focal_px > 0):
-        raise ValueError(f"sigma_enc ({sigma_enc} rad), sigma_px ({sigma_px} px) and focal_px ({focal_px} px) must "
-                         "be > 0")
+    if not (sigma_enc > 0 and sigma_px > 0):
+        raise ValueError(f"sigma_enc ({sigma_enc} rad) and sigma_px ({sigma_px} px) must be > 0")
     counts = np.bincount(np.asarray(point, int), minlength=M)
     if np.any(counts < 2):
         raise ValueError(f"{int(np.sum(counts < 2))} points observed in fewer than two views")
-    problem = _Problem(robot, eps, T_link5_cam, is_locate, view, point, x)
-    xi, q = np.zeros(6), q_read.copy()
-    it_total, S, s_px = 0, None, float(sigma_px)
+    problem = _Problem(robot, eps, T_link5_cam, is_locate, view, point, uv, K, dist, cov_K is not None,
+                       cov_mount is not None)
+    n = problem.n
+    info0 = np.zeros((n, n))  # the priors' information (rad^-2, px^-2, m^-2)
+    info0[6:6 + 6 * V, 6:6 + 6 * V] = np.eye(6 * V) / sigma_enc**2
+    k = 6 + 6 * V
+    if cov_K is not None:
+        info0[k:k + 4, k:k + 4] = np.linalg.inv(cov_K)
+        k += 4
+    if cov_mount is not None:
+        info0[k:k + 6, k:k + 6] = np.linalg.inv(cov_mount)
+    mean = np.r_[np.zeros(6), q_read.ravel(), np.zeros(n - 6 - 6 * V)]
+    theta = mean.copy()
+    it_total, s_px = 0, float(sigma_px)
     keep = np.ones(len(problem.view), dtype=bool)
     for _ in range(rounds):
-        sn = s_px / focal_px
-        w_enc = 1.0 / sigma_enc**2
-        prior_info = np.zeros((6 + 6 * V, 6 + 6 * V))
-        prior_info[6:, 6:] = np.eye(6 * V) * w_enc * sn**2  # in units of the normalized residuals' weight
+        prior_info = info0 * s_px**2  # in units of the pixel residuals' weight
         for _ in range(iterations):
             it_total += 1
-            r, J, J_pt, z_min = residuals_and_jacobian(problem, xi, T_site_b2, q, X)
+            r, J, J_pt, z_min = residuals_and_jacobian(problem, theta, T_site_b2, X)
             if z_min <= 0:
-                return JointBundleResult(False, "points behind a camera", T_site_b2, nan6, q, s_px, np.nan,
+                return JointBundleResult(False, "points behind a camera", T_site_b2, nan6, q_read, s_px, np.nan,
                                          len(r), it_total)
-            prior_res = np.r_[np.zeros(6), (q - q_read).ravel() * w_enc * sn**2]
-            S, g, points_step = _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res, keep)
+            S, g, points_step = _normal_equations(problem, r, J, J_pt, M, prior_info, prior_info @ (theta - mean),
+                                                  keep)
             d = np.sqrt(np.diag(S))
             dc = -np.linalg.solve(S / np.outer(d, d), g / d) / d
             if not np.all(np.isfinite(dc)):
-                return JointBundleResult(False, "singular reduced system", T_site_b2, nan6, q, s_px, np.nan, len(r),
-                                         it_total)
-            xi = xi + dc[:6]
-            q = q + dc[6:].reshape(V, 6)
+                return JointBundleResult(False, "singular reduced system", T_site_b2, nan6, q_read, s_px, np.nan,
+                                         len(r), it_total)
+            theta = theta + dc
             X = X + points_step(dc)
             if np.abs(dc).max() < 1e-12:
                 break
-        r = residuals(problem, xi, T_site_b2, q, X)
-        e = np.linalg.norm(r, axis=1)
+        e = np.linalg.norm(residuals(problem, theta, T_site_b2, X), axis=1)
         if gate:  # heavy tails (a keypoint on a similar-looking feature nearby): gate at gate x the robust sigma
             sigma_robust = float(np.median(e[keep])) / 1.1774  # the Rayleigh median of a 2D Gaussian of sigma
             keep = e <= gate * sigma_robust
         dof = max(2 * int(keep.sum()) - 3 * M - 6, 1)
-        s_px = float(np.sqrt(np.sum(e[keep] ** 2) / dof)) * focal_px
-    r, J, J_pt, _ = residuals_and_jacobian(problem, xi, T_site_b2, q, X)
-    sn = s_px / focal_px
-    prior_info = np.zeros((6 + 6 * V, 6 + 6 * V))
-    prior_info[6:, 6:] = np.eye(6 * V) * sn**2 / sigma_enc**2
-    S, _, _ = _normal_equations(problem, r, J, J_pt, M, prior_info, np.zeros(6 + 6 * V), keep)
-    r = r[keep]
-    cov = sn**2 * np.linalg.inv(S)[:6, :6]
+        s_px = float(np.sqrt(np.sum(e[keep] ** 2) / dof))
+    r, J, J_pt, _ = residuals_and_jacobian(problem, theta, T_site_b2, X)
+    S, _, _ = _normal_equations(problem, r, J, J_pt, M, info0 * s_px**2, np.zeros(n), keep)
+    cov = s_px**2 * np.linalg.inv(S)[:6, :6]
+    xi, q, d_K, d_m = problem.split(theta)
     T = np.array(T_site_b2, dtype=float)
     T[:3, :3] = rotation_vector_to_matrix(xi[:3]) @ T[:3, :3]
     T[:3, 3] += xi[3:]
-    rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1)) / 2)) * focal_px
+    r = r[keep]
+    rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1)) / 2))
+    extra = (", intrinsics" if cov_K is not None else "") + (", mount" if cov_mount is not None else "")
     return JointBundleResult(True, f"ok; joint bundle of {M} points, {len(r)} of {len(keep)} observations kept, {V} "
-                             f"views' joints, sigma {s_px:.3g} px", T, 0.5 * (cov + cov.T), q, s_px, rms, len(r),
-                             it_total)
+                             f"views' joints{extra}, sigma {s_px:.3g} px", T, 0.5 * (cov + cov.T), q, s_px, rms,
+                             len(r), it_total, problem.intrinsics(d_K), problem.mount @ _se3(d_m))
 
 
 def observations_of(kmap, used, n_surround: int) -> tuple:
@@ -240,3 +308,40 @@ def observations_of(kmap, used, n_surround: int) -> tuple:
         point += [j] * (len(views) + 3)
         x += [kmap.x_ref[i], *np.asarray(xs).reshape(-1, 2), x_a[j], x_b[j]]
     return np.array(view, int), np.array(point, int), np.array(x, float).reshape(-1, 2), idx
+
+
+def priors_yaml_text(cov_K, cov_mount, notes: str = "") -> str:
+    """The lab calibrations' covariances as a YAML file for :func:`read_priors` (``calibration_priors.yaml``):
+    ``intrinsics_covariance_px2`` (4 x 4, fx fy cx cy) and ``mount_covariance`` (6 x 6: rotation vector rad, then
+    m, a right perturbation of the mount)."""
+    import yaml
+
+    return yaml.safe_dump({"notes": notes, "intrinsics_covariance_px2": np.asarray(cov_K, float).tolist(),
+                           "mount_covariance": np.asarray(cov_mount, float).tolist()}, sort_keys=False)
+
+
+def read_priors(path) -> dict:
+    """``{"cov_K": (4, 4), "cov_mount": (6, 6)}`` from a ``calibration_priors.yaml``; a missing key, a wrong shape
+    or a matrix that is not symmetric positive definite is a one-line error naming the file and key."""
+    from pathlib import Path
+
+    import yaml
+
+    from bench.errors import ConfigError
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(path, "<file>", "missing (the lab calibrations' covariances for refine 'joints')")
+    data = yaml.safe_load(path.read_text()) or {}
+    out = {}
+    for key, name, n in (("intrinsics_covariance_px2", "cov_K", 4), ("mount_covariance", "cov_mount", 6)):
+        try:
+            C = np.array(data[key], dtype=float)
+        except (KeyError, TypeError, ValueError):
+            raise ConfigError(path, key, f"expected a {n} x {n} matrix of numbers") from None
+        if C.shape != (n, n) or not np.all(np.isfinite(C)) or not np.allclose(C, C.T, rtol=1e-6, atol=0):
+            raise ConfigError(path, key, f"expected a symmetric {n} x {n} matrix, got shape {C.shape}")
+        if np.linalg.eigvalsh(C).min() <= 0:
+            raise ConfigError(path, key, "not positive definite")
+        out[name] = C
+    return out

@@ -94,11 +94,12 @@ def encoder_sigma_rad(root) -> float:
     return sigma
 
 
-def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc):
+def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None):
     """The thesis estimator's pose refined by :func:`~bench.vision.joint_bundle.joint_bundle` (joints under the
     encoder prior); on failure the thesis estimate is kept and the message says why."""
     from dataclasses import replace
 
+    from bench.camera.model import distort, to_pixels
     from bench.geometry.transforms import invert, transform_points
     from bench.vision.joint_bundle import joint_bundle, observations_of
 
@@ -112,9 +113,10 @@ def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma
     view, point, x, idx = observations_of(kmap, res.used, len(roles["surround"]))
     X = transform_points(kmap.T_world_ref, kmap.p_ref[idx])
     sigma0 = 0.1  # px, a start: re-estimated from the residuals
+    uv = to_pixels(distort(x, camera.dist), camera.K)  # the keypoints as detected (x: their undistorted form)
     try:
-        jb = joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, res.T_world_base, view, point, x, X, sigma_enc,
-                          sigma0, camera.fx)
+        jb = joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, res.T_world_base, view, point, uv, X, sigma_enc,
+                          sigma0, camera.K, camera.dist, **(priors or {}))
     except (ValueError, np.linalg.LinAlgError) as exc:
         return replace(res, message=f"{res.message}; joint bundle skipped ({exc})")
     res.timings_s["joint_bundle_s"] = time.perf_counter() - t0
@@ -128,14 +130,15 @@ def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma
 
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
                    seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine="bundle",
-                   ransac: dict | None = None, details: dict | None = None, features_fn=None):
+                   ransac: dict | None = None, details: dict | None = None, features_fn=None, priors_path=None):
     """Build the map from the survey views and locate the base from the two ``locate`` views.
 
     ``camera_path`` / ``robot_path`` replace the dataset's own files (e.g. the results of an earlier calibration);
     ``ransac`` passes ``iterations``, ``d_r`` (m), ``r_lim`` to :func:`~bench.vision.insitu.locate`. ``refine``:
     ``none`` / ``pose`` / ``bundle`` (the thesis's estimators and refinements: :func:`~bench.vision.insitu.locate`)
     or ``joints`` (``bundle``, then every view's joints refined under the encoder prior of the dataset's
-    ``encoders.yaml``: :mod:`bench.vision.joint_bundle`). A ``details``
+    ``encoders.yaml``: :mod:`bench.vision.joint_bundle`; with ``priors_path``, a ``calibration_priors.yaml`` of
+    the lab's covariances, also the intrinsics and the mount under them). A ``details``
     dict, if given, receives the intermediate objects (``map``, ``observations``, ``camera``, ``robot``, ``eps``,
     ``T_link5_cam``; with ``joints`` also ``thesis_result``, the ``bundle`` estimate before the joints)
     for inspection and visualisation. ``features_fn`` replaces the SIFT detector (see
@@ -166,6 +169,11 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                                                               f"found {len(roles['locate'])}")
     roles["locate"] = roles["locate"][: 1 if pnp else 2]
     sigma_enc = encoder_sigma_rad(ds.root) if refine == "joints" and not pnp else None  # checked before the work
+    priors = None
+    if priors_path is not None and refine == "joints" and not pnp:
+        from bench.vision.joint_bundle import read_priors
+
+        priors = read_priors(priors_path)
     obs = {v.name: observe(v, camera, robot, eps, T_link5_cam, features_fn=features_fn)
            for r in roles.values() for v in r}
     t_detect = time.perf_counter() - t0
@@ -181,7 +189,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         if refine == "joints" and res.success:
             if details is not None:
                 details["thesis_result"] = res  # the thesis estimator's (bundle) result, reported beside
-            res = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc)
+            res = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors)
     t_int = time.perf_counter()
     integ = assess(kmap, [obs[v.name] for v in roles["surround"]], a, None if pnp else obs[roles["locate"][1].name],
                    res, camera.fx, camera.size, config, seed)

@@ -15,6 +15,8 @@ Q = np.deg2rad([[10.0, 30, 60, 0, 40, 0], [11.5, 30, 60, 0, 40, 0], [10, 31.5, 5
                 [8.5, 30, 60.5, 0, 40, 0], [9.5, 30.5, 60.5, 1, 40.5, 2], [11, 30.5, 60.5, 1, 40.5, 2]])
 LOC = np.array([False, False, False, False, True, True])
 F = 800.0
+K = np.array([[F, 0.0, 320.0], [0.0, F, 240.0], [0.0, 0.0, 1.0]])
+DIST = np.array([-0.2, 0.05, 0.001, -0.001, 0.0])
 
 
 def _scene(rng, n=60):
@@ -25,30 +27,31 @@ def _scene(rng, n=60):
     X = transform_points(T_ref, np.c_[rng.uniform(-0.2, 0.2, (n, 2)), rng.uniform(0.8, 1.2, n)])
     view = np.repeat(np.arange(len(Q)), n)
     point = np.tile(np.arange(n), len(Q))
-    problem = _Problem(robot, eps, MOUNT, LOC, view, point, np.zeros((len(view), 2)))
-    x = -residuals(problem, np.zeros(6), T_b2, Q, X)  # exact projections
+    problem = _Problem(robot, eps, MOUNT, LOC, view, point, np.zeros((len(view), 2)), K)
+    x = -residuals(problem, np.r_[np.zeros(6), Q.ravel()], T_b2, X)  # exact projections (px)
     return robot, eps, T_b2, X, view, point, x
 
 
 def test_jacobian_equals_difference_quotient():
+    """Every block (base, joints, intrinsics, mount) and the points, with a distorted lens."""
     rng = np.random.default_rng(81)
     robot, eps, T_b2, X, view, point, x = _scene(rng, 8)
-    problem = _Problem(robot, eps, MOUNT, LOC, view, point, x)
-    xi, q = rng.normal(0, 1e-3, 6), Q + rng.normal(0, 1e-4, Q.shape)
-    r, J, J_pt, _ = residuals_and_jacobian(problem, xi, T_b2, q, X)
-    theta = np.r_[xi, q.ravel()]
+    problem = _Problem(robot, eps, MOUNT, LOC, view, point, x, K, DIST, with_K=True, with_mount=True)
+    theta = np.r_[rng.normal(0, 1e-3, 6), (Q + rng.normal(0, 1e-4, Q.shape)).ravel(), rng.normal(0, 1, 4),
+                  rng.normal(0, 1e-3, 6)]
+    r, J, J_pt, _ = residuals_and_jacobian(problem, theta, T_b2, X)
+    assert J.shape[2] == problem.n == 6 + 6 * len(Q) + 10
     h = 1e-6
     for c in range(len(theta)):
         e = np.zeros_like(theta)
-        e[c] = h
-        rp = residuals(problem, (theta + e)[:6], T_b2, (theta + e)[6:].reshape(q.shape), X)
-        rm = residuals(problem, (theta - e)[:6], T_b2, (theta - e)[6:].reshape(q.shape), X)
-        assert np.allclose((rp - rm) / (2 * h), J[:, :, c], atol=1e-5)
+        e[c] = h * (1e3 if 6 + 6 * len(Q) <= c < 10 + 6 * len(Q) else 1)  # px steps for the intrinsics
+        d = (residuals(problem, theta + e, T_b2, X) - residuals(problem, theta - e, T_b2, X)) / (2 * e[c])
+        assert np.allclose(d, J[:, :, c], atol=1e-3 * max(1, np.abs(J[:, :, c]).max()) * 1e-2), c
     for c in range(3):
         dX = np.zeros_like(X)
         dX[:, c] = h
-        d = (residuals(problem, xi, T_b2, q, X + dX) - residuals(problem, xi, T_b2, q, X - dX)) / (2 * h)
-        assert np.allclose(d, J_pt[:, :, c], atol=1e-5)
+        d = (residuals(problem, theta, T_b2, X + dX) - residuals(problem, theta, T_b2, X - dX)) / (2 * h)
+        assert np.allclose(d, J_pt[:, :, c], rtol=1e-5, atol=1e-3)
 
 
 def test_recovers_the_base_under_encoder_noise():
@@ -58,11 +61,11 @@ def test_recovers_the_base_under_encoder_noise():
     errs, z = [], []
     for _ in range(6):
         q_read = Q + rng.normal(0, sigma_enc, Q.shape)
-        xn = x + rng.normal(0, sigma_px / F, x.shape)
+        xn = x + rng.normal(0, sigma_px, x.shape)
         start = T_b2.copy()
         start[:3, 3] += rng.normal(0, 1e-3, 3)
         jb = joint_bundle(robot, eps, MOUNT, q_read, LOC, start, view, point, xn, X + rng.normal(0, 1e-3, X.shape),
-                          sigma_enc, 0.3, F)
+                          sigma_enc, 0.3, K)
         assert jb.success and jb.sigma_px == pytest.approx(sigma_px, rel=0.25)
         e = jb.T_site_base[:3, 3] - T_b2[:3, 3]
         errs.append(np.linalg.norm(e))
@@ -70,10 +73,10 @@ def test_recovers_the_base_under_encoder_noise():
     # the base error is at the scale of the reported covariance (chi-square with 3 dof: mean 3)
     assert 0.5 < np.mean(z) < 8
     with pytest.raises(ValueError, match="sigma_enc"):
-        joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view, point, x, X, 0.0, 0.1, F)
+        joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view, point, x, X, 0.0, 0.1, K)
     with pytest.raises(ValueError, match="fewer than two views"):
         keep = (point != 0) | (view == 0)  # point 0 only in the reference view
-        joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view[keep], point[keep], x[keep], X, sigma_enc, 0.1, F)
+        joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view[keep], point[keep], x[keep], X, sigma_enc, 0.1, K)
     assert np.all(np.isfinite(invert(jb.T_site_base)))
 
 
@@ -97,12 +100,12 @@ def test_gate_rejects_gross_keypoints():
     rng = np.random.default_rng(83)
     robot, eps, T_b2, X, view, point, x = _scene(rng)
     sigma_enc = np.deg2rad(0.002)
-    xn = x + rng.normal(0, 0.1 / F, x.shape)
+    xn = x + rng.normal(0, 0.1, x.shape)
     bad = rng.choice(len(x), 15, replace=False)
-    xn[bad] += rng.uniform(3, 6, (15, 2)) * rng.choice([-1, 1], (15, 2)) / F
+    xn[bad] += rng.uniform(3, 6, (15, 2)) * rng.choice([-1, 1], (15, 2))
     out = {}
     for gate in (None, 3.5):
-        jb = joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view, point, xn, X, sigma_enc, 0.3, F, gate=gate)
+        jb = joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view, point, xn, X, sigma_enc, 0.3, K, gate=gate)
         out[gate] = (np.linalg.norm(jb.T_site_base[:3, 3] - T_b2[:3, 3]), jb.sigma_px, jb.observations)
     assert out[3.5][1] == pytest.approx(0.1, rel=0.2) and out[None][1] > 0.3
     assert out[3.5][2] <= len(x) - 15 and out[3.5][0] < out[None][0]
