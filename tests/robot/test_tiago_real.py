@@ -1,6 +1,7 @@
 """The real TIAGo session (issue 16's development session, tests/data/tiago_mocap/): ``bench calibrate-robot --urdf``
 with its defaults and ``bench check-robot`` on real motion-capture data. Needs the TIAGo URDF of the installed
-``example-robot-data`` package (in the ``dev`` group: ``make test`` installs it); without it the tests fail, naming it."""
+``example-robot-data`` package (in the ``dev`` group: ``make test`` installs it); without it the tests fail, naming
+it."""
 
 import json
 from importlib import metadata
