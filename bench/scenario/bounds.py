@@ -40,12 +40,29 @@ DESCRIPTOR_SEED = 20061  # fixed: the same 3D point has the same descriptor in e
 # ------------------------------------------------------------------------------------------------ the true optics
 
 
-def true_projector(camera: CameraModel, port=None):
+def true_projector(camera: CameraModel, port=None, profile=None):
     """``project(p_cam (..., 3)) -> uv (..., 2)`` through the true lens ``camera`` and, if given, the flat ``port``
-    (:func:`bench.sim.flatport.lens_port_projector`)."""
+    (:func:`bench.sim.flatport.lens_port_projector`), and with a realistic imaging ``profile``
+    (:class:`bench.sim.imaging.ImagingProfile`) its static geometric warp: the thin prism of its ``distortion``
+    stage, ``d = ((s1 r^2 + s2 r^4) fx, (s3 r^2 + s4 r^4) fy)`` in the lens's normalized coordinates
+    (:class:`bench.sim.imaging.ImagingChain`; evaluated at the ideal pixel: the chain's inverse warp is smooth, the
+    difference ~1e-4 px). Per-frame effects (rolling shutter under camera shake) and lateral chromatic aberration
+    (|c| < 1e-4) are not in it."""
     from bench.sim.flatport import lens_port_projector
 
-    return lens_port_projector(camera, port)
+    base = lens_port_projector(camera, port)
+    if profile is None or not profile.on("distortion"):
+        return base
+    s1, s2, s3, s4 = profile["distortion"]["thin_prism"]
+    K = camera.K
+
+    def project(p_cam):
+        uv = base(p_cam)
+        x, y = (uv[..., 0] - K[0, 2]) / K[0, 0], (uv[..., 1] - K[1, 2]) / K[1, 1]
+        r2 = x**2 + y**2
+        return uv + np.stack([(s1 * r2 + s2 * r2**2) * K[0, 0], (s3 * r2 + s4 * r2**2) * K[1, 1]], axis=-1)
+
+    return project
 
 
 def ideal_features(p_world, T_world_cam, project, size, noise_px: float = 0.0, rng=None) -> Features:

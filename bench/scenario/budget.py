@@ -10,7 +10,8 @@ with RMS over seeds::
     budget_<source> = sqrt(max(0, RMS_full^2 - RMS_without_source^2))
 
 the part of the final error that the source explains (errors of independent sources add in quadrature; the sum of
-the budgets' squares next to ``RMS_full^2`` shows how far that holds). The primary metric's budgets are reported as
+the budgets' squares next to ``RMS_full^2`` shows how far that holds: ``budget_closure_<metric>`` =
+``sqrt(sum budget^2 + RMS_none^2) / RMS_full``, 1 when it adds up). The primary metric's budgets are reported as
 ``budget_<source>_<unit>`` (``budget_features_mm`` ...), the others as ``budget_<source>_<metric>``.
 ``DIR/result.json`` (the result contract), ``budget.csv`` and ``budget.png`` (a bar chart) are written.
 
@@ -154,6 +155,10 @@ def budget_from_rows(rows: dict, sources: list, metrics: list) -> tuple:
         result_metrics[f"rms_full_{m}"] = full
         result_metrics[f"rms_floor_{m}"] = table[f"rms_{m}"][-1]
         result_metrics[f"budget_quadrature_sum_{m}"] = float(np.sqrt(np.nansum(np.square(col))))
+        # does it add up: the shares and the floor in quadrature against the full RMS (1 = closes exactly)
+        floor = table[f"rms_{m}"][-1]
+        result_metrics[f"budget_closure_{m}"] = float(np.sqrt(np.nansum(np.square(col)) + (floor**2 if np.isfinite(
+            floor) else 0.0)) / full) if np.isfinite(full) and full > 0 else float("nan")
     return table, budget_table, result_metrics
 
 

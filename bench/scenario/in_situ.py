@@ -408,10 +408,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     port = optics.port
     # the paraxial focal length of lens + flat port is n_water / n_air times the lens's (no port: the lens's)
     mag = port.n_water / port.n_air if port is not None else 1.0
-    if cfg["sources"]["camera"] == "perfect" and port is not None:
-        # a perfect optics model: the flat port (no single viewpoint) is replaced by the central camera of its
-        # paraxial focal length, so that the true camera is one the pipeline's model can represent
-        true_cam, port, mag = true_cam.replace(K=_paraxial_K(true_cam.K, mag)), None, 1.0
+    # sources.camera = perfect renders the same images: it gives the pipeline the true optics model (_oracle_files)
     perfect = cfg["sources"]["encoders"] == "perfect"
     enc = EncoderModel(0.0 if perfect else cfg["encoders"]["noise_deg"] * DEG,
                        0.0 if perfect else cfg["encoders"]["resolution_deg"] * DEG)
@@ -606,37 +603,63 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
 
 
 def _oracle_files(cfg, ds, robot, out_dir, lab):
-    """Camera and robot files for the localisation: the pipeline's calibration, or - for an error source switched off
-    (``sources``) - the truth, written explicitly by the evaluator into ``out_dir/oracle``.
+    """Camera, robot and calibration-priors files for the localisation: the pipeline's calibration, or - for an error
+    source switched off (``sources``) - the truth, written explicitly by the evaluator into ``out_dir/oracle``.
 
-    ``kinematics: perfect`` gives the true arm errors. The mount goes with the camera model: with the true camera
-    too, the true mount (of the central camera: the port's virtual centre in water); with the *calibrated* camera,
-    the mount AX = XB finds from the same rig views with the true arm - the calibrated intrinsics and mount share the
-    port's tilt and the camera's centre between them, so the true mount would not fit that camera (measured: the
-    base error grew 1.5x with it)."""
+    ``camera: perfect`` gives the true optics model on the same images: the lens itself in air, behind a flat port
+    the best central camera for the scene (:func:`~bench.scenario.in_situ_bound.best_central_camera` over the panel's
+    depths in the site views: what no central model removes stays, the model floor) with priors that hold it
+    (refine 'joints' does not move it); its mount the true one with the true arm, else the one AX = XB finds on
+    the calibrated arm from the rig views' true camera poses (the true mount does not go with the identified arm:
+    the tracker sees positions only, the mount absorbs the wrist's orientation errors - measured 1.29 mm against
+    0.07 mm in air). ``kinematics: perfect`` gives the true arm errors; with the
+    *calibrated* camera the mount AX = XB finds from the same rig views with the true arm - the calibrated intrinsics
+    and mount share the port's tilt and the camera's centre between them, so the true mount would not fit that
+    camera (measured: the base error grew 1.5x with it). Returns ``(camera_path, robot_path, priors_path)``."""
     cal = Path(out_dir) / "calibrated"
-    camera_path, robot_path = cal / "camera.yaml", cal / "robot.yaml"
+    camera_path, robot_path, priors_path = cal / "camera.yaml", cal / "robot.yaml", cal / "calibration_priors.yaml"
     if cfg["sources"]["kinematics"] == "calibrated" and cfg["sources"]["camera"] == "calibrated":
-        return camera_path, robot_path
+        return camera_path, robot_path, priors_path
     truth = yaml.safe_load((ds.root / "truth" / "truth.yaml").read_text())
     oracle = Path(out_dir) / "oracle"
     oracle.mkdir(parents=True, exist_ok=True)
+    eps_true = np.array(truth["errors"])
+    eps, mount, notes = lab["eps"], lab["mount"].T_mount_cam, "ORACLE:"
     if cfg["sources"]["kinematics"] == "perfect":
-        eps_true = np.array(truth["errors"])
-        if cfg["sources"]["camera"] == "perfect":
-            mount, notes = np.array(truth["T_link5_cam_effective"]), "ORACLE: the true errors and mount"
-        else:
+        eps, notes = eps_true, "ORACLE: the true errors;"
+        if cfg["sources"]["camera"] != "perfect":
             T_base_l5 = np.stack([link5_frame(robot, q, eps_true) for q in lab["rig_q"]])
             he = hand_eye_axxb(T_base_l5, lab["T_cam_target"])
             if not he.success:
                 raise ConfigError(ds.root, "rig views", f"mount calibration on the true arm failed: {he.message}")
-            mount, notes = he.T_mount_cam, "ORACLE: the true errors; mount by AX = XB on the true arm"
-        robot_path = write_calibrated_robot(oracle / "robot.yaml", ds.robot_path, robot, eps_true, mount, notes=notes)
+            mount, notes = he.T_mount_cam, notes + " mount by AX = XB on the true arm"
     if cfg["sources"]["camera"] == "perfect":
+        from bench.scenario.in_situ_bound import best_central_camera
+        from bench.vision.joint_bundle import priors_yaml_text
+
+        lens, port, _ = _true_optics(truth)
+        poses = _true_camera_poses(robot, truth)
+        corners = np.array(truth["panel_corners_world"])
+        z = np.concatenate([transform_points(invert(poses[n]), corners)[:, 2] for n, v in truth["views"].items()
+                            if v["role"] in ("reference", "surround", "locate")])
+        central, T_lens_c = best_central_camera(lens, port, (0.8 * float(z.min()), 1.2 * float(z.max())),
+                                                profile=imaging(cfg))
         cam = read_camera_yaml(camera_path)
-        camera_path = write_camera_yaml(oracle / "camera.yaml", cam.replace(
-            K=np.array(truth["camera_K_effective"]), dist=np.array(truth["camera_dist"]), name="ORACLE: true camera"))
-    return camera_path, robot_path
+        camera_path = write_camera_yaml(oracle / "camera.yaml", cam.replace(K=central.K, dist=central.dist,
+                                                                            name="ORACLE: true central camera"))
+        if cfg["sources"]["kinematics"] == "perfect":
+            mount, notes = np.array(truth["T_link5_cam"]) @ T_lens_c, notes + " the true camera and mount"
+        else:  # the mount that goes with the calibrated arm: AX = XB on the rig views' true camera poses
+            rig = [n for n, v in truth["views"].items() if v["role"] == "rig"]
+            T_cam_target = np.stack([invert(poses[n] @ T_lens_c) @ np.array(truth["T_world_rig"]) for n in rig])
+            he = hand_eye_axxb(np.stack([link5_frame(robot, ds.view(n).q, eps) for n in rig]), T_cam_target)
+            if not he.success:
+                raise ConfigError(ds.root, "rig views", f"mount calibration with the true camera failed: {he.message}")
+            mount, notes = he.T_mount_cam, notes + " the true camera; mount by AX = XB on its true rig poses"
+        priors_path = oracle / "calibration_priors.yaml"
+        priors_path.write_text(priors_yaml_text(np.eye(4) * 1e-10, np.eye(6) * 1e-16, "ORACLE: camera known"))
+    robot_path = write_calibrated_robot(oracle / "robot.yaml", ds.robot_path, robot, eps, mount, notes=notes)
+    return camera_path, robot_path, priors_path
 
 
 def _true_optics(truth):
@@ -658,16 +681,23 @@ def _true_camera_poses(robot, truth) -> dict:
             for n, v in truth["views"].items()}
 
 
-def _perfect_features(cfg, robot, truth):
-    """``features_fn`` for ``sources.features = perfect``: exact projections of 1500 fixed points on the panel face
-    through the true optics, with exact correspondences (see :mod:`bench.scenario.in_situ_bound`)."""
-    from bench.scenario.in_situ_bound import ideal_features, panel_points, true_projector
+def _perfect_features(cfg, robot, truth, details, res):
+    """``features_fn`` for ``sources.features = perfect``, paired with the real run: the same points in the same
+    views - the real run's map points (its site frame taken as the true survey base frame) in the views that
+    observed them (:func:`~bench.scenario.in_situ_bound.observation_pattern`: the reference, the surrounding views
+    that contributed, the locate views where the final solve used them), projected exactly through the true optics
+    with exact correspondences."""
+    from bench.scenario.in_situ_bound import ideal_features, observation_pattern, true_projector
 
     lens, port, _ = _true_optics(truth)
-    project = true_projector(lens, port)
-    X = panel_points(truth["panel_corners_world"], 1500, np.random.default_rng([cfg["seed"], 11]))
+    project = true_projector(lens, port, imaging(cfg))
+    kmap, names = details["map"], list(details["observations"])
+    used = res.used[0] if res.success and res.used is not None else np.arange(len(kmap))
+    vis = observation_pattern(kmap, len(names), used)
+    X = transform_points(np.array(truth["T_world_base_survey"]) @ kmap.T_world_ref, kmap.p_ref)
+    rows = {n: np.where(vis[k][:, None], X, np.nan) for k, n in enumerate(names)}
     poses = _true_camera_poses(robot, truth)
-    return lambda view: ideal_features(X, poses[view.name], project, lens.size)
+    return lambda view: ideal_features(rows[view.name], poses[view.name], project, lens.size)
 
 
 def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
@@ -698,8 +728,9 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     ref = [n for n in obs if truth["views"][n]["role"] == "reference"][0]
     surround = [n for n in obs if truth["views"][n]["role"] == "surround"]
     loc = [n for n in obs if truth["views"][n]["role"] == "locate"][:2]
+    profile = imaging(cfg)
     sigma_px, n_sigma = keypoint_sigma_px(obs[ref], [obs[n] for n in surround], poses, lens,
-                                          true_projector(lens, port), port=port)
+                                          true_projector(lens, port, profile), port=port)
     out = {"keypoint_sigma_px": sigma_px, "keypoint_sigma_matches": float(n_sigma)}
     if not np.isfinite(sigma_px) or sigma_px <= 0:
         return out
@@ -716,13 +747,14 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     p = cfg["pipeline"]
     thesis_refine = "bundle" if p["refine"] == "joints" else p["refine"]  # the joints are exact in these two
     floor = model_floor(robot, eps_true, mount, lens, port, T_site_b2, views, names, X_site, p["method"], ransac,
-                        thesis_refine)
+                        thesis_refine, profile=profile)
     cam, cal = floor["camera"], lab["camera"]
     # what the lab's calibrated central camera leaves on the same noise-free features (its mount by AX = XB on the
     # true arm, so that only the camera model differs): the central fit through the port at the rig's range
     he_true = hand_eye_axxb(np.stack([link5_frame(robot, q, eps_true) for q in lab["rig_q"]]), lab["T_cam_target"])
     floor_cal = model_floor(robot, eps_true, mount, lens, port, T_site_b2, views, names, X_site, p["method"], ransac,
-                            thesis_refine, central=(cal.camera, invert(mount) @ he_true.T_mount_cam)) \
+                            thesis_refine, central=(cal.camera, invert(mount) @ he_true.T_mount_cam),
+                            profile=profile) \
         if he_true.success else {"pos_m": float("nan"), "rot_rad": float("nan")}
     cov_K, cov_mount = lab["cov_K"], lab["cov_mount"]
     vis = observation_pattern(kmap, len(names), res.used[0]) if res.success and res.used is not None else None
@@ -862,17 +894,22 @@ def run(cfg, out_dir, verbose=True):
     ds = load_dataset(ds_dir)
     robot = ds.robot()
     lab = calibrate_lab(ds, robot, cfg, out_dir / "calibrated")
-    camera_path, robot_path = _oracle_files(cfg, ds, robot, out_dir, lab)
+    camera_path, robot_path, priors_path = _oracle_files(cfg, ds, robot, out_dir, lab)
     p = cfg["pipeline"]
     truth = yaml.safe_load((ds_dir / "truth" / "truth.yaml").read_text())  # the evaluator's
-    features_fn = _perfect_features(cfg, robot, truth) if cfg["sources"]["features"] == "perfect" else None
-    details = {}
     ransac = dict(iterations=p["ransac_iterations"], d_r=p["d_r_mm"] * 1e-3, r_lim=p["r_lim"])
+    features_fn = None
+    if cfg["sources"]["features"] == "perfect":  # the real run's points and pattern (paired), exactly projected
+        sift = {}
+        res0, _ = locate_dataset(ds_dir, None, method=p["method"], seed=cfg["seed"], config=MapConfig(),
+                                 verbose=False, camera_path=camera_path, robot_path=robot_path, refine="pose",
+                                 ransac=ransac, details=sift)
+        features_fn = _perfect_features(cfg, robot, truth, sift, res0)
+    details = {}
     res, report = locate_dataset(ds_dir, out_dir, method=p["method"], seed=cfg["seed"],
                                  config=MapConfig(), verbose=False, camera_path=camera_path,
                                  robot_path=robot_path, refine=p["refine"], ransac=ransac, details=details,
-                                 features_fn=features_fn,
-                                 priors_path=out_dir / "calibrated" / "calibration_priors.yaml")
+                                 features_fn=features_fn, priors_path=priors_path)
 
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
     T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])

@@ -165,23 +165,22 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
             "rot_bound_rad": float(np.sqrt(np.trace(cov[:3, :3]))), "observations": res["observations"]}
 
 
-def best_central_camera(lens: CameraModel, port, depth_range, n: int = 3000, rng=None) -> tuple:
+def best_central_camera(lens: CameraModel, port, depth_range, n: int = 3000, rng=None, profile=None) -> tuple:
     """The central camera closest to lens + flat ``port`` over a depth range: ``(camera, T_lens_central (4, 4))``.
 
     Least squares over ``fx, fy, cx, cy, k1, k2, k3`` and the central camera's pose in the lens frame (rotation
     vector, centre) of the pixel difference between the central projection and the true one (lens + port) for
     ``n`` points spread over the image at depths ``depth_range`` (m): what a calibration on noise-free data at
-    those ranges would find at best. Without a port: the lens itself, identity.
+    those ranges would find at best. Without a port: the lens itself, identity. A realistic imaging ``profile``
+    adds its static warp to the true optics (:func:`~bench.scenario.bounds.true_projector`).
     """
     from scipy.optimize import least_squares
 
-    from bench.sim.flatport import lens_port_projector
-
-    if port is None:
+    if port is None and (profile is None or not profile.on("distortion")):
         return lens, np.eye(4)
     rng = np.random.default_rng(0) if rng is None else rng
-    true = lens_port_projector(lens, port)
-    mag = port.n_water / port.n_air
+    true = true_projector(lens, port, profile)
+    mag = port.n_water / port.n_air if port is not None else 1.0
     K0 = lens.K.copy()
     K0[:2, :2] *= mag
     x_max = (lens.width / 2) / K0[0, 0]
@@ -211,7 +210,8 @@ def best_central_camera(lens: CameraModel, port, depth_range, n: int = 3000, rng
         p_c = (p - T[:3, 3]) @ T[:3, :3]
         return (camera(x).project(p_c) - uv).ravel()
 
-    z_v = (port.d0 + port.t) - (port.d0 + port.t * port.n_air / port.n_glass) * port.n_water / port.n_air
+    z_v = 0.0 if port is None else \
+        (port.d0 + port.t) - (port.d0 + port.t * port.n_air / port.n_glass) * port.n_water / port.n_air
     x0 = np.r_[K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], d0[[0, 1, 4]], np.zeros(3), 0.0, 0.0, z_v]
     sol = least_squares(residual, x0, x_scale=np.r_[np.full(4, 10.0), np.full(3, 0.01), np.full(3, 1e-3),
                                                    np.full(3, 1e-3)], method="lm")
@@ -219,9 +219,10 @@ def best_central_camera(lens: CameraModel, port, depth_range, n: int = 3000, rng
 
 
 def model_floor(robot, eps_true, mount, lens: CameraModel, port, T_site_b2, views, names, X_site, method="svd",
-                ransac: dict | None = None, refine="bundle", rng=None, central=None) -> dict:
+                ransac: dict | None = None, refine="bundle", rng=None, central=None, profile=None) -> dict:
     """The model floor: the base error the pipeline's estimator leaves on *noise-free* features through the true
-    optics (lens + flat port), with exact joints, arm errors and the best central camera model
+    optics (lens, flat port, a realistic ``profile``'s static warp), with exact joints, arm errors and the best
+    central camera model
     (:func:`best_central_camera` over the points' depths; its mount the true one moved onto that camera). Without a
     port it is ~0 (the central model is exact); with one it is what no central camera model removes.
 
@@ -230,16 +231,14 @@ def model_floor(robot, eps_true, mount, lens: CameraModel, port, T_site_b2, view
     Returns ``pos_m``, ``rot_rad`` (NaN when the localisation fails), the central camera's RMS pixel misfit over
     the observations, ``misfit_px``, the central ``camera`` and ``T_lens_central`` (4, 4).
     """
-    from bench.sim.flatport import lens_port_projector
-
     q_true = np.array([q for q, _ in views])
     is_loc = np.array([loc for _, loc in views], dtype=bool)
     T_site_cam = link5_frame(robot, q_true, eps_true) @ mount
     T_site_cam[is_loc] = T_site_b2 @ T_site_cam[is_loc]
     depths = np.concatenate([transform_points(np.linalg.inv(T), X_site)[:, 2] for T in T_site_cam])
-    central, T_lens_c = (best_central_camera(lens, port, (float(np.min(depths)), float(np.max(depths))))
-                         if central is None else central)
-    project = lens_port_projector(lens, port)
+    central, T_lens_c = (best_central_camera(lens, port, (float(np.min(depths)), float(np.max(depths))),
+                                             profile=profile) if central is None else central)
+    project = true_projector(lens, port, profile)
     obs, misfit = [], []
     for k, name in enumerate(names):
         f = ideal_features(X_site, T_site_cam[k], project, lens.size)
