@@ -7,9 +7,12 @@ measured keypoint noise (:func:`keypoint_sigma_px`) and the bound's machinery - 
   observation the ideal estimator would have (each map point in the reference, surrounding and locate views, pixel
   noise sigma), with the joint angles of every view as nuisance parameters observed by the encoders (sigma_enc),
   the identified arm errors (the 25 of §2.5-2.7) with the identification's covariance as prior (tracker noise) and
-  the 3D points as free nuisance parameters (eliminated point by point); the base's 6 x 6 block of the inverse.
-  Intrinsics and mount are taken as exact (their calibration errors are systematic and largely cancel between
-  survey and localisation, see docs/bounds.md); in water the camera is the central equivalent of lens + port.
+  the 3D points as free nuisance parameters (eliminated point by point), optionally the intrinsics and the mount
+  under the lab calibrations' covariances and the observation pattern the matching produced; the base's 6 x 6 block
+  of the inverse. In water the camera is the best central equivalent of lens + port (:func:`best_central_camera`);
+  what no central model removes is the model floor (:func:`model_floor`), reported beside it (docs/bounds.md).
+* :func:`mc_joint_bundle` - refine 'joints' (:mod:`bench.vision.joint_bundle`) under exactly the bound's model: the
+  check that the estimator reaches the bound.
 * :func:`mc_ideal_estimator` - the pipeline's own estimator (map by Eq. 162-164, RANSAC + absolute orientation,
   reprojection refinement) run on ideal features with exactly the noise the bound assumes, over many draws.
 
