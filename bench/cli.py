@@ -331,6 +331,9 @@ def main(argv=None) -> int:
         elif args.command == "locate":
             from bench.vision.locate_dataset import locate_dataset
 
+            if args.priors and (args.refine != "joints" or args.pnp):
+                raise BenchError(f"--priors {args.priors}: used only by --refine joints (two views), got --refine "
+                                 f"{args.refine}{' --pnp' if args.pnp else ''}")
             res, rep = locate_dataset(args.dataset, args.out, method=args.method, pnp=args.pnp, seed=args.seed,
                                       camera_path=args.camera, robot_path=args.robot, refine=args.refine,
                                       priors_path=args.priors)
