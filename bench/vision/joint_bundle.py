@@ -194,6 +194,14 @@ def _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res, keep=None):
     return 0.5 * (S + S.T), g, points_step
 
 
+def _cost(problem, theta, T_b2, X, keep, prior_info, mean) -> float:
+    """Sum of the kept observations' squared pixel residuals plus the priors' (in the same units)."""
+    r = residuals(problem, theta, T_b2, X)[keep]
+    d = theta - mean
+    c = float(np.sum(r**2) + d @ prior_info @ d)
+    return c if np.isfinite(c) else np.inf
+
+
 def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, point, uv, X, sigma_enc: float,
                  sigma_px: float, K, dist=None, cov_K=None, cov_mount=None, iterations: int = 10, rounds: int = 3,
                  gate: float | None = 3.5) -> JointBundleResult:
@@ -270,9 +278,17 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
             if not np.all(np.isfinite(dc)):
                 return JointBundleResult(False, "singular reduced system", T_site_b2, nan6, q_read, s_px, np.nan,
                                          len(r), it_total)
-            theta = theta + dc
-            X = X + points_step(dc)
-            if np.abs(dc).max() < 1e-12:
+            # backtracking: the Gauss-Newton step is halved until the cost (pixels kept + priors) decreases - weakly
+            # observed directions (intrinsics against the mount) can make a full step overshoot and diverge
+            dX, t = points_step(dc), 1.0
+            c0 = _cost(problem, theta, T_site_b2, X, keep, prior_info, mean)
+            while t > 1e-4 and not _cost(problem, theta + t * dc, T_site_b2, X + t * dX, keep, prior_info,
+                                         mean) <= c0:
+                t /= 2
+            if t <= 1e-4:
+                break  # no descent along the step: at the minimum to numerical precision
+            theta, X = theta + t * dc, X + t * dX
+            if np.abs(t * dc).max() < 1e-12:
                 break
         e = np.linalg.norm(residuals(problem, theta, T_site_b2, X), axis=1)
         if gate:  # heavy tails (a keypoint on a similar-looking feature nearby): gate at gate x the robust sigma
