@@ -29,6 +29,10 @@ def test_independent_sources_add_in_quadrature():
     assert metrics["budget_y_mm"] == pytest.approx(4.0, rel=1e-12)
     assert metrics["budget_quadrature_sum_err_mm"] == pytest.approx(5.0, rel=1e-12)
     assert metrics["rms_floor_err_mm"] == 0.0 and budget["source"] == ["x", "y"]
+    assert metrics["budget_closure_err_mm"] == pytest.approx(1.0, rel=1e-12)  # it adds up
+    rows["y"] = _rows(a + b)  # a source whose switching off changes nothing: the budget does not close
+    _, _, metrics = budget_from_rows(rows, ["x", "y"], ["err_mm"])
+    assert metrics["budget_closure_err_mm"] == pytest.approx(0.6, rel=1e-12)
 
 
 def test_a_source_that_does_not_matter_gets_zero_and_failed_runs_are_skipped():
