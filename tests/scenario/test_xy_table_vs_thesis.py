@@ -95,3 +95,28 @@ def test_doc_block_replaced_between_markers_only(tmp_path):
     plain = tmp_path / "plain.md"
     plain.write_text("no markers\n")
     assert not tool.write_doc(plain, "new\n") and plain.read_text() == "no markers\n"
+
+
+def test_keypoint_noise_wrapper_adds_seeded_gaussian_noise():
+    from bench.vision.features import Features
+
+    spec2 = importlib.util.spec_from_file_location("kn", ROOT / "tools" / "xy_table_keypoint_noise.py")
+    kn = importlib.util.module_from_spec(spec2)
+    spec2.loader.exec_module(kn)
+    rng = np.random.default_rng(3)
+    uv = rng.uniform(0, 640, (4000, 2))
+    k = len(uv)
+    clean = {"p01": Features(uv, np.zeros(k), np.full(k, 4.0), np.ones(k), np.zeros((k, 128), np.float32))}
+
+    def original(truth, names, n_points, rng):
+        return clean
+
+    a = kn.noisy_features(original, 1.0, seed=7)(None, ["p01"], 0, None)["p01"]
+    b = kn.noisy_features(original, 1.0, seed=7)(None, ["p01"], 0, None)["p01"]
+    c = kn.noisy_features(original, 1.0, seed=8)(None, ["p01"], 0, None)["p01"]
+    d = a.uv - uv
+    assert np.array_equal(a.uv, b.uv) and not np.array_equal(a.uv, c.uv)
+    assert np.std(d) == pytest.approx(1.0, rel=0.05) and abs(np.mean(d)) < 0.05
+    assert np.array_equal(a.descriptors, clean["p01"].descriptors)
+    assert np.array_equal(kn.noisy_features(original, 0.0, seed=7)(None, ["p01"], 0, None)["p01"].uv, uv)
+    assert kn.main(["--sigmas", "-1"]) == 2
