@@ -47,7 +47,8 @@ def load_sweep(folder) -> dict:
 
     Returns
     -------
-    dict with ``scenario`` (str) and ``runs``: ``{seed: {(method, d_mm): {"err_x_mm": ..., "thesis_err_x_mm": ...,
+    dict with ``scenario`` (str), ``imaging`` (the runs' ``sim.imaging`` override, ``realistic`` - the kind's
+    default - when not overridden) and ``runs``: ``{seed: {(method, d_mm): {"err_x_mm": ..., "thesis_err_x_mm": ...,
     "table": int}}}`` for every finished run (errors in mm; NaN where every estimate of that cell failed).
     """
     from bench.scenario.sweep import SweepStore
@@ -64,6 +65,9 @@ def load_sweep(folder) -> dict:
         store.close()
     if not rows:
         raise BenchError(f"{db}: no finished run")
+    imaging = {str(r["params"].get("sim.imaging", "realistic")) for r in rows}
+    if len(imaging) != 1:
+        raise BenchError(f"{db}: runs with different sim.imaging ({', '.join(sorted(imaging))}); one profile per sweep")
     runs, scenario = {}, None
     for r in rows:
         path = paths[r["run_id"]]
@@ -84,7 +88,7 @@ def load_sweep(folder) -> dict:
             cell["table"] = _num(table["thesis_table"][i])
             cells[(m, float(d))] = cell
         runs[int(r["seed"])] = cells
-    return {"scenario": scenario, "runs": runs}
+    return {"scenario": scenario, "imaging": imaging.pop(), "runs": runs}
 
 
 def _result_paths(store, rows, folder: Path) -> list:
@@ -120,6 +124,9 @@ def compare(realistic: dict, ideal: dict, min_d_mm: float = 40.0, factor: float 
     if realistic["scenario"] != ideal["scenario"]:
         raise BenchError(f"realistic sweep is {realistic['scenario']}, ideal sweep is {ideal['scenario']}: "
                          "not the same scenario")
+    for sweep, want in ((realistic, "realistic"), (ideal, "ideal")):
+        if sweep.get("imaging", want) != want:
+            raise BenchError(f"the {want} sweep's runs have sim.imaging={sweep['imaging']} (folders swapped?)")
     if not factor > 1.0:
         raise BenchError(f"--factor {factor}: must be > 1")
     keys = sorted({k for cells in realistic["runs"].values() for k in cells},

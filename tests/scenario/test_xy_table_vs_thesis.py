@@ -19,7 +19,7 @@ THESIS = {("lms_ratio", 40.0): (5.0, 4.6, 7.1), ("lms_ratio", 100.0): (4.2, 2.7,
           ("quaternion", 20.0): (44.0, 25.4, 15.6), ("quaternion", 100.0): (9.7, 8.1, 2.1)}
 
 
-def fake_sweep(folder: Path, errors: dict, scenario="xy_table_webcam", status="done") -> Path:
+def fake_sweep(folder: Path, errors: dict, scenario="xy_table_webcam", status="done", imaging=None) -> Path:
     """A sweep store with one run per seed; ``errors[seed][(method, d)] = (x, y, z)`` mm (None: failed cell)."""
     store = SweepStore(folder / "sweep.sqlite")
     for seed, cells in errors.items():
@@ -33,7 +33,9 @@ def fake_sweep(folder: Path, errors: dict, scenario="xy_table_webcam", status="d
         run_dir.mkdir(parents=True)
         (run_dir / "result.json").write_text(json.dumps({"scenario": scenario, "seed": seed, "metrics": {},
                                                          "tables": {"position_error_vs_intraocular": table}}))
-        store.add(f"r{seed}", {}, seed, {"status": status, "message": "", "metrics": {}, "timings": {},
+        im = imaging.get(seed) if isinstance(imaging, dict) else imaging
+        params = {} if im is None else {"sim.imaging": im}
+        store.add(f"r{seed}", params, seed, {"status": status, "message": "", "metrics": {}, "timings": {},
                                          "versions": {}, "result_path": str(run_dir / "result.json")})
     store.close()
     return folder
@@ -48,7 +50,10 @@ def test_medians_ratios_and_factor(tmp_path):
         ideal[seed] = {k: (0.1, 0.2, 0.3) for k in THESIS}
     real[3][("lms_ratio", 100.0)] = None  # a failed cell: the median is over the two other seeds
     r = tool.load_sweep(fake_sweep(tmp_path / "real", real))
-    i = tool.load_sweep(fake_sweep(tmp_path / "ideal", ideal))
+    i = tool.load_sweep(fake_sweep(tmp_path / "ideal", ideal, imaging="ideal"))
+    assert r["imaging"] == "realistic" and i["imaging"] == "ideal"
+    with pytest.raises(BenchError, match="folders swapped"):
+        tool.compare(i, r)
     rows = tool.compare(r, i, min_d_mm=40.0, factor=2.5)
     assert {(x["method"], x["d_mm"]) for x in rows} == {("lms_ratio", 40.0), ("lms_ratio", 100.0),
                                                          ("quaternion", 100.0)}  # d_o = 20 left out
@@ -69,7 +74,7 @@ def test_medians_ratios_and_factor(tmp_path):
 def test_too_large_ratio_fails(tmp_path):
     real = {1: {k: tuple(3.0 * v for v in th) for k, th in THESIS.items()}}
     r = tool.load_sweep(fake_sweep(tmp_path / "real", real))
-    rows = tool.compare(r, r, factor=2.5)
+    rows = tool.compare(r, {**r, "imaging": "ideal"}, factor=2.5)
     assert rows and not any(x["within"] for x in rows) and all(x["ratio"] == pytest.approx(3.0) for x in rows)
 
 
@@ -80,10 +85,13 @@ def test_bad_inputs_are_one_line_errors(tmp_path):
         tool.load_sweep(fake_sweep(tmp_path / "failed", {1: {("quaternion", 100.0): (1, 1, 1)}}, status="error"))
     a = tool.load_sweep(fake_sweep(tmp_path / "a", {1: {("quaternion", 100.0): (1, 1, 1)}}))
     b = tool.load_sweep(fake_sweep(tmp_path / "b", {1: {("quaternion", 100.0): (1, 1, 1)}}, "xy_table_underwater"))
+    mixed = {1: {("quaternion", 100.0): (1, 1, 1)}, 2: {("quaternion", 100.0): (1, 1, 1)}}
+    with pytest.raises(BenchError, match="different sim.imaging"):
+        tool.load_sweep(fake_sweep(tmp_path / "mixed", mixed, imaging={1: "ideal", 2: None}))
     with pytest.raises(BenchError, match="not the same scenario"):
         tool.compare(a, b)
     with pytest.raises(BenchError, match="must be > 1"):
-        tool.compare(a, a, factor=0.5)
+        tool.compare(a, {**a, "imaging": "ideal"}, factor=0.5)
     assert tool.main(["--setup", "w", str(tmp_path / "nowhere"), str(tmp_path / "a")]) == 2
 
 
