@@ -61,3 +61,16 @@ def test_in_situ_summary_says_why_render_fps_is_missing():
     assert any(line.split()[0] == "render_fps" and "render cache" in line for line in warm)
     cold = summary_lines({"base_pos_err_mm": 0.5, "render_fps": 3.25, "views_rendered": 12.0})
     assert "3.25" in next(line for line in cold if line.split()[0] == "render_fps")
+
+
+def test_in_situ_summary_states_the_integrity_verdict():
+    """``bench run`` of the in-situ kind prints the localisation's verdict and protection levels beside its errors."""
+    from bench.scenario.in_situ import integrity_lines
+
+    lines = integrity_lines({"integrity": "warning", "integrity_reasons": ["protection radius 8.2 mm exceeds 3 mm"],
+                             "protection_radius_mm": 8.22, "protection_angle_deg": 0.276})
+    assert lines == ["integrity: WARNING (protection radius 8.22 mm, angle 0.276 deg)",
+                     "  - protection radius 8.2 mm exceeds 3 mm"]
+    refused = integrity_lines({"integrity": "refused", "integrity_reasons": ["swapped"],
+                               "protection_radius_mm": float("nan"), "protection_angle_deg": float("nan")})
+    assert refused[0] == "integrity: REFUSED"

@@ -983,8 +983,19 @@ def run(cfg, out_dir, verbose=True):
                         artifacts)
     if verbose:
         print(f"{cfg['name']} (seed {cfg['seed']}): {res.message}")
+        print("\n".join(integrity_lines(report)))
         print("\n".join(summary_lines(metrics)))
     return path
+
+
+def integrity_lines(report: dict) -> list:
+    """The localisation's own verdict as ``bench locate`` states it (``locate.json``): integrity, protection levels
+    and the reasons - what an operator must read before using the pose."""
+    verdict = report.get("integrity", "?")
+    radius, angle = report.get("protection_radius_mm"), report.get("protection_angle_deg")
+    levels = ("" if radius is None or angle is None or not (np.isfinite(radius) and np.isfinite(angle))
+              else f" (protection radius {radius:.3g} mm, angle {angle:.3g} deg)")
+    return [f"integrity: {verdict.upper()}{levels}"] + [f"  - {r}" for r in report.get("integrity_reasons", [])]
 
 
 def summary_lines(metrics: dict) -> list:
