@@ -296,10 +296,7 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
             continue
         pos.append(np.linalg.norm(res.T_world_base[:3, 3] - T_site_b2[:3, 3]))
         rot.append(rotation_angle(res.T_world_base[:3, :3].T @ T_site_b2[:3, :3]))
-    pos, rot = np.array(pos), np.array(rot)
-    return {"pos_rms_m": float(np.sqrt(np.mean(pos**2))) if len(pos) else float("nan"),
-            "rot_rms_rad": float(np.sqrt(np.mean(rot**2))) if len(rot) else float("nan"),
-            "trials": trials, "failures": fails}
+    return _mc_summary(pos, rot, trials, fails)
 
 
 def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraModel, T_site_b2, views, X_site, vis,
@@ -358,7 +355,12 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
             continue
         pos.append(np.linalg.norm(jb.T_site_base[:3, 3] - T_site_b2[:3, 3]))
         rot.append(rotation_angle(jb.T_site_base[:3, :3].T @ T_site_b2[:3, :3]))
-    pos, rot = np.array(pos), np.array(rot)
+    return _mc_summary(pos, rot, trials, fails)
+
+
+def _mc_summary(pos, rot, trials: int, fails: int) -> dict:
+    """A Monte Carlo's RMS base position (m) and rotation (rad) errors over its successful draws."""
+    pos, rot = np.asarray(pos), np.asarray(rot)
     return {"pos_rms_m": float(np.sqrt(np.mean(pos**2))) if len(pos) else float("nan"),
             "rot_rms_rad": float(np.sqrt(np.mean(rot**2))) if len(rot) else float("nan"),
             "trials": trials, "failures": fails}
