@@ -58,8 +58,10 @@ def _group(pgid) -> list:
 
 def _launch_and_wait_for_rows(out, n_rows):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    # its own process group (pgid == proc.pid), and Ctrl-C's default action even when the suite itself runs with
+    # SIGINT ignored (a background job of a non-interactive shell: the child would inherit SIG_IGN)
     proc = subprocess.Popen(_cmd(out), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)  # its own process group: pgid == proc.pid
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     db = out / "sweep.sqlite"
     t0 = time.time()
     while time.time() - t0 < 120:
