@@ -148,6 +148,22 @@ def fix_mkdtemp_mode(path) -> Path:
     return Path(path)
 
 
+def read_yaml(path):
+    """The parsed content of the YAML file ``path`` (any type: the caller checks its shape); one-line
+    :class:`bench.errors.ConfigError` naming the file when it is missing, unreadable text or not valid YAML."""
+    import yaml
+
+    from bench.errors import ConfigError
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(path, "<file>", "not found")
+    try:
+        return yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise ConfigError(path, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
+
+
 def _clean(value):
     if hasattr(value, "item"):
         value = value.item()

@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 
 from bench.errors import ConfigError
-from bench.fileio import atomic_write_text
+from bench.fileio import atomic_write_text, read_yaml
 from bench.geometry.quaternion import matrix_to_quaternion, quaternion_to_matrix
 from bench.geometry.transforms import check_transform, homogeneous
 from bench.robot.model import Robot, error_names, robot_from_dict
@@ -64,12 +64,7 @@ def write_calibrated_robot(path, nominal_file, robot: Robot, eps=None, T_link5_c
 def load_calibrated_robot(path):
     """``(robot, eps (42,) SI, T_link5_cam (4, 4) or None)`` from a (possibly calibrated) robot file."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    data = read_yaml(path)
     robot = robot_from_dict(data, str(path))
     cal = data.get("calibration") or {}
     if not isinstance(cal, dict):

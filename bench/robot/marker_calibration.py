@@ -36,6 +36,7 @@ import numpy as np
 import scipy.optimize
 
 from bench.errors import BenchError, ConfigError
+from bench.fileio import read_yaml
 from bench.geometry.transforms import homogeneous, skew
 from bench.robot.chain import SerialChain, gravity_torques, joint_jacobian, points_and_jacobian
 from bench.robot.identifiability import select_columns
@@ -615,18 +616,12 @@ def write_calibration(out, cal: MarkerCalibration, urdf_path, units: str, joint_
 def load_calibration(path):
     """``(chain, eps, T_meas_base, U, markers, units, compliance)`` from a ``robot.yaml`` written by
     :func:`write_calibration`."""
-    import yaml
 
     from bench.geometry.quaternion import quaternion_to_matrix
     from bench.robot.chain import chain_from_dict
 
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    data = read_yaml(path)
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise ConfigError(path, "format", f"expected {FORMAT!r} (a robot.yaml written by bench calibrate-robot "
                                           "--urdf), got {!r}".format(data.get("format") if isinstance(data, dict)

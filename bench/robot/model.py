@@ -10,9 +10,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from bench.errors import ConfigError
+from bench.fileio import read_yaml
 
 #: Order of the six generalized errors inside one frame (thesis Table 2, Eq. 9): translations along x, y, z, then
 #: rotations about y (s), z (r) and x (p).
@@ -191,12 +191,7 @@ def robot_from_dict(data: dict, source: str = "<robot>") -> Robot:
 def load_robot(path) -> Robot:
     """Load and validate a robot file such as ``models/ta40.yaml``; one-line :class:`ConfigError` on bad input."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    data = read_yaml(path)
     return robot_from_dict(data, str(path))
 
 
