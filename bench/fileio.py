@@ -204,6 +204,15 @@ def output_marker(path):
     return _read_json(Path(path) / OUTPUT_MARKER)
 
 
+def _check_parent_folder(path: Path, option: str) -> None:
+    """Refuse a path whose nearest existing ancestor is a file (``--out notes.txt/sub``)."""
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise OutputRefused(f"{option} {path}: {parent} is a file, not a folder")
+            return
+
+
 def check_output_dir(path, command: str, *, force: bool = False, identity: str | None = None,
                      option: str = "--out") -> str:
     """Decide whether ``command`` may write the folder ``path`` (creates nothing; see the module docstring).
@@ -216,11 +225,7 @@ def check_output_dir(path, command: str, *, force: bool = False, identity: str |
     if not path.exists():
         if path.is_symlink():
             raise OutputRefused(f"{option} {path}: is a dangling symbolic link; choose another folder")
-        for parent in path.parents:
-            if parent.exists():
-                if not parent.is_dir():
-                    raise OutputRefused(f"{option} {path}: {parent} is a file, not a folder")
-                break
+        _check_parent_folder(path, option)
         return "new"
     if not path.is_dir():
         raise OutputRefused(f"{option} {path}: is a file, not a folder (bench {command} writes a folder); "
@@ -377,11 +382,7 @@ def check_output_file(path, command: str, *, force: bool = False, option: str = 
     path = Path(path)
     if path.is_dir():
         raise OutputRefused(f"{option} {path}: is a folder; bench {command} writes a file (give a file name)")
-    for parent in path.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise OutputRefused(f"{option} {path}: {parent} is a file, not a folder")
-            break
+    _check_parent_folder(path, option)
     if not path.exists():
         if path.is_symlink():
             raise OutputRefused(f"{option} {path}: is a dangling symbolic link; choose another name")
