@@ -6,7 +6,7 @@ Fixed: the nominal DH parameters and the eliminated errors (zero). Measurements:
 
 * :func:`identify_linear` - one weighted least-squares solve of ``dX_t = G_t eps_dot`` (Eq. 13-14 with ``G_e``),
   the thesis's method; exact when the data come from the linearised model.
-* :func:`identify_iterative` - Levenberg-Marquardt (Gauss-Newton with adaptive damping) on the exact model.
+* :func:`identify_iterative` - Levenberg-Marquardt (``scipy.optimize.least_squares``, MINPACK) on the exact model.
 
 Solvers return an :class:`IdentificationResult` and never raise on non-convergence or rank deficiency.
 
@@ -26,6 +26,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.optimize
 import scipy.stats
 
 from bench.robot.identifiability import Reduction
@@ -35,6 +36,14 @@ from bench.robot.model import Robot
 
 #: Reduced chi-square ``chi2 / dof`` above which an identification is refused (residual RMS > 100 sigma).
 CHI2_FAIL = 1e4
+#: least_squares' ``gtol`` in :func:`identify_iterative`: largest cosine between the residual and a Jacobian column.
+GTOL = 1e-10
+#: least_squares' ``x_scale`` in :func:`identify_iterative` (m, rad): the errors' order of magnitude. MINPACK's first
+#: trust region has radius 100 in ``x / x_scale`` (0.1 m or rad from a zero start); with ``x_scale="jac"`` it is 100
+#: sigma of weighted residual, and growing it from there took twice the iterations (11 Jacobians instead of 5).
+X_SCALE = 1e-3
+#: least_squares' stopping tests by ``status``.
+LSQ_STATUS = {2: "cost change below ftol", 3: "step below xtol", 4: "cost change below ftol and step below xtol"}
 
 
 @dataclass
@@ -214,12 +223,39 @@ def identify_linear(robot: Robot, q, points, reduction: Reduction, sigma=1.0, ep
     return _checked(out, reduction, dX.size, points, robot)
 
 
-def identify_iterative(robot: Robot, q, points, reduction: Reduction, sigma=1.0, eps0=None, form="exact",
-                       max_iter=50, tol=1e-12) -> IdentificationResult:
-    """Levenberg-Marquardt on the exact (or linearised) error model, estimating the reduced errors.
+def _lsq_outcome(sol, cost0: float, tol: float) -> tuple:
+    """``(converged, message)`` from a ``scipy.optimize.least_squares`` result and the cost at its start.
 
-    Converged when the step is below ``tol`` (relative to the parameters' scale) or the cost stops falling.
-    Parameters as :func:`identify_linear`.
+    The gradient test (status 1) is convergence. The cost-change and step tests (status 2-4) are convergence after a
+    step lowered the cost; without one they only say that the damping shrank every step to nothing, and the run
+    converged only if the start is already a minimum: the Gauss-Newton step there would lower the cost by at most
+    ``tol`` of it. Otherwise no step was found downhill (e.g. a Jacobian that does not fit the model).
+    """
+    if sol.status == 1:
+        return True, f"converged (first-order optimality, gtol {GTOL:g})"
+    if sol.status in (2, 3, 4):
+        if sol.cost < cost0:
+            return True, f"converged ({LSQ_STATUS[sol.status]})"
+        Q, _ = np.linalg.qr(sol.jac)
+        gain = 0.5 * float(np.sum((Q.T @ sol.fun) ** 2)) / max(sol.cost, np.finfo(float).tiny)
+        if gain <= tol:
+            return True, f"converged: the start is a minimum (a Gauss-Newton step would lower the cost by {gain:.1e})"
+        return False, (f"not converged: no step lowered the cost from the start ({LSQ_STATUS[sol.status]} after "
+                       f"{sol.nfev} evaluations), though a Gauss-Newton step would lower it by {gain:.1e} of it: "
+                       "a Jacobian that does not fit the model?")
+    if sol.status == 0:
+        return False, f"not converged: stopped after {sol.nfev} evaluations of the model (max_nfev)"
+    return False, f"least_squares failed (status {sol.status}): {sol.message}"
+
+
+def identify_iterative(robot: Robot, q, points, reduction: Reduction, sigma=1.0, eps0=None, form="exact",
+                       max_nfev=100, tol=1e-12) -> IdentificationResult:
+    """Levenberg-Marquardt (``scipy.optimize.least_squares``, MINPACK) on the exact (or linearised) error model,
+    estimating the reduced errors with the analytic Jacobian.
+
+    ``tol`` is least_squares' ``xtol`` and ``ftol`` (step and cost change, relative), :data:`GTOL` its ``gtol``;
+    at most ``max_nfev`` evaluations of the model. ``success`` and the message follow least_squares' status
+    (:func:`_lsq_outcome`). ``iterations`` counts Jacobian evaluations. Other parameters as :func:`identify_linear`.
     """
     t0 = time.perf_counter()
     q, points, sigma = _check_inputs(robot, q, points, sigma, reduction)
@@ -228,49 +264,39 @@ def identify_iterative(robot: Robot, q, points, reduction: Reduction, sigma=1.0,
         return _failure(reduction, f"{q.shape[0]} poses give {3 * q.shape[0]} equations for {p} unknowns; "
                                    f"need at least {int(np.ceil(p / 3))} poses")
     w = 1.0 / sigma.ravel()
-    eps = np.zeros(robot.n_errors) if eps0 is None else np.asarray(eps0, dtype=float).copy()
+    base = np.zeros(robot.n_errors) if eps0 is None else np.asarray(eps0, dtype=float)
+    kept, target, start = reduction.kept, points.ravel() * w, {}
 
-    def residual(e):
-        return (points - ee_position(robot, q, e, form)).ravel()
+    def full(x):
+        e = base.copy()
+        e[kept] = x
+        return e
 
-    r = residual(eps)
-    cost = 0.5 * float(np.sum((r * w) ** 2))
-    lam = 1e-6
-    converged, it = False, 0
-    while it < max_iter:
-        it += 1
-        G = identification_jacobian(robot, q, eps, form).reshape(-1, robot.n_errors)[:, reduction.kept]
-        Gw = G * w[:, None]
-        scale = np.linalg.norm(Gw, axis=0)
-        scale[scale == 0] = 1.0
-        A = (Gw / scale).T @ (Gw / scale)
-        g = (Gw / scale).T @ (r * w)
-        if np.linalg.cond(A) > 1e15:
-            return _failure(reduction, "reduced Jacobian is rank deficient: the poses do not excite every "
-                                       "identifiable error")
-        while True:
-            step = np.linalg.solve(A + lam * np.diag(np.diag(A)), g) / scale
-            trial = eps.copy()
-            trial[reduction.kept] += step
-            r_new = residual(trial)
-            cost_new = 0.5 * float(np.sum((r_new * w) ** 2))
-            if cost_new <= cost or lam > 1e10:
-                break
-            lam *= 10.0
-        small_step = np.max(np.abs(step * scale)) < tol * max(1.0, np.sqrt(2 * cost_new))
-        stalled = cost - cost_new <= 1e-15 * max(cost, 1e-300)
-        if cost_new <= cost:
-            eps, r, cost = trial, r_new, cost_new
-            lam = max(lam / 10.0, 1e-12)
-        if small_step or stalled:
-            converged = True
-            break
-    G = identification_jacobian(robot, q, eps, form).reshape(-1, robot.n_errors)[:, reduction.kept]
-    _, cov, cond, ok = _weighted_solve(G, r, w)
+    def fun(x):  # weighted residuals, model minus measurement
+        f = ee_position(robot, q, full(x), form).ravel() * w - target
+        start.setdefault("cost", 0.5 * float(f @ f))  # the first evaluation is at the start
+        return f
+
+    def jac(x):
+        if x is x0 or np.array_equal(x, x0):
+            return J0
+        return identification_jacobian(robot, q, full(x), form).reshape(-1, robot.n_errors)[:, kept] * w[:, None]
+
+    x0 = base[kept]
+    J0 = identification_jacobian(robot, q, base, form).reshape(-1, robot.n_errors)[:, kept] * w[:, None]
+    Js = J0 / np.linalg.norm(J0, axis=0).clip(min=1e-300)
+    if np.linalg.cond(Js.T @ Js) > 1e15:
+        return _failure(reduction, "reduced Jacobian is rank deficient: the poses do not excite every "
+                                   "identifiable error")
+    sol = scipy.optimize.least_squares(fun, x0, jac=jac, method="lm", x_scale=X_SCALE, xtol=tol, ftol=tol, gtol=GTOL,
+                                       max_nfev=max_nfev)
+    r = -sol.fun / w
+    _, cov, cond, ok = _weighted_solve(sol.jac / w[:, None], r, w)
     if not ok:
         return _failure(reduction, "reduced Jacobian is rank deficient at the solution")
-    msg = f"Levenberg-Marquardt on the {form} model: " + ("converged" if converged else
-                                                          f"stopped after {max_iter} iterations without converging")
-    out = IdentificationResult(converged, msg, eps, eps[reduction.kept], cov, float(np.sqrt(np.mean(r**2))),
-                               float(cond), it, cost, {"identification": time.perf_counter() - t0})
+    converged, msg = _lsq_outcome(sol, start["cost"], tol)
+    eps = full(sol.x)
+    out = IdentificationResult(converged, f"Levenberg-Marquardt (least_squares) on the {form} model: {msg}", eps,
+                               eps[kept], cov, float(np.sqrt(np.mean(r**2))), float(cond), int(sol.njev),
+                               float(sol.cost), {"identification": time.perf_counter() - t0})
     return _checked(out, reduction, r.size, points, robot)

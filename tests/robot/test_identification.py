@@ -110,3 +110,29 @@ def test_chi2_consistency_check(ta40, red, rng):
     assert over.success and "pessimistic" in over.message and over.chi2_per_dof < 1e-3
     mixed = identify_linear(ta40, q, p[::-1], red, sigma=sigma)  # readings and points paired wrongly
     assert not mixed.success and "refused" in mixed.message and "another frame?" in mixed.message
+
+
+def test_iterative_claims_no_convergence_it_did_not_reach(ta40, red, rng, monkeypatch):
+    """A run in which no step lowers the cost has converged only if it started at a minimum. The hand-written loop
+    this replaced said 'converged' whenever its damping gave up (every trial step raised the cost) and returned its
+    start as the estimate - here with a Jacobian of the wrong sign, a few predicted standard deviations from the
+    minimum; running out of evaluations is not convergence either."""
+    import bench.robot.identification as identification
+
+    eps, sigma = _truth(rng), 5e-5
+    q = ta40.random_configurations(rng, 60)
+    p = ee_position(ta40, q, eps) + rng.normal(scale=sigma, size=q[:, :3].shape)
+    opt = identify_iterative(ta40, q, p, red, sigma=sigma)
+    assert opt.success
+    at = identify_iterative(ta40, q, p, red, sigma=sigma, eps0=opt.eps)  # started at the minimum: converged there
+    assert at.success and "WARNING" not in at.message and np.abs(at.eps - opt.eps).max() < 1e-12
+    start = opt.eps.copy()
+    start[red.kept] += np.linalg.cholesky(opt.covariance) @ rng.normal(size=len(red.kept)) * 2  # ~10 sigma^2 off
+    jacobian = identification.identification_jacobian
+    monkeypatch.setattr(identification, "identification_jacobian", lambda *a, **k: -jacobian(*a, **k))
+    uphill = identify_iterative(ta40, q, p, red, sigma=sigma, eps0=start)
+    assert not uphill.success and "no step lowered the cost" in uphill.message
+    assert uphill.cost > opt.cost + 1 and uphill.chi2_per_dof < 2  # the start, still consistent with sigma
+    monkeypatch.undo()
+    few = identify_iterative(ta40, q, p, red, sigma=sigma, max_nfev=2)
+    assert not few.success and "max_nfev" in few.message
