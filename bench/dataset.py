@@ -27,6 +27,7 @@ import os
 import shutil
 import sys
 import tempfile
+import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,53 +58,70 @@ _MANIFEST_KEYS = {"format", "kind", "units", "name", "notes", "views", "camera",
 MAX_IMAGE_PIXELS = 100_000_000
 #: Largest image file of a format whose header is not read here (bytes).
 MAX_IMAGE_BYTES = 512 * 2**20
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+#: Formats whose header Pillow reads here (told by the file's signature, not its name); OpenCV decodes them all.
+_HEADER_FORMATS = ("PNG", "JPEG", "TIFF", "BMP", "WEBP")
+_PILLOW_LIMIT = threading.Lock()
 _VIEW_KEYS = {"name", "image", "role", "notes"}
 
 
-def image_header(path: Path):
-    """``(format, width, height)`` from the first bytes of a PNG or JPEG file, ``None`` for other formats.
+def _open_header(path: Path):
+    """``PIL.Image.open`` (lazy: reads the header, not the image data) without Pillow's own pixel limit.
 
-    One-line :class:`ConfigError` for an empty file, a PNG without a valid IHDR or cut short (no IEND chunk at the
-    end), a JPEG without a frame header. Reads a few bytes, never the image data.
+    Pillow refuses a huge header without saying the size it claims; :func:`check_image_file` applies
+    :data:`MAX_IMAGE_PIXELS` to the size read here instead. ``PIL.UnidentifiedImageError`` for other formats.
     """
-    size = path.stat().st_size
-    if size == 0:
+    from PIL import Image
+
+    with _PILLOW_LIMIT:  # Pillow's limit is a module global: lifted for this call only
+        limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
+        try:
+            return Image.open(path, formats=_HEADER_FORMATS)
+        finally:
+            Image.MAX_IMAGE_PIXELS = limit
+
+
+def image_header(path: Path):
+    """``(format, width, height)`` from the header of an image file (Pillow's format name: ``"PNG"``, ``"JPEG"``,
+    ...), ``None`` for a format not in :data:`_HEADER_FORMATS`.
+
+    One-line :class:`ConfigError` for an empty file, and for a file named like one of those formats that Pillow
+    cannot identify as it (wrong signature, or a header corrupt or cut short, e.g. a PNG without IHDR, a JPEG
+    without a frame header). Reads the header, never the image data. A PNG whose IHDR chunk is sound but whose
+    next chunks Pillow cannot read gives its IHDR size, so that :func:`check_image_file` judges the file's size first.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    if path.stat().st_size == 0:
         raise ConfigError(path, "<file>", "empty file")
-    with path.open("rb") as f:
-        head = f.read(32)
-        if head.startswith(_PNG_SIGNATURE):
-            if len(head) < 24 or head[12:16] != b"IHDR":
-                raise ConfigError(path, "<header>", "PNG without an IHDR chunk: corrupt")
-            f.seek(max(size - 4096, 0))
-            if _PNG_IEND not in f.read():
-                raise ConfigError(path, "<file>", "PNG cut short (no IEND chunk at the end): truncated or corrupt")
-            return "png", int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
-        if head.startswith(b"\xff\xd8"):
-            f.seek(2)
-            while True:  # walk the marker segments to the frame header (SOF0..SOF15 but DHT, JPG, DAC)
-                marker = f.read(4)
-                if len(marker) < 4 or marker[0] != 0xFF:
-                    raise ConfigError(path, "<header>", "JPEG without a frame header: corrupt or truncated")
-                kind, length = marker[1], int.from_bytes(marker[2:4], "big")
-                if 0xC0 <= kind <= 0xCF and kind not in (0xC4, 0xC8, 0xCC):
-                    sof = f.read(5)
-                    if len(sof) < 5:
-                        raise ConfigError(path, "<header>", "JPEG frame header cut short")
-                    return "jpeg", int.from_bytes(sof[3:5], "big"), int.from_bytes(sof[1:3], "big")
-                f.seek(length - 2, 1)
-    if path.suffix.lower() in (".png", ".jpg", ".jpeg"):
-        raise ConfigError(path, "<header>", f"not a {path.suffix[1:].upper()} file (wrong signature): corrupt")
-    return None
+    try:
+        im = _open_header(path)
+    except UnidentifiedImageError:
+        with path.open("rb") as f:
+            head = f.read(24)
+        if head.startswith(b"\x89PNG\r\n\x1a\n") and head[12:16] == b"IHDR":  # IHDR: first chunk, fixed place
+            return "PNG", int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+        fmt = Image.registered_extensions().get(path.suffix.lower())
+        if fmt in _HEADER_FORMATS:
+            raise ConfigError(path, "<header>", f"not a {fmt} file: wrong signature, or a header corrupt or cut "
+                                                "short") from None
+        return None
+    except (OSError, ValueError, EOFError) as exc:
+        raise ConfigError(path, "<header>", f"unreadable image header ({exc})") from None
+    with im:
+        return im.format, im.width, im.height
 
 
 def check_image_file(path: Path, expected_size=None) -> None:
-    """Refuse, from the header alone, an image file that is empty, corrupt, huge, or not of ``expected_size``.
+    """Refuse, without decoding it, an image file that is empty, corrupt, cut short, huge, or not of ``expected_size``.
 
-    Limits: :data:`MAX_IMAGE_PIXELS`; a PNG/JPEG file larger than 8 bytes per pixel plus 1 MB (more than 16-bit RGBA
-    stored raw) is not an image of the size its header claims; other formats up to :data:`MAX_IMAGE_BYTES`.
+    Limits: :data:`MAX_IMAGE_PIXELS`; a file larger than 8 bytes per pixel plus 1 MB (more than 16-bit RGBA stored
+    raw) is not an image of the size its header claims; formats whose header is not read up to
+    :data:`MAX_IMAGE_BYTES`. Then Pillow's ``verify()`` walks the file (a PNG's chunks up to IEND) without decoding:
+    a file cut short is refused here; a chunk failing its CRC is left to the decoder, whose own message
+    :meth:`View.image` reports.
     """
+    from PIL import UnidentifiedImageError
+
     hdr = image_header(path)
     size = path.stat().st_size
     if hdr is None:
@@ -113,15 +131,24 @@ def check_image_file(path: Path, expected_size=None) -> None:
         return
     fmt, w, h = hdr
     if w <= 0 or h <= 0:
-        raise ConfigError(path, "<header>", f"{fmt.upper()} header gives a {w}x{h} image: corrupt")
+        raise ConfigError(path, "<header>", f"{fmt} header gives a {w}x{h} image: corrupt")
     if w * h > MAX_IMAGE_PIXELS:
-        raise ConfigError(path, "<size>", f"{fmt.upper()} header claims {w}x{h} = {w * h / 1e6:.0f} Mpx, more than "
+        raise ConfigError(path, "<size>", f"{fmt} header claims {w}x{h} = {w * h / 1e6:.0f} Mpx, more than "
                                           f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpx: refused before decoding")
     if expected_size is not None and (w, h) != tuple(expected_size):
         raise ConfigError(path, "<size>", f"image is {w}x{h}, the camera file says {expected_size[0]}x"
                                           f"{expected_size[1]}")
     if size > 8 * w * h + 2**20:
         raise ConfigError(path, "<file>", f"{size / 2**20:.1f} MB for a {w}x{h} image: not an image of that size")
+    try:
+        with _open_header(path) as im:
+            im.verify()
+    except SyntaxError:
+        pass  # a chunk failing its CRC: the decoder says which (libpng: "IDAT: CRC error")
+    except UnidentifiedImageError:
+        raise ConfigError(path, "<file>", f"{fmt} file corrupt or cut short after its header") from None
+    except (OSError, EOFError, ValueError) as exc:
+        raise ConfigError(path, "<file>", f"{fmt} cut short: truncated or corrupt (Pillow: {exc})") from None
 
 
 def _imread_capturing_stderr(path: Path):
