@@ -20,7 +20,13 @@ Measured here:
 * vignetting: white-square brightness against the distance from the image centre (``I = I0 (1 - a r^2)``, r in
   units of the half diagonal) - lighting contributes too, so this is an upper bound on the lens's vignetting;
 * lateral chromatic aberration: corners located in R and in B separately (``cv2.cornerSubPix``) minus G, radial
-  component against radius: ``d_r = c r`` (c in px per 1000 px of radius).
+  component against radius: ``d_r = c r`` (c in px per 1000 px of radius);
+* the board's shape (:func:`measure_board_shape`): the 3-D position of every printed corner, common to all views,
+  estimated with the camera (OpenCV's release-object calibration, Strobl & Hirzinger, ICCV Workshops 2011); the
+  residual's direction against the image direction in which an out-of-plane displacement moves each corner; the
+  shape's quadratic bow and its rougher rest (cockle), whose Gaussian-covariance amplitude and correlation lengths
+  along and across the board rows are fitted by restricted maximum likelihood; the in-plane line offsets; the
+  residual left per view.
 """
 
 from __future__ import annotations
@@ -377,6 +383,117 @@ def measure_print_error(views, pattern, square_mm: float, iterations: int = 4) -
             "residual_stats_with_print_correction": residual_statistics(res.residuals_px, pattern, uvs)}
 
 
+def _relabel(res, uvs, pattern):
+    """Each view's corner labelling brought to view 0's (a symmetric board's detection may start from any of its
+    four corners): the labelling whose per-row residual pattern matches view 0's best. Returns the new ``uvs``."""
+    cols, rows = pattern
+    ref = res.residuals_px[0].reshape(rows, cols, 2)[..., 1].mean(1)
+    out = [uvs[0].copy()]
+    for k in range(1, len(uvs)):
+        best = max(_rotations(pattern), key=lambda m, k=k: float(np.dot(
+            res.residuals_px[k][m].reshape(rows, cols, 2)[..., 1].mean(1), ref)))
+        out.append(uvs[k][best])
+    return out
+
+
+def fit_gaussian_field(z, xy, fixed, lengths):
+    """Restricted maximum likelihood of a zero-mean Gaussian random field with covariance
+    ``s^2 exp(-dx^2 / (2 Lx^2) - dy^2 / (2 Ly^2))`` observed as ``z = fixed @ b + field`` (``fixed`` the columns of
+    the trend, e.g. a plane and a quadratic): ``(s, Lx, Ly)`` over the grid ``lengths`` (same unit as ``xy``)."""
+    Q, _ = np.linalg.qr(fixed, mode="complete")
+    A = Q[:, fixed.shape[1]:]  # the contrasts free of the trend
+    za, n = A.T @ z, A.shape[1]
+    d = xy[:, None] - xy[None]
+    best = None
+    for lx in lengths:
+        for ly in lengths:
+            C = A.T @ (np.exp(-0.5 * (d[..., 0] / lx) ** 2 - 0.5 * (d[..., 1] / ly) ** 2)
+                       + 1e-9 * np.eye(len(z))) @ A
+            s2 = za @ np.linalg.solve(C, za) / n
+            nll = n * np.log(s2) + np.linalg.slogdet(C)[1]
+            if best is None or nll < best[0]:
+                best = (nll, np.sqrt(s2), lx, ly)
+    return best[1:]
+
+
+def measure_board_shape(views, pattern, square_mm: float) -> dict:
+    """The real board's shape from the photos themselves.
+
+    1. The residual of the planar calibration against the image direction ``d_i = du_i / dz`` in which an
+       out-of-plane displacement of corner i moves it (``normal_energy_fraction``: 0.5 for isotropic errors, 1 if
+       all of it is out of plane); the correlation over views of the per-view RMS with ``|d|``.
+    2. ``cv2.calibrateCameraRO`` (Strobl & Hirzinger 2011): every corner's 3-D board position, common to all views,
+       estimated with the intrinsics and poses (corner ``cols - 1`` fixed besides corner 0: the scale); the shape
+       is aligned to the nominal grid by a similarity. Its out-of-plane part (a plane removed) splits into a
+       quadratic bow (``quadratic_range_mm``) and the rest, whose Gaussian field's amplitude and correlation lengths
+       (along the rows, x; across them, y) are fitted by :func:`fit_gaussian_field`; the in-plane part gives the
+       printed lines' offsets (row means of y, column means of x, their mean and linear trend removed).
+    3. The calibration RMS with that shape (``rms_with_shape_px``) and the statistics of what is left: the part of
+       the residual that differs between views (handling of the board between shots, detection).
+    """
+    cols, rows = pattern
+    res, uvs = calibrate(views, pattern)
+    uvs = _relabel(res, uvs, pattern)
+    res, _ = calibrate([v[:3] + (u,) for v, u in zip(views, uvs, strict=True)], pattern)
+    g = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2).astype(float)
+    obj = np.c_[g, np.zeros(len(g))]
+    K, dist = res.camera.K, res.camera.dist
+    num = den = 0.0
+    pv, sens = [], []
+    for T, r in zip(res.T_cam_target, res.residuals_px, strict=True):
+        rvec = cv2.Rodrigues(T[:3, :3])[0]
+
+        def proj(P, rvec=rvec, T=T):
+            return cv2.projectPoints(P, rvec, T[:3, 3], K, dist)[0].reshape(-1, 2)
+
+        d = (proj(obj + [0, 0, 1e-3]) - proj(obj - [0, 0, 1e-3])) / 2e-3
+        n = d / np.linalg.norm(d, axis=1, keepdims=True)
+        num += np.sum(np.sum(r * n, 1) ** 2)
+        den += np.sum(r ** 2)
+        pv.append(np.sqrt(np.mean(np.sum(r ** 2, 1))))
+        sens.append(np.median(np.linalg.norm(d, axis=1)) / square_mm)
+    size = views[0][2].shape[::-1]
+    O = [(obj * square_mm).astype(np.float32)] * len(uvs)
+    img = [u.astype(np.float32).reshape(-1, 1, 2) for u in uvs]
+    out = cv2.calibrateCameraRO(O, img, size, cols - 1, None, None, flags=cv2.CALIB_FIX_K3)
+    rms_ro, shape = float(out[0]), out[5].reshape(-1, 3).astype(float)
+    # similarity onto the nominal grid (Umeyama), then the shape's deviations (mm)
+    A, B = obj * square_mm, shape
+    ma, mb = A.mean(0), B.mean(0)
+    U, S, Vt = np.linalg.svd((A - ma).T @ (B - mb))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    dev = (np.trace(np.diag(S) @ D) / np.sum((B - mb) ** 2)) * (B - mb) @ R.T + ma - A
+    x, y = (g - g.mean(0)).T
+    plane, quad = np.c_[np.ones(len(g)), x, y], np.c_[np.ones(len(g)), x, y, x * x, y * y, x * y]
+    z = dev[:, 2] - plane @ np.linalg.lstsq(plane, dev[:, 2], rcond=None)[0]
+    zq = quad @ np.linalg.lstsq(quad, z, rcond=None)[0]
+    s, lx, ly = fit_gaussian_field(z, np.c_[x, y] * square_mm, quad,
+                                   np.exp(np.linspace(np.log(0.2), np.log(8.0), 40)) * square_mm)
+
+    def detrended(o):
+        t = np.arange(len(o)) - (len(o) - 1) / 2
+        o = o - o.mean()
+        return o - t * np.dot(t, o) / np.dot(t, t)
+
+    off_y = detrended(dev[:, 1].reshape(rows, cols).mean(1))
+    off_x = detrended(dev[:, 0].reshape(rows, cols).mean(0))
+    left = []
+    for rv, tv, u in zip(out[3], out[4], uvs, strict=True):
+        left.append(u - cv2.projectPoints(shape, rv, tv, out[1], out[2])[0].reshape(-1, 2))
+    return {"normal_energy_fraction": float(num / den),
+            "per_view_rms_vs_normal_sensitivity_corr": float(np.corrcoef(pv, sens)[0, 1]),
+            "shape_out_of_plane_rms_mm": float(np.sqrt(np.mean(z ** 2))),
+            "shape_quadratic_range_mm": float(zq.max() - zq.min()),
+            "cockle_rms_mm": float(s), "cockle_length_along_rows_mm": float(lx),
+            "cockle_length_across_rows_mm": float(ly),
+            "shape_print_row_offsets_rms_mm": float(np.sqrt(np.mean(off_y ** 2))),
+            "shape_print_col_offsets_rms_mm": float(np.sqrt(np.mean(off_x ** 2))),
+            "shape_dz_mm": z.reshape(rows, cols).round(3).tolist(),
+            "rms_with_shape_px": rms_ro, "focal_with_shape_px": float(out[1][0, 0]),
+            "residual_stats_with_shape": residual_statistics(left, pattern)}
+
+
 def _inverse_jacobian_apply(H, XY, duv):
     """Board-plane displacements ``(N, 2)`` whose image under homography ``H`` at ``XY`` is ``duv`` (first order)."""
     out = []
@@ -413,6 +530,7 @@ def measure(data_dir, pattern=(7, 7), square_mm: float = 25.0) -> dict:
     out.update(residual_statistics(res.residuals_px, pattern, uvs))
     out.update(measure_board_bow(res, uvs, pattern, square_mm))
     out.update(measure_print_error(views, pattern, square_mm))
+    out.update(measure_board_shape(views, pattern, square_mm))
     q = [estimate_jpeg_quality(Path(f).read_bytes()) for f in files if f.lower().endswith(".jpg")]
     if q:
         out["jpeg_quality"] = sorted({int(a) for a, _ in q if a is not None})

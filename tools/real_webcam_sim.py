@@ -80,9 +80,9 @@ def simulate(res, seed: int, square_m: float, supersample: int, imaging: str = "
                         name="real webcam (simulated)")
     errors = None
     if profile.stages:
-        e = target_geometry(profile, 8, np.random.default_rng(np.random.SeedSequence([seed, 0x7A12])))
+        e = target_geometry(profile, 8, np.random.default_rng(np.random.SeedSequence([seed, 0x7A12])), square_m)
         errors = {"line_offsets_m": e["line_offsets_m"]["a"], "scale": e["scale"],
-                  "bow_sagitta_m": e["bow_sagitta_m"]["a"]}
+                  "bow_sagitta_m": e["bow_sagitta_m"]["a"], "dz_m": e["dz_m"]["a"]}
     board = planar_board(8, 8, square_m, name="board", errors=errors)
     table = lab_table_model(None)
     run = table.run(np.zeros((1, 3)))

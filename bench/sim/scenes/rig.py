@@ -54,46 +54,84 @@ def board_corners(rows=BOARD_SQUARES, cols=BOARD_SQUARES, square_m=SQUARE_M):
 
 
 def _board_geoms(prefix, rows, cols, s, margin, thickness, mat_black, mat_white, mat_back, lines=None,
-                 bow_m: float = 0.0):
-    """Geoms of one board in its board frame (face z = 0 towards -z).
+                 bow_m: float = 0.0, dz_m=None):
+    """Geoms (and their mesh assets) of one board in its board frame (face z = 0 towards -z): ``(geoms, assets)``.
 
     ``lines = (xs, ys)``: the printed column and row line positions (m, ``cols + 1`` and ``rows + 1``; default the
     even grid ``k s``); square (i, j) spans ``xs[j]..xs[j+1]`` x ``ys[i]..ys[i+1]``, so the squares still tile the
-    pattern. ``bow_m``: the pattern bows into the board (``> 0``, away from the viewer) or out of it as the cylinder
-    :func:`bow_z` about the board's y axis; each square is tilted to the local slope about its centre (adjacent
-    squares then meet to within the curvature's ``bow s^2 / W^2``, < 1 um for a 1 mm bow)."""
+    pattern. A flat sheet (``bow_m == 0`` and no ``dz_m``) is drawn as box geoms. A sheet that is not flat - the
+    cylindrical bow :func:`bow_z` of sagitta ``bow_m`` (``> 0`` into the board, away from the viewer) plus the
+    out-of-plane offsets ``dz_m`` ``(rows + 1, cols + 1)`` at the line crossings (the cockle of
+    :func:`bench.sim.imaging.target_geometry`) - is drawn as one thin closed mesh per square whose printed face has
+    its four corners exactly at the crossings' 3-D positions, so the squares meet at every corner with no gap and
+    the rendered corner is the true corner; the white border follows the pattern's outer crossings.
+    """
     d = SQUARE_DEPTH_M / 2
     xs, ys = (np.arange(cols + 1) * s, np.arange(rows + 1) * s) if lines is None else lines
     W, H = cols * s, rows * s
-    g = []
-    for i in range(rows):
-        for j in range(cols):
-            mat = mat_black if (i + j) % 2 == 0 else mat_white
-            hx, hy = (xs[j + 1] - xs[j]) / 2, (ys[i + 1] - ys[i]) / 2
-            xc, yc = (xs[j + 1] + xs[j]) / 2, (ys[i + 1] + ys[i]) / 2
-            if bow_m == 0.0:
+    flat = bow_m == 0.0 and (dz_m is None or not np.any(dz_m))
+    g, assets = [], []
+    if flat:
+        for i in range(rows):
+            for j in range(cols):
+                mat = mat_black if (i + j) % 2 == 0 else mat_white
+                hx, hy = (xs[j + 1] - xs[j]) / 2, (ys[i + 1] - ys[i]) / 2
+                xc, yc = (xs[j + 1] + xs[j]) / 2, (ys[i + 1] + ys[i]) / 2
                 g.append(f'<geom name="{prefix}_sq_{i}_{j}" type="box" size="{fmt([hx, hy, d])}" '
                          f'pos="{fmt([xc, yc, d])}" material="{mat}"/>\n')
-                continue
-            slope = float(np.gradient(bow_z(np.array([xc - 1e-4, xc, xc + 1e-4]), W, bow_m), 1e-4)[1])
-            a = np.arctan(slope)
-            T = np.eye(4)
-            T[:3, :3] = [[np.cos(a), 0, -np.sin(a)], [0, 1, 0], [np.sin(a), 0, np.cos(a)]]  # local x along the slope
-            T[:3, 3] = [xc, yc, float(bow_z(xc, W, bow_m))]
-            T[:3, 3] += T[:3, :3] @ [0.0, 0.0, d]
-            g.append(f'<geom name="{prefix}_sq_{i}_{j}" type="box" size="{fmt([hx, hy, d])}" {pose_attrs(T)} '
-                     f'material="{mat}"/>\n')
-    strips = {"top": ((W / 2, -margin / 2), (W / 2 + margin, margin / 2)),
-              "bottom": ((W / 2, H + margin / 2), (W / 2 + margin, margin / 2)),
-              "left": ((-margin / 2, H / 2), (margin / 2, H / 2)),
-              "right": ((W + margin / 2, H / 2), (margin / 2, H / 2))}
-    for k, ((cx, cy), (hx, hy)) in strips.items():
-        g.append(f'<geom name="{prefix}_border_{k}" type="box" size="{fmt([hx, hy, d])}" pos="{fmt([cx, cy, d])}" '
-                 f'material="{mat_white}"/>\n')
-    back = (thickness - SQUARE_DEPTH_M) / 2 + abs(bow_m)
+        strips = {"top": ((W / 2, -margin / 2), (W / 2 + margin, margin / 2)),
+                  "bottom": ((W / 2, H + margin / 2), (W / 2 + margin, margin / 2)),
+                  "left": ((-margin / 2, H / 2), (margin / 2, H / 2)),
+                  "right": ((W + margin / 2, H / 2), (margin / 2, H / 2))}
+        for k, ((cx, cy), (hx, hy)) in strips.items():
+            g.append(f'<geom name="{prefix}_border_{k}" type="box" size="{fmt([hx, hy, d])}" '
+                     f'pos="{fmt([cx, cy, d])}" material="{mat_white}"/>\n')
+        depth = 0.0
+    else:
+        Z = bow_z(np.asarray(xs, float)[None, :], W, bow_m) + (0.0 if dz_m is None else np.asarray(dz_m, float))
+        P = np.stack(np.broadcast_arrays(np.asarray(xs, float)[None, :], np.asarray(ys, float)[:, None], Z), -1)
+
+        def sheet(name, quad, mat):
+            assets.append(sheet_mesh_xml(f"{name}_mesh", quad, SQUARE_DEPTH_M))
+            g.append(f'<geom name="{name}" type="mesh" mesh="{name}_mesh" material="{mat}"/>\n')
+
+        for i in range(rows):
+            for j in range(cols):
+                sheet(f"{prefix}_sq_{i}_{j}", [P[i, j], P[i, j + 1], P[i + 1, j + 1], P[i + 1, j]],
+                      mat_black if (i + j) % 2 == 0 else mat_white)
+        # the white border: a strip beyond each outer edge segment and a patch at each outer corner, at the
+        # height of the pattern's outer crossings
+        out = {"top": (P[0, :], (0.0, -margin)), "bottom": (P[-1, ::-1], (0.0, margin)),
+               "left": (P[::-1, 0], (-margin, 0.0)), "right": (P[:, -1], (margin, 0.0))}
+        for k, (edge, (ox, oy)) in out.items():
+            o = np.array([ox, oy, 0.0])
+            for m in range(len(edge) - 1):
+                a, b = edge[m], edge[m + 1]
+                sheet(f"{prefix}_border_{k}_{m}", [a, a + o, b + o, b], mat_white)
+        for k, (p, ox, oy) in {"tl": (P[0, 0], -1, -1), "tr": (P[0, -1], 1, -1), "br": (P[-1, -1], 1, 1),
+                                "bl": (P[-1, 0], -1, 1)}.items():
+            c = [p, p + [ox * margin, 0, 0], p + [ox * margin, oy * margin, 0], p + [0, oy * margin, 0]]
+            sheet(f"{prefix}_border_{k}", c if ox * oy > 0 else c[::-1], mat_white)
+        depth = float(np.max(np.abs(Z)))
+    back = (thickness - SQUARE_DEPTH_M) / 2 + depth
     g.append(f'<geom name="{prefix}_backing" type="box" size="{fmt([W / 2 + margin, H / 2 + margin, back])}" '
-             f'pos="{fmt([W / 2, H / 2, SQUARE_DEPTH_M + abs(bow_m) + back])}" material="{mat_back}"/>\n')
-    return "".join(g)
+             f'pos="{fmt([W / 2, H / 2, SQUARE_DEPTH_M + depth + back])}" material="{mat_back}"/>\n')
+    return "".join(g), "".join(assets)
+
+
+def sheet_mesh_xml(name: str, quad, depth_m: float) -> str:
+    """A closed mesh of a piece of sheet: the printed face is the quadrilateral ``quad`` ((4, 3) m, board frame,
+    ordered so that ``(q1 - q0) x (q2 - q0)`` points along +z, into the board; split along its 0-2 diagonal), the
+    back face the same moved ``depth_m`` along +z. Every face's normal points out of the piece. Vertices are
+    absolute: MuJoCo places the mesh where they say."""
+    q = np.asarray(quad, float)
+    b = q + [0.0, 0.0, depth_m]
+    verts = np.vstack([q, b])
+    faces = [(0, 2, 1), (0, 3, 2), (4, 5, 6), (4, 6, 7)]
+    for a, c in ((0, 1), (1, 2), (2, 3), (3, 0)):
+        faces += [(a, c, c + 4), (a, c + 4, a + 4)]
+    idx = " ".join(str(int(i)) for f in faces for i in f)
+    return f'<mesh name="{name}" vertex="{fmt(verts.ravel())}" face="{idx}"/>\n'
 
 
 def bow_z(x, width_m: float, bow_m: float):
@@ -124,7 +162,7 @@ def planar_board(rows=BOARD_SQUARES, cols=BOARD_SQUARES, square_m=SQUARE_M, marg
     """
     _check_board_args(rows, cols, square_m, margin_m, thickness_m)
     corners = board_corners(rows, cols, square_m)
-    lines, bow = None, 0.0
+    lines, bow, dz = None, 0.0, None
     if errors:
         off = errors.get("line_offsets_m", (np.zeros(cols + 1), np.zeros(rows + 1)))
         scale = float(errors.get("scale", 1.0))
@@ -134,15 +172,33 @@ def planar_board(rows=BOARD_SQUARES, cols=BOARD_SQUARES, square_m=SQUARE_M, marg
         xs = (np.arange(cols + 1) * square_m + np.asarray(off[0], float)) * scale
         ys = (np.arange(rows + 1) * square_m + np.asarray(off[1], float)) * scale
         lines, bow = (xs, ys), float(errors.get("bow_sagitta_m", 0.0))
-        gx, gy = np.meshgrid(xs[1:-1], ys[1:-1])
-        corners = np.c_[gx.ravel(), gy.ravel(), bow_z(gx.ravel(), cols * square_m, bow)]
-    geoms = _board_geoms(name, rows, cols, square_m, margin_m, thickness_m, f"{name}_black", f"{name}_white",
-                         f"{name}_back", lines, bow)
+        dz = _check_dz(errors.get("dz_m"), rows, cols)
+        corners = _printed_corners(xs, ys, cols * square_m, bow, dz)
+    geoms, meshes = _board_geoms(name, rows, cols, square_m, margin_m, thickness_m, f"{name}_black",
+                                 f"{name}_white", f"{name}_back", lines, bow, dz)
     W, H = cols * square_m, rows * square_m
     features = {"corners": corners, "pattern_size": (cols - 1, rows - 1),
                 "square_m": float(square_m), "outline": np.array([[0, 0, 0], [W, 0, 0], [W, H, 0], [0, H, 0.0]])}
-    return SceneObject(name=name, worldbody_xml=f'<body name="{name}">\n{geoms}</body>\n', asset_xml=_materials(name),
-                       files={}, features=features)
+    return SceneObject(name=name, worldbody_xml=f'<body name="{name}">\n{geoms}</body>\n',
+                       asset_xml=_materials(name) + meshes, files={}, features=features)
+
+
+def _check_dz(dz, rows, cols):
+    if dz is None:
+        return None
+    dz = np.asarray(dz, float)
+    if dz.shape != (rows + 1, cols + 1) or not np.all(np.isfinite(dz)) or np.max(np.abs(dz)) > 0.05:
+        raise ValueError(f"board: errors.dz_m: expected finite offsets below 50 mm at the {rows + 1} x {cols + 1} "
+                         f"line crossings, got shape {dz.shape}")
+    return dz
+
+
+def _printed_corners(xs, ys, width_m, bow_m, dz):
+    """The inner corners ``((rows-1)(cols-1), 3)`` of a printed sheet, row-major: the crossings of the printed
+    lines, with the bow and the out-of-plane offsets ``dz`` (or None)."""
+    gx, gy = np.meshgrid(xs[1:-1], ys[1:-1])
+    z = bow_z(gx, width_m, bow_m) + (0.0 if dz is None else dz[1:-1, 1:-1])
+    return np.c_[gx.ravel(), gy.ravel(), np.ravel(z)]
 
 
 def rig_board_poses(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M):
@@ -174,7 +230,8 @@ def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M,
     errors : dict, optional
         The printed and assembled rig's geometry errors (:func:`bench.sim.imaging.target_geometry`):
         ``line_offsets_m`` ``{"a": (xs, ys), "b": (xs, ys)}`` (offsets of the ``squares + 1`` column and row lines,
-        m), ``scale`` (printout / file), ``bow_sagitta_m`` ``{"a", "b"}`` and ``fold_error_rad`` (board B turned
+        m), ``scale`` (printout / file), ``bow_sagitta_m`` ``{"a", "b"}``, ``dz_m`` ``{"a", "b"}`` (out-of-plane
+        offsets at the ``(squares + 1)^2`` line crossings, m: the cockle) and ``fold_error_rad`` (board B turned
         about the fold). ``features["corners"]`` are then the true printed corners; None: the exact rig.
 
     Returns
@@ -193,7 +250,7 @@ def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M,
         Rz[:2, :2] = [[c, -s_], [s_, c]]
         T_b = Rz @ T_b  # about the fold (the rig's z axis through its origin)
     scale = float(e.get("scale", 1.0))
-    body = [f'<body name="{name}">\n']
+    body, meshes = [f'<body name="{name}">\n'], []
     corners = {}
     n = squares + 1
     for key, T in (("a", T_a), ("b", T_b)):
@@ -202,12 +259,13 @@ def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M,
         ys = (np.arange(n) * square_m + np.asarray(off[1], float)) * scale
         bow = float(e.get("bow_sagitta_m", {}).get(key, 0.0))
         lines = None if not errors else (xs, ys)
-        geoms = _board_geoms(f"{name}_{key}", squares, squares, square_m, margin_m, thickness_m, f"{name}_black",
-                             f"{name}_white", f"{name}_back", lines, bow)
+        dz = _check_dz(e.get("dz_m", {}).get(key), squares, squares)
+        geoms, m = _board_geoms(f"{name}_{key}", squares, squares, square_m, margin_m, thickness_m, f"{name}_black",
+                                f"{name}_white", f"{name}_back", lines, bow, dz)
+        meshes.append(m)
         body.append(f'<body name="{name}_board_{key}" {pose_attrs(T)}>\n{geoms}</body>\n')
         if errors:
-            gx, gy = np.meshgrid(xs[1:-1], ys[1:-1])
-            local = np.c_[gx.ravel(), gy.ravel(), bow_z(gx.ravel(), squares * square_m, bow)]
+            local = _printed_corners(xs, ys, squares * square_m, bow, dz)
         else:
             local = board_corners(squares, squares, square_m)
         corners[key] = local @ T[:3, :3].T + T[:3, 3]
@@ -216,4 +274,5 @@ def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M,
     features = {"corners": np.vstack([ca, cb]), "corners_board_a": ca, "corners_board_b": cb,
                 "T_rig_board_a": T_a, "T_rig_board_b": T_b, "pattern_size": (squares - 1, squares - 1),
                 "square_m": float(square_m)}
-    return SceneObject(name=name, worldbody_xml="".join(body), asset_xml=_materials(name), files={}, features=features)
+    return SceneObject(name=name, worldbody_xml="".join(body), asset_xml=_materials(name) + "".join(meshes), files={},
+                       features=features)
