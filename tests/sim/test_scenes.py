@@ -416,7 +416,7 @@ def test_cockled_board_renders_where_its_corners_are():
     found = _detect_board(gray, uv, board.features["pattern_size"])
     assert found is not None
     err = np.linalg.norm(found - uv, axis=1)
-    print(f"cockled board: detection vs true corners max {err.max():.3f} rms {np.sqrt(np.mean(err**2)):.3f} px, vs flat "
-          f"{np.linalg.norm(found - uv_flat, axis=1).max():.3f} px")
+    print(f"cockled board: detection vs true corners max {err.max():.3f} rms {np.sqrt(np.mean(err ** 2)):.3f} px, "
+          f"vs flat {np.linalg.norm(found - uv_flat, axis=1).max():.3f} px")
     assert np.sqrt(np.mean(err ** 2)) <= 0.25 and err.max() <= 0.5
     assert np.linalg.norm(found - uv_flat, axis=1).max() > 1.5
