@@ -26,6 +26,7 @@ columns in the same file or from a joint log matched by name. Values are carried
 
 from __future__ import annotations
 
+import csv
 import re
 import warnings
 from dataclasses import dataclass
@@ -120,9 +121,25 @@ def _parse_cell(cell: str):
     return None, 0, unit
 
 
-def _split(line: str, delim: str | None) -> list[str]:
-    fields = line.split(delim) if delim else line.split()
-    return [f.strip().strip('"').strip() for f in fields]
+def _delimiter(rows) -> str | None:
+    """``,``, ``;`` or tab as :class:`csv.Sniffer` finds it in the first rows (a quoted field may hold another of
+    them), else in the first row alone (a later row cut short); ``None``: separated by whitespace."""
+    for sample in ("\n".join(ln for _, ln in rows[:10]), rows[0][1]):
+        try:
+            return csv.Sniffer().sniff(sample, delimiters=",;\t").delimiter
+        except csv.Error:
+            pass
+    return None
+
+
+def _split(path: Path, no: int, line: str, delim: str | None) -> list[str]:
+    """The stripped fields of one line, read by :func:`csv.reader` (double quotes around a field that holds the
+    delimiter); one or more spaces separate them when ``delim`` is ``None``."""
+    try:
+        fields = next(csv.reader([line if delim else line.strip()], delimiter=delim or " ", skipinitialspace=True), [])
+    except csv.Error as exc:
+        raise ConfigError(path, f"line {no}", f"not a readable row ({exc})") from None
+    return [f.strip() for f in fields]
 
 
 def _number(text: str, decimal_comma: bool) -> float:
@@ -182,10 +199,9 @@ def _read_table(path, kind: str, units: str | None = None, joint_units: str | No
     lines = _read_lines(path)
     declared, rows = _declared_units(path, lines)
     first_no, first = rows[0]
-    counts = {d: first.count(d) for d in (",", ";", "\t")}
-    delim = max(counts, key=counts.get) if max(counts.values()) else None
+    delim = _delimiter(rows)
     decimal_comma = delim != ","
-    cells = _split(first, delim)
+    cells = _split(path, first_no, first, delim)
     numeric = [_is_number(c, decimal_comma) for c in cells]
     layout = {}  # role -> {index: column position}; key -> position
     col_units = {"coord": {}, "joint": {}}
@@ -284,7 +300,7 @@ def _read_table(path, kind: str, units: str | None = None, joint_units: str | No
     seen = {}
     prefix = "point" if kind == "tracker" else "view"
     for r, (no, ln) in enumerate(rows):
-        fields = _split(ln, delim)
+        fields = _split(path, no, ln, delim)
         if len(fields) > n_fields:
             ref = "header" if header_cells else "first row"
             raise ConfigError(path, f"line {no}", f"{len(fields)} fields, the {ref} has {n_fields}")
