@@ -118,6 +118,19 @@ def test_bound_equals_the_ml_estimator_spread(scene):
     assert np.trace(cov_mc) == pytest.approx(np.trace(bound["cov_pos"]), rel=0.35)
 
 
+def test_ml_estimate_budget_is_not_convergence(scene):
+    """The ML estimator stopped by its evaluation budget (one step from a start far off) says so: not success."""
+    kin, _, cam, X, seen = scene
+    views = ["p04", *MAP, *PAIR]
+    model = _PairModel(kin, views, [n in PAIR for n in views], model_poses(kin)[PAIR[0]][:3, 3], X, cam.project,
+                       cam.size, np.stack([seen[n] for n in views]))
+    priors = {"table": np.linalg.inv(table_error_prior(kin.params))}
+    uv = model.pixels(np.zeros(6), kin.v0, X)
+    est = ml_estimate(model, uv, 0.2, priors, [np.zeros(6), kin.v0], [np.full(6, 5e-3), kin.v0], X + 5e-3,
+                      iterations=1)
+    assert not est["success"] and "evaluations" in est["message"] and est["iterations"] <= 2
+
+
 def test_thesis_estimator_exact_on_exact_data(scene):
     """The Monte Carlo's estimator (map, 2p, RANSAC + LMS + error ratio) on exact projections of a table without
     errors, given the true camera, R0 and centre: every estimate exact."""
