@@ -204,6 +204,36 @@ def matrix_to_rotation_vector(R):
     return quaternion_to_rotation_vector(matrix_to_quaternion(R))
 
 
+def rotation_vector_jacobian(phi):
+    """Left Jacobian of the exponential map: how a change of the rotation vector turns the rotation.
+
+    ``exp([phi + delta_phi]x) = exp([J delta_phi]x) exp([phi]x)`` to first order, hence
+    ``d(exp([phi]x) v) / d phi = -[exp([phi]x) v]x J``. With ``theta = |phi|``,
+    ``J = I + (1 - cos theta) / theta^2 [phi]x + (theta - sin theta) / theta^3 [phi]x^2``; the coefficients by their
+    series below ``theta = 1e-2`` (no cancellation, exact at 0). Regular for ``theta < 2 pi``.
+
+    Parameters
+    ----------
+    phi : array_like (..., 3)
+        Rotation vectors ``theta k`` (rad).
+
+    Returns
+    -------
+    J : ndarray (..., 3, 3)
+        ``delta_phi_left = J delta_phi`` (rad per rad), as :func:`rodrigues_jacobian` for Rodrigues parameters.
+    """
+    phi = np.asarray(phi, dtype=float)
+    th = np.linalg.norm(phi, axis=-1)
+    small = th < 1e-2
+    t = np.where(small, 1.0, th)
+    t2 = th * th
+    # (1 - cos t) / t^2 = 2 sin^2(t / 2) / t^2 and (t - sin t) / t^3, with their series to t^6 (truncation < 1e-22)
+    a = np.where(small, 0.5 - t2 / 24.0 * (1.0 - t2 / 30.0 * (1.0 - t2 / 56.0)), 2.0 * (np.sin(0.5 * t) / t) ** 2)
+    b = np.where(small, 1.0 / 6.0 - t2 / 120.0 * (1.0 - t2 / 42.0 * (1.0 - t2 / 72.0)), (t - np.sin(t)) / t**3)
+    K = skew(phi)
+    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
 def rodrigues_to_quaternion(x):
     """Unit quaternion of Rodrigues parameters ``x = tan(theta / 2) k`` (Eq. 145): ``[1, x] / sqrt(1 + |x|^2)``.
 

@@ -22,10 +22,11 @@ from bench.geometry.quaternion import (
     rodrigues_to_matrix,
     rodrigues_to_quaternion,
     rotate_vector,
+    rotation_vector_jacobian,
     rotation_vector_to_matrix,
     rotation_vector_to_quaternion,
 )
-from bench.geometry.transforms import random_rotation, rot_x, rotation_angle, vee
+from bench.geometry.transforms import random_rotation, rot_x, rotation_angle, skew, vee
 
 
 def _same_rotation_q(a, b):
@@ -144,6 +145,49 @@ def test_rodrigues_jacobian_finite_differences():
             Rp, Rm = rodrigues_to_matrix(x + dx), rodrigues_to_matrix(x - dx)
             Jfd[:, c] = (vee(Rp @ R.T) - vee(Rm @ R.T)) / (2 * h)  # left rotation vector
         assert np.abs(J - Jfd).max() < 1e-8 * max(1.0, np.abs(J).max())
+
+
+def test_rotation_vector_jacobian_against_scipy_near_0_and_pi():
+    """``J = int_0^1 exp(s [phi]x) ds`` (the left Jacobian's integral form), by Gauss-Legendre quadrature on SciPy's
+    ``Rotation.from_rotvec`` - an independent construction, exact to rounding for a smooth integrand."""
+    rng = np.random.default_rng(17)
+    axes = rng.normal(size=(4, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    extra = [1e-2 * (1 - 1e-12), 1e-2, 1e-2 * (1 + 1e-12), 2.0, 5.0, 6.0]  # both sides of the series switch; up to 2 pi
+    phi = np.concatenate([_special_rotations(rng), np.concatenate([a * axes for a in extra])])
+    s, w = np.polynomial.legendre.leggauss(30)
+    s, w = 0.5 * (s + 1.0), 0.5 * w
+    ref = np.einsum("k,knij->nij", w, Rotation.from_rotvec((s[:, None, None] * phi).reshape(-1, 3)).as_matrix()
+                    .reshape(len(s), len(phi), 3, 3))
+    J = rotation_vector_jacobian(phi)
+    assert J.shape == (len(phi), 3, 3)
+    assert np.abs(J - ref).max() < 4e-15
+    assert np.array_equal(rotation_vector_jacobian(np.zeros(3)), np.eye(3))
+    assert np.abs(np.einsum("nij,nj->ni", J, phi) - phi).max() < 1e-14  # J phi = phi
+    assert np.abs(rotation_vector_to_matrix(phi) @ rotation_vector_jacobian(-phi) - J).max() < 1e-14  # J_l = R J_r
+    assert rotation_vector_jacobian(np.zeros((2, 5, 3))).shape == (2, 5, 3, 3)
+
+
+def test_rotation_vector_jacobian_finite_differences():
+    """``exp([phi + delta]x) exp([phi]x)^T = exp([J delta]x)``, and ``d(R v) / d phi = -[R v]x J``, by central
+    differences of SciPy's rotation vectors (small, mid, near pi, beyond pi)."""
+    rng = np.random.default_rng(18)
+    v = rng.normal(size=3)
+    for theta in [0.0, 1e-6, 1e-2, 0.7, 3.0, np.pi - 1e-6, 4.0]:
+        axis = rng.normal(size=3)
+        phi = theta * axis / np.linalg.norm(axis)
+        J = rotation_vector_jacobian(phi)
+        R = Rotation.from_rotvec(phi)
+        h = 1e-6
+        Jfd, Dfd = np.empty((3, 3)), np.empty((3, 3))
+        for c in range(3):
+            dphi = np.zeros(3)
+            dphi[c] = h
+            Rp, Rm = Rotation.from_rotvec(phi + dphi), Rotation.from_rotvec(phi - dphi)
+            Jfd[:, c] = ((Rp * R.inv()).as_rotvec() - (Rm * R.inv()).as_rotvec()) / (2 * h)
+            Dfd[:, c] = (Rp.apply(v) - Rm.apply(v)) / (2 * h)
+        assert np.abs(J - Jfd).max() < 1e-8
+        assert np.abs(-skew(R.apply(v)) @ J - Dfd).max() < 1e-8
 
 
 def test_check_quaternion_errors():
