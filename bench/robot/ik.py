@@ -81,7 +81,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.geometry.transforms import check_transform, rotation_angle, vee
+from bench.geometry.transforms import check_transform, rotation_angle, skew, vee
 from bench.robot.kinematics import FORMS, _check_eps, dh_transform, error_matrix, forward_kinematics, link_frames
 from bench.robot.model import Robot
 
@@ -92,7 +92,7 @@ __all__ = ["IKResult", "analytic_ik", "check_ik_structure", "compensated_ik", "g
 _ALPHA = np.deg2rad([90.0, 0.0, 90.0, -90.0, 90.0, 0.0])
 #: Joint readings within this distance (rad) of a limit count as within the limits.
 LIMIT_TOL = 1e-9
-_GZ = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+_GZ = skew([0.0, 0.0, 1.0])  # [e_z]x
 
 
 @dataclass(frozen=True)

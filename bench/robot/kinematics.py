@@ -16,10 +16,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.geometry.transforms import homogeneous, rot_x, rot_y, rot_z
+from bench.geometry.transforms import homogeneous, rot_x, rot_y, rot_z, skew
 from bench.robot.model import Robot
 
 FORMS = ("exact", "linear")
+#: Generators of rotations about x, y, z: ``[e_x]x, [e_y]x, [e_z]x`` (``d rot_x(a) / da = G_X rot_x(a)``).
+_G_X, _G_Y, _G_Z = skew(np.eye(3))
 
 
 def dh_transform(theta, d, a, alpha):
@@ -57,19 +59,14 @@ def error_matrix_derivatives(e6, form="exact"):
     D = np.zeros((6, 4, 4))
     D[0, 0, 3] = D[1, 1, 3] = D[2, 2, 3] = 1.0
     if form == "linear":
-        D[3, 0, 2], D[3, 2, 0] = 1.0, -1.0  # s: about y
-        D[4, 1, 0], D[4, 0, 1] = 1.0, -1.0  # r: about z
-        D[5, 2, 1], D[5, 1, 2] = 1.0, -1.0  # p: about x
+        D[3:, :3, :3] = _G_Y, _G_Z, _G_X  # s, r, p: about y, z, x
         return D
     if form != "exact":
         raise ValueError(f"form: expected one of {FORMS}, got {form!r}")
     Rz, Ry, Rx = rot_z(r), rot_y(s), rot_x(p)
-    gx = np.array([[0, 0, 0], [0, 0, -1], [0, 1, 0.0]])
-    gy = np.array([[0, 0, 1], [0, 0, 0], [-1, 0, 0.0]])
-    gz = np.array([[0, -1, 0], [1, 0, 0], [0, 0, 0.0]])
-    D[3, :3, :3] = Rz @ gy @ Ry @ Rx
-    D[4, :3, :3] = gz @ Rz @ Ry @ Rx
-    D[5, :3, :3] = Rz @ Ry @ gx @ Rx
+    D[3, :3, :3] = Rz @ _G_Y @ Ry @ Rx
+    D[4, :3, :3] = _G_Z @ Rz @ Ry @ Rx
+    D[5, :3, :3] = Rz @ Ry @ _G_X @ Rx
     return D
 
 
