@@ -37,6 +37,7 @@ import scipy.optimize
 
 from bench.errors import BenchError, ConfigError
 from bench.fileio import read_yaml
+from bench.geometry.quaternion import rotation_vector_jacobian, rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, skew
 from bench.robot.chain import SerialChain, gravity_torques, joint_jacobian, points_and_jacobian
 from bench.robot.identifiability import select_columns
@@ -204,18 +205,6 @@ def _check_units(path, chain, q, P, units, joint_units) -> None:
 # ------------------------------------------------------------------------------------------------ model
 
 
-def _exp_so3(phi):
-    """Rotation of the rotation vector ``phi`` and its left Jacobian ``J_l``: ``d(Exp(phi) v) = -[Exp(phi) v]x J_l``."""
-    th = float(np.linalg.norm(phi))
-    K = skew(phi)
-    if th < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K, np.eye(3) + 0.5 * K
-    a, b = np.sin(th) / th, (1 - np.cos(th)) / th**2
-    R = np.eye(3) + a * K + b * K @ K
-    Jl = np.eye(3) + b * K + (th - np.sin(th)) / th**3 * K @ K
-    return R, Jl
-
-
 def compliant_q(chain, q, compliance=None):
     """Joint positions under gravity: ``q + c_j tau_j(q)`` for the joints of ``compliance = {name: c}`` (rad per
     N m, m per N; ``tau``: :func:`bench.robot.chain.gravity_torques`)."""
@@ -283,7 +272,7 @@ def _solve(chain, q, P, w, T0, U0, kept, eps0, prior, max_nfev=200, tau=None, c0
     n_x = 6 + 3 * k + len(cols)
 
     def unpack(x):
-        R, Jl = _exp_so3(x[:3])
+        R, Jl = rotation_vector_to_matrix(x[:3]), rotation_vector_jacobian(x[:3])  # d(R v) = -[R v]x Jl dphi
         eps = eps_base.copy()
         eps[cols] = x[6 + 3 * k: n_x]
         return R @ R0, x[3:6], x[6: 6 + 3 * k].reshape(k, 3), eps, Jl
