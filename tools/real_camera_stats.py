@@ -399,18 +399,20 @@ def _relabel(res, uvs, pattern):
 def fit_gaussian_field(z, xy, fixed, lengths):
     """Restricted maximum likelihood of a zero-mean Gaussian random field with covariance
     ``s^2 exp(-dx^2 / (2 Lx^2) - dy^2 / (2 Ly^2))`` observed as ``z = fixed @ b + field`` (``fixed`` the columns of
-    the trend, e.g. a plane and a quadratic): ``(s, Lx, Ly)`` over the grid ``lengths`` (same unit as ``xy``)."""
+    the trend, e.g. a plane and a quadratic, with its own ``b`` per field): ``(s, Lx, Ly)`` over the grid ``lengths``
+    (same unit as ``xy``). ``z``: one field ``(N,)`` or independent realisations ``(R, N)`` at the same points."""
     Q, _ = np.linalg.qr(fixed, mode="complete")
     A = Q[:, fixed.shape[1]:]  # the contrasts free of the trend
-    za, n = A.T @ z, A.shape[1]
+    za = np.atleast_2d(z) @ A
+    n = za.size
     d = xy[:, None] - xy[None]
     best = None
     for lx in lengths:
         for ly in lengths:
             C = A.T @ (np.exp(-0.5 * (d[..., 0] / lx) ** 2 - 0.5 * (d[..., 1] / ly) ** 2)
-                       + 1e-9 * np.eye(len(z))) @ A
-            s2 = za @ np.linalg.solve(C, za) / n
-            nll = n * np.log(s2) + np.linalg.slogdet(C)[1]
+                       + 1e-9 * np.eye(len(xy))) @ A
+            s2 = np.sum(za * np.linalg.solve(C, za.T).T) / n
+            nll = n * np.log(s2) + len(za) * np.linalg.slogdet(C)[1]
             if best is None or nll < best[0]:
                 best = (nll, np.sqrt(s2), lx, ly)
     return best[1:]
@@ -429,7 +431,9 @@ def measure_board_shape(views, pattern, square_mm: float) -> dict:
        (along the rows, x; across them, y) are fitted by :func:`fit_gaussian_field`; the in-plane part gives the
        printed lines' offsets (row means of y, column means of x, their mean and linear trend removed).
     3. The calibration RMS with that shape (``rms_with_shape_px``) and the statistics of what is left: the part of
-       the residual that differs between views (handling of the board between shots, detection).
+       the residual that differs between views (handling of the board between shots, detection); its share along
+       the out-of-plane direction, and the Gaussian field of the per-view out-of-plane offsets (each view's plane
+       removed) fitted jointly over the views (``handling_*``).
     """
     cols, rows = pattern
     res, uvs = calibrate(views, pattern)
@@ -478,9 +482,18 @@ def measure_board_shape(views, pattern, square_mm: float) -> dict:
 
     off_y = detrended(dev[:, 1].reshape(rows, cols).mean(1))
     off_x = detrended(dev[:, 0].reshape(rows, cols).mean(0))
-    left = []
+    left, flex, num_left = [], [], 0.0
     for rv, tv, u in zip(out[3], out[4], uvs, strict=True):
-        left.append(u - cv2.projectPoints(shape, rv, tv, out[1], out[2])[0].reshape(-1, 2))
+        def proj(P, rv=rv, tv=tv):
+            return cv2.projectPoints(P, rv, tv, out[1], out[2])[0].reshape(-1, 2)
+
+        left.append(u - proj(shape))
+        d = (proj(shape + [0, 0, 1e-2]) - proj(shape - [0, 0, 1e-2])) / 2e-2  # px per mm out of plane
+        flex.append(np.sum(left[-1] * d, 1) / np.sum(d * d, 1))  # each corner's offset along it (mm)
+        num_left += np.sum(np.sum(left[-1] * d, 1) ** 2 / np.sum(d * d, 1))
+    # the per-view part (handling): each view's out-of-plane offsets, its plane free (the pose's)
+    hs, hx, hy = fit_gaussian_field(np.array(flex), np.c_[x, y] * square_mm, plane,
+                                    np.exp(np.linspace(np.log(0.2), np.log(16.0), 40)) * square_mm)
     return {"normal_energy_fraction": float(num / den),
             "per_view_rms_vs_normal_sensitivity_corr": float(np.corrcoef(pv, sens)[0, 1]),
             "shape_out_of_plane_rms_mm": float(np.sqrt(np.mean(z ** 2))),
@@ -491,6 +504,9 @@ def measure_board_shape(views, pattern, square_mm: float) -> dict:
             "shape_print_col_offsets_rms_mm": float(np.sqrt(np.mean(off_x ** 2))),
             "shape_dz_mm": z.reshape(rows, cols).round(3).tolist(),
             "rms_with_shape_px": rms_ro, "focal_with_shape_px": float(out[1][0, 0]),
+            "per_view_normal_energy_fraction": float(num_left / sum(np.sum(r ** 2) for r in left)),
+            "handling_rms_mm": float(hs), "handling_length_along_rows_mm": float(hx),
+            "handling_length_across_rows_mm": float(hy),
             "residual_stats_with_shape": residual_statistics(left, pattern)}
 
 

@@ -67,7 +67,7 @@ def simulate(res, seed: int, square_m: float, supersample: int, imaging: str = "
 
     from bench.camera.presets import load_preset
     from bench.scenario.camera_calibration import TableRigScene
-    from bench.sim.imaging import imaging_profile, lens_distortion, target_geometry
+    from bench.sim.imaging import handling_dz, imaging_profile, lens_distortion, target_geometry
     from bench.sim.optics_presets import optics_preset
     from bench.sim.scenes.rig import planar_board
     from bench.sim.scenes.xy_table import lab_table_model
@@ -83,15 +83,23 @@ def simulate(res, seed: int, square_m: float, supersample: int, imaging: str = "
         e = target_geometry(profile, 8, np.random.default_rng(np.random.SeedSequence([seed, 0x7A12])), square_m)
         errors = {"line_offsets_m": e["line_offsets_m"]["a"], "scale": e["scale"],
                   "bow_sagitta_m": e["bow_sagitta_m"]["a"], "dz_m": e["dz_m"]["a"]}
-    board = planar_board(8, 8, square_m, name="board", errors=errors)
     table = lab_table_model(None)
     run = table.run(np.zeros((1, 3)))
     qpos = {name: vals[0] for name, vals in run.qpos.items()}
-    scene = TableRigScene(lens, optics, table, board, supersample, None, z_min=0.1, imaging=profile)
-    uvs, found = [], 0
+    uvs, found, scene, T_world_cam = [], 0, None, None
     try:
-        T_world_cam = scene.pose(qpos, np.eye(4))
         for k, T_cb in enumerate(board_poses(res, square_m)):
+            if scene is None or profile.on("handling"):  # a hand-held board flexes anew in every photo
+                if scene is not None:
+                    scene.close()
+                view_errors = errors
+                if profile.on("handling"):
+                    flex = handling_dz(profile, 8, np.random.default_rng(np.random.SeedSequence([seed, 0x7A14, k])),
+                                       square_m)
+                    view_errors = dict(errors, dz_m=errors["dz_m"] + flex)
+                board = planar_board(8, 8, square_m, name="board", errors=view_errors)
+                scene = TableRigScene(lens, optics, table, board, supersample, None, z_min=0.1, imaging=profile)
+                T_world_cam = scene.pose(qpos, np.eye(4))
             img, T_wc = scene.render(qpos, T_world_cam @ T_cb, seed=seed * 1000 + k)
             if not np.allclose(T_wc, T_world_cam):
                 raise RuntimeError("the camera moved between views (the table stands still)")
@@ -104,7 +112,8 @@ def simulate(res, seed: int, square_m: float, supersample: int, imaging: str = "
                 found += 1
                 uvs.append(c.reshape(-1, 2).astype(float))
     finally:
-        scene.close()
+        if scene is not None:
+            scene.close()
     if found < 3:
         raise SystemExit(f"seed {seed}: the board was found in only {found} of {len(res.T_cam_target)} renders")
     from bench.camera import calibration as cal

@@ -3,9 +3,10 @@ statistics, within loose bounds. ``tools/real_webcam_sim.py`` renders the real p
 through the realistic chain (their calibrated camera, a printed 8 x 8-square board with the realistic target
 errors); the real photos and the renders are detected, calibrated (Heikkilä) and summarised by the same code
 (``tools/real_camera_stats.residual_statistics``): RMS (px), the neighbour correlation of residual vectors along a
-board row (lag 1: the real photos' residual is row-correlated, 0.68) and the per-view RMS spread (std / mean).
-Measured (5 seeds, supersample 3, docs/realistic_imaging.md): RMS 0.25-0.42 px against the real 0.557 px, row
-correlation 0.80-0.95 against 0.68."""
+board row (lag 1: the real photos' residual is row-correlated, 0.68) and along a column, and the per-view RMS spread
+(std / mean). Measured (5 seeds, supersample 3, docs/realistic_imaging.md section 3.3): RMS 0.38-0.59 px (median
+0.475) against the real 0.557 px, row correlation 0.60 against 0.68, column correlation 0.27 against 0.23.
+The board-shape evidence behind the cockle and handling stages is pinned too (tools/real_camera_stats.py)."""
 
 import importlib.util
 from pathlib import Path
@@ -47,7 +48,30 @@ def test_realistic_residual_statistics_resemble_the_real_photos(real):
     assert real["rms_px"] == pytest.approx(0.557, abs=0.005) and real["row_corr_lag1"] == pytest.approx(0.68, abs=0.02)
     sim = rws.simulate(res, seed=1, square_m=0.025, supersample=2)
     assert sim["views"] == 19
-    # loose bounds: magnitude within a factor 3, the row correlation within 0.3, the per-view spread within 4x
-    assert real["rms_px"] / 3 < sim["rms_px"] < real["rms_px"] * 3, sim["rms_px"]
-    assert abs(sim["row_corr_lag1"] - real["row_corr_lag1"]) < 0.3, sim["row_corr_lag1"]
-    assert real["per_view_rms_cv"] / 4 < sim["per_view_rms_cv"] < real["per_view_rms_cv"] * 4, sim["per_view_rms_cv"]
+    # loose bounds (one seed; over seeds the RMS ranges 0.68-1.06x the real): magnitude within 0.6-1.5x, the
+    # correlations along a row and a column within 0.2, the per-view spread within 2x
+    assert 0.6 * real["rms_px"] < sim["rms_px"] < 1.5 * real["rms_px"], sim["rms_px"]
+    assert abs(sim["row_corr_lag1"] - real["row_corr_lag1"]) < 0.2, sim["row_corr_lag1"]
+    assert abs(sim["col_corr_lag1"] - real["col_corr_lag1"]) < 0.2, sim["col_corr_lag1"]
+    assert real["per_view_rms_cv"] / 2 < sim["per_view_rms_cv"] < real["per_view_rms_cv"] * 2, sim["per_view_rms_cv"]
+
+
+def test_the_real_photos_residual_is_the_board_shape():
+    """The evidence for the cockle and handling stages: the real residual lies along the out-of-plane direction
+    (0.5 for isotropic errors), a 3-D board shape common to the views explains most of it, and the fitted field is
+    the profile's."""
+    from bench.sim.imaging import REALISTIC
+
+    views = rws.rcs.detect(sorted((ROOT / "tests" / "data" / "real_webcam_chessboard").glob("*.jpg")), rws.PATTERN)
+    shape = rws.rcs.measure_board_shape(views, rws.PATTERN, 25.0)
+    assert shape["normal_energy_fraction"] > 0.85
+    assert shape["rms_with_shape_px"] < 0.25 and shape["per_view_rms_vs_normal_sensitivity_corr"] > 0.6
+    assert shape["cockle_rms_mm"] == pytest.approx(REALISTIC["cockle"]["rms_mm"], abs=0.01)
+    assert shape["cockle_length_along_rows_mm"] == pytest.approx(REALISTIC["cockle"]["length_along_rows_mm"], abs=1)
+    assert shape["cockle_length_across_rows_mm"] == pytest.approx(REALISTIC["cockle"]["length_across_rows_mm"], abs=1)
+    assert shape["shape_print_row_offsets_rms_mm"] == pytest.approx(REALISTIC["print_lines"]["feed_rms_mm"], abs=0.01)
+    h = REALISTIC["handling"]
+    assert shape["per_view_normal_energy_fraction"] > 0.75
+    assert shape["handling_rms_mm"] == pytest.approx(h["rms_mm"], abs=0.01)
+    assert shape["handling_length_along_rows_mm"] == pytest.approx(h["length_along_rows_mm"], abs=1)
+    assert shape["handling_length_across_rows_mm"] == pytest.approx(h["length_across_rows_mm"], abs=1)
