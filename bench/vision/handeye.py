@@ -25,10 +25,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
+from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle
 from bench.vision.features import match_features
 from bench.vision.triangulation import triangulate_midpoint
@@ -56,16 +56,6 @@ class HandEyeResult:
     method: str
 
 
-def _log_so3(R):
-    v, _ = cv2.Rodrigues(np.asarray(R, dtype=np.float64))
-    return v.ravel()
-
-
-def _exp_so3(w):
-    R, _ = cv2.Rodrigues(np.asarray(w, dtype=np.float64).reshape(3, 1))
-    return R
-
-
 def _check_stack(T, name):
     T = np.asarray(T, dtype=float)
     if T.ndim != 3 or T.shape[1:] != (4, 4) or not np.all(np.isfinite(T)):
@@ -90,7 +80,7 @@ def _translation(Ar, Br, R):
 def _park(A, B):
     """Park & Martin: ``R = (M^T M)^-1/2 M^T`` with ``M = sum beta_k alpha_k^T`` (log-maps of the rotations)."""
     Ar, Br = _relative_motions(A, B)
-    M = sum(np.outer(_log_so3(b[:3, :3]), _log_so3(a[:3, :3])) for a, b in zip(Ar, Br, strict=True))
+    M = matrix_to_rotation_vector(Br[:, :3, :3]).T @ matrix_to_rotation_vector(Ar[:, :3, :3])  # sum_k beta_k alpha_k^T
     w, V = np.linalg.eigh(M.T @ M)
     R = V @ np.diag(1.0 / np.sqrt(w)) @ V.T @ M.T
     u, _, vt = np.linalg.svd(R)
@@ -134,7 +124,7 @@ def hand_eye_axxb(T_base_mount, T_cam_target, method: str = "park", refine: bool
         return HandEyeResult(False, f"{len(A)} views; AX = XB needs >= 3 with two non-parallel rotation axes", nan,
                              nan, np.nan, np.nan, np.inf, method)
     # rotation diversity: relative rotation axes between consecutive views
-    axes = np.array([_log_so3(A[0, :3, :3].T @ A[k, :3, :3]) for k in range(1, len(A))])
+    axes = matrix_to_rotation_vector(A[0, :3, :3].T @ A[1:, :3, :3])
     sv = np.linalg.svd(axes, compute_uv=False)
     condition = float(sv[0] / sv[1]) if sv[1] > 1e-12 else np.inf
     if not np.isfinite(condition) or condition > 1e6:
@@ -146,17 +136,18 @@ def hand_eye_axxb(T_base_mount, T_cam_target, method: str = "park", refine: bool
     T_bt = homogeneous(u @ vt, T_bt[:3, 3])
 
     def residual(x):
-        Xk = homogeneous(_exp_so3(x[:3]), x[3:6])
-        Tk = homogeneous(_exp_so3(x[6:9]), x[9:12])
+        Xk = homogeneous(rotation_vector_to_matrix(x[:3]), x[3:6])
+        Tk = homogeneous(rotation_vector_to_matrix(x[6:9]), x[9:12])
         P = A @ Xk @ B  # predicted T_base_target per view
-        rot = np.array([_log_so3(Tk[:3, :3].T @ Pi[:3, :3]) for Pi in P])
+        rot = matrix_to_rotation_vector(Tk[:3, :3].T @ P[:, :3, :3])
         return np.concatenate([rot.ravel() * 1.0, (P[:, :3, 3] - Tk[:3, 3]).ravel()])
 
     if refine:
-        x0 = np.concatenate([_log_so3(X[:3, :3]), X[:3, 3], _log_so3(T_bt[:3, :3]), T_bt[:3, 3]])
+        x0 = np.concatenate([matrix_to_rotation_vector(X[:3, :3]), X[:3, 3], matrix_to_rotation_vector(T_bt[:3, :3]),
+                             T_bt[:3, 3]])
         sol = least_squares(residual, x0, xtol=1e-15, ftol=1e-15, gtol=1e-15)
-        X = homogeneous(_exp_so3(sol.x[:3]), sol.x[3:6])
-        T_bt = homogeneous(_exp_so3(sol.x[6:9]), sol.x[9:12])
+        X = homogeneous(rotation_vector_to_matrix(sol.x[:3]), sol.x[3:6])
+        T_bt = homogeneous(rotation_vector_to_matrix(sol.x[6:9]), sol.x[9:12])
     P = A @ X @ B
     rot = rotation_angle(np.swapaxes(T_bt[:3, :3], -1, -2) @ P[:, :3, :3])
     tr = np.linalg.norm(P[:, :3, 3] - T_bt[:3, 3], axis=1)
@@ -195,7 +186,7 @@ def _screw_invariants(T):
     """``(angle (rad), translation along the axis (m))`` of rigid motions ``(..., 4, 4)``: unchanged by conjugation
     ``X T X^-1``, so equal for a mount motion ``A_ij`` and the camera motion ``B_ij`` it causes (``A_ij X = X B_ij``).
     Below 1e-6 rad the axis is undefined and the translation's length stands in."""
-    w = np.array([_log_so3(R) for R in np.asarray(T)[..., :3, :3].reshape(-1, 3, 3)])
+    w = matrix_to_rotation_vector(np.asarray(T)[..., :3, :3].reshape(-1, 3, 3))
     angle = np.linalg.norm(w, axis=1)
     t = np.asarray(T)[..., :3, 3].reshape(-1, 3)
     along = np.where(angle > 1e-6, np.abs(np.sum(w * t, axis=1)) / np.maximum(angle, 1e-12),
