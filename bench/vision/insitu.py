@@ -30,7 +30,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from bench.geometry.transforms import invert, transform_points, vee
+from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
+from bench.geometry.transforms import homogeneous, invert, skew, transform_points
 from bench.vision.features import (
     ORIENTATION_TOL_DEG,
     RATIO,
@@ -293,7 +294,7 @@ def _base_covariance(cov_ref_a, T_world_ref, T_ref_a, T_base_a):
     d = p - T_ref_a[:3, 3]
     J = np.zeros((6, 6))
     J[:3, :3] = R_wr
-    J[3:, :3] = -R_wr @ np.array([[0, -d[2], d[1]], [d[2], 0, -d[0]], [-d[1], d[0], 0]])
+    J[3:, :3] = -R_wr @ skew(d)
     J[3:, 3:] = R_wr
     return J @ cov_ref_a @ J.T
 
@@ -436,13 +437,7 @@ def _proj_jac(X):
 
 def _left_exp(delta):
     """``[[exp([w]x), v], [0, 1]]`` for ``delta = (w, v)``: the left perturbation ``T <- D T`` (:func:`refine_pose`)."""
-    w, v = delta[:3], delta[3:]
-    theta = np.linalg.norm(w)
-    K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-    R = np.eye(3) + (np.sin(theta) / theta * K + (1 - np.cos(theta)) / theta**2 * K @ K if theta > 1e-12 else K)
-    D = np.eye(4)
-    D[:3, :3], D[:3, 3] = R, v
-    return D
+    return homogeneous(rotation_vector_to_matrix(delta[:3]), delta[3:])
 
 
 def pose_reprojection(T_a_ref, T_b_a, p_ref):
@@ -480,10 +475,7 @@ def _two_view(T_a_ref, T_b_a, p_ref):
     Xb = transform_points(T_b_a, Xa)
     ua, Ja = _proj_jac(Xa)
     ub, Jb = _proj_jac(Xb)
-    skew = np.zeros((n, 3, 3))
-    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -Xa[:, 2], Xa[:, 1], -Xa[:, 0]
-    skew -= np.swapaxes(skew, 1, 2)  # [Xa]x
-    dX = np.concatenate([-skew, np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)
+    dX = np.concatenate([-skew(Xa), np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)
     return Xa, Xb, ua, ub, Ja, Jb, dX
 
 
@@ -494,7 +486,7 @@ def inverse_perturbation_jacobian(T_ref_a):
     M = np.zeros((6, 6))
     M[:3, :3] = -R
     M[3:, 3:] = -R
-    M[3:, :3] = -np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ R
+    M[3:, :3] = -skew(t) @ R
     return M
 
 
@@ -711,9 +703,7 @@ def locate_pnp(kmap: KeypointMap, view_a: ViewObservation, config: MapConfig | N
     cov_rt = s2 * np.linalg.pinv(N)
 
     def world_base(x):
-        Ra, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
-        Ta = np.eye(4)
-        Ta[:3, :3], Ta[:3, 3] = Ra, x[3:]
+        Ta = homogeneous(rotation_vector_to_matrix(x[:3]), x[3:])  # x = (OpenCV's rvec, tvec) of T_a_ref
         return kmap.T_world_ref @ invert(Ta) @ invert(T_base_a)
 
     x0 = np.concatenate([rvec.ravel(), tvec.ravel()])
@@ -722,7 +712,7 @@ def locate_pnp(kmap: KeypointMap, view_a: ViewObservation, config: MapConfig | N
         h = np.zeros(6)
         h[k] = 1e-7
         Tp, Tm = world_base(x0 + h), world_base(x0 - h)
-        Jw[:3, k] = vee(Tp[:3, :3] @ Tm[:3, :3].T) / 2e-7  # small-angle log (cv2.Rodrigues rounds it to 0)
+        Jw[:3, k] = matrix_to_rotation_vector(Tp[:3, :3] @ Tm[:3, :3].T) / 2e-7
         Jw[3:, k] = (Tp[:3, 3] - Tm[:3, 3]) / 2e-7
     cov = Jw @ cov_rt @ Jw.T
     err = np.linalg.norm((img[inl] - proj.reshape(-1, 2)), axis=1)
