@@ -42,6 +42,7 @@ import yaml
 from bench.dataset import load_dataset
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text, claimed_output_dir
+from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, invert, rotation_angle
 
 #: A position error above this is a failure whatever the protection radius (the alert limit of the issue, mm).
@@ -139,8 +140,7 @@ def mount_bent(root, roles, cal, rng):
 
     robot, eps, T_mount = load_calibrated_robot(cal["robot"])
     axis, direction = _random_unit(rng), _random_unit(rng)
-    R = cv2.Rodrigues((axis * np.deg2rad(1.0)).reshape(3, 1))[0]
-    bend = homogeneous(R, direction * 0.005)
+    bend = homogeneous(rotation_vector_to_matrix(axis * np.deg2rad(1.0)), direction * 0.005)
     path = root.parent / "calibrated_bent" / "robot.yaml"
     path.parent.mkdir(parents=True, exist_ok=True)
     # the pipeline keeps the lab mount while the true one is bent: the same as believing the bent-back one
