@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bench.cli import main
-from bench.geometry.transforms import homogeneous, random_rotation
+from bench.geometry.transforms import homogeneous, random_rotation, rotation_angle
 from bench.robot.chain import chain_from_dict, chain_to_dict, points_and_jacobian, tip_frames
 from bench.robot.marker_calibration import (
     Measurements,
@@ -123,7 +123,7 @@ def test_closed_form_start_from_any_rotation(chain, rng, markers):
         meas, (_, T, U) = _simulate(chain, rng, 40, markers, kept_only=False)
         T0, U0 = closed_form_start(chain, meas.q, meas.P)
         # nominal chain vs the perturbed truth: the start is within the errors' effect (mm, deg), from any rotation
-        ang = np.rad2deg(np.arccos(np.clip((np.trace(T0[:3, :3].T @ T[:3, :3]) - 1) / 2, -1, 1)))
+        ang = np.rad2deg(rotation_angle(T0[:3, :3].T @ T[:3, :3]))
         assert ang < 3.0 and np.abs(U0 - U).max() < 0.03
 
 

@@ -15,6 +15,7 @@ pytest.importorskip("mujoco")
 from bench.camera.io import read_camera_yaml, write_camera_yaml  # noqa: E402
 from bench.cli import main  # noqa: E402
 from bench.dataset import load_dataset  # noqa: E402
+from bench.geometry.transforms import rotation_angle  # noqa: E402
 from bench.robot.calibration_file import load_calibrated_robot, write_calibrated_robot  # noqa: E402
 from bench.scenario import faults as F  # noqa: E402
 from bench.scenario.runner import kind_module, load_scenario  # noqa: E402
@@ -123,7 +124,7 @@ def test_every_fault_damages_its_copy(rendered, tmp_path):
     _, _, T0 = load_calibrated_robot(robot)
     _, _, T1 = load_calibrated_robot(tmp_path / "mount_bent" / "calibrated_bent" / "robot.yaml")
     D = np.linalg.inv(T0) @ T1
-    assert np.rad2deg(np.arccos((np.trace(D[:3, :3]) - 1) / 2)) == pytest.approx(1.0, abs=1e-6)
+    assert np.rad2deg(rotation_angle(D[:3, :3])) == pytest.approx(1.0, abs=1e-6)
     fx = read_camera_yaml(tmp_path / "air_calibration" / "calibrated_air" / "camera.yaml").fx
     assert fx == pytest.approx(read_camera_yaml(camera).fx / F.N_WATER)
 

@@ -97,8 +97,9 @@ def test_thesis_equations_and_misprints_numerically():
     T = _truth(rng, 1.2)
     R, t = T[:3, :3], T[:3, 3]
     p1, p2, _, _ = random_correspondences(rng, 6, T_1_2=T)
-    theta = np.arccos((np.trace(R) - 1) / 2)
-    k = matrix_to_rotation_vector(R) / theta
+    phi = matrix_to_rotation_vector(R)
+    theta = np.linalg.norm(phi)
+    k = phi / theta
     x = np.tan(theta / 2) * k  # Eq. 145
     Q = skew  # Eq. 143
     for a, b in zip(p1, p2, strict=True):

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, invert, random_transform, rot_y, rotation_angle, transform_points
 from bench.vision.features import Features
 from bench.vision.handeye import METHODS, hand_eye_axxb, mount_rotation, search_mount_rotation
@@ -16,10 +17,7 @@ def _axxb_data(rng, n=12, sigma_rot=0.0, sigma_t=0.0):
     B = invert(X) @ invert(A) @ T_bt
     if sigma_rot or sigma_t:
         for k in range(n):
-            w = rng.normal(0, sigma_rot, 3)
-            th = np.linalg.norm(w)
-            K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]) / th
-            B[k, :3, :3] = (np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K) @ B[k, :3, :3]
+            B[k, :3, :3] = rotation_vector_to_matrix(rng.normal(0, sigma_rot, 3)) @ B[k, :3, :3]
             B[k, :3, 3] += rng.normal(0, sigma_t, 3)
     return A, B, X, T_bt
 

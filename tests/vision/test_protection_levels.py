@@ -11,6 +11,7 @@ import pytest
 import yaml
 from scipy.stats import chi2
 
+from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous
 from bench.vision import integrity as I
 
@@ -61,10 +62,7 @@ def _fake_sweep(tmp_path, rng, n=40, optimism=3.0):
         cov = _cov(rng, 0.4e-3, 2e-5)
         e = rng.multivariate_normal(np.zeros(6), cov * optimism**2)
         T_true = homogeneous(np.eye(3), [0.1, 0.2, 0.0])
-        import cv2
-
-        R = cv2.Rodrigues(e[:3].reshape(3, 1))[0]
-        T = homogeneous(R, T_true[:3, 3] + e[3:])
+        T = homogeneous(rotation_vector_to_matrix(e[:3]), T_true[:3, 3] + e[3:])
         tests = {"inflation_chi2": 1.0, "inflation_whiteness": 1.0}
         pr, pa = I.protection_levels(cov, tests)
         level = "ok" if pr * 1e3 <= I.ALERT_MM else "warning"

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, invert, random_rotation, transform_points
 from bench.vision.triangulation import (
     required_baseline,
@@ -25,12 +26,7 @@ def _views(rng, n_views, n_points, baseline=0.2, depth=1.5):
 
 def _small(R, scale=0.1):
     """A rotation a fraction of the way to R (keeps every view facing the points)."""
-    w, v = np.linalg.eig(R)
-    angle = np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))
-    axis = np.real(v[:, np.argmin(np.abs(w - 1))])
-    a = scale * angle
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+    return rotation_vector_to_matrix(scale * matrix_to_rotation_vector(R))
 
 
 def _project(T, p):
