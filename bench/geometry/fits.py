@@ -34,6 +34,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from bench.geometry.transforms import rot_y, rot_z
+
 #: Relative tolerance below which a point set counts as collinear (ratio of its second to its first singular value).
 COLLINEAR_RTOL = 1e-9
 
@@ -180,10 +182,7 @@ def plane_rotation(normal, quadrant_safe=True) -> np.ndarray:
         theta_y = np.arccos(np.clip(c, -1.0, 1.0))  # Eq. 32 as printed
         with np.errstate(divide="ignore", invalid="ignore"):
             theta_z = np.arctan(b / a)  # Eq. 33 as printed
-    cz, sz, cy, sy = np.cos(theta_z), np.sin(theta_z), np.cos(theta_y), np.sin(theta_y)
-    Rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
-    Ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
-    return Rz @ Ry  # Eq. 34
+    return rot_z(theta_z) @ rot_y(theta_y)  # Eq. 34
 
 
 def project_to_plane(points, plane: Plane):
