@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from bench.geometry.transforms import rot_z
 from bench.robot.model import Robot
 from bench.robot.orientation import link5_frame
 
@@ -188,8 +189,7 @@ def reach_diagnosis(robot: Robot, eye_base, target_base, T_link5_cam, n_roll: in
     base = look_at(eye, eye + view)
     best = None
     for roll in np.linspace(0, 2 * np.pi, n_roll, endpoint=False):
-        c, s = np.cos(roll), np.sin(roll)
-        R = base[:3, :3] @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        R = base[:3, :3] @ rot_z(roll)
         wrist = eye + R @ t_cam_l5
         az = float(np.arctan2(wrist[1], wrist[0]))
         q1 = np.clip(az, robot.q_min[0], robot.q_max[0])
