@@ -18,6 +18,9 @@ Two sources of views:
     size_mm: 197              # side of the pattern of one board (mm, > 0)
     margin_mm: 20             # white border from the fold and the bottom to the pattern (mm, >= 0; default 0)
 
+Either type may state the printed target's tolerances (optional ``tolerance`` mapping, 1-sigma values:
+:mod:`bench.camera.target_tolerance`); a calibration then also reports what they leave in its results.
+
 Outputs in ``out``: ``camera.yaml`` (OpenCV keys + the thesis's parameters), ``calibration.json`` (RMS, per-view
 χ (Eq. 196), parameters with standard errors, OpenCV's result on the same detections), ``per_view.csv``
 (Table 3's α, β, θ, u0, v0, χ per view) and ``residuals.png`` (Figures 44/53). With a robot file (``--robot``, e.g.
@@ -41,6 +44,7 @@ from bench.camera.calibration import calibrate_camera, opencv_reference, per_vie
 from bench.camera.corners import extract_corners_opencv, extract_corners_thesis, planar_board, two_plane_rig
 from bench.camera.io import write_camera_yaml
 from bench.camera.plots import plot_residual_vectors
+from bench.camera.target_tolerance import parse_tolerance
 from bench.dataset import View, load_dataset
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text, write_table_csv
@@ -63,11 +67,13 @@ def parse_target(t, source):
     if kind not in TARGET_KEYS:
         raise ConfigError(source, "type", f"expected 'chessboard' or 'two_plane_rig', got {t.get('type')!r}")
     required, optional = TARGET_KEYS[kind]
-    for key in sorted(set(t) - {"type"} - required - set(optional)):
+    if "tolerance" in t:
+        parse_tolerance(t["tolerance"], source)
+    for key in sorted(set(t) - {"type", "tolerance"} - required - set(optional)):
         other = [k for k, (r, o) in TARGET_KEYS.items() if key in r or key in o]
         hint = f" (a key of type {other[0]})" if other else ""
         raise ConfigError(source, key, f"unknown key for type {kind}{hint}; allowed: "
-                                       f"{', '.join(sorted(required | set(optional)))}")
+                                       f"{', '.join(sorted(required | set(optional) | {'tolerance'}))}")
     for key in sorted(required - set(t)):
         raise ConfigError(source, key, f"missing (type {kind} needs {', '.join(sorted(required))})")
     t = {**optional, **t}
@@ -89,6 +95,14 @@ def parse_target(t, source):
             all(isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in inner)):
         raise ConfigError(source, "inner", f"expected [inner corners per row, rows], both >= 2, got {inner!r}")
     return planar_board(tuple(inner), length("square_mm") * 1e-3)
+
+
+def load_target_tolerance(path):
+    """The target's stated tolerances from ``target.yaml`` (:class:`~bench.camera.target_tolerance.TargetTolerance`),
+    or None when the file states none; the file is checked as by :func:`load_target`."""
+    load_target(path)
+    t = yaml.safe_load(Path(path).read_text())
+    return parse_tolerance(t["tolerance"], Path(path)) if "tolerance" in t else None
 
 
 def load_target(path):

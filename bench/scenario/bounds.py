@@ -312,9 +312,19 @@ class MultiViewModel:
 
     def prior_information(self, priors: dict) -> np.ndarray:
         """The priors' information matrix (n_params, n_params) from ``{block name: information}``: a (size, size)
-        matrix (a per-view block: the same for every view) or (V, size, size) per view; other blocks are free."""
+        matrix (a per-view block: the same for every view) or (V, size, size) per view; other blocks are free. A
+        tuple of names of blocks that are not per view and lie next to each other takes one joint information
+        matrix (a prior with cross-covariances)."""
         info = np.zeros((self.n_params, self.n_params))
+        names = [b.name for b in self.blocks]
         for name, P in priors.items():
+            if isinstance(name, tuple):
+                i = [names.index(n) for n in name]
+                if i != list(range(i[0], i[0] + len(i))) or any(self.blocks[k].per_view for k in i):
+                    raise ValueError(f"joint prior over {name}: the blocks must be adjacent and not per view")
+                off, size = self.offsets[i[0]], sum(self.blocks[k].size for k in i)
+                info[off:off + size, off:off + size] += np.asarray(P, dtype=float)
+                continue
             i = [b.name for b in self.blocks].index(name)
             b, off = self.blocks[i], self.offsets[i]
             P = np.asarray(P, dtype=float)

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from bench.camera.calibrate_dataset import load_target
+from bench.camera.calibrate_dataset import load_target, load_target_tolerance
 from bench.camera.calibration import calibrate_camera
 from bench.camera.corners import extract_corners_opencv, extract_corners_thesis
 from bench.camera.io import camera_yaml_text, read_camera_yaml, write_camera_yaml
@@ -52,6 +52,7 @@ from bench.robot.orientation import link5_frame
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
 from bench.scenario.schema import required
+from bench.sim.imaging import stated_tolerance
 from bench.sim.optics_presets import optics_preset
 from bench.vision.handeye import hand_eye_axxb, resolve_target_symmetry
 from bench.vision.insitu import MapConfig
@@ -90,7 +91,10 @@ SCHEMA = {
                  "ransac_iterations": (int, 100), "d_r_mm": (float, 20.0), "r_lim": (float, 0.1),
                  # the lab camera calibration also estimates the printed rig's structure (line offsets, bows, fold:
                  # bench.camera.target_refinement), else it trusts the nominal rig
-                 "refine_rig": (bool, False)},
+                 "refine_rig": (bool, False),
+                 # the lab calibrations' priors also carry what the rig's stated tolerances (target.yaml) leave in
+                 # the intrinsics and the mount (bench.camera.target_tolerance; Monte Carlo of this many draws)
+                 "target_tolerance": (bool, True), "tolerance_draws": (int, 48)},
     # error sources, for the error budget: switching one off injects the truth explicitly (evaluator side), e.g.
     # kinematics=perfect gives the pipeline the true errors and mount instead of its calibration
     "sources": {"kinematics": (str, "calibrated"), "camera": (str, "calibrated"), "encoders": (str, "real"),
@@ -542,7 +546,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         w.write_tracker([f"p{i:03d}" for i in range(len(q_tr))], p_tr, q_tr_read)
         w.write_text("camera.yaml", camera_yaml_text(nominal_cam))
         shutil.copyfile(Path(cfg["_file"]).parent / cfg["robot"], w.path("robot.yaml"))
-        w.write_text("target.yaml", TARGET_YAML)
+        # the rig's print tolerances as its maker states them (the specification, not the draws)
+        tol = stated_tolerance(imaging(cfg))
+        w.write_text("target.yaml", TARGET_YAML + (yaml.safe_dump({"tolerance": tol}) if tol else ""))
         # the encoders' datasheet (the configured specification, not the draws): refine 'joints' weighs the readings
         w.write_text("encoders.yaml", f"noise_deg: {cfg['encoders']['noise_deg']}\n"
                                       f"resolution_deg: {cfg['encoders']['resolution_deg']}\n")
@@ -756,11 +762,11 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
                             thesis_refine, central=(cal.camera, invert(mount) @ he_true.T_mount_cam),
                             profile=profile) \
         if he_true.success else {"pos_m": float("nan"), "rot_rad": float("nan")}
-    cov_K, cov_mount = lab["cov_K"], lab["cov_mount"]
+    cov_K, cov_mount, cross = lab["cov_K"], lab["cov_mount"], lab["cov_K_mount"]
     vis = observation_pattern(kmap, len(names), res.used[0]) if res.success and res.used is not None else None
     crb = crb_base_pose(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam.project,
                         T_site_b2, views, X_site, cam.size, sigma_px, sigma_enc, cov_K=cov_K, K=cam.K,
-                        cov_mount=cov_mount, vis=vis)
+                        cov_mount=cov_mount, vis=vis, cov_K_mount=cross)
     mc = mc_ideal_estimator(robot, eps_true, kept, ident.covariance, mount, central, T_site_b2, views, names, X_site,
                             sigma_px, EncoderModel(**enc), np.random.default_rng([cfg["seed"], 13]),
                             cfg["bound"]["mc_trials"], p["method"], ransac, thesis_refine)
@@ -769,7 +775,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
 
         ml = mc_joint_bundle(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam, T_site_b2,
                              views, X_site, vis, sigma_px, sigma_enc, np.random.default_rng([cfg["seed"], 14]),
-                             cfg["bound"]["ml_trials"], cov_K, cov_mount)
+                             cfg["bound"]["ml_trials"], cov_K, cov_mount, cov_K_mount=cross)
         out.update({"base_pos_crb_mc_mm": ml["pos_rms_m"] * 1e3, "base_rot_crb_mc_deg": np.rad2deg(ml["rot_rms_rad"])})
     f_pos, f_rot = (0.0 if not np.isfinite(v) else v for v in (floor["pos_m"], floor["rot_rad"]))
     out.update({"base_pos_crb_mm": crb["pos_bound_m"] * 1e3, "base_rot_crb_deg": np.rad2deg(crb["rot_bound_rad"]),
@@ -815,6 +821,37 @@ def _score_task(cfg, ds, truth, report, robot):
 
 
 # ------------------------------------------------------------------------------------------------ pipeline
+
+
+def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5, mount_nominal, S, draws) -> dict:
+    """What the rig's stated tolerances leave in the lab results: the second moment of the deviations of
+    ``fx, fy, cx, cy`` (px) and of the mount (right perturbation: rotation vector rad, translation m) over
+    calibrations of the same detections against perturbed rigs (:func:`bench.camera.target_tolerance.consider_samples`).
+    Returns ``K (4, 4)``, ``mount (6, 6)``, ``cross (4, 6)`` and ``draws`` (the runs that succeeded)."""
+    from bench.camera.target_tolerance import consider_samples
+    from bench.geometry.quaternion import matrix_to_rotation_vector
+
+    k0 = np.array([cal.K[0, 0], cal.K[1, 1], cal.K[0, 2], cal.K[1, 2]])
+    M_inv = invert(he.T_mount_cam)
+
+    def solve(Xs_m):
+        c = calibrate_camera(Xs_m, uvs, size, model="heikkila")
+        if not c.success:
+            return None
+        T_ct, _ = resolve_target_symmetry(T_base_l5, c.T_cam_target, mount_nominal, [S])
+        h = hand_eye_axxb(T_base_l5, T_ct)
+        if not h.success:
+            return None
+        D = M_inv @ h.T_mount_cam
+        return np.r_[np.array([c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2]]) - k0,
+                     matrix_to_rotation_vector(D[:3, :3]), D[:3, 3]]
+
+    d = consider_samples(geometry, tolerance, Xs, solve, draws)
+    if len(d) < 10:
+        raise ConfigError("target.yaml", "tolerance", f"only {len(d)} of {draws} calibrations against the "
+                                                      "toleranced rig converged: the tolerances are implausible")
+    C = d.T @ d / len(d)  # about the nominal result: a consider covariance
+    return {"K": C[:4, :4], "mount": C[4:, 4:], "cross": C[:4, 4:], "draws": len(d)}
 
 
 def calibrate_lab(ds, robot, cfg, out):
@@ -867,16 +904,25 @@ def calibrate_lab(ds, robot, cfg, out):
     k4 = [cal.parameter_names.index(n) for n in ("fx", "fy", "cx", "cy")]
     cov_K = cal.covariance[np.ix_(k4, k4)]
     cov_mount = np.diag(np.r_[np.full(3, he.rms_rot_rad**2), np.full(3, he.rms_trans_m**2)] / len(used))
+    notes = (f"camera calibration covariance (fx fy cx cy, px^2); mount: AX = XB residuals^2 / {len(used)} views "
+             "(rad^2, m^2)")
+    cross, tol_draws = None, 0
+    tolerance = load_target_tolerance(ds.root / "target.yaml")
+    if tolerance is not None and tolerance.any and cfg["pipeline"]["target_tolerance"]:
+        C = _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5, mount_nominal, S,
+                                  cfg["pipeline"]["tolerance_draws"])
+        tol_draws = C.pop("draws")
+        cov_K, cov_mount, cross = cov_K + C["K"], cov_mount + C["mount"], C["cross"]
+        notes += (f"; plus the rig's stated tolerances (target.yaml) through the calibration and AX = XB, "
+                  f"{tol_draws} Monte Carlo draws")
     from bench.vision.joint_bundle import priors_yaml_text
 
-    (out / "calibration_priors.yaml").write_text(priors_yaml_text(
-        cov_K, cov_mount, f"camera calibration covariance (fx fy cx cy, px^2); mount: AX = XB residuals^2 / "
-                          f"{len(used)} views (rad^2, m^2)"))
+    (out / "calibration_priors.yaml").write_text(priors_yaml_text(cov_K, cov_mount, notes, cross))
     write_calibrated_robot(out / "robot.yaml", ds.robot_path, robot, eps_hat, he.T_mount_cam,
                            notes=f"identified from {len(ds.tracker['q'])} tracker points; mount from {len(used)} rig "
                                  "views (AX = XB)")
     return {"eps": eps_hat, "identification": ident, "camera": cal, "mount": he, "rig_views_used": len(used),
-            "cov_K": cov_K, "cov_mount": cov_mount,
+            "cov_K": cov_K, "cov_mount": cov_mount, "cov_K_mount": cross, "tolerance_draws": tol_draws,
             "rig_q": np.stack([v.q for v in used]), "T_cam_target": T_cam_target,
             "timings": {"arm_calibration_s": t_arm, "camera_calibration_s": t_cam,
                         "mount_calibration_s": time.perf_counter() - t0 - t_arm - t_cam}}

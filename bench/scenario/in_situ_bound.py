@@ -116,7 +116,7 @@ def observation_pattern(kmap, n_views: int, locate_idx) -> np.ndarray:
 
 
 def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2, views, X_site, size, sigma_px,
-                  sigma_enc, cov_K=None, K=None, cov_mount=None, vis=None) -> dict:
+                  sigma_enc, cov_K=None, K=None, cov_mount=None, vis=None, cov_K_mount=None) -> dict:
     """Cramér-Rao bound of the located base pose (see the module docstring; :func:`bench.scenario.bounds.crb`).
 
     Parameters
@@ -158,10 +158,15 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
     # the encoders observe the joints, the lab identification observed the arm errors, the lab calibrations the
     # intrinsics and the mount; the base pose is free
     priors = {"q": np.eye(6) / sigma_enc**2, "d_eps": np.linalg.inv(cov_eps_dot)}
-    if with_K:
-        priors["d_K"] = np.linalg.inv(cov_K)
-    if cov_mount is not None:
-        priors["d_mount"] = np.linalg.inv(cov_mount)
+    if with_K and cov_mount is not None and cov_K_mount is not None:
+        from bench.vision.joint_bundle import joint_prior
+
+        priors["d_K", "d_mount"] = np.linalg.inv(joint_prior(cov_K, cov_mount, cov_K_mount))
+    else:
+        if with_K:
+            priors["d_K"] = np.linalg.inv(cov_K)
+        if cov_mount is not None:
+            priors["d_mount"] = np.linalg.inv(cov_mount)
     res = crb(model, sigma_px, priors)
     cov = res["cov"][:6, :6]
     return {"cov": cov, "pos_bound_m": float(np.sqrt(np.trace(cov[3:, 3:]))),
@@ -301,7 +306,7 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
 
 def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraModel, T_site_b2, views, X_site, vis,
                     sigma_px, sigma_enc, rng: np.random.Generator, trials: int = 20, cov_K=None,
-                    cov_mount=None, refine: bool = True) -> dict:
+                    cov_mount=None, refine: bool = True, cov_K_mount=None) -> dict:
     """RMS base error of ``refine: joints`` (:func:`bench.vision.joint_bundle.joint_bundle`) under exactly the
     bound's model, over ``trials`` draws: the check that the estimator reaches :func:`crb_base_pose`.
 
@@ -329,19 +334,25 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
     L_eps = np.linalg.cholesky(cov_eps_dot)
     L_K = None if cov_K is None else np.linalg.cholesky(cov_K)
     L_m = None if cov_mount is None else np.linalg.cholesky(cov_mount)
+    joint = cov_K is not None and cov_mount is not None and cov_K_mount is not None
+    if joint:
+        from bench.vision.joint_bundle import joint_prior
+
+        L_j = np.linalg.cholesky(joint_prior(cov_K, cov_mount, cov_K_mount))
     pos, rot, fails = [], [], 0
     for _ in range(trials):
         eps = np.array(eps_true, float)
         eps[kept] += L_eps @ rng.normal(size=len(kept))
+        d_j = L_j @ rng.normal(size=10) if joint else None
         K = camera.K.copy()
         if L_K is not None:
-            dK = L_K @ rng.normal(size=4)
+            dK = d_j[:4] if joint else L_K @ rng.normal(size=4)
             K[0, 0] += dK[0]
             K[1, 1] += dK[1]
             K[:2, 2] += dK[2:]
         m = mount.copy()
         if L_m is not None:
-            dm = L_m @ rng.normal(size=6)
+            dm = d_j[4:] if joint else L_m @ rng.normal(size=6)
             D = np.eye(4)
             D[:3, :3], D[:3, 3] = rotation_vector_to_matrix(dm[:3]), dm[3:]
             m = m @ D
@@ -349,7 +360,7 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
         uv = uv0 + rng.normal(0, sigma_px, uv0.shape)
         jb = joint_bundle(robot, eps, m, q_read, is_loc, T_site_b2, view, point, uv, X, sigma_enc, sigma_px, K,
                           camera.dist, cov_K=cov_K if refine else None, cov_mount=cov_mount if refine else None,
-                          gate=None)
+                          gate=None, cov_K_mount=cov_K_mount if refine else None)
         if not jb.success:
             fails += 1
             continue

@@ -27,7 +27,8 @@ Target (applied to the rig's geometry, :func:`target_geometry`, never to the ima
 * ``handling`` - a hand-held board also flexes, differently in each photo: per view, another Gaussian field of
   out-of-plane offsets (:func:`handling_dz`). Measured on the real webcam photos: what is left once the common
   shape is estimated (0.219 px) still lies 82 % along the out-of-plane direction; its per-view offsets, each view's
-  plane removed, fitted jointly by restricted maximum likelihood: ``rms_mm`` 0.25, ``Lx`` 22 mm, ``Ly`` 19 mm (``handling_*``).
+  plane removed, fitted jointly by restricted maximum likelihood: ``rms_mm`` 0.25, ``Lx`` 22 mm, ``Ly`` 19 mm
+  (``handling_*``).
   Only a board that is handled between photos has it (the real-photo simulation, ``tools/real_webcam_sim.py``);
   the two-plane rig of the lab kinds stands still while the camera moves, so there the stage changes nothing;
 * ``fold`` - the two boards of the rig are not exactly perpendicular (``fold_error_rms_deg``; a hand-assembled rig).
@@ -237,6 +238,26 @@ def target_geometry(profile: ImagingProfile, squares: int, rng: np.random.Genera
     if profile.on("fold"):
         out["fold_error_rad"] = float(np.deg2rad(fold * profile["fold"]["fold_error_rms_deg"]))
     return out
+
+
+def stated_tolerance(profile: ImagingProfile) -> dict | None:
+    """The printed rig's tolerances as a user would state them in ``target.yaml`` (``tolerance``, 1 sigma,
+    :mod:`bench.camera.target_tolerance`): the target stages' *specification* (their rms and lengths), never their
+    draws - like an encoder datasheet. None when no target stage is on."""
+    t = {}
+    if profile.on("cockle"):
+        c = profile["cockle"]
+        t["flatness_rms_mm"] = c["rms_mm"]
+        t["flatness_length_mm"] = [c["length_along_rows_mm"], c["length_across_rows_mm"]]
+    if profile.on("flatness"):
+        t["bow_sagitta_mm"] = profile["flatness"]["bow_sagitta_mm"]
+    if profile.on("print_lines"):
+        t["print_rms_mm"] = [profile["print_lines"]["scan_rms_mm"], profile["print_lines"]["feed_rms_mm"]]
+    if profile.on("print_scale"):
+        t["scale_rms_pct"] = profile["print_scale"]["scale_rms_pct"]
+    if profile.on("fold"):
+        t["fold_rms_deg"] = profile["fold"]["fold_error_rms_deg"]
+    return t or None
 
 
 def handling_dz(profile: ImagingProfile, squares: int, rng: np.random.Generator, square_m: float) -> np.ndarray:

@@ -204,7 +204,7 @@ def _cost(problem, theta, T_b2, X, keep, prior_info, mean) -> float:
 
 def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, point, uv, X, sigma_enc: float,
                  sigma_px: float, K, dist=None, cov_K=None, cov_mount=None, iterations: int = 10, rounds: int = 3,
-                 gate: float | None = 3.5) -> JointBundleResult:
+                 gate: float | None = 3.5, cov_K_mount=None) -> JointBundleResult:
     """Base pose, joints of every view, map points (and the intrinsics and mount under their lab priors) by maximum
     likelihood (see the module docstring).
 
@@ -232,6 +232,9 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
         The lab calibration's covariance of ``fx, fy, cx, cy`` (px^2): given, the four are refined under it as a prior.
     cov_mount : ndarray (6, 6), optional
         The mount's covariance (rotation vector rad, then m; right perturbation): given, the mount is refined.
+    cov_K_mount : ndarray (4, 6), optional
+        Their cross-covariance (with both): the prior is then the joint one over the ten (a rig's tolerances move
+        the focal length and the mount along the optical axis together).
     iterations, rounds : int
         Gauss-Newton iterations per round; rounds of re-estimating the pixel noise and the gate.
     gate : float or None
@@ -254,11 +257,14 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     info0 = np.zeros((n, n))  # the priors' information (rad^-2, px^-2, m^-2)
     info0[6:6 + 6 * V, 6:6 + 6 * V] = np.eye(6 * V) / sigma_enc**2
     k = 6 + 6 * V
-    if cov_K is not None:
-        info0[k:k + 4, k:k + 4] = np.linalg.inv(cov_K)
-        k += 4
-    if cov_mount is not None:
-        info0[k:k + 6, k:k + 6] = np.linalg.inv(cov_mount)
+    if cov_K is not None and cov_mount is not None and cov_K_mount is not None:
+        info0[k:k + 10, k:k + 10] = np.linalg.inv(joint_prior(cov_K, cov_mount, cov_K_mount))
+    else:
+        if cov_K is not None:
+            info0[k:k + 4, k:k + 4] = np.linalg.inv(cov_K)
+            k += 4
+        if cov_mount is not None:
+            info0[k:k + 6, k:k + 6] = np.linalg.inv(cov_mount)
     mean = np.r_[np.zeros(6), q_read.ravel(), np.zeros(n - 6 - 6 * V)]
     theta = mean.copy()
     it_total, s_px = 0, float(sigma_px)
@@ -326,19 +332,29 @@ def observations_of(kmap, used, n_surround: int) -> tuple:
     return np.array(view, int), np.array(point, int), np.array(x, float).reshape(-1, 2), idx
 
 
-def priors_yaml_text(cov_K, cov_mount, notes: str = "") -> str:
+def joint_prior(cov_K, cov_mount, cov_K_mount) -> np.ndarray:
+    """The (10, 10) covariance of ``fx, fy, cx, cy`` and the mount's right perturbation from its blocks."""
+    return np.block([[cov_K, cov_K_mount], [np.asarray(cov_K_mount).T, cov_mount]])
+
+
+def priors_yaml_text(cov_K, cov_mount, notes: str = "", cov_K_mount=None) -> str:
     """The lab calibrations' covariances as a YAML file for :func:`read_priors` (``calibration_priors.yaml``):
-    ``intrinsics_covariance_px2`` (4 x 4, fx fy cx cy) and ``mount_covariance`` (6 x 6: rotation vector rad, then
-    m, a right perturbation of the mount)."""
+    ``intrinsics_covariance_px2`` (4 x 4, fx fy cx cy), ``mount_covariance`` (6 x 6: rotation vector rad, then
+    m, a right perturbation of the mount) and, when known, ``intrinsics_mount_covariance`` (4 x 6, their
+    cross-covariance)."""
     import yaml
 
-    return yaml.safe_dump({"notes": notes, "intrinsics_covariance_px2": np.asarray(cov_K, float).tolist(),
-                           "mount_covariance": np.asarray(cov_mount, float).tolist()}, sort_keys=False)
+    data = {"notes": notes, "intrinsics_covariance_px2": np.asarray(cov_K, float).tolist(),
+            "mount_covariance": np.asarray(cov_mount, float).tolist()}
+    if cov_K_mount is not None:
+        data["intrinsics_mount_covariance"] = np.asarray(cov_K_mount, float).tolist()
+    return yaml.safe_dump(data, sort_keys=False)
 
 
 def read_priors(path) -> dict:
-    """``{"cov_K": (4, 4), "cov_mount": (6, 6)}`` from a ``calibration_priors.yaml``; a missing key, a wrong shape
-    or a matrix that is not symmetric positive definite is a one-line error naming the file and key."""
+    """``{"cov_K": (4, 4), "cov_mount": (6, 6), "cov_K_mount": (4, 6) or None}`` from a ``calibration_priors.yaml``;
+    a missing key, a wrong shape or a matrix that is not symmetric positive definite (the joint one too, with the
+    optional cross-covariance) is a one-line error naming the file and key."""
     from pathlib import Path
 
     import yaml
@@ -360,4 +376,16 @@ def read_priors(path) -> dict:
         if np.linalg.eigvalsh(C).min() <= 0:
             raise ConfigError(path, key, "not positive definite")
         out[name] = C
+    out["cov_K_mount"] = None
+    if data.get("intrinsics_mount_covariance") is not None:
+        key = "intrinsics_mount_covariance"
+        try:
+            C = np.array(data[key], dtype=float)
+        except (TypeError, ValueError):
+            raise ConfigError(path, key, "expected a 4 x 6 matrix of numbers") from None
+        if C.shape != (4, 6) or not np.all(np.isfinite(C)):
+            raise ConfigError(path, key, f"expected a 4 x 6 matrix of finite numbers, got shape {C.shape}")
+        if np.linalg.eigvalsh(joint_prior(out["cov_K"], out["cov_mount"], C)).min() <= 0:
+            raise ConfigError(path, key, "the joint covariance with the two blocks is not positive definite")
+        out["cov_K_mount"] = C
     return out

@@ -109,3 +109,43 @@ def test_gate_rejects_gross_keypoints():
         out[gate] = (np.linalg.norm(jb.T_site_base[:3, 3] - T_b2[:3, 3]), jb.sigma_px, jb.observations)
     assert out[3.5][1] == pytest.approx(0.1, rel=0.2) and out[None][1] > 0.3
     assert out[3.5][2] <= len(x) - 15 and out[3.5][0] < out[None][0]
+
+
+def test_priors_file_with_the_intrinsics_mount_cross_covariance(tmp_path):
+    """calibration_priors.yaml may carry the 4 x 6 cross-covariance (the rig's tolerances move the focal length and
+    the mount together); it round-trips, and a wrong shape or a joint matrix that is not positive definite is a
+    one-line error naming the key."""
+    from bench.errors import ConfigError
+    from bench.vision.joint_bundle import joint_prior, priors_yaml_text, read_priors
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(10, 10))
+    C = A @ A.T + 0.1 * np.eye(10)
+    p = tmp_path / "calibration_priors.yaml"
+    p.write_text(priors_yaml_text(C[:4, :4], C[4:, 4:], "test", C[:4, 4:]))
+    got = read_priors(p)
+    assert np.allclose(joint_prior(got["cov_K"], got["cov_mount"], got["cov_K_mount"]), C, rtol=1e-12)
+    p.write_text(priors_yaml_text(C[:4, :4], C[4:, 4:], "no cross"))
+    assert read_priors(p)["cov_K_mount"] is None
+    p.write_text(priors_yaml_text(C[:4, :4], C[4:, 4:], "wrong shape", C[:4, 4:9]))
+    with pytest.raises(ConfigError, match="intrinsics_mount_covariance"):
+        read_priors(p)
+    p.write_text(priors_yaml_text(np.eye(4), np.eye(6), "not PD", np.full((4, 6), 2.0)))
+    with pytest.raises(ConfigError, match="not positive definite"):
+        read_priors(p)
+
+
+def test_joint_prior_information_over_adjacent_blocks():
+    """A tuple of adjacent blocks takes one joint information matrix; with a zero cross term it is the two blocks'."""
+    from types import SimpleNamespace
+
+    from bench.scenario.bounds import Block, MultiViewModel
+
+    blocks = [Block("xi", 6), Block("q", 6, per_view=True), Block("d_K", 4), Block("d_mount", 6)]
+    m = SimpleNamespace(blocks=blocks, offsets=[0, 6, 18, 22], n_params=28, n_views=2)
+    P = np.diag(np.arange(1.0, 11.0))
+    joint = MultiViewModel.prior_information(m, {("d_K", "d_mount"): P})
+    apart = MultiViewModel.prior_information(m, {"d_K": P[:4, :4], "d_mount": P[4:, 4:]})
+    assert np.array_equal(joint, apart) and joint[18:, 18:].trace() == P.trace()
+    with pytest.raises(ValueError, match="adjacent"):
+        MultiViewModel.prior_information(m, {("xi", "d_K"): np.eye(10)})

@@ -1,0 +1,175 @@
+"""A printed calibration target's tolerances, and the error they leave in a calibration (a consider covariance).
+
+A calibration's own covariance (``sigma^2 (J^T J)^-1``) describes the corner noise only. A printed target is not its
+drawing: paper bows and cockles out of its plane, printers place lines unevenly and scale the page, a hand-built rig
+is not exactly square. These errors are the *same in every view*, so they do not average out: they bias the
+intrinsics and, through the target poses, the camera mount found by ``AX = XB``. Given the target's stated
+tolerances (the ``tolerance`` mapping of ``target.yaml``, 1-sigma values), this module
+
+* builds the covariance ``(3N, 3N)`` of the target's N corners (:func:`object_point_covariance`), and
+* propagates it through the calibration (and the hand-eye step, by a callback) by Monte Carlo: the same detections
+  calibrated against perturbed target geometries (:func:`consider_samples`); the spread of the results is the
+  covariance a complete prior on the intrinsics and the mount must add (Schmidt's "consider" covariance: the
+  parameters are not estimated, their uncertainty is carried).
+
+``tolerance`` keys (all optional, default 0; lengths in mm)::
+
+    flatness_rms_mm: 0.42          # out-of-plane waviness (cockle), a Gaussian field of this rms ...
+    flatness_length_mm: [25, 17]   # ... and correlation lengths along the rows, across them
+    bow_sagitta_mm: 0.6            # a cylindrical bow across each board (random sign), sagitta
+    print_rms_mm: [0.05, 0.09]     # printed line positions: column lines (along x), row lines (along y)
+    scale_rms_pct: 0.2             # printout scale
+    fold_rms_deg: 0.2              # two-plane rig: second board turned about the fold
+
+Frames: the target (board) frame of :class:`bench.camera.corners.BoardGeometry`; each plane's z points into its
+board. Nothing here knows a simulation: the values are what the user states about the physical target.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.camera.corners import BoardGeometry
+from bench.errors import ConfigError
+
+#: keys of ``target.yaml``'s ``tolerance`` mapping: (number of values, unit factor to SI)
+TOLERANCE_KEYS = {"flatness_rms_mm": (1, 1e-3), "flatness_length_mm": (2, 1e-3), "bow_sagitta_mm": (1, 1e-3),
+                  "print_rms_mm": (2, 1e-3), "scale_rms_pct": (1, 1e-2), "fold_rms_deg": (1, np.pi / 180)}
+_LIMITS = {"flatness_rms_mm": 20.0, "flatness_length_mm": 1e4, "bow_sagitta_mm": 50.0, "print_rms_mm": 20.0,
+           "scale_rms_pct": 10.0, "fold_rms_deg": 10.0}
+
+
+@dataclass(frozen=True)
+class TargetTolerance:
+    """1-sigma tolerances of a printed target, SI (m, rad, fraction); see the module docstring."""
+
+    flatness_rms: float = 0.0
+    flatness_length: tuple = (0.025, 0.017)  # along the rows (plane x), across them (plane y)
+    bow_sagitta: float = 0.0
+    print_rms: tuple = (0.0, 0.0)  # column lines (x), row lines (y)
+    scale_rms: float = 0.0
+    fold_rms: float = 0.0
+
+    @property
+    def any(self) -> bool:
+        return bool(self.flatness_rms or self.bow_sagitta or any(self.print_rms) or self.scale_rms or self.fold_rms)
+
+
+def parse_tolerance(t, source) -> TargetTolerance:
+    """A :class:`TargetTolerance` from the ``tolerance`` mapping; one-line :class:`ConfigError` naming ``source`` and
+    ``tolerance.<key>`` for an unknown key, a wrong count, a negative, non-finite or implausible value."""
+    if not isinstance(t, dict):
+        raise ConfigError(source, "tolerance", f"expected a mapping of {', '.join(TOLERANCE_KEYS)}, got {t!r}")
+    vals = {}
+    for key, v in t.items():
+        if key not in TOLERANCE_KEYS:
+            raise ConfigError(source, f"tolerance.{key}", f"unknown key (known: {', '.join(TOLERANCE_KEYS)})")
+        n, unit = TOLERANCE_KEYS[key]
+        seq = v if isinstance(v, list) else [v]
+        if len(seq) != n or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x)
+                                or not 0 <= x <= _LIMITS[key] for x in seq):
+            what = "a number" if n == 1 else f"a list of {n} numbers"
+            raise ConfigError(source, f"tolerance.{key}", f"expected {what} in [0, {_LIMITS[key]:g}], got {v!r}")
+        if key == "flatness_length_mm" and min(seq) <= 0:
+            raise ConfigError(source, f"tolerance.{key}", f"correlation lengths must be > 0, got {v!r}")
+        vals[key] = tuple(float(x) * unit for x in seq) if n > 1 else float(seq[0]) * unit
+    return TargetTolerance(vals.get("flatness_rms_mm", 0.0), vals.get("flatness_length_mm", (0.025, 0.017)),
+                           vals.get("bow_sagitta_mm", 0.0), vals.get("print_rms_mm", (0.0, 0.0)),
+                           vals.get("scale_rms_pct", 0.0), vals.get("fold_rms_deg", 0.0))
+
+
+def object_point_covariance(geometry: BoardGeometry, tol: TargetTolerance) -> np.ndarray:
+    """Covariance ``(3N, 3N)`` (m^2) of the target's corners ``geometry.object_points()`` (row-major x, y, z per
+    corner) under ``tol``.
+
+    Per plane (pattern of ``(nx + 1) x (ny + 1)`` squares of side ``s``, inner corner ``(i, j)`` at
+    ``((i + 1) s, (j + 1) s)`` from the pattern's outer corner): along the plane normal the cockle
+    ``rms^2 exp(-dx^2 / 2 Lx^2 - dy^2 / 2 Ly^2)`` plus the bow ``b^2 v v^T`` with ``v = 1 - (2 x / W - 1)^2``; in the
+    plane, the corners of one column share its line's offset (``sigma_x^2``), those of one row their row's
+    (``sigma_y^2``); the scale ``sigma_s^2 p p^T`` (``p`` the corners from each pattern's outer corner, one scale for
+    the printout); the fold turns the second plane about the target's z axis (``sigma_f^2 w w^T``,
+    ``w = e_z x X``).
+    """
+    X = geometry.object_points()
+    N = len(X)
+    C = np.zeros((3 * N, 3 * N))
+    scale_dirs = np.zeros(3 * N)
+    for k, (plane, sl) in enumerate(zip(geometry.planes, geometry.plane_slices(), strict=True)):
+        R = plane.T_board_plane[:3, :3]
+        nx, ny = plane.inner
+        s = plane.square
+        p = plane.points_plane()  # (n, 3), inner corners from the first inner corner
+        x, y = p[:, 0] + s, p[:, 1] + s  # from the pattern's outer corner
+        idx = np.arange(sl.start, sl.stop)
+        rows3 = (3 * idx[:, None] + np.arange(3)).ravel()
+        # the plane's covariance in its own frame, (n, 3, n, 3)
+        Cp = np.zeros((len(p), 3, len(p), 3))
+        lx, ly = tol.flatness_length
+        Cp[:, 2, :, 2] += tol.flatness_rms ** 2 * np.exp(-0.5 * ((x[:, None] - x[None]) / lx) ** 2
+                                                         - 0.5 * ((y[:, None] - y[None]) / ly) ** 2)
+        v = 1 - (2 * x / ((nx + 1) * s) - 1) ** 2
+        Cp[:, 2, :, 2] += tol.bow_sagitta ** 2 * np.outer(v, v)
+        Cp[:, 0, :, 0] += tol.print_rms[0] ** 2 * (p[:, None, 0] == p[None, :, 0])
+        Cp[:, 1, :, 1] += tol.print_rms[1] ** 2 * (p[:, None, 1] == p[None, :, 1])
+        Cp = np.einsum("ab,ibjc,dc->iajd", R, Cp, R).reshape(3 * len(p), 3 * len(p))
+        C[np.ix_(rows3, rows3)] += Cp
+        scale_dirs[rows3] = (np.c_[x, y, np.zeros(len(p))] @ R.T).ravel()
+        if k == 1 and tol.fold_rms:
+            w = np.cross([0.0, 0.0, 1.0], X[sl]).ravel()
+            full = np.zeros(3 * N)
+            full[rows3] = w
+            C += tol.fold_rms ** 2 * np.outer(full, full)
+    C += tol.scale_rms ** 2 * np.outer(scale_dirs, scale_dirs)
+    return C
+
+
+def sample_factor(C: np.ndarray) -> np.ndarray:
+    """``L`` with ``L L^T = C`` for a positive semi-definite ``C`` (eigen-decomposition: the Gaussian covariances
+    here are numerically singular, so no Cholesky)."""
+    w, V = np.linalg.eigh(C)
+    return V * np.sqrt(np.clip(w, 0.0, None))
+
+
+def consider_samples(geometry: BoardGeometry, tol: TargetTolerance, Xs, solve, draws: int = 48,
+                     rng: np.random.Generator | None = None) -> np.ndarray:
+    """Monte Carlo of a calibration over the target's tolerance: ``(draws, p)`` deviations of ``solve``'s result.
+
+    Parameters
+    ----------
+    geometry : BoardGeometry
+        The nominal target.
+    tol : TargetTolerance
+    Xs : list of ndarray (N_i, 3)
+        Each view's object points (rows of ``geometry.object_points()``, m) as the calibration used them.
+    solve : callable
+        ``solve(Xs_perturbed) -> ndarray (p,)``: the calibration (and what follows it) re-run against a perturbed
+        target, returning the parameters' deviation from the nominal result (e.g. ``fx, fy, cx, cy`` and the
+        mount's right perturbation), or None when that run fails (the draw is dropped).
+    draws : int
+    rng : numpy.random.Generator, optional
+        Default ``default_rng(0)``: the pipeline's result is reproducible.
+
+    Returns
+    -------
+    ndarray (M, p)
+        The deviations of the ``M <= draws`` runs that succeeded; their second moment about zero is the consider
+        covariance.
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    X0 = geometry.object_points()
+    idx = []
+    for X in Xs:
+        d = np.linalg.norm(np.asarray(X, float)[:, None] - X0[None], axis=2)
+        if np.any(d.min(1) > 1e-9):
+            raise ValueError("object points that are not the target's corners")
+        idx.append(d.argmin(1))
+    L = sample_factor(object_point_covariance(geometry, tol))
+    out = []
+    for _ in range(draws):
+        dX = (L @ rng.standard_normal(L.shape[1])).reshape(-1, 3)
+        r = solve([np.asarray(X, float) + dX[i] for X, i in zip(Xs, idx, strict=True)])
+        if r is not None:
+            out.append(np.asarray(r, float))
+    return np.array(out)

@@ -1,0 +1,96 @@
+"""The printed target's tolerances (bench.camera.target_tolerance): parsing, the corners' covariance against the
+simulator's own target errors (Monte Carlo), and the consider Monte Carlo."""
+
+import numpy as np
+import pytest
+
+from bench.camera.corners import planar_board, two_plane_rig
+from bench.camera.target_tolerance import TargetTolerance, consider_samples, object_point_covariance, parse_tolerance
+from bench.errors import ConfigError
+
+
+def test_parse_tolerance_and_its_one_line_errors():
+    t = parse_tolerance({"flatness_rms_mm": 0.4, "flatness_length_mm": [25, 17], "print_rms_mm": [0.05, 0.09],
+                         "scale_rms_pct": 0.2, "fold_rms_deg": 0.2, "bow_sagitta_mm": 0.6}, "target.yaml")
+    assert t.flatness_rms == pytest.approx(4e-4) and t.flatness_length == pytest.approx((0.025, 0.017))
+    assert t.scale_rms == pytest.approx(0.002) and t.fold_rms == pytest.approx(np.deg2rad(0.2)) and t.any
+    assert not parse_tolerance({}, "target.yaml").any
+    for bad, field in (({"flatnes_rms_mm": 1}, "tolerance.flatnes_rms_mm"),
+                       ({"print_rms_mm": 0.1}, "tolerance.print_rms_mm"),
+                       ({"flatness_rms_mm": -1}, "tolerance.flatness_rms_mm"),
+                       ({"flatness_rms_mm": float("nan")}, "tolerance.flatness_rms_mm"),
+                       ({"flatness_length_mm": [0, 10]}, "tolerance.flatness_length_mm"),
+                       ({"scale_rms_pct": True}, "tolerance.scale_rms_pct")):
+        with pytest.raises(ConfigError) as e:
+            parse_tolerance(bad, "target.yaml")
+        assert e.value.field == field and "\n" not in str(e.value)
+    with pytest.raises(ConfigError, match="tolerance"):
+        parse_tolerance([1, 2], "target.yaml")
+
+
+def test_target_yaml_carries_the_tolerance(tmp_path):
+    from bench.camera.calibrate_dataset import load_target, load_target_tolerance
+
+    p = tmp_path / "target.yaml"
+    p.write_text("type: two_plane_rig\nsize_mm: 197\nmargin_mm: 20\ntolerance:\n  flatness_rms_mm: 0.4\n")
+    assert load_target(p).n_corners == 72 and load_target_tolerance(p).flatness_rms == pytest.approx(4e-4)
+    p.write_text("type: two_plane_rig\nsize_mm: 197\n")
+    assert load_target_tolerance(p) is None
+    p.write_text("type: chessboard\ninner: [7, 6]\nsquare_mm: 25\ntolerance:\n  wobble_mm: 1\n")
+    with pytest.raises(ConfigError, match="tolerance.wobble_mm"):
+        load_target(p)
+
+
+def test_corner_covariance_is_the_simulated_rigs():
+    """The pipeline's covariance of the rig's corners under the tolerances the simulator states equals the spread of
+    the simulator's own printed rigs (2500 draws; the simulator and the pipeline share no code for it)."""
+    from bench.sim.imaging import imaging_profile, stated_tolerance, target_geometry
+    from bench.sim.scenes.rig import calibration_rig
+
+    profile = imaging_profile("realistic")
+    C = object_point_covariance(two_plane_rig(7, 0.197, 0.02), parse_tolerance(stated_tolerance(profile), "sim"))
+    nominal = calibration_rig().features["corners"]
+    rng = np.random.default_rng(11)
+    D = np.array([(calibration_rig(errors=target_geometry(profile, 7, rng)).features["corners"] - nominal).ravel()
+                  for _ in range(2500)])
+    E = D.T @ D / len(D)
+    d, e = np.sqrt(np.diag(C)), np.sqrt(np.diag(E))
+    assert np.max(np.abs(e / d - 1)) < 0.08  # every coordinate's sigma (a 2500-draw estimate: 1.4 % rms)
+    assert np.linalg.norm(E - C) / np.linalg.norm(C) < 0.06  # and the correlations
+
+
+def test_covariance_pieces():
+    g = planar_board((6, 5), 0.03)
+    X = g.object_points()
+    zero = object_point_covariance(g, TargetTolerance())
+    assert not zero.any()
+    # a scale moves every corner along its position from the pattern's outer corner
+    C = object_point_covariance(g, TargetTolerance(scale_rms=0.01))
+    p = (X + [0.03, 0.03, 0]).ravel() * 0.01
+    assert np.allclose(C, np.outer(p, p), atol=1e-15)
+    # flatness: out of plane only, rms on the diagonal
+    C = object_point_covariance(g, TargetTolerance(flatness_rms=1e-3))
+    assert np.allclose(np.diag(C)[2::3], 1e-6) and not np.diag(C)[0::3].any() and not np.diag(C)[1::3].any()
+    # print offsets: the corners of one row move together along y
+    C = object_point_covariance(g, TargetTolerance(print_rms=(0.0, 1e-4)))
+    assert C[1, 3 * 5 + 1] == pytest.approx(1e-8) and C[1, 3 * 6 + 1] == 0.0  # same row (6 per row), next row
+
+
+def test_consider_samples_calls_the_solver_with_perturbed_targets():
+    g = two_plane_rig(7, 0.197, 0.02)
+    X0 = g.object_points()
+    Xs = [X0, X0[::2]]
+    tol = TargetTolerance(flatness_rms=1e-3)
+
+    def solve(Xs_m):
+        assert len(Xs_m) == 2 and Xs_m[1].shape == (36, 3)
+        assert np.allclose(Xs_m[1], Xs_m[0][::2])  # the same perturbed target in every view
+        return (Xs_m[0] - X0).ravel()
+
+    d = consider_samples(g, tol, Xs, solve, draws=400)
+    assert d.shape == (400, 216)
+    C = object_point_covariance(g, tol)
+    assert np.sqrt(np.mean(d ** 2)) == pytest.approx(np.sqrt(np.trace(C) / 216), rel=0.05)
+    assert len(consider_samples(g, tol, Xs, lambda Xs_m: None, draws=5)) == 0
+    with pytest.raises(ValueError, match="not the target's corners"):
+        consider_samples(g, tol, [X0 + 1e-3], solve, draws=1)
