@@ -92,6 +92,9 @@ SCHEMA = {
                  # the lab camera calibration also estimates the printed rig's structure (line offsets, bows, fold:
                  # bench.camera.target_refinement), else it trusts the nominal rig
                  "refine_rig": (bool, False),
+                 # the lab calibration's radial model: Heikkila's k1, k2 (p1, p2), and with lab_k3 the sixth-order k3
+                 # too (a flat port under water bends rays with strong high orders: scenarios/flatport_study.yaml)
+                 "lab_k3": (bool, False),
                  # the lab calibrations' priors also carry what the rig's stated tolerances (target.yaml) leave in
                  # the intrinsics and the mount (bench.camera.target_tolerance; Monte Carlo of this many draws)
                  "target_tolerance": (bool, True), "tolerance_draws": (int, 48)},
@@ -823,7 +826,8 @@ def _score_task(cfg, ds, truth, report, robot):
 # ------------------------------------------------------------------------------------------------ pipeline
 
 
-def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5, mount_nominal, S, draws) -> dict:
+def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5, mount_nominal, S,
+                          draws) -> dict:
     """What the rig's stated tolerances leave in the lab results: the second moment of the deviations of
     ``fx, fy, cx, cy`` (px) and of the mount (right perturbation: rotation vector rad, translation m) over
     calibrations of the same detections against perturbed rigs (:func:`bench.camera.target_tolerance.consider_samples`).
@@ -835,7 +839,7 @@ def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5
     M_inv = invert(he.T_mount_cam)
 
     def solve(Xs_m):
-        c = calibrate_camera(Xs_m, uvs, size, model="heikkila")
+        c = calibrate_camera(Xs_m, uvs, size, model="heikkila", k3=cal.dist[4] != 0.0)
         if not c.success:
             return None
         T_ct, _ = resolve_target_symmetry(T_base_l5, c.T_cam_target, mount_nominal, [S])
@@ -878,7 +882,7 @@ def calibrate_lab(ds, robot, cfg, out):
     if len(used) < 3:
         raise ConfigError(ds.root, "rig views", f"the rig was found in {len(used)} views (need >= 3)")
     size = (used[0].image().shape[1], used[0].image().shape[0])
-    cal = calibrate_camera(Xs, uvs, size, model="heikkila")
+    cal = calibrate_camera(Xs, uvs, size, model="heikkila", k3=cfg["pipeline"]["lab_k3"])
     if not cal.success:
         raise ConfigError(ds.root, "rig views", f"camera calibration failed: {cal.message}")
     if cfg["pipeline"]["refine_rig"]:  # the printout's structure with the camera; the nominal fit if that fails

@@ -250,7 +250,9 @@ def model_floor(robot, eps_true, mount, lens: CameraModel, port, T_site_b2, view
     obs, misfit = [], []
     for k, name in enumerate(names):
         f = ideal_features(X_site, T_site_cam[k], project, lens.size)
-        obs.append(ViewObservation(name, f, central.undistort_pixels(f.uv),
+        x_n = central.undistort_pixels(f.uv)
+        ok = np.flatnonzero(np.all(np.isfinite(x_n), axis=1))  # where the central model's distortion inverts
+        obs.append(ViewObservation(name, f.subset(ok), x_n[ok],
                                    link5_frame(robot, q_true[k], eps_true) @ mount @ T_lens_c))
         uv_c = central.project(transform_points(np.linalg.inv(T_site_cam[k] @ T_lens_c), X_site))
         misfit.append(np.linalg.norm(uv_c[:len(X_site)] - project(transform_points(np.linalg.inv(T_site_cam[k]),

@@ -47,6 +47,9 @@ def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0, featur
     else:
         f = features_fn(view)
     x_n = camera.undistort_pixels(f.uv) if len(f) else np.empty((0, 2))
+    ok = np.all(np.isfinite(x_n), axis=1)
+    if not np.all(ok):  # beyond where the calibrated distortion can be inverted (e.g. a k3 model's fold): dropped
+        f, x_n = f.subset(np.flatnonzero(ok)), x_n[ok]
     return ViewObservation(view.name, f, x_n, link5_frame(robot, q, eps) @ T_link5_cam)
 
 

@@ -239,3 +239,20 @@ def test_bundle_refinement_spread_matches_its_covariance_and_beats_the_fixed_map
     mse = np.mean(np.sum(np.square(errs), axis=1))
     assert mse == pytest.approx(np.mean(covs), rel=0.35)  # 40 draws of a 3-D spread: ~ +-13 % (1 sigma)
     assert mse < 0.8 * np.mean(np.sum(np.square(errs_pose), axis=1))
+
+
+def test_observe_drops_keypoints_the_calibrated_distortion_cannot_invert(ta40):
+    """A calibrated distortion that folds inside the image (e.g. a high k3 fitted to a flat port's rays) has no
+    inverse at some keypoints: those are dropped from the view (they would be NaN rays), the others kept."""
+    from bench.camera.presets import load_preset
+    from bench.dataset import View
+    from bench.vision.features import Features
+    from bench.vision.locate_dataset import observe
+
+    cam = load_preset("air_webcam").replace(dist=np.array([0, 0, 0, 0, -60.0]), model=None)
+    uv = np.array([[320.0, 240.0], [630.0, 470.0], [5.0, 5.0], [600.0, 100.0]])
+    f = Features(uv, np.zeros(4), np.ones(4), np.ones(4), np.eye(4, 128, dtype=np.float32))
+    q = 0.5 * (ta40.q_min + ta40.q_max)
+    obs = observe(View("v", None, q=q), cam, ta40, np.zeros(42), T_LINK5_CAM, features_fn=lambda v: f)
+    assert len(obs.features) == 2 and np.all(np.isfinite(obs.x_n))
+    assert np.array_equal(obs.features.uv, uv[[0, 3]])
