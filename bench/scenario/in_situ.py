@@ -184,6 +184,9 @@ def _check_ranges(cfg) -> None:
     if cfg["pipeline"]["ransac_iterations"] < 1:
         raise ConfigError(src, "pipeline.ransac_iterations",
                           f"must be >= 1, got {cfg['pipeline']['ransac_iterations']}")
+    if not 10 <= cfg["pipeline"]["tolerance_draws"] <= 1000:
+        raise ConfigError(src, "pipeline.tolerance_draws",
+                          f"must be in 10..1000 (Monte Carlo draws), got {cfg['pipeline']['tolerance_draws']}")
     # the lab calibration identifies the arm from the tracker points (3 equations each) and the camera from the rig
     robot = load_robot(Path(src).parent / cfg["robot"])
     n_params = len(closed_form_reduction(robot).kept)
