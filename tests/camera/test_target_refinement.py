@@ -14,11 +14,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_calibration import SIZE, TRUE_DIST, TRUE_K, random_views  # noqa: E402
 
 
+def _printout(off=()):
+    """The printout errors this module models (line offsets at the in-plane-only measurement's 0.28 mm, bow, fold,
+    scale): the cockle is a random field, not in the basis (bench.camera.target_tolerance carries it as a
+    covariance), so it is off here."""
+    return imaging_profile("realistic", [*off, "cockle", "handling"],
+                           overrides={"print_lines": {"feed_rms_mm": 0.28, "scan_rms_mm": 0.03}})
+
+
 def test_rig_basis_spans_the_simulated_printout():
     """The simulator's print errors (line offsets, bow, fold; no scale) are in the basis's span: least squares
     recovers the true corners to the linearisation of the fold (< 1 um)."""
     nominal = calibration_rig().features["corners"]
-    e = target_geometry(imaging_profile("realistic", ["print_scale"]), 7, np.random.default_rng(3))
+    e = target_geometry(_printout(["print_scale"]), 7, np.random.default_rng(3))
     true = calibration_rig(errors=e).features["corners"]
     A, sig = rig_basis(nominal)
     assert A.shape == (216, 27) and sig.shape == (27,)
@@ -37,7 +45,7 @@ def test_printout_errors_no_longer_bias_the_focal_length():
     f_nominal, f_refined = [], []
     for seed in range(6):
         rng = np.random.default_rng(seed)
-        e = target_geometry(imaging_profile("realistic"), 7, np.random.default_rng(np.random.SeedSequence([seed, 1])))
+        e = target_geometry(_printout(), 7, np.random.default_rng(np.random.SeedSequence([seed, 1])))
         true = calibration_rig(errors=e).features["corners"]
         _, uvs, _ = random_views(rng, TRUE_K, TRUE_DIST, true, 9, distance=0.9)
         uvs = [uv + rng.normal(0, 0.05, uv.shape) for uv in uvs]
