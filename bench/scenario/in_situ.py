@@ -95,6 +95,8 @@ SCHEMA = {
                  # the lab calibration's radial model: Heikkila's k1, k2 (p1, p2), and with lab_k3 the sixth-order k3
                  # too (a flat port under water bends rays with strong high orders: scenarios/flatport_study.yaml)
                  "lab_k3": (bool, False),
+                 # refine 'joints' also refines the lens's k1 k2 p1 p2 under the lab calibration's covariance
+                 "refine_distortion": (bool, False),
                  # the lab calibrations' priors also carry what the rig's stated tolerances (target.yaml) leave in
                  # the intrinsics and the mount (bench.camera.target_tolerance; Monte Carlo of this many draws)
                  "target_tolerance": (bool, True), "tolerance_draws": (int, 48)},
@@ -768,11 +770,11 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
                             thesis_refine, central=(cal.camera, invert(mount) @ he_true.T_mount_cam),
                             profile=profile) \
         if he_true.success else {"pos_m": float("nan"), "rot_rad": float("nan")}
-    cov_K, cov_mount, cross = lab["cov_K"], lab["cov_mount"], lab["cov_K_mount"]
+    priors = lab["priors"]
     vis = observation_pattern(kmap, len(names), res.used[0]) if res.success and res.used is not None else None
     crb = crb_base_pose(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam.project,
-                        T_site_b2, views, X_site, cam.size, sigma_px, sigma_enc, cov_K=cov_K, K=cam.K,
-                        cov_mount=cov_mount, vis=vis, cov_K_mount=cross)
+                        T_site_b2, views, X_site, cam.size, sigma_px, sigma_enc, K=cam.K, vis=vis, dist=cam.dist,
+                        **priors)
     mc = mc_ideal_estimator(robot, eps_true, kept, ident.covariance, mount, central, T_site_b2, views, names, X_site,
                             sigma_px, EncoderModel(**enc), np.random.default_rng([cfg["seed"], 13]),
                             cfg["bound"]["mc_trials"], p["method"], ransac, thesis_refine)
@@ -781,7 +783,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
 
         ml = mc_joint_bundle(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam, T_site_b2,
                              views, X_site, vis, sigma_px, sigma_enc, np.random.default_rng([cfg["seed"], 14]),
-                             cfg["bound"]["ml_trials"], cov_K, cov_mount, cov_K_mount=cross)
+                             cfg["bound"]["ml_trials"], **priors)
         out.update({"base_pos_crb_mc_mm": ml["pos_rms_m"] * 1e3, "base_rot_crb_mc_deg": np.rad2deg(ml["rot_rms_rad"])})
     f_pos, f_rot = (0.0 if not np.isfinite(v) else v for v in (floor["pos_m"], floor["rot_rad"]))
     out.update({"base_pos_crb_mm": crb["pos_bound_m"] * 1e3, "base_rot_crb_deg": np.rad2deg(crb["rot_bound_rad"]),
@@ -830,16 +832,18 @@ def _score_task(cfg, ds, truth, report, robot):
 
 
 def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5, mount_nominal, S,
-                          draws) -> dict:
-    """What the rig's stated tolerances leave in the lab results: the second moment of the deviations of
-    ``fx, fy, cx, cy`` (px) and of the mount (right perturbation: rotation vector rad, translation m) over
-    calibrations of the same detections against perturbed rigs (:func:`bench.camera.target_tolerance.consider_samples`).
-    Returns ``K (4, 4)``, ``mount (6, 6)``, ``cross (4, 6)`` and ``draws`` (the runs that succeeded)."""
+                          draws) -> tuple:
+    """What the rig's stated tolerances leave in the lab results: the second moment (14, 14) of the deviations of
+    ``fx, fy, cx, cy`` (px), ``k1, k2, p1, p2`` and the mount (right perturbation: rotation vector rad, translation
+    m) over calibrations of the same detections against perturbed rigs
+    (:func:`bench.camera.target_tolerance.consider_samples`), and the number of runs that succeeded."""
     from bench.camera.target_tolerance import consider_samples
     from bench.geometry.quaternion import matrix_to_rotation_vector
 
-    k0 = np.array([cal.K[0, 0], cal.K[1, 1], cal.K[0, 2], cal.K[1, 2]])
-    M_inv = invert(he.T_mount_cam)
+    def lab_vector(c):
+        return np.r_[c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2], c.dist[:4]]
+
+    v0, M_inv = lab_vector(cal), invert(he.T_mount_cam)
 
     def solve(Xs_m):
         c = calibrate_camera(Xs_m, uvs, size, model="heikkila", k3=cal.dist[4] != 0.0)
@@ -850,15 +854,33 @@ def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5
         if not h.success:
             return None
         D = M_inv @ h.T_mount_cam
-        return np.r_[np.array([c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2]]) - k0,
-                     matrix_to_rotation_vector(D[:3, :3]), D[:3, 3]]
+        return np.r_[lab_vector(c) - v0, matrix_to_rotation_vector(D[:3, :3]), D[:3, 3]]
 
     d = consider_samples(geometry, tolerance, Xs, solve, draws)
     if len(d) < 10:
         raise ConfigError("target.yaml", "tolerance", f"only {len(d)} of {draws} calibrations against the "
                                                       "toleranced rig converged: the tolerances are implausible")
-    C = d.T @ d / len(d)  # about the nominal result: a consider covariance
-    return {"K": C[:4, :4], "mount": C[4:, 4:], "cross": C[:4, 4:], "draws": len(d)}
+    return d.T @ d / len(d), len(d)  # about the nominal result: a consider covariance
+
+
+def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:
+    """The lab calibrations' covariances for refine 'joints' (:func:`bench.vision.joint_bundle.read_priors`'s
+    names): the camera calibration's own block of ``fx fy cx cy`` (and ``k1 k2 p1 p2`` with
+    ``pipeline.refine_distortion``); the mount's from the AX = XB residuals, rms^2 / n per axis (it gives no
+    covariance); plus the rig tolerances' consider covariance (14, 14) when given."""
+    names = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
+    idx = [cal.parameter_names.index(n) for n in names]
+    C = np.zeros((14, 14))
+    C[:8, :8] = cal.covariance[np.ix_(idx, idx)]
+    C[8:, 8:] = np.diag(np.r_[np.full(3, he.rms_rot_rad**2), np.full(3, he.rms_trans_m**2)] / n_views)
+    out = {"cov_K": C[:4, :4], "cov_mount": C[8:, 8:]}
+    if tolerance_cov is not None:
+        C = C + tolerance_cov
+        out = {"cov_K": C[:4, :4], "cov_mount": C[8:, 8:], "cov_K_mount": C[:4, 8:]}
+    if cfg["pipeline"]["refine_distortion"]:
+        out.update(cov_dist=C[4:8, 4:8], cov_K_dist=C[:4, 4:8],
+                   cov_dist_mount=C[4:8, 8:] if tolerance_cov is not None else None)
+    return out
 
 
 def calibrate_lab(ds, robot, cfg, out):
@@ -906,30 +928,25 @@ def calibrate_lab(ds, robot, cfg, out):
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     write_camera_yaml(out / "camera.yaml", cal.camera)
-    # the calibrations' own covariances (refine 'joints' refines intrinsics and mount under them): fx fy cx cy from
-    # the camera calibration; the mount's from the AX = XB residuals, rms^2 / n per axis (it gives no covariance)
-    k4 = [cal.parameter_names.index(n) for n in ("fx", "fy", "cx", "cy")]
-    cov_K = cal.covariance[np.ix_(k4, k4)]
-    cov_mount = np.diag(np.r_[np.full(3, he.rms_rot_rad**2), np.full(3, he.rms_trans_m**2)] / len(used))
-    notes = (f"camera calibration covariance (fx fy cx cy, px^2); mount: AX = XB residuals^2 / {len(used)} views "
-             "(rad^2, m^2)")
-    cross, tol_draws = None, 0
+    # the calibrations' covariances, refine 'joints' refines intrinsics, mount (and distortion) under them
+    notes = (f"camera calibration covariance (fx fy cx cy [k1 k2 p1 p2], px^2); mount: AX = XB residuals^2 / "
+             f"{len(used)} views (rad^2, m^2)")
+    tol_cov, tol_draws = None, 0
     tolerance = load_target_tolerance(ds.root / "target.yaml")
     if tolerance is not None and tolerance.any and cfg["pipeline"]["target_tolerance"]:
-        C = _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5, mount_nominal, S,
-                                  cfg["pipeline"]["tolerance_draws"])
-        tol_draws = C.pop("draws")
-        cov_K, cov_mount, cross = cov_K + C["K"], cov_mount + C["mount"], C["cross"]
+        tol_cov, tol_draws = _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5,
+                                                   mount_nominal, S, cfg["pipeline"]["tolerance_draws"])
         notes += (f"; plus the rig's stated tolerances (target.yaml) through the calibration and AX = XB, "
                   f"{tol_draws} Monte Carlo draws")
+    priors = _lab_priors(cal, he, len(used), cfg, tol_cov)
     from bench.vision.joint_bundle import priors_yaml_text
 
-    (out / "calibration_priors.yaml").write_text(priors_yaml_text(cov_K, cov_mount, notes, cross))
+    (out / "calibration_priors.yaml").write_text(priors_yaml_text(notes=notes, **priors))
     write_calibrated_robot(out / "robot.yaml", ds.robot_path, robot, eps_hat, he.T_mount_cam,
                            notes=f"identified from {len(ds.tracker['q'])} tracker points; mount from {len(used)} rig "
                                  "views (AX = XB)")
     return {"eps": eps_hat, "identification": ident, "camera": cal, "mount": he, "rig_views_used": len(used),
-            "cov_K": cov_K, "cov_mount": cov_mount, "cov_K_mount": cross, "tolerance_draws": tol_draws,
+            "priors": priors, "tolerance_draws": tol_draws,
             "rig_q": np.stack([v.q for v in used]), "T_cam_target": T_cam_target,
             "timings": {"arm_calibration_s": t_arm, "camera_calibration_s": t_cam,
                         "mount_calibration_s": time.perf_counter() - t0 - t_arm - t_cam}}

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.camera.model import CameraModel
+from bench.camera.model import CameraModel, distort
 from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import rotation_angle, transform_points
 from bench.robot.orientation import link5_frame
@@ -55,17 +55,23 @@ class _Model(MultiViewModel):
     ``T_mount [[exp(w), v], [0, 1]]``, rad then m), then the points."""
 
     def __init__(self, robot, eps_true, kept, mount, project, T_site_b2, views, X_site, size, K=None,
-                 with_mount=False, vis=None):
+                 with_mount=False, vis=None, dist=None):
         self.robot, self.eps0, self.kept, self.mount = robot, eps_true, kept, mount
         self.T_b2 = T_site_b2
         self.q0 = np.array([q for q, _ in views])
         self.locate = np.array([loc for _, loc in views], dtype=bool)
         self.K = None if K is None else np.asarray(K, float)
+        self.dist = None if dist is None else np.asarray(dist, float)  # given: d_dist (k1 k2 p1 p2) is a block
         self.with_mount = bool(with_mount)
         blocks = [Block("xi", 6), Block("q", 6, per_view=True), Block("d_eps", len(kept))]
         values = [np.zeros(6), self.q0, np.zeros(len(kept))]
         if self.K is not None:
             blocks.append(Block("d_K", 4, step=1e-3))
+            values.append(np.zeros(4))
+        if self.dist is not None:
+            if self.K is None:
+                raise ValueError("a distortion block needs the intrinsics K")
+            blocks.append(Block("d_dist", 4, step=1e-5))
             values.append(np.zeros(4))
         if self.with_mount:
             blocks.append(Block("d_mount", 6))
@@ -75,11 +81,12 @@ class _Model(MultiViewModel):
     def _split(self, values):
         xi, q, d_eps, *rest = values
         d_K = rest.pop(0) if self.K is not None else None
+        d_dist = rest.pop(0) if self.dist is not None else None
         d_mount = rest.pop(0) if self.with_mount else None
-        return xi, q, d_eps, d_K, d_mount
+        return xi, q, d_eps, d_K, d_dist, d_mount
 
     def _poses(self, *values):
-        xi, q, d_eps, _, d_mount = self._split(values)
+        xi, q, d_eps, _, _, d_mount = self._split(values)
         eps = self.eps0.copy()
         eps[self.kept] += d_eps
         T_b2 = self.T_b2.copy()
@@ -96,7 +103,13 @@ class _Model(MultiViewModel):
 
     def pixels(self, *args):
         uv = super().pixels(*args)
-        d_K = self._split(args[:-1])[3]
+        *values, X = args
+        _, _, _, d_K, d_dist, _ = self._split(values)
+        if d_dist is not None:  # the lens's k1 k2 p1 p2 moved by d_dist: the pixel change, exactly
+            T_cam_world = np.linalg.inv(self.camera_poses(*values))
+            p = np.matmul(X, np.swapaxes(T_cam_world[:, :3, :3], 1, 2)) + T_cam_world[:, None, :3, 3]
+            x = p[..., :2] / p[..., 2:3]
+            uv = uv + (distort(x, self.dist + np.r_[d_dist, 0.0]) - distort(x, self.dist)) @ self.K[:2, :2].T
         if d_K is None:
             return uv
         f, c = np.array([self.K[0, 0], self.K[1, 1]]), self.K[:2, 2]
@@ -116,7 +129,8 @@ def observation_pattern(kmap, n_views: int, locate_idx) -> np.ndarray:
 
 
 def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2, views, X_site, size, sigma_px,
-                  sigma_enc, cov_K=None, K=None, cov_mount=None, vis=None, cov_K_mount=None) -> dict:
+                  sigma_enc, cov_K=None, K=None, cov_mount=None, vis=None, cov_K_mount=None, dist=None,
+                  cov_dist=None, cov_K_dist=None, cov_dist_mount=None) -> dict:
     """Cramér-Rao bound of the located base pose (see the module docstring; :func:`bench.scenario.bounds.crb`).
 
     Parameters
@@ -152,21 +166,18 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
         ``cov (6, 6)`` (rotation vector rad, then base origin m), ``pos_bound_m``, ``rot_bound_rad``,
         ``observations``.
     """
+    from bench.vision.joint_bundle import lab_prior
+
     with_K = cov_K is not None
     model = _Model(robot, np.asarray(eps_true, float), np.asarray(kept), mount, project, T_site_b2, views, X_site,
-                   size, K=K if with_K else None, with_mount=cov_mount is not None, vis=vis)
+                   size, K=K if with_K else None, with_mount=cov_mount is not None, vis=vis,
+                   dist=dist if cov_dist is not None else None)
     # the encoders observe the joints, the lab identification observed the arm errors, the lab calibrations the
-    # intrinsics and the mount; the base pose is free
+    # intrinsics, the distortion and the mount (one joint prior over those given); the base pose is free
     priors = {"q": np.eye(6) / sigma_enc**2, "d_eps": np.linalg.inv(cov_eps_dot)}
-    if with_K and cov_mount is not None and cov_K_mount is not None:
-        from bench.vision.joint_bundle import joint_prior
-
-        priors["d_K", "d_mount"] = np.linalg.inv(joint_prior(cov_K, cov_mount, cov_K_mount))
-    else:
-        if with_K:
-            priors["d_K"] = np.linalg.inv(cov_K)
-        if cov_mount is not None:
-            priors["d_mount"] = np.linalg.inv(cov_mount)
+    names = tuple(n for n, C in (("d_K", cov_K), ("d_dist", cov_dist), ("d_mount", cov_mount)) if C is not None)
+    if names:
+        priors[names] = np.linalg.inv(lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount))
     res = crb(model, sigma_px, priors)
     cov = res["cov"][:6, :6]
     return {"cov": cov, "pos_bound_m": float(np.sqrt(np.trace(cov[3:, 3:]))),
@@ -308,18 +319,20 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
 
 def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraModel, T_site_b2, views, X_site, vis,
                     sigma_px, sigma_enc, rng: np.random.Generator, trials: int = 20, cov_K=None,
-                    cov_mount=None, refine: bool = True, cov_K_mount=None) -> dict:
+                    cov_mount=None, refine: bool = True, cov_K_mount=None, cov_dist=None, cov_K_dist=None,
+                    cov_dist_mount=None) -> dict:
     """RMS base error of ``refine: joints`` (:func:`bench.vision.joint_bundle.joint_bundle`) under exactly the
     bound's model, over ``trials`` draws: the check that the estimator reaches :func:`crb_base_pose`.
 
     Each draw: exact projections through the central ``camera`` of the points ``X_site`` in the pattern ``vis``
     (V, M) plus Gaussian noise ``sigma_px``; joint readings ``q_true + N(0, sigma_enc)``; the arm errors, and with
-    ``cov_K`` / ``cov_mount`` the intrinsics and the mount, drawn from their calibrations' covariances and given to
-    the estimator as its (wrong by that much) calibration, which it refines under those priors (``refine``) or
-    keeps. Arguments as :func:`crb_base_pose`. Returns
+    ``cov_K`` / ``cov_dist`` / ``cov_mount`` the intrinsics, the distortion and the mount, drawn jointly from their
+    calibrations' covariances (with the cross-covariances given) and given to the estimator as its (wrong by that
+    much) calibration, which it refines under those priors (``refine``) or keeps. Arguments as
+    :func:`crb_base_pose`. Returns
     ``pos_rms_m``, ``rot_rms_rad``, ``trials``, ``failures``.
     """
-    from bench.vision.joint_bundle import joint_bundle
+    from bench.vision.joint_bundle import joint_bundle, lab_prior
 
     q_true = np.array([q for q, _ in views])
     is_loc = np.array([loc for _, loc in views], dtype=bool)
@@ -334,35 +347,32 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
     order = np.concatenate([np.flatnonzero(view == v) for v in range(len(views))])
     view, point = view[order], point[order]
     L_eps = np.linalg.cholesky(cov_eps_dot)
-    L_K = None if cov_K is None else np.linalg.cholesky(cov_K)
-    L_m = None if cov_mount is None else np.linalg.cholesky(cov_mount)
-    joint = cov_K is not None and cov_mount is not None and cov_K_mount is not None
-    if joint:
-        from bench.vision.joint_bundle import joint_prior
-
-        L_j = np.linalg.cholesky(joint_prior(cov_K, cov_mount, cov_K_mount))
+    lab = lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount)
+    L_lab = None if lab is None else np.linalg.cholesky(lab)
+    priors = dict(cov_K=cov_K, cov_mount=cov_mount, cov_K_mount=cov_K_mount, cov_dist=cov_dist,
+                  cov_K_dist=cov_K_dist, cov_dist_mount=cov_dist_mount) if refine else {}
     pos, rot, fails = [], [], 0
     for _ in range(trials):
         eps = np.array(eps_true, float)
         eps[kept] += L_eps @ rng.normal(size=len(kept))
-        d_j = L_j @ rng.normal(size=10) if joint else None
-        K = camera.K.copy()
-        if L_K is not None:
-            dK = d_j[:4] if joint else L_K @ rng.normal(size=4)
+        d = [] if L_lab is None else list(L_lab @ rng.normal(size=len(lab)))  # K, dist, mount: those given
+        K, dist, m = camera.K.copy(), np.array(camera.dist, float), mount.copy()
+        if cov_K is not None:
+            dK, d = d[:4], d[4:]
             K[0, 0] += dK[0]
             K[1, 1] += dK[1]
             K[:2, 2] += dK[2:]
-        m = mount.copy()
-        if L_m is not None:
-            dm = d_j[4:] if joint else L_m @ rng.normal(size=6)
+        if cov_dist is not None:
+            dist[:4] += d[:4]
+            d = d[4:]
+        if cov_mount is not None:
             D = np.eye(4)
-            D[:3, :3], D[:3, 3] = rotation_vector_to_matrix(dm[:3]), dm[3:]
+            D[:3, :3], D[:3, 3] = rotation_vector_to_matrix(np.array(d[:3])), d[3:]
             m = m @ D
         q_read = q_true + rng.normal(0, sigma_enc, q_true.shape)
         uv = uv0 + rng.normal(0, sigma_px, uv0.shape)
         jb = joint_bundle(robot, eps, m, q_read, is_loc, T_site_b2, view, point, uv, X, sigma_enc, sigma_px, K,
-                          camera.dist, cov_K=cov_K if refine else None, cov_mount=cov_mount if refine else None,
-                          gate=None, cov_K_mount=cov_K_mount if refine else None)
+                          dist, gate=None, **priors)
         if not jb.success:
             fails += 1
             continue

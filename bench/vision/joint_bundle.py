@@ -58,6 +58,7 @@ class JointBundleResult:
     iterations: int
     K: np.ndarray | None = None
     T_link5_cam: np.ndarray | None = None
+    dist: np.ndarray | None = None
 
 
 def _se3(d) -> np.ndarray:
@@ -70,29 +71,37 @@ class _Problem:
     """The observations, the camera and the kinematics of :func:`joint_bundle` (see the module docstring).
 
     Parameter vector: ``xi`` (6), the joints view by view (6 V), then ``d_K`` (``dfx, dfy, dcx, dcy`` px) if
-    ``with_K`` and ``d_mount`` (6: ``T_link5_cam [[exp(w), v], [0, 1]]``) if ``with_mount``."""
+    ``with_K``, ``d_dist`` (``dk1, dk2, dp1, dp2``) if ``with_dist`` and ``d_mount`` (6: ``T_link5_cam [[exp(w), v],
+    [0, 1]]``) if ``with_mount``."""
 
     step = 1e-7
 
     def __init__(self, robot, eps, T_link5_cam, is_locate, view, point, uv, K, dist=None, with_K=False,
-                 with_mount=False):
+                 with_mount=False, with_dist=False):
         self.robot, self.eps, self.mount = robot, np.asarray(eps, float), np.asarray(T_link5_cam, float)
         self.is_locate = np.asarray(is_locate, bool)
         self.view, self.point, self.uv = np.asarray(view, int), np.asarray(point, int), np.asarray(uv, float)
         self.K = np.asarray(K, float)
         self.dist = np.zeros(5) if dist is None or not len(dist) else check_dist(dist)
-        self.with_K, self.with_mount = bool(with_K), bool(with_mount)
+        self.with_K, self.with_mount, self.with_dist = bool(with_K), bool(with_mount), bool(with_dist)
         self.V = len(self.is_locate)
-        self.n = 6 + 6 * self.V + 4 * self.with_K + 6 * self.with_mount
+        self.n = 6 + 6 * self.V + 4 * self.with_K + 4 * self.with_dist + 6 * self.with_mount
 
     def split(self, theta):
-        """``theta (n,)`` -> ``xi (6,), q (V, 6), d_K (4,), d_mount (6,)`` (zeros for a block not estimated)."""
+        """``theta (n,)`` -> ``xi (6,), q (V, 6), d_K (4,), d_dist (4,), d_mount (6,)`` (zeros for a block not
+        estimated)."""
         xi, q = theta[:6], theta[6:6 + 6 * self.V].reshape(self.V, 6)
         k = 6 + 6 * self.V
         d_K = theta[k:k + 4] if self.with_K else np.zeros(4)
         k += 4 * self.with_K
+        d_d = theta[k:k + 4] if self.with_dist else np.zeros(4)
+        k += 4 * self.with_dist
         d_m = theta[k:k + 6] if self.with_mount else np.zeros(6)
-        return xi, q, d_K, d_m
+        return xi, q, d_K, d_d, d_m
+
+    def distortion(self, d_dist) -> np.ndarray:
+        """The distortion ``(5,)`` with ``k1, k2, p1, p2`` moved by ``d_dist`` (k3 as calibrated)."""
+        return self.dist + np.r_[d_dist, 0.0]
 
     def intrinsics(self, d_K) -> np.ndarray:
         K = self.K.copy()
@@ -103,7 +112,7 @@ class _Problem:
 
     def poses(self, theta, T_b2) -> np.ndarray:
         """``T_cam_site`` (V, 4, 4) of every view."""
-        xi, q, _, d_m = self.split(theta)
+        xi, q, _, _, d_m = self.split(theta)
         T = np.array(T_b2, dtype=float)
         T[:3, :3] = rotation_vector_to_matrix(xi[:3]) @ T[:3, :3]
         T[:3, 3] += xi[3:]
@@ -115,14 +124,27 @@ class _Problem:
         R, t = T_cs[self.view, :3, :3], T_cs[self.view, :3, 3]
         return np.einsum("nij,nj->ni", R, X[self.point]) + t
 
-    def pixels(self, p, d_K) -> np.ndarray:
-        return to_pixels(distort(p[:, :2] / p[:, 2:3], self.dist), self.intrinsics(d_K))
+    def pixels(self, p, d_K, d_dist) -> np.ndarray:
+        return to_pixels(distort(p[:, :2] / p[:, 2:3], self.distortion(d_dist)), self.intrinsics(d_K))
 
 
 def residuals(problem: _Problem, theta, T_b2, X) -> np.ndarray:
     """Pixel residuals ``uv - K distort(pi(p_cam))`` (N, 2) of every observation."""
     p = problem.camera_points(problem.poses(theta, T_b2), X)
-    return problem.uv - problem.pixels(p, problem.split(theta)[2])
+    _, _, d_K, d_d, _ = problem.split(theta)
+    return problem.uv - problem.pixels(p, d_K, d_d)
+
+
+def distortion_parameter_jacobian(x_n) -> np.ndarray:
+    """``d distort(x_n) / d (k1, k2, p1, p2)`` (N, 2, 4) (:func:`bench.camera.model.distort`; linear in them)."""
+    x, y = x_n[:, 0], x_n[:, 1]
+    r2 = x * x + y * y
+    J = np.empty((len(x_n), 2, 4))
+    J[:, 0, 0], J[:, 1, 0] = x * r2, y * r2
+    J[:, 0, 1], J[:, 1, 1] = x * r2 * r2, y * r2 * r2
+    J[:, 0, 2], J[:, 1, 2] = 2 * x * y, r2 + 2 * y * y
+    J[:, 0, 3], J[:, 1, 3] = r2 + 2 * x * x, 2 * x * y
+    return J
 
 
 def residuals_and_jacobian(problem: _Problem, theta, T_b2, X) -> tuple:
@@ -130,15 +152,15 @@ def residuals_and_jacobian(problem: _Problem, theta, T_b2, X) -> tuple:
     observation n / d its point), and the smallest depth (m) of a point in a camera."""
     T_cs = problem.poses(theta, T_b2)
     p = problem.camera_points(T_cs, X)
-    _, _, d_K, _ = problem.split(theta)
-    K = problem.intrinsics(d_K)
+    _, _, d_K, d_d, _ = problem.split(theta)
+    K, dist = problem.intrinsics(d_K), problem.distortion(d_d)
     z = p[:, 2]
     x_n = p[:, :2] / z[:, None]
-    x_d = distort(x_n, problem.dist)
+    x_d = distort(x_n, dist)
     Jproj = np.zeros((len(p), 2, 3))
     Jproj[:, 0, 0] = Jproj[:, 1, 1] = 1.0 / z
     Jproj[:, :, 2] = -x_n / z[:, None]
-    A = K[:2, :2] @ distortion_jacobian(x_n, problem.dist) @ Jproj  # d uv / d p_cam (N, 2, 3)
+    A = K[:2, :2] @ distortion_jacobian(x_n, dist) @ Jproj  # d uv / d p_cam (N, 2, 3)
     N, V, h = len(p), problem.V, problem.step
     J = np.zeros((N, 2, problem.n))
 
@@ -157,6 +179,9 @@ def residuals_and_jacobian(problem: _Problem, theta, T_b2, X) -> tuple:
     k = 6 + 6 * V
     if problem.with_K:  # u = fx x_d + s y_d + cx, v = fy y_d + cy
         J[:, 0, k], J[:, 1, k + 1], J[:, 0, k + 2], J[:, 1, k + 3] = -x_d[:, 0], -x_d[:, 1], -1.0, -1.0
+        k += 4
+    if problem.with_dist:
+        J[:, :, k:k + 4] = -K[:2, :2] @ distortion_parameter_jacobian(x_n)
         k += 4
     if problem.with_mount:
         for c in range(6):
@@ -204,7 +229,8 @@ def _cost(problem, theta, T_b2, X, keep, prior_info, mean) -> float:
 
 def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, point, uv, X, sigma_enc: float,
                  sigma_px: float, K, dist=None, cov_K=None, cov_mount=None, iterations: int = 10, rounds: int = 3,
-                 gate: float | None = 3.5, cov_K_mount=None) -> JointBundleResult:
+                 gate: float | None = 3.5, cov_K_mount=None, cov_dist=None, cov_K_dist=None,
+                 cov_dist_mount=None) -> JointBundleResult:
     """Base pose, joints of every view, map points (and the intrinsics and mount under their lab priors) by maximum
     likelihood (see the module docstring).
 
@@ -235,6 +261,9 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     cov_K_mount : ndarray (4, 6), optional
         Their cross-covariance (with both): the prior is then the joint one over the ten (a rig's tolerances move
         the focal length and the mount along the optical axis together).
+    cov_dist : ndarray (4, 4), optional
+        The lab calibration's covariance of ``k1, k2, p1, p2``: given, the four are refined under it as a prior;
+        ``cov_K_dist`` (4, 4) and ``cov_dist_mount`` (4, 6) its cross-covariances with the intrinsics and the mount.
     iterations, rounds : int
         Gauss-Newton iterations per round; rounds of re-estimating the pixel noise and the gate.
     gate : float or None
@@ -252,19 +281,14 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     if np.any(counts < 2):
         raise ValueError(f"{int(np.sum(counts < 2))} points observed in fewer than two views")
     problem = _Problem(robot, eps, T_link5_cam, is_locate, view, point, uv, K, dist, cov_K is not None,
-                       cov_mount is not None)
+                       cov_mount is not None, cov_dist is not None)
     n = problem.n
     info0 = np.zeros((n, n))  # the priors' information (rad^-2, px^-2, m^-2)
     info0[6:6 + 6 * V, 6:6 + 6 * V] = np.eye(6 * V) / sigma_enc**2
     k = 6 + 6 * V
-    if cov_K is not None and cov_mount is not None and cov_K_mount is not None:
-        info0[k:k + 10, k:k + 10] = np.linalg.inv(joint_prior(cov_K, cov_mount, cov_K_mount))
-    else:
-        if cov_K is not None:
-            info0[k:k + 4, k:k + 4] = np.linalg.inv(cov_K)
-            k += 4
-        if cov_mount is not None:
-            info0[k:k + 6, k:k + 6] = np.linalg.inv(cov_mount)
+    lab = lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount)
+    if lab is not None:
+        info0[k:, k:] = np.linalg.inv(lab)
     mean = np.r_[np.zeros(6), q_read.ravel(), np.zeros(n - 6 - 6 * V)]
     theta = mean.copy()
     it_total, s_px = 0, float(sigma_px)
@@ -305,16 +329,18 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     r, J, J_pt, _ = residuals_and_jacobian(problem, theta, T_site_b2, X)
     S, _, _ = _normal_equations(problem, r, J, J_pt, M, info0 * s_px**2, np.zeros(n), keep)
     cov = s_px**2 * np.linalg.inv(S)[:6, :6]
-    xi, q, d_K, d_m = problem.split(theta)
+    xi, q, d_K, d_d, d_m = problem.split(theta)
     T = np.array(T_site_b2, dtype=float)
     T[:3, :3] = rotation_vector_to_matrix(xi[:3]) @ T[:3, :3]
     T[:3, 3] += xi[3:]
     r = r[keep]
     rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1)) / 2))
-    extra = (", intrinsics" if cov_K is not None else "") + (", mount" if cov_mount is not None else "")
+    extra = ((", intrinsics" if cov_K is not None else "") + (", distortion" if cov_dist is not None else "")
+             + (", mount" if cov_mount is not None else ""))
     return JointBundleResult(True, f"ok; joint bundle of {M} points, {len(r)} of {len(keep)} observations kept, {V} "
                              f"views' joints{extra}, sigma {s_px:.3g} px", T, 0.5 * (cov + cov.T), q, s_px, rms,
-                             len(r), it_total, problem.intrinsics(d_K), problem.mount @ _se3(d_m))
+                             len(r), it_total, problem.intrinsics(d_K), problem.mount @ _se3(d_m),
+                             problem.distortion(d_d))
 
 
 def observations_of(kmap, used, n_surround: int) -> tuple:
@@ -337,17 +363,53 @@ def joint_prior(cov_K, cov_mount, cov_K_mount) -> np.ndarray:
     return np.block([[cov_K, cov_K_mount], [np.asarray(cov_K_mount).T, cov_mount]])
 
 
-def priors_yaml_text(cov_K, cov_mount, notes: str = "", cov_K_mount=None) -> str:
+def lab_prior(cov_K=None, cov_dist=None, cov_mount=None, cov_K_dist=None, cov_K_mount=None, cov_dist_mount=None):
+    """The joint covariance of the lab's blocks that are given, in the order intrinsics (4), distortion (4), mount
+    (6) - the joint bundle's and the bound's parameter order; a cross-covariance not given (or whose blocks are not
+    both given) is zero. None when no block is given."""
+    blocks = [(n, C) for n, C in (("K", cov_K), ("dist", cov_dist), ("mount", cov_mount)) if C is not None]
+    if not blocks:
+        return None
+    cross = {("K", "dist"): cov_K_dist, ("K", "mount"): cov_K_mount, ("dist", "mount"): cov_dist_mount}
+    rows = []
+    for i, (a, A) in enumerate(blocks):
+        row = []
+        for j, (b, B) in enumerate(blocks):
+            if i == j:
+                row.append(np.asarray(A, float))
+            elif i < j:
+                c = cross[a, b]
+                row.append(np.zeros((len(A), len(B))) if c is None else np.asarray(c, float))
+            else:
+                c = cross[b, a]
+                row.append(np.zeros((len(A), len(B))) if c is None else np.asarray(c, float).T)
+        rows.append(row)
+    return np.block(rows)
+
+
+#: optional keys of calibration_priors.yaml: (key, name in read_priors' dict, shape)
+_OPTIONAL_PRIORS = (("intrinsics_mount_covariance", "cov_K_mount", (4, 6)),
+                    ("distortion_covariance", "cov_dist", (4, 4)),
+                    ("intrinsics_distortion_covariance", "cov_K_dist", (4, 4)),
+                    ("distortion_mount_covariance", "cov_dist_mount", (4, 6)))
+
+
+def priors_yaml_text(cov_K, cov_mount, notes: str = "", cov_K_mount=None, cov_dist=None, cov_K_dist=None,
+                     cov_dist_mount=None) -> str:
     """The lab calibrations' covariances as a YAML file for :func:`read_priors` (``calibration_priors.yaml``):
     ``intrinsics_covariance_px2`` (4 x 4, fx fy cx cy), ``mount_covariance`` (6 x 6: rotation vector rad, then
     m, a right perturbation of the mount) and, when known, ``intrinsics_mount_covariance`` (4 x 6, their
-    cross-covariance)."""
+    cross-covariance), ``distortion_covariance`` (4 x 4, k1 k2 p1 p2) and its cross-covariances
+    ``intrinsics_distortion_covariance`` (4 x 4) and ``distortion_mount_covariance`` (4 x 6)."""
     import yaml
 
     data = {"notes": notes, "intrinsics_covariance_px2": np.asarray(cov_K, float).tolist(),
             "mount_covariance": np.asarray(cov_mount, float).tolist()}
-    if cov_K_mount is not None:
-        data["intrinsics_mount_covariance"] = np.asarray(cov_K_mount, float).tolist()
+    given = {"cov_K_mount": cov_K_mount, "cov_dist": cov_dist, "cov_K_dist": cov_K_dist,
+             "cov_dist_mount": cov_dist_mount}
+    for key, name, _ in _OPTIONAL_PRIORS:
+        if given[name] is not None:
+            data[key] = np.asarray(given[name], float).tolist()
     return yaml.safe_dump(data, sort_keys=False)
 
 
@@ -376,16 +438,21 @@ def read_priors(path) -> dict:
         if np.linalg.eigvalsh(C).min() <= 0:
             raise ConfigError(path, key, "not positive definite")
         out[name] = C
-    out["cov_K_mount"] = None
-    if data.get("intrinsics_mount_covariance") is not None:
-        key = "intrinsics_mount_covariance"
+    for key, name, shape in _OPTIONAL_PRIORS:
+        out[name] = None
+        if data.get(key) is None:
+            continue
         try:
             C = np.array(data[key], dtype=float)
         except (TypeError, ValueError):
-            raise ConfigError(path, key, "expected a 4 x 6 matrix of numbers") from None
-        if C.shape != (4, 6) or not np.all(np.isfinite(C)):
-            raise ConfigError(path, key, f"expected a 4 x 6 matrix of finite numbers, got shape {C.shape}")
-        if np.linalg.eigvalsh(joint_prior(out["cov_K"], out["cov_mount"], C)).min() <= 0:
-            raise ConfigError(path, key, "the joint covariance with the two blocks is not positive definite")
-        out["cov_K_mount"] = C
+            raise ConfigError(path, key, f"expected a {shape[0]} x {shape[1]} matrix of numbers") from None
+        if C.shape != shape or not np.all(np.isfinite(C)):
+            raise ConfigError(path, key, f"expected a {shape[0]} x {shape[1]} matrix of finite numbers, got shape "
+                                         f"{C.shape}")
+        out[name] = C
+    if out["cov_dist"] is None and (out["cov_K_dist"] is not None or out["cov_dist_mount"] is not None):
+        raise ConfigError(path, "distortion_covariance", "missing (a distortion cross-covariance is given)")
+    if np.linalg.eigvalsh(lab_prior(**out)).min() <= 0:
+        bad = "distortion_covariance" if out["cov_dist"] is not None else "intrinsics_mount_covariance"
+        raise ConfigError(path, bad, "the joint covariance with the other blocks is not positive definite")
     return out

@@ -33,14 +33,14 @@ def _scene(rng, n=60):
 
 
 def test_jacobian_equals_difference_quotient():
-    """Every block (base, joints, intrinsics, mount) and the points, with a distorted lens."""
+    """Every block (base, joints, intrinsics, distortion, mount) and the points, with a distorted lens."""
     rng = np.random.default_rng(81)
     robot, eps, T_b2, X, view, point, x = _scene(rng, 8)
-    problem = _Problem(robot, eps, MOUNT, LOC, view, point, x, K, DIST, with_K=True, with_mount=True)
+    problem = _Problem(robot, eps, MOUNT, LOC, view, point, x, K, DIST, with_K=True, with_mount=True, with_dist=True)
     theta = np.r_[rng.normal(0, 1e-3, 6), (Q + rng.normal(0, 1e-4, Q.shape)).ravel(), rng.normal(0, 1, 4),
-                  rng.normal(0, 1e-3, 6)]
+                  rng.normal(0, 1e-2, 4), rng.normal(0, 1e-3, 6)]
     r, J, J_pt, _ = residuals_and_jacobian(problem, theta, T_b2, X)
-    assert J.shape[2] == problem.n == 6 + 6 * len(Q) + 10
+    assert J.shape[2] == problem.n == 6 + 6 * len(Q) + 14
     h = 1e-6
     for c in range(len(theta)):
         e = np.zeros_like(theta)
@@ -149,3 +149,26 @@ def test_joint_prior_information_over_adjacent_blocks():
     assert np.array_equal(joint, apart) and joint[18:, 18:].trace() == P.trace()
     with pytest.raises(ValueError, match="adjacent"):
         MultiViewModel.prior_information(m, {("xi", "d_K"): np.eye(10)})
+
+
+def test_lab_prior_orders_blocks_and_the_priors_file_carries_the_distortion(tmp_path):
+    """lab_prior puts intrinsics, distortion, mount in the joint bundle's order with the cross-covariances given
+    (zero otherwise); the priors file round-trips the distortion blocks and refuses a cross term without its block."""
+    from bench.errors import ConfigError
+    from bench.vision.joint_bundle import lab_prior, priors_yaml_text, read_priors
+
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(14, 14))
+    C = A @ A.T + 0.1 * np.eye(14)
+    blocks = dict(cov_K=C[:4, :4], cov_dist=C[4:8, 4:8], cov_mount=C[8:, 8:], cov_K_dist=C[:4, 4:8],
+                  cov_K_mount=C[:4, 8:], cov_dist_mount=C[4:8, 8:])
+    assert np.allclose(lab_prior(**blocks), C)
+    no_cross = lab_prior(C[:4, :4], None, C[8:, 8:])
+    assert no_cross.shape == (10, 10) and not no_cross[:4, 4:].any()
+    assert lab_prior() is None
+    p = tmp_path / "calibration_priors.yaml"
+    p.write_text(priors_yaml_text(notes="test", **blocks))
+    assert np.allclose(lab_prior(**read_priors(p)), C, rtol=1e-12)
+    p.write_text(priors_yaml_text(C[:4, :4], C[8:, 8:], "cross without its block", cov_K_dist=C[:4, 4:8]))
+    with pytest.raises(ConfigError, match="distortion_covariance"):
+        read_priors(p)
