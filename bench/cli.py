@@ -69,7 +69,8 @@ def _parser() -> argparse.ArgumentParser:
                           "the pose and the map points together (default), or joints: also every view's joint angles "
                           "under the encoder prior of the dataset's encoders.yaml")
     loc.add_argument("--priors", default=None, help="with --refine joints: calibration_priors.yaml (the lab "
-                     "calibrations' covariances) - the intrinsics and the mount are refined under them")
+                     "calibrations' covariances) - the intrinsics and the mount (and the distortion, when the file "
+                     "has distortion_covariance) are refined under them")
     loc.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     loc.add_argument("--robot", default=None, help="calibrated robot file (default: the dataset's robot.yaml)")
     loc.add_argument("--camera", default=None, help="calibrated camera file (default: the dataset's camera.yaml)")

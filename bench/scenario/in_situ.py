@@ -95,8 +95,9 @@ SCHEMA = {
                  # the lab calibration's radial model: Heikkila's k1, k2 (p1, p2), and with lab_k3 the sixth-order k3
                  # too (a flat port under water bends rays with strong high orders: scenarios/flatport_study.yaml)
                  "lab_k3": (bool, False),
-                 # refine 'joints' also refines the lens's k1 k2 p1 p2 under the lab calibration's covariance
-                 "refine_distortion": (bool, False),
+                 # refine 'joints' also refines the lens's k1 k2 p1 p2 under the lab calibration's covariance (the
+                 # lab's distortion is the largest error it leaves under water: docs/bounds.md)
+                 "refine_distortion": (bool, True),
                  # the lab calibrations' priors also carry what the rig's stated tolerances (target.yaml) leave in
                  # the intrinsics and the mount (bench.camera.target_tolerance; Monte Carlo of this many draws)
                  "target_tolerance": (bool, True), "tolerance_draws": (int, 48)},
