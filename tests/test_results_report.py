@@ -29,7 +29,9 @@ def test_report_from_runs(tmp_path):
         db.execute("INSERT INTO runs VALUES (?, ?, 'done', ?, NULL)",
                    ("{}", seed, json.dumps({"base_pos_err_mm": err, "base_rot_err_deg": err / 100,
                                             "valve_tool_err_mm": err / 4, "base_pos_bound_mm": 1.0,
-                                            "base_rot_bound_deg": 0.01})))
+                                            "base_rot_bound_deg": 0.01, "base_pos_crb_mm": 0.9,
+                                            "base_pos_floor_mm": 0.4, "base_rot_crb_deg": 0.009,
+                                            "base_rot_floor_deg": 0.004})))
     db.commit()
     db.close()
     tool = _tool()
@@ -41,5 +43,7 @@ def test_report_from_runs(tmp_path):
     assert "2 mm / 0.02° / 0.5 mm" in head  # medians of the three seeds
     assert "Efficiency (RMS bound / RMS error over the seeds): pos: 0.46" in doc  # 1 / sqrt(14 / 3)
     assert "Not run yet" in doc and "xy_table_webcam" in doc
+    assert "figures/bound-sweep-insitu.png" in doc
+    assert (tmp_path / "docs" / "figures" / "bound-sweep-insitu.png").is_file()
     tool.main(["--runs", str(runs), "--docs", str(tmp_path / "docs")])
     assert (tmp_path / "docs" / "results.md").read_text() == doc  # idempotent
