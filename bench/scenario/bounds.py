@@ -325,7 +325,7 @@ class MultiViewModel:
                 off, size = self.offsets[i[0]], sum(self.blocks[k].size for k in i)
                 info[off:off + size, off:off + size] += np.asarray(P, dtype=float)
                 continue
-            i = [b.name for b in self.blocks].index(name)
+            i = names.index(name)
             b, off = self.blocks[i], self.offsets[i]
             P = np.asarray(P, dtype=float)
             if not b.per_view:

@@ -874,13 +874,12 @@ def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:
     C = np.zeros((14, 14))
     C[:8, :8] = cal.covariance[np.ix_(idx, idx)]
     C[8:, 8:] = np.diag(np.r_[np.full(3, he.rms_rot_rad**2), np.full(3, he.rms_trans_m**2)] / n_views)
-    out = {"cov_K": C[:4, :4], "cov_mount": C[8:, 8:]}
-    if tolerance_cov is not None:
+    tol = tolerance_cov is not None  # the noise covariances have no intrinsics-mount cross term
+    if tol:
         C = C + tolerance_cov
-        out = {"cov_K": C[:4, :4], "cov_mount": C[8:, 8:], "cov_K_mount": C[:4, 8:]}
+    out = {"cov_K": C[:4, :4], "cov_mount": C[8:, 8:], "cov_K_mount": C[:4, 8:] if tol else None}
     if cfg["pipeline"]["refine_distortion"]:
-        out.update(cov_dist=C[4:8, 4:8], cov_K_dist=C[:4, 4:8],
-                   cov_dist_mount=C[4:8, 8:] if tolerance_cov is not None else None)
+        out.update(cov_dist=C[4:8, 4:8], cov_K_dist=C[:4, 4:8], cov_dist_mount=C[4:8, 8:] if tol else None)
     return out
 
 

@@ -38,6 +38,7 @@ from bench.scenario.bounds import (  # noqa: F401 - the generic parts, re-export
     true_projector,
 )
 from bench.vision.insitu import ViewObservation, build_map, locate
+from bench.vision.locate_dataset import normalised
 
 
 def panel_points(corners_world, n: int, rng: np.random.Generator, margin: float = 0.05) -> np.ndarray:
@@ -260,11 +261,8 @@ def model_floor(robot, eps_true, mount, lens: CameraModel, port, T_site_b2, view
     project = true_projector(lens, port, profile)
     obs, misfit = [], []
     for k, name in enumerate(names):
-        f = ideal_features(X_site, T_site_cam[k], project, lens.size)
-        x_n = central.undistort_pixels(f.uv)
-        ok = np.flatnonzero(np.all(np.isfinite(x_n), axis=1))  # where the central model's distortion inverts
-        obs.append(ViewObservation(name, f.subset(ok), x_n[ok],
-                                   link5_frame(robot, q_true[k], eps_true) @ mount @ T_lens_c))
+        f, x_n = normalised(ideal_features(X_site, T_site_cam[k], project, lens.size), central)
+        obs.append(ViewObservation(name, f, x_n, link5_frame(robot, q_true[k], eps_true) @ mount @ T_lens_c))
         uv_c = central.project(transform_points(np.linalg.inv(T_site_cam[k] @ T_lens_c), X_site))
         misfit.append(np.linalg.norm(uv_c[:len(X_site)] - project(transform_points(np.linalg.inv(T_site_cam[k]),
                                                                                    X_site)), axis=1))

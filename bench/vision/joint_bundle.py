@@ -358,11 +358,6 @@ def observations_of(kmap, used, n_surround: int) -> tuple:
     return np.array(view, int), np.array(point, int), np.array(x, float).reshape(-1, 2), idx
 
 
-def joint_prior(cov_K, cov_mount, cov_K_mount) -> np.ndarray:
-    """The (10, 10) covariance of ``fx, fy, cx, cy`` and the mount's right perturbation from its blocks."""
-    return np.block([[cov_K, cov_K_mount], [np.asarray(cov_K_mount).T, cov_mount]])
-
-
 def lab_prior(cov_K=None, cov_dist=None, cov_mount=None, cov_K_dist=None, cov_K_mount=None, cov_dist_mount=None):
     """The joint covariance of the lab's blocks that are given, in the order intrinsics (4), distortion (4), mount
     (6) - the joint bundle's and the bound's parameter order; a cross-covariance not given (or whose blocks are not

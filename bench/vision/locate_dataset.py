@@ -46,11 +46,16 @@ def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0, featur
         f = detect_sift(view.image(expected_size=camera.size), max_features=max_features, channel_order="rgb")
     else:
         f = features_fn(view)
+    f, x_n = normalised(f, camera)
+    return ViewObservation(view.name, f, x_n, link5_frame(robot, q, eps) @ T_link5_cam)
+
+
+def normalised(f, camera) -> tuple:
+    """``(features, x_n)``: the keypoints' ideal normalised coordinates through ``camera``, without the keypoints
+    where its distortion cannot be inverted (beyond a k3 model's fold: they would be NaN rays)."""
     x_n = camera.undistort_pixels(f.uv) if len(f) else np.empty((0, 2))
     ok = np.all(np.isfinite(x_n), axis=1)
-    if not np.all(ok):  # beyond where the calibrated distortion can be inverted (e.g. a k3 model's fold): dropped
-        f, x_n = f.subset(np.flatnonzero(ok)), x_n[ok]
-    return ViewObservation(view.name, f, x_n, link5_frame(robot, q, eps) @ T_link5_cam)
+    return (f, x_n) if ok.all() else (f.subset(np.flatnonzero(ok)), x_n[ok])
 
 
 def _retarget_tasks(ds, robot, eps, T_site_base, q_now) -> dict:

@@ -116,7 +116,7 @@ def test_priors_file_with_the_intrinsics_mount_cross_covariance(tmp_path):
     the mount together); it round-trips, and a wrong shape or a joint matrix that is not positive definite is a
     one-line error naming the key."""
     from bench.errors import ConfigError
-    from bench.vision.joint_bundle import joint_prior, priors_yaml_text, read_priors
+    from bench.vision.joint_bundle import lab_prior, priors_yaml_text, read_priors
 
     rng = np.random.default_rng(3)
     A = rng.normal(size=(10, 10))
@@ -124,7 +124,8 @@ def test_priors_file_with_the_intrinsics_mount_cross_covariance(tmp_path):
     p = tmp_path / "calibration_priors.yaml"
     p.write_text(priors_yaml_text(C[:4, :4], C[4:, 4:], "test", C[:4, 4:]))
     got = read_priors(p)
-    assert np.allclose(joint_prior(got["cov_K"], got["cov_mount"], got["cov_K_mount"]), C, rtol=1e-12)
+    assert np.allclose(lab_prior(got["cov_K"], None, got["cov_mount"], cov_K_mount=got["cov_K_mount"]), C,
+                       rtol=1e-12)
     p.write_text(priors_yaml_text(C[:4, :4], C[4:, 4:], "no cross"))
     assert read_priors(p)["cov_K_mount"] is None
     p.write_text(priors_yaml_text(C[:4, :4], C[4:, 4:], "wrong shape", C[:4, 4:9]))

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.sim.scenes.base import SceneObject, color_material_xml, fmt, pose_attrs
+from bench.sim.scenes.base import SceneObject, _mesh_xml, color_material_xml, fmt, pose_attrs
 
 BOARD_SQUARES = 7
 BOARD_PATTERN_M = 0.197  # section 5.2
@@ -130,8 +130,7 @@ def sheet_mesh_xml(name: str, quad, depth_m: float) -> str:
     faces = [(0, 2, 1), (0, 3, 2), (4, 5, 6), (4, 6, 7)]
     for a, c in ((0, 1), (1, 2), (2, 3), (3, 0)):
         faces += [(a, c, c + 4), (a, c + 4, a + 4)]
-    idx = " ".join(str(int(i)) for f in faces for i in f)
-    return f'<mesh name="{name}" vertex="{fmt(verts.ravel())}" face="{idx}"/>\n'
+    return _mesh_xml(name, verts, None, faces)
 
 
 def bow_z(x, width_m: float, bow_m: float):
