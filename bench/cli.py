@@ -82,6 +82,10 @@ def _parser() -> argparse.ArgumentParser:
     fa.add_argument("--seed", type=int, default=0, help="draws of the random faults and the RANSAC seed")
     fa.add_argument("--camera", default=None, help="lab camera calibration (default: calibrated from the dataset)")
     fa.add_argument("--robot", default=None, help="lab robot calibration (default: calibrated from the dataset)")
+    fa.add_argument("--refine", default="joints", choices=["none", "pose", "bundle", "joints"],
+                    help="the estimator (as bench locate --refine; default joints, the in-situ scenario's)")
+    fa.add_argument("--priors", default=None, help="with --refine joints: the lab's calibration_priors.yaml (default: "
+                    "the one calibrated from the dataset; none when --camera / --robot are given without it)")
     fa.add_argument("--force", action="store_true", help="replace an earlier output of bench faults in --out")
     cc = sub.add_parser("calibrate-camera", help="corners + calibration (+ OpenCV reference) on a rig dataset or a "
                                                  "plain folder of photos")
@@ -343,7 +347,7 @@ def main(argv=None) -> int:
             from bench.scenario.faults import run_faults
 
             rows = run_faults(args.dataset, args.out, faults=args.fault, seed=args.seed, camera=args.camera,
-                              robot=args.robot, force=args.force)
+                              robot=args.robot, force=args.force, refine=args.refine, priors=args.priors)
             return 1 if any(r["silent"] for r in rows) else 0
         elif args.command in _INTERCHANGE:
             return _interchange(args)

@@ -235,7 +235,8 @@ def lab_calibration(dataset, out) -> dict:
     cfg = {sec: {k: v[1] for k, v in SCHEMA[sec].items()} for sec in ("lab", "pipeline", "truth")}
     cfg["_file"] = str(ds.root / "manifest.yaml")
     calibrate_lab(ds, ds.robot(), cfg, out)
-    return {"camera": Path(out) / "camera.yaml", "robot": Path(out) / "robot.yaml"}
+    return {"camera": Path(out) / "camera.yaml", "robot": Path(out) / "robot.yaml",
+            "priors": Path(out) / "calibration_priors.yaml"}
 
 
 def score(dataset, report, T_world_base) -> dict:
@@ -257,11 +258,14 @@ def is_silent(row) -> bool:
 
 
 def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None, force: bool = False,
-               verbose: bool = True) -> list:
+               verbose: bool = True, refine: str = "joints", priors=None) -> list:
     """Inject each fault into a copy of ``dataset``, localise, score; writes ``out/faults.csv`` and ``faults.json``.
 
     Returns the rows (dicts). ``camera`` / ``robot``: the lab calibration's files (default: calibrated here from the
-    dataset's rig views and tracker points). ``out`` is claimed as ``bench faults``' output
+    dataset's rig views and tracker points, with their ``calibration_priors.yaml``). ``refine`` is the estimator
+    (:func:`~bench.vision.locate_dataset.locate_dataset`; default ``joints``, the in-situ kind's, under ``priors``:
+    the lab's priors file, default the one calibrated here; none when the lab files are given without it).
+    ``out`` is claimed as ``bench faults``' output
     (:func:`bench.fileio.claimed_output_dir`): a foreign folder is refused; ``force`` replaces only an earlier output
     of ``bench faults``.
     """
@@ -276,16 +280,17 @@ def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None
             raise ConfigError("--fault", f, f"unknown fault (known: {', '.join(FAULTS)})")
     # --out: claimed as bench faults' output before any work (bench.fileio); removed again if the run fails
     with claimed_output_dir(out, "faults", force=force, identity=str(dataset.resolve())) as out:
-        rows = _run_faults(dataset, out, names, roles, seed, camera, robot, verbose)
+        rows = _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors)
     return rows
 
 
-def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose) -> list:
+def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors) -> list:
     from bench.vision.locate_dataset import locate_dataset
 
     if camera is None or robot is None:
         cal0 = lab_calibration(dataset, out / "calibrated")
         camera, robot = camera or cal0["camera"], robot or cal0["robot"]
+        priors = priors or cal0["priors"]
     rows = []
     for k, name in enumerate(names):
         work = out / name
@@ -296,7 +301,8 @@ def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose) -> lis
         what = FAULTS[name](work / "dataset", roles, cal, np.random.default_rng([seed, k]))
         try:
             res, report = locate_dataset(work / "dataset", work, verbose=False, camera_path=cal["camera"],
-                                         robot_path=cal["robot"], seed=seed)
+                                         robot_path=cal["robot"], seed=seed, refine=refine,
+                                         priors_path=priors if refine == "joints" else None)
             T = res.T_world_base
         except ConfigError as exc:  # a fault the dataset loader catches is a refusal with its reason
             report = {"integrity": "refused", "integrity_reasons": [str(exc)], "protection_radius_mm": None,

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,7 @@ from bench.robot.orientation import link5_frame
 from bench.robot.task import retarget_taught_pose
 from bench.vision.features import detect_sift
 from bench.vision.insitu import MapConfig, ViewObservation, build_map, locate, locate_pnp
-from bench.vision.integrity import assess
+from bench.vision.integrity import KAPPA_UNMEASURED, assess, kappa_of
 
 
 def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0, features_fn=None) -> ViewObservation:
@@ -105,8 +106,6 @@ def encoder_sigma_rad(root) -> float:
 def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None):
     """The thesis estimator's pose refined by :func:`~bench.vision.joint_bundle.joint_bundle` (joints under the
     encoder prior); on failure the thesis estimate is kept and the message says why."""
-    from dataclasses import replace
-
     from bench.camera.model import distort, to_pixels
     from bench.geometry.transforms import invert, transform_points
     from bench.vision.joint_bundle import joint_bundle, observations_of
@@ -200,6 +199,11 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
             if details is not None:
                 details["thesis_result"] = res  # the thesis estimator's (bundle) result, reported beside
             res = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors)
+    # the estimator's first-order covariance, calibrated by its measured optimism (bench.vision.integrity.KAPPA)
+    # ('joints' was measured with the lab priors: without them it is unmeasured)
+    kappa = kappa_of(refine, pnp) if refine != "joints" or priors is not None else KAPPA_UNMEASURED
+    if res.success:
+        res = replace(res, covariance=kappa**2 * np.asarray(res.covariance, float))
     t_int = time.perf_counter()
     integ = assess(kmap, [obs[v.name] for v in roles["surround"]], a, None if pnp else obs[roles["locate"][1].name],
                    res, camera.fx, camera.size, config, seed)
@@ -210,7 +214,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                        integrity=integ)
     report = {"dataset": str(ds.root), "success": res.success, "message": res.message, "map_points": len(kmap),
               "map_stats": kmap.stats, "n_matches": res.n_matches, "inliers": res.n_inliers,
-              "condition": res.condition, "method": "pnp" if pnp else method, **integ.report(),
+              "condition": res.condition, "method": "pnp" if pnp else method, "covariance_kappa": kappa,
+              **integ.report(),
               "timings_s": res.timings_s, "tasks": {}}  # no task is offered without a pose
     if res.success:
         T = res.T_world_base

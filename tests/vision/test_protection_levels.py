@@ -27,26 +27,51 @@ def _cov(rng, sig_pos_m, sig_rot_rad):
     return cov
 
 
+def test_norm_quantile_against_closed_forms_and_monte_carlo():
+    """Isotropic: sigma sqrt(chi2_n^-1(p)); one direction: the normal's two-sided quantile; anisotropic: an
+    independent Monte Carlo of |e| (its own draws) within its sampling error."""
+    p = 1 - I.INTEGRITY_RISK
+    assert I.norm_quantile(np.eye(3) * 4e-6, p) == pytest.approx(2e-3 * np.sqrt(chi2.ppf(p, 3)), rel=0.01)
+    assert I.norm_quantile(np.diag([1e-6, 1e-6, 0.0]), p) == pytest.approx(1e-3 * np.sqrt(chi2.ppf(p, 2)), rel=0.01)
+    assert I.norm_quantile(np.diag([0.0, 9.0, 0.0]), p) == pytest.approx(3.0 * 3.2905, rel=0.01)
+    rng = np.random.default_rng(3)
+    cov = _cov(rng, 1e-3, 1e-4)[3:, 3:]
+    e = rng.multivariate_normal(np.zeros(3), cov, size=2_000_000)
+    assert I.norm_quantile(cov, p) == pytest.approx(np.quantile(np.linalg.norm(e, axis=1), p), rel=0.02)
+    assert I.norm_quantile(cov, 0.5) == pytest.approx(np.median(np.linalg.norm(e, axis=1)), rel=0.01)
+    # below k sigma_max (the bound it replaces) for an anisotropic covariance
+    assert I.norm_quantile(cov, p) < np.sqrt(chi2.ppf(p, 3) * np.linalg.eigvalsh(cov).max())
+
+
 def test_protection_levels_scale_with_kappa_and_the_inflations():
     rng = np.random.default_rng(0)
     cov = _cov(rng, 1e-3, 1e-4)
-    k = np.sqrt(chi2.ppf(1 - I.INTEGRITY_RISK, 3))
-    tests = {"inflation_chi2": 1.5, "inflation_whiteness": 2.0}
+    p = 1 - I.INTEGRITY_RISK
+    tests = {"inflation_chi2": 1.5, "whiteness_rho": 0.6}
     pr1, pa1 = I.protection_levels(cov, dict(tests), kappa=1.0, floor_mm=0.0, floor_deg=0.0)
-    sig_pos = np.sqrt(np.linalg.eigvalsh(cov[3:, 3:]).max())
-    assert pr1 == pytest.approx(k * 3.0 * sig_pos, rel=1e-12)
-    assert pa1 == pytest.approx(k * 3.0 * 1e-4, rel=1e-12)
+    assert pr1 == pytest.approx(1.5 * I.norm_quantile(cov[3:, 3:], p), rel=1e-12)
+    assert pa1 == pytest.approx(1.5 * I.norm_quantile(cov[:3, :3], p), rel=1e-12)
     pr2, pa2 = I.protection_levels(cov, dict(tests), kappa=2.5, floor_mm=0.0, floor_deg=0.0)
     assert pr2 == pytest.approx(2.5 * pr1) and pa2 == pytest.approx(2.5 * pa1)
+    # the floor and a third of test 2's disagreement: in quadrature
     pr3, _ = I.protection_levels(cov, dict(tests), kappa=1.0, floor_mm=0.5, floor_deg=0.0)
-    assert pr3 == pytest.approx(pr1 + 0.5e-3)
-    # test 2's disagreement: a third of it in quadrature
+    assert pr3 == pytest.approx(np.hypot(pr1, 0.5e-3))
     pr4, pa4 = I.protection_levels(cov, {**tests, "relative_pose_mm": 30.0, "relative_pose_deg": 0.3}, kappa=1.0,
                                    floor_mm=0.0, floor_deg=0.0)
     assert pr4 == pytest.approx(np.hypot(pr1, 0.01)) and pa4 == pytest.approx(np.hypot(pa1, np.deg2rad(0.1)))
+    # whiteness is reported, not applied
+    pr5, _ = I.protection_levels(cov, {**tests, "whiteness_rho": 0.0}, kappa=1.0, floor_mm=0.0, floor_deg=0.0)
+    assert pr5 == pr1
     t = dict(tests)
     I.protection_levels(cov, t)
-    assert t["kappa"] == I.KAPPA and t["k_factor"] == pytest.approx(k)
+    assert t["kappa"] == 1.0 and 1.0 < t["q_factor_pos"] < np.sqrt(chi2.ppf(p, 3))
+    assert I.protection_levels(np.full((6, 6), np.nan), {}) == (np.inf, np.inf)
+
+
+def test_kappa_of_the_estimators():
+    assert I.kappa_of("joints") == I.KAPPA["joints"]
+    assert I.kappa_of("bundle") == I.KAPPA["bundle"]
+    assert I.kappa_of("pose") == I.kappa_of("joints", pnp=True) == I.KAPPA_UNMEASURED == max(I.KAPPA.values())
 
 
 def _fake_sweep(tmp_path, rng, n=40, optimism=3.0):
@@ -63,7 +88,7 @@ def _fake_sweep(tmp_path, rng, n=40, optimism=3.0):
         e = rng.multivariate_normal(np.zeros(6), cov * optimism**2)
         T_true = homogeneous(np.eye(3), [0.1, 0.2, 0.0])
         T = homogeneous(rotation_vector_to_matrix(e[:3]), T_true[:3, 3] + e[3:])
-        tests = {"inflation_chi2": 1.0, "inflation_whiteness": 1.0}
+        tests = {"inflation_chi2": 1.0}
         pr, pa = I.protection_levels(cov, tests)
         level = "ok" if pr * 1e3 <= I.ALERT_MM else "warning"
         run = out / "runs" / rid
@@ -109,3 +134,59 @@ def test_summary_measures_coverage_silent_failures_and_fits_kappa(tmp_path):
     assert (tmp_path / "figures" / "stanford.png").stat().st_size > 1000
     assert S.main([str(tmp_path)]) == 2  # not a sweep folder
     assert S.main([str(sweep), str(tmp_path)]) == 2
+
+
+def _panel_map(rng, n=150, spread_m=0.0):
+    from bench.vision.insitu import KeypointMap
+
+    p = np.c_[rng.uniform(-0.4, 0.4, n), rng.uniform(-0.3, 0.3, n), 0.7 + rng.uniform(-0.05, 0.05, n)]
+    return KeypointMap(p, p.copy(), None, np.full(n, 3), np.full(n, spread_m), np.eye(4))
+
+
+def _free(kmap, T_ref_view, x_n, idx):
+    import cv2
+
+    ok, rvec, tvec = cv2.solvePnP(kmap.p_ref[idx], x_n, np.eye(3), None, flags=cv2.SOLVEPNP_ITERATIVE)
+    T = homogeneous(cv2.Rodrigues(rvec)[0], tvec.ravel())
+    return {"T_free": np.linalg.inv(T), "map_idx": idx, "x_n": x_n}
+
+
+def test_relative_pose_disagreement_is_exact_without_noise_and_chi2_6_with_it():
+    """Noise-free: d = 0 to 1e-9 for the true kinematic T_a_b, and the disagreement of a perturbed T_a_b is that
+    perturbation; with keypoint noise (an exact map) the Mahalanobis square follows chi2_6 (mean 6, 95th
+    percentile 12.6) over 300 trials; with map depth errors that the pooled sigma describes it stays at or below it."""
+    rng = np.random.default_rng(11)
+    T_ref_a = homogeneous(rotation_vector_to_matrix([0.02, -0.05, 0.01]), [0.03, -0.02, 0.01])
+    T_ref_b = homogeneous(rotation_vector_to_matrix([-0.03, 0.08, 0.0]), [0.25, 0.01, -0.02])
+    T_a_b = np.linalg.inv(T_ref_a) @ T_ref_b
+
+    def views(kmap, sigma, p_true=None):
+        out = []
+        for T in (T_ref_a, T_ref_b):
+            X = (np.linalg.inv(T) @ np.c_[kmap.p_ref if p_true is None else p_true, np.ones(len(kmap))].T).T[:, :3]
+            x = X[:, :2] / X[:, 2:] + rng.normal(0, sigma, (len(X), 2))
+            out.append(_free(kmap, T, x, np.arange(len(X))))
+        return out
+
+    kmap = _panel_map(rng)
+    a, b = views(kmap, 0.0)
+    d, _ = I.relative_pose_disagreement(kmap, {**a, "T_free": T_ref_a}, {**b, "T_free": T_ref_b}, T_a_b)
+    assert np.abs(d).max() < 1e-9
+    delta = homogeneous(rotation_vector_to_matrix([0.0, 0.01, 0.0]), [0.002, 0.0, 0.0])
+    d, _ = I.relative_pose_disagreement(kmap, {**a, "T_free": T_ref_a}, {**b, "T_free": T_ref_b}, T_a_b @ delta)
+    assert np.allclose(d[:3], [0.0, -0.01, 0.0], atol=1e-9)
+    m2 = np.array([I.relative_pose_disagreement(kmap, *views(kmap, 3e-4), T_a_b)[1] for _ in range(300)])
+    assert np.mean(m2) == pytest.approx(6.0, rel=0.15)
+    assert np.mean(m2 <= chi2.ppf(0.95, 6)) == pytest.approx(0.95, abs=0.04)
+    # map depth errors of 2 mm along the reference rays, known to the map through its spread
+    sig = 2e-3
+    kmap = _panel_map(rng, spread_m=sig * np.sqrt(2))  # spread^2 n/(n-1) / n = sigma^2 for n = 3
+    ray = kmap.p_ref / np.linalg.norm(kmap.p_ref, axis=1, keepdims=True)
+    z = kmap.p_ref[:, 2]
+    assert np.allclose(I.map_point_sigma(kmap), sig * z**2 * np.sqrt(np.mean(z**-4.0)), rtol=1e-9)  # pooled as z^2
+    m2 = []
+    for _ in range(200):
+        p_true = kmap.p_ref + ray * rng.normal(0, 1, (len(kmap), 1)) * I.map_point_sigma(kmap)[:, None]
+        m2.append(I.relative_pose_disagreement(kmap, *views(kmap, 3e-4, p_true), T_a_b)[1])
+    # conservative, not optimistic: the residual variance also holds the map error the pose sees (counted twice)
+    assert 1.5 < np.mean(m2) < 6.6
