@@ -35,19 +35,13 @@ from scipy.stats import chi2
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.geometry.quaternion import matrix_to_rotation_vector  # noqa: E402
 from bench.geometry.transforms import invert, rotation_angle  # noqa: E402
 from bench.vision import integrity as I  # noqa: E402
 
 SILENT_MM = 3.0
 Q95 = float(chi2.ppf(0.95, 3))
 BEGIN, END = "<!-- envelope:begin -->", "<!-- envelope:end -->"
-
-
-def _log_rot(R):
-    """Rotation vector (3,) of a rotation matrix."""
-    import cv2
-
-    return cv2.Rodrigues(np.asarray(R, float))[0].ravel()
 
 
 def _texture_label(tex) -> str:
@@ -84,7 +78,7 @@ def load_runs(sweep: Path) -> list:
             T = np.array(rep["T_world_base"])
             cov = np.array(rep["covariance"])
             e_t = T[:3, 3] - T_true[:3, 3]
-            e_r = _log_rot(T[:3, :3] @ T_true[:3, :3].T)  # left rotation vector, world frame (as the covariance)
+            e_r = matrix_to_rotation_vector(T[:3, :3] @ T_true[:3, :3].T)  # left, world frame (as the covariance)
             run.update(cov=cov, err_mm=float(np.linalg.norm(e_t) * 1e3),
                        err_deg=float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_true[:3, :3]))),
                        nees_pos=float(e_t @ np.linalg.solve(cov[3:, 3:], e_t)),

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from bench.geometry.transforms import homogeneous, rot_z
 from bench.sim.scenes.base import SceneObject, _mesh_xml, color_material_xml, fmt, pose_attrs
 
 BOARD_SQUARES = 7
@@ -244,10 +245,7 @@ def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M,
     T_a, T_b = rig_board_poses(squares, square_m, margin_m)
     e = errors or {}
     if e.get("fold_error_rad", 0.0):
-        c, s_ = np.cos(e["fold_error_rad"]), np.sin(e["fold_error_rad"])
-        Rz = np.eye(4)
-        Rz[:2, :2] = [[c, -s_], [s_, c]]
-        T_b = Rz @ T_b  # about the fold (the rig's z axis through its origin)
+        T_b = homogeneous(rot_z(e["fold_error_rad"]), np.zeros(3)) @ T_b  # about the fold (the rig's z axis)
     scale = float(e.get("scale", 1.0))
     body, meshes = [f'<body name="{name}">\n'], []
     corners = {}
