@@ -21,23 +21,25 @@ The tests (each one's statistic is reported in ``tests``):
    (swapped, duplicated, a wrong or shifted joint log) is explained by a free pose but not by the predicted one:
    ``consensus`` = predicted / free falls (refused below :data:`CONSENSUS_REFUSE`).
 2. **The two new views with each other and with the kinematics.** The free poses of the two locate views give their
-   relative pose from the images alone; it must agree with the kinematic ``T_a_b`` (refused beyond
-   :data:`RELATIVE_REFUSE_MM` / :data:`RELATIVE_REFUSE_DEG`; a warning beyond a third of it).
+   relative pose from the images alone; it must agree with the kinematic ``T_a_b``: refused beyond
+   :data:`RELATIVE_REFUSE_MM` / :data:`RELATIVE_REFUSE_DEG` when its Mahalanobis square
+   (:func:`relative_pose_disagreement`) also exceeds :data:`RELATIVE_CHI2_REFUSE`; a warning beyond a third of the
+   raw limits or a square above :data:`RELATIVE_CHI2_WARN`.
 3. **Reprojection chi-square.** The locate views' residual RMS at the solution against the survey views' residual
    RMS at their kinematic poses (the keypoint noise of this scene, this water, this camera): the ratio inflates the
    covariance, and refuses beyond :data:`CHI2_RATIO_REFUSE`.
 4. **Residual whiteness.** The correlation of each locate residual with its nearest image neighbour's: a model error
-   (bent mount, wrong calibration) makes neighbouring residuals alike, noise does not. ``rho`` inflates the
-   covariance by ``sqrt((1 + rho) / (1 - rho))`` (the variance of a mean of AR(1)-correlated samples).
+   (bent mount, wrong calibration) makes neighbouring residuals alike, noise does not - but so does realistic
+   imaging on a clean run, so ``rho`` is reported, not applied (see below).
 5. **Support.** Inliers (at least :data:`MIN_INLIERS`), inlier fraction and the inliers' spread over image a (convex
    hull / image area).
 6. **Conditioning** of the final least-squares problem.
 
-Protection levels: the base-pose covariance (position block, rotation block), calibrated by the estimator's measured
-optimism :data:`KAPPA` (its standard deviations times ``kappa``) and inflated by the chi-square factor of test 3, gives
-the ``1 - INTEGRITY_RISK`` quantile of the error's norm (:func:`norm_quantile`: the exact quantile of a Gaussian's
-norm, not ``k`` times its largest standard deviation); the disagreement of test 2 (a kinematic relative pose off by
-``d`` moves the solution by about ``d``; a third of it) and a floor for the model errors no test here resolves
+Protection levels: the base-pose covariance (position block, rotation block; ``locate_dataset`` has calibrated it
+by the estimator's measured optimism :data:`KAPPA`), inflated by the chi-square factor of test 3, gives the
+``1 - INTEGRITY_RISK`` quantile of the error's norm (:func:`norm_quantile`: the exact quantile of a Gaussian's norm,
+not ``k`` times its largest standard deviation); the disagreement of test 2 (a kinematic relative pose off by ``d``
+moves the solution by about ``d``; a third of it) and a floor for the model errors no test here resolves
 (:data:`FLOOR_MM`, :data:`FLOOR_DEG`) are added in quadrature. Residual whiteness (test 4) is reported, not applied:
 over 20 clean seeds it did not predict the covariance's misfit (docs/integrity.md).
 """
