@@ -5,21 +5,25 @@ sees the truth).
 Every fault is one function ``(dataset copy, calibrated files, rng) -> description`` that damages the copy as the dive
 would (the lab calibration is done before the dive, on the clean dataset, unless the fault is the calibration):
 
-===================  ===================================================================================================
-``clean``            nothing (the reference row)
-``swap_images``      the images of the first locate view and the middle survey view exchanged
-``duplicate_frame``  the second locate view's image replaced by a copy of the first's
-``joint_log_shift``  the site views' joint readings shifted by one row (each view gets the next view's readings)
-``joint_offset``     one joint reading of one site view (drawn) offset by 0.5 deg
-``mount_bent``       the camera mount bent after the lab calibration: 1 deg about a drawn axis, 5 mm along a drawn
-                     direction (applied to the calibrated mount the pipeline uses: the same relative error)
-``air_calibration``  the camera file of an air calibration used underwater: focal length / 1.333 (n_water / n_air)
-``fouled_lens``      a smeared, darkened disc over a quarter of both locate images (a fouled port)
-``motion_blur``      the first locate view blurred along a drawn direction (21 px linear kernel)
-``turbid``           both locate images seen through 2 m more of turbid harbour water (Akkaynak-Treibitz model,
-                     :mod:`bench.sim.medium`) with 2 DN of sensor noise
-``new_growth``       growth since the survey: textured blobs covering ~30 % of the panel in both locate images
-===================  ===================================================================================================
+======================  ================================================================================================
+``clean``               nothing (the reference row)
+``swap_images``         the images of the first locate view and the middle survey view exchanged
+``duplicate_frame``     the second locate view's image replaced by a copy of the first's
+``joint_log_shift``     the site views' joint readings shifted by one row (each view gets the next view's readings)
+``joint_offset``        one joint reading of one site view (drawn) offset by 0.5 deg
+``joint_offset_small``  one of joints 1-5 of one locate view (drawn) offset by 0.1 deg (an encoder glitch below
+                        what the images alone show at once)
+``mount_bent``          the camera mount bent after the lab calibration: 1 deg about a drawn axis, 5 mm along a drawn
+                        direction (applied to the calibrated mount the pipeline uses: the same relative error)
+``air_calibration``     the camera file of an air calibration used underwater: focal length / 1.333 (n_water / n_air)
+``focal_drift``         the housing's optics drifted since the lab: the camera file's focal length 1 % off, its
+                        principal point 3 px off (temperature, pressure, a refocused lens)
+``fouled_lens``         a smeared, darkened disc over a quarter of both locate images (a fouled port)
+``motion_blur``         the first locate view blurred along a drawn direction (21 px linear kernel)
+``turbid``              both locate images seen through 2 m more of turbid harbour water (Akkaynak-Treibitz model,
+                        :mod:`bench.sim.medium`) with 2 DN of sensor noise
+``new_growth``          growth since the survey: textured blobs covering ~30 % of the panel in both locate images
+======================  ================================================================================================
 
 Each faulted dataset is localised (:func:`bench.vision.locate_dataset.locate_dataset`) and scored: the true base
 position and rotation errors, the integrity and protection levels, and whether the failure is *silent*: integrity
@@ -130,6 +134,18 @@ def joint_offset(root, roles, cal, rng):
     return f"{view} {header[j]} offset by {0.5 * sign:+.1f} deg"
 
 
+def joint_offset_small(root, roles, cal, rng):
+    header, rows = _joints(root)
+    view = roles["locate"][int(rng.integers(2))]
+    j = int(rng.integers(1, len(header) - 1))  # joints 1-5: joint 6 does not move the camera on link 5
+    sign = float(rng.choice([-1.0, 1.0]))
+    for r in rows:
+        if r[0] == view:
+            r[j] = repr(float(r[j]) + 0.1 * sign)
+    _write_joints(root, header, rows)
+    return f"{view} {header[j]} offset by {0.1 * sign:+.1f} deg"
+
+
 def _random_unit(rng):
     v = rng.normal(size=3)
     return v / np.linalg.norm(v)
@@ -162,6 +178,23 @@ def air_calibration(root, roles, cal, rng):
     write_camera_yaml(path, cam.replace(K=K, name="FAULT: air calibration"))
     cal["camera"] = path
     return f"camera focal length {cam.K[0, 0]:.1f} -> {K[0, 0]:.1f} px (air calibration)"
+
+
+def focal_drift(root, roles, cal, rng):
+    from bench.camera.io import read_camera_yaml, write_camera_yaml
+
+    cam = read_camera_yaml(cal["camera"])
+    K = cam.K.copy()
+    sign = float(rng.choice([-1.0, 1.0]))
+    K[:2, :2] *= 1 + 0.01 * sign  # the pipeline's file is 1 % off the camera that took the images
+    phi = float(rng.uniform(0, 2 * np.pi))
+    K[:2, 2] += 3.0 * np.array([np.cos(phi), np.sin(phi)])
+    path = root.parent / "calibrated_drift" / "camera.yaml"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_camera_yaml(path, cam.replace(K=K, name="FAULT: focal drift"))
+    cal["camera"] = path
+    return (f"camera file's focal length {cam.K[0, 0]:.1f} -> {K[0, 0]:.1f} px, principal point moved "
+            f"{np.linalg.norm(K[:2, 2] - cam.K[:2, 2]):.1f} px (the housing's optics drifted since the lab)")
 
 
 def fouled_lens(root, roles, cal, rng):
@@ -220,8 +253,9 @@ def new_growth(root, roles, cal, rng):
     return "textured growth over ~30 % of both locate images"
 
 
-FAULTS = {f.__name__: f for f in (clean, swap_images, duplicate_frame, joint_log_shift, joint_offset, mount_bent,
-                                  air_calibration, fouled_lens, motion_blur, turbid, new_growth)}
+FAULTS = {f.__name__: f for f in (clean, swap_images, duplicate_frame, joint_log_shift, joint_offset,
+                                  joint_offset_small, mount_bent, air_calibration, focal_drift, fouled_lens,
+                                  motion_blur, turbid, new_growth)}
 
 
 # --------------------------------------------------------------------------------------------------------- running

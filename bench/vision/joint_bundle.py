@@ -304,6 +304,9 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
             S, g, points_step = _normal_equations(problem, r, J, J_pt, M, prior_info, prior_info @ (theta - mean),
                                                   keep)
             d = np.sqrt(np.diag(S))
+            if not np.all(d > 0):  # a parameter nothing observes (a degenerate view set): no step is defined
+                return JointBundleResult(False, "singular reduced system", T_site_b2, nan6, q_read, s_px, np.nan,
+                                         len(r), it_total)
             dc = -np.linalg.solve(S / np.outer(d, d), g / d) / d
             if not np.all(np.isfinite(dc)):
                 return JointBundleResult(False, "singular reduced system", T_site_b2, nan6, q_read, s_px, np.nan,

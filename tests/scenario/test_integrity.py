@@ -115,7 +115,8 @@ def test_every_fault_damages_its_copy(rendered, tmp_path):
         expected = {"clean": (set(), False, False), "swap_images": ({f"{a}.png", f"{roles['surround'][1]}.png"},
                                                                     False, False),
                     "duplicate_frame": ({f"{b}.png"}, False, False), "joint_log_shift": (set(), True, False),
-                    "joint_offset": (set(), True, False), "mount_bent": (set(), False, True),
+                    "joint_offset": (set(), True, False), "joint_offset_small": (set(), True, False),
+                    "mount_bent": (set(), False, True), "focal_drift": (set(), False, True),
                     "air_calibration": (set(), False, True), "fouled_lens": ({f"{a}.png", f"{b}.png"}, False, False),
                     "motion_blur": ({f"{a}.png"}, False, False), "turbid": ({f"{a}.png", f"{b}.png"}, False, False),
                     "new_growth": ({f"{a}.png", f"{b}.png"}, False, False)}[name]
@@ -127,6 +128,17 @@ def test_every_fault_damages_its_copy(rendered, tmp_path):
     assert np.rad2deg(rotation_angle(D[:3, :3])) == pytest.approx(1.0, abs=1e-6)
     fx = read_camera_yaml(tmp_path / "air_calibration" / "calibrated_air" / "camera.yaml").fx
     assert fx == pytest.approx(read_camera_yaml(camera).fx / F.N_WATER)
+    drift = read_camera_yaml(tmp_path / "focal_drift" / "calibrated_drift" / "camera.yaml")
+    cam0 = read_camera_yaml(camera)
+    assert abs(drift.fx / cam0.fx - 1) == pytest.approx(0.01)
+    assert np.linalg.norm(drift.K[:2, 2] - cam0.K[:2, 2]) == pytest.approx(3.0)
+    # the small offset: 0.1 deg on one of joints 1-5 of a locate view, nothing else
+    _, rows0 = F._joints(src)
+    _, rows1 = F._joints(tmp_path / "joint_offset_small" / "dataset")
+    d = np.array([[float(a) - float(b) for a, b in zip(r1[1:], r0[1:], strict=True)]
+                  for r0, r1 in zip(rows0, rows1, strict=True)])
+    (i, j), = np.argwhere(np.abs(d) > 1e-12)
+    assert rows0[i][0] in roles["locate"][:2] and j < 5 and abs(d[i, j]) == pytest.approx(0.1)
 
 
 def test_fault_cli_refuses_a_foreign_out_and_an_unknown_fault(rendered, tmp_path, capsys):
