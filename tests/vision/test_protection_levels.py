@@ -190,3 +190,13 @@ def test_relative_pose_disagreement_is_exact_without_noise_and_chi2_6_with_it():
         m2.append(I.relative_pose_disagreement(kmap, *views(kmap, 3e-4, p_true), T_a_b)[1])
     # conservative, not optimistic: the residual variance also holds the map error the pose sees (counted twice)
     assert 1.5 < np.mean(m2) < 6.6
+
+
+def test_joint_offset_probe_names_a_missing_file(tmp_path, capsys):
+    sys.path.insert(0, str(ROOT / "tools"))
+    import joint_offset_probe as P
+
+    (tmp_path / "ds" / "truth").mkdir(parents=True)
+    (tmp_path / "ds" / "truth" / "truth.yaml").write_text("{}\n")
+    assert P.main([str(tmp_path / "ds"), "--lab", str(tmp_path / "lab")]) == 2
+    assert "camera.yaml: missing" in capsys.readouterr().err
