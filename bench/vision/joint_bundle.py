@@ -198,7 +198,9 @@ def _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res, keep=None):
     Observations outside ``keep`` (N,) bool weigh nothing; a point left with fewer than two is held where it is."""
     n = J.shape[2]
     if keep is not None:
-        w = keep.astype(float)
+        # a point seen in one kept view is unobserved along its ray: its observation weighs nothing either
+        seen = np.bincount(problem.point[keep], minlength=M)
+        w = (keep & (seen[problem.point] >= 2)).astype(float)
         r, J, J_pt = r * w[:, None], J * w[:, None, None], J_pt * w[:, None, None]
     A = np.einsum("nki,nkj->ij", J, J) + prior_info
     g_c = np.einsum("nki,nk->i", J, r) + prior_res
