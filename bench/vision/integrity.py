@@ -33,7 +33,7 @@ The tests (each one's statistic is reported in ``tests``):
    imaging on a clean run, so ``rho`` is reported, not applied (see below).
 5. **Support.** Inliers (at least :data:`MIN_INLIERS`), inlier fraction and the inliers' spread over image a (convex
    hull / image area).
-6. **Conditioning** of the final least-squares problem.
+6. **Conditioning** of the final least-squares problem; a pose covariance that is not positive definite is refused.
 
 Protection levels: the base-pose covariance (position block, rotation block; ``locate_dataset`` has calibrated it
 by the estimator's measured optimism :data:`KAPPA`), inflated by the chi-square factor of test 3, gives the
@@ -350,6 +350,12 @@ def protection_levels(covariance, tests: dict, kappa: float = 1.0, floor_mm: flo
     return pr, pa
 
 
+def smallest_eigenvalue(covariance) -> float:
+    """Smallest eigenvalue of a covariance's symmetric part (NaN when it has a non-finite entry)."""
+    cov = np.asarray(covariance, float)
+    return float(np.linalg.eigvalsh(0.5 * (cov + cov.T)).min()) if np.all(np.isfinite(cov)) else float("nan")
+
+
 def kappa_of(refine: str, pnp: bool = False) -> float:
     """The measured covariance optimism :data:`KAPPA` of an estimator (``refine`` mode; PnP: unmeasured)."""
     return KAPPA_UNMEASURED if pnp else KAPPA.get(str(refine), KAPPA_UNMEASURED)
@@ -471,6 +477,10 @@ def assess(kmap: KeypointMap, surround: list, view_a: ViewObservation, view_b: V
 
     # --- test 6: conditioning ---------------------------------------------------------------------------------------
     tests["condition"] = float(result.condition)
+    tests["covariance_min_eig"] = smallest_eigenvalue(result.covariance)
+    if not tests["covariance_min_eig"] > 0:  # a least-squares covariance that is not positive definite
+        refuse.append(f"the pose's covariance is not positive definite (smallest eigenvalue "
+                      f"{tests['covariance_min_eig']:.3g}): the pose is not determined")
     if not result.condition < REFUSE_CONDITION:
         refuse.append(f"ill-conditioned pose problem (condition {result.condition:.3g})")
     elif result.condition > WARN_CONDITION:

@@ -68,6 +68,16 @@ def test_protection_levels_scale_with_kappa_and_the_inflations():
     assert I.protection_levels(np.full((6, 6), np.nan), {}) == (np.inf, np.inf)
 
 
+def test_smallest_eigenvalue_flags_a_covariance_that_is_not_positive_definite():
+    rng = np.random.default_rng(2)
+    cov = _cov(rng, 1e-3, 1e-4)
+    assert I.smallest_eigenvalue(cov) > 0
+    bad = cov.copy()
+    bad[3, 4] = bad[4, 3] = 2 * np.sqrt(cov[3, 3] * cov[4, 4])  # a correlation of 2
+    assert I.smallest_eigenvalue(bad) < 0
+    assert np.isnan(I.smallest_eigenvalue(np.full((6, 6), np.nan)))
+
+
 def test_kappa_of_the_estimators():
     assert I.kappa_of("joints") == I.KAPPA["joints"]
     assert I.kappa_of("bundle") == I.KAPPA["bundle"]
