@@ -121,29 +121,29 @@ def joint_log_shift(root, roles, cal, rng):
     return f"joint readings of the {len(idx)} site views shifted by one row"
 
 
-def joint_offset(root, roles, cal, rng):
+def _offset_joint(root, view: str, j: int, delta_deg: float) -> str:
+    """Offset joint column ``j`` of ``view``'s readings in ``joints.csv`` by ``delta_deg``; the description."""
     header, rows = _joints(root)
+    for r in rows:
+        if r[0] == view:
+            r[j] = repr(float(r[j]) + delta_deg)
+    _write_joints(root, header, rows)
+    return f"{view} {header[j]} offset by {delta_deg:+.1f} deg"
+
+
+def joint_offset(root, roles, cal, rng):
+    header, _ = _joints(root)
     site = [roles["reference"][0], *roles["surround"], *roles["locate"][:2]]
     view = site[int(rng.integers(len(site)))]
     j = int(rng.integers(1, len(header)))
-    sign = float(rng.choice([-1.0, 1.0]))
-    for r in rows:
-        if r[0] == view:
-            r[j] = repr(float(r[j]) + 0.5 * sign)
-    _write_joints(root, header, rows)
-    return f"{view} {header[j]} offset by {0.5 * sign:+.1f} deg"
+    return _offset_joint(root, view, j, 0.5 * float(rng.choice([-1.0, 1.0])))
 
 
 def joint_offset_small(root, roles, cal, rng):
-    header, rows = _joints(root)
+    header, _ = _joints(root)
     view = roles["locate"][int(rng.integers(2))]
     j = int(rng.integers(1, len(header) - 1))  # joints 1-5: joint 6 does not move the camera on link 5
-    sign = float(rng.choice([-1.0, 1.0]))
-    for r in rows:
-        if r[0] == view:
-            r[j] = repr(float(r[j]) + 0.1 * sign)
-    _write_joints(root, header, rows)
-    return f"{view} {header[j]} offset by {0.1 * sign:+.1f} deg"
+    return _offset_joint(root, view, j, 0.1 * float(rng.choice([-1.0, 1.0])))
 
 
 def _random_unit(rng):
