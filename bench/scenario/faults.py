@@ -128,7 +128,7 @@ def _offset_joint(root, view: str, j: int, delta_deg: float) -> str:
         if r[0] == view:
             r[j] = repr(float(r[j]) + delta_deg)
     _write_joints(root, header, rows)
-    return f"{view} {header[j]} offset by {delta_deg:+.1f} deg"
+    return f"{view} {header[j]} offset by {delta_deg:+g} deg"
 
 
 def joint_offset(root, roles, cal, rng):
@@ -312,6 +312,13 @@ def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None
     for f in names:
         if f not in FAULTS:
             raise ConfigError("--fault", f, f"unknown fault (known: {', '.join(FAULTS)})")
+    if refine == "joints":  # what refine 'joints' reads, checked once: else every copy would be 'refused' by it
+        from bench.vision.joint_bundle import read_priors
+        from bench.vision.locate_dataset import encoder_sigma_rad
+
+        encoder_sigma_rad(dataset)
+        if priors is not None:
+            read_priors(priors)
     # --out: claimed as bench faults' output before any work (bench.fileio); removed again if the run fails
     with claimed_output_dir(out, "faults", force=force, identity=str(dataset.resolve())) as out:
         rows = _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors)
@@ -323,8 +330,9 @@ def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine
 
     if camera is None or robot is None:
         cal0 = lab_calibration(dataset, out / "calibrated")
+        if camera is None and robot is None and priors is None:  # the priors of the lab files they belong to
+            priors = cal0["priors"]
         camera, robot = camera or cal0["camera"], robot or cal0["robot"]
-        priors = priors or cal0["priors"]
     rows = []
     for k, name in enumerate(names):
         work = out / name

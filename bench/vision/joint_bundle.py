@@ -198,9 +198,7 @@ def _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res, keep=None):
     Observations outside ``keep`` (N,) bool weigh nothing; a point left with fewer than two is held where it is."""
     n = J.shape[2]
     if keep is not None:
-        # a point seen in one kept view is unobserved along its ray: its observation weighs nothing either
-        seen = np.bincount(problem.point[keep], minlength=M)
-        w = (keep & (seen[problem.point] >= 2)).astype(float)
+        w = keep.astype(float)
         r, J, J_pt = r * w[:, None], J * w[:, None, None], J_pt * w[:, None, None]
     A = np.einsum("nki,nkj->ij", J, J) + prior_info
     g_c = np.einsum("nki,nk->i", J, r) + prior_res
@@ -219,6 +217,13 @@ def _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res, keep=None):
         return -np.einsum("mkl,ml->mk", Cinv, g_m + np.einsum("mik,i->mk", B, dc))
 
     return 0.5 * (S + S.T), g, points_step
+
+
+def _seen_twice(point, keep, M: int) -> np.ndarray:
+    """``keep`` without the observations of points it leaves in one view: such a point is unobserved along its ray
+    (the step, the cost and the degrees of freedom then agree on what counts)."""
+    seen = np.bincount(point[keep], minlength=M)
+    return keep & (seen[point] >= 2)
 
 
 def _cost(problem, theta, T_b2, X, keep, prior_info, mean) -> float:
@@ -305,10 +310,10 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
                                          len(r), it_total)
             S, g, points_step = _normal_equations(problem, r, J, J_pt, M, prior_info, prior_info @ (theta - mean),
                                                   keep)
-            d = np.sqrt(np.diag(S))
-            if not np.all(d > 0):  # a parameter nothing observes (a degenerate view set): no step is defined
+            if not np.all(np.diag(S) > 0):  # a parameter nothing observes (a degenerate view set): no step
                 return JointBundleResult(False, "singular reduced system", T_site_b2, nan6, q_read, s_px, np.nan,
                                          len(r), it_total)
+            d = np.sqrt(np.diag(S))
             dc = -np.linalg.solve(S / np.outer(d, d), g / d) / d
             if not np.all(np.isfinite(dc)):
                 return JointBundleResult(False, "singular reduced system", T_site_b2, nan6, q_read, s_px, np.nan,
@@ -328,8 +333,8 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
         e = np.linalg.norm(residuals(problem, theta, T_site_b2, X), axis=1)
         if gate:  # heavy tails (a keypoint on a similar-looking feature nearby): gate at gate x the robust sigma
             sigma_robust = float(np.median(e[keep])) / 1.1774  # the Rayleigh median of a 2D Gaussian of sigma
-            keep = e <= gate * sigma_robust
-        dof = max(2 * int(keep.sum()) - 3 * M - 6, 1)
+            keep = _seen_twice(problem.point, e <= gate * sigma_robust, M)
+        dof = max(2 * int(keep.sum()) - 3 * int(np.unique(problem.point[keep]).size) - 6, 1)
         s_px = float(np.sqrt(np.sum(e[keep] ** 2) / dof))
     r, J, J_pt, _ = residuals_and_jacobian(problem, theta, T_site_b2, X)
     S, _, _ = _normal_equations(problem, r, J, J_pt, M, info0 * s_px**2, np.zeros(n), keep)

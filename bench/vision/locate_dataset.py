@@ -105,13 +105,14 @@ def encoder_sigma_rad(root) -> float:
 
 def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None):
     """The thesis estimator's pose refined by :func:`~bench.vision.joint_bundle.joint_bundle` (joints under the
-    encoder prior); on failure the thesis estimate is kept and the message says why."""
+    encoder prior); on failure the thesis estimate is kept and the message says why. Returns ``(result, refined)``:
+    ``refined`` False when the thesis's estimate (and covariance) is what comes back."""
     from bench.camera.model import distort, to_pixels
     from bench.geometry.transforms import invert, transform_points
     from bench.vision.joint_bundle import joint_bundle, observations_of
 
     if res.used is None or len(res.used[0]) < 3:
-        return replace(res, message=res.message + "; joint bundle skipped (fewer than 3 points)")
+        return replace(res, message=res.message + "; joint bundle skipped (fewer than 3 points)"), False
     t0 = time.perf_counter()
     names = [roles["reference"][0].name, *(v.name for v in roles["surround"]), *(v.name for v in roles["locate"])]
     views = [v for r in ("reference", "surround", "locate") for v in roles[r]]
@@ -125,16 +126,17 @@ def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma
         jb = joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, res.T_world_base, view, point, uv, X, sigma_enc,
                           sigma0, camera.K, camera.dist, **(priors or {}))
     except (ValueError, np.linalg.LinAlgError) as exc:
-        return replace(res, message=f"{res.message}; joint bundle skipped ({exc})")
+        return replace(res, message=f"{res.message}; joint bundle skipped ({exc})"), False
     res.timings_s["joint_bundle_s"] = time.perf_counter() - t0
     if not jb.success:
-        return replace(res, message=f"{res.message}; joint bundle skipped ({jb.message})")
+        return replace(res, message=f"{res.message}; joint bundle skipped ({jb.message})"), False
     if jb.sigma_px < 1e-6:  # exact data (an evaluator's oracle): nothing to weigh, the thesis estimate is exact too
-        return replace(res, message=f"{res.message}; joint bundle: residuals {jb.sigma_px:.2g} px, estimate kept")
+        return replace(res, message=f"{res.message}; joint bundle: residuals {jb.sigma_px:.2g} px, estimate "
+                                    f"kept"), False
     T_base_a = obs[names[len(roles['surround']) + 1]].T_base_cam
     T_ref_a = invert(kmap.T_world_ref) @ jb.T_site_base @ T_base_a
     return replace(res, message=f"{res.message}; {jb.message[4:]}", T_world_base=jb.T_site_base, T_ref_cam=T_ref_a,
-                   covariance=jb.covariance)
+                   covariance=jb.covariance), True
 
 
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
@@ -189,6 +191,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     kmap = build_map(obs[roles["reference"][0].name], [obs[v.name] for v in roles["surround"]], config)
     t_map = time.perf_counter() - t0 - t_detect
     a = obs[roles["locate"][0].name]
+    refined = False  # the joint bundle's estimate is the one returned
     if pnp:
         res = locate_pnp(kmap, a, config, focal_px=camera.fx)
     else:
@@ -198,10 +201,12 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         if refine == "joints" and res.success:
             if details is not None:
                 details["thesis_result"] = res  # the thesis estimator's (bundle) result, reported beside
-            res = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors)
-    # the estimator's first-order covariance, calibrated by its measured optimism (bench.vision.integrity.KAPPA)
-    # ('joints' was measured with the lab priors: without them it is unmeasured)
-    kappa = kappa_of(refine, pnp) if refine != "joints" or priors is not None else KAPPA_UNMEASURED
+            res, refined = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors)
+    # the estimator's first-order covariance, calibrated by its measured optimism (bench.vision.integrity.KAPPA) - of
+    # the estimate returned: 'joints' falls back to the thesis's 'bundle' when the joint bundle fails or is skipped;
+    # 'joints' was measured with the lab priors (without them it is unmeasured)
+    used = ("joints" if refined else "bundle") if refine == "joints" else refine
+    kappa = kappa_of(used, pnp) if used != "joints" or priors is not None else KAPPA_UNMEASURED
     if res.success:
         res = replace(res, covariance=kappa**2 * np.asarray(res.covariance, float))
     t_int = time.perf_counter()

@@ -15,6 +15,7 @@ pytest.importorskip("mujoco")
 from bench.camera.io import read_camera_yaml, write_camera_yaml  # noqa: E402
 from bench.cli import main  # noqa: E402
 from bench.dataset import load_dataset  # noqa: E402
+from bench.errors import ConfigError  # noqa: E402
 from bench.geometry.transforms import rotation_angle  # noqa: E402
 from bench.robot.calibration_file import load_calibrated_robot, write_calibrated_robot  # noqa: E402
 from bench.scenario import faults as F  # noqa: E402
@@ -150,6 +151,17 @@ def test_fault_cli_refuses_a_foreign_out_and_an_unknown_fault(rendered, tmp_path
     assert "did not write" in capsys.readouterr().err
     assert main(["faults", str(tmp / "ds"), "--out", str(tmp_path / "x"), "--fault", "gremlins"]) == 2
     assert "gremlins" in capsys.readouterr().err
+
+
+def test_faults_check_the_encoders_file_before_claiming_out(rendered, tmp_path):
+    """refine 'joints' reads encoders.yaml: without it every copy would be 'refused' and the run would look clean."""
+    tmp, camera, robot = rendered
+    shutil.copytree(tmp / "ds", tmp_path / "ds", ignore=shutil.ignore_patterns("encoders.yaml"))
+    with pytest.raises(ConfigError, match="encoders.yaml"):
+        F.run_faults(tmp_path / "ds", tmp_path / "out", faults=["clean"], camera=camera, robot=robot, verbose=False)
+    assert not (tmp_path / "out").exists()
+    assert main(["faults", str(tmp_path / "ds"), "--out", str(tmp_path / "out"), "--camera", str(camera),
+                 "--robot", str(robot)]) == 2
 
 
 def test_whiteness_separates_noise_from_structure():

@@ -210,3 +210,11 @@ def test_joint_offset_probe_names_a_missing_file(tmp_path, capsys):
     (tmp_path / "ds" / "truth" / "truth.yaml").write_text("{}\n")
     assert P.main([str(tmp_path / "ds"), "--lab", str(tmp_path / "lab")]) == 2
     assert "camera.yaml: missing" in capsys.readouterr().err
+
+
+def test_joint_bundle_counts_a_point_only_where_two_views_keep_it():
+    from bench.vision.joint_bundle import _seen_twice
+
+    point = np.array([0, 0, 1, 1, 1, 2])
+    keep = np.array([True, False, True, True, False, True])
+    assert _seen_twice(point, keep, 3).tolist() == [False, False, True, True, False, False]
