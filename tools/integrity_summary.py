@@ -165,11 +165,11 @@ def report(runs, figure: Path | None) -> str:
         nees = np.array([r["nees_pos"] for r in succ])
         sig = np.array([r["sigma_mm"] for r in succ])
         err = np.array([r["err_mm"] for r in succ])
-        ratio = err / np.array([r["pr_mm"] for r in succ])
+        ratio = err / np.array([r["pr_mm"] or np.nan for r in succ])
         ok = [r for r in succ if r["integrity"] == "ok"]
         lines += ["", f"Among the {len(succ)} runs not refused: position error median / p95 / max {np.median(err):.2f}"
                       f" / {np.percentile(err, 95):.2f} / {err.max():.2f} mm; error / protection radius median "
-                      f"{np.median(ratio):.2f}, max {ratio.max():.2f}."]
+                      f"{np.nanmedian(ratio):.2f}, max {np.nanmax(ratio):.2f}."]
         if ok:
             lines += ["", f"Among the {len(ok)} ok runs: 95 % coverage of the reported covariance "
                           f"{100 * np.mean([r['nees_pos'] <= Q95 for r in ok]):.0f} % (position) / "

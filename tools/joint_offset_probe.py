@@ -41,7 +41,7 @@ def probe(dataset: Path, lab: Path, offsets, seed: int = 0, verbose: bool = True
         work = Path(tmp) / "dataset"
         shutil.copytree(dataset, work)
         for view in views:
-            for j in range(1, len(header)):
+            for j in range(1, len(header)):  # joint 6 too: it does not move a camera on link 5 (a control)
                 for dq in offsets:
                     rows = [list(r) for r in rows0]
                     for r in rows:
@@ -84,7 +84,8 @@ def main(argv=None) -> int:
     print(f"{n} silent failures in {len(rows)} cases; worst error among ok: "
           f"{max([r['pos_err_mm'] for r in rows if r['integrity'] == 'ok'] or [np.nan]):.2f} mm")
     if args.json:
-        args.json.write_text(json.dumps(rows, indent=1, default=lambda v: None) + "\n")
+        safe = [{k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in r.items()} for r in rows]
+        args.json.write_text(json.dumps(safe, indent=1) + "\n")
     return 1 if n else 0
 
 
