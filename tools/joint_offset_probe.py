@@ -43,11 +43,8 @@ def probe(dataset: Path, lab: Path, offsets, seed: int = 0, verbose: bool = True
         for view in views:
             for j in range(1, len(header)):  # joint 6 too: it does not move a camera on link 5 (a control)
                 for dq in offsets:
-                    rows = [list(r) for r in rows0]
-                    for r in rows:
-                        if r[0] == view:
-                            r[j] = repr(float(r[j]) + dq)
-                    F._write_joints(work, header, rows)
+                    F._write_joints(work, header, rows0)  # the readings as logged, then the one offset
+                    F._offset_joint(work, view, j, dq)
                     res, rep = locate_dataset(work, None, verbose=False, camera_path=lab / "camera.yaml",
                                               robot_path=lab / "robot.yaml", seed=seed, refine="joints",
                                               priors_path=lab / "calibration_priors.yaml")

@@ -53,8 +53,8 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
-from bench.geometry.transforms import invert, transform_points
-from bench.vision.insitu import KeypointMap, MapConfig, ViewObservation, reference_matches
+from bench.geometry.transforms import homogeneous, invert, skew, transform_points
+from bench.vision.insitu import KeypointMap, MapConfig, ViewObservation, _proj_jac, reference_matches
 
 #: Probability that the true error exceeds the protection level when every test passes (the stated risk).
 INTEGRITY_RISK = 1e-3
@@ -173,20 +173,9 @@ def _view_jacobians(p_ref, T_ref_view):
     ``T_view_ref`` and (N, 2, 3) w.r.t. the map point (reference frame); and the projections (N, 2)."""
     T_view_ref = invert(T_ref_view)
     X = transform_points(T_view_ref, np.asarray(p_ref, float))
-    x, y, z = X[:, 0], X[:, 1], X[:, 2]
-    P = np.zeros((len(X), 2, 3))
-    P[:, 0, 0] = P[:, 1, 1] = 1 / z
-    P[:, 0, 2], P[:, 1, 2] = -x / z**2, -y / z**2
-    S = np.zeros((len(X), 3, 3))  # skew(X): d(exp(w) X)/dw = -skew(X)
-    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -z, y, -x
-    S -= S.transpose(0, 2, 1)
-    return np.concatenate([-P @ S, P], axis=2), P @ T_view_ref[:3, :3], X[:, :2] / z[:, None]
-
-
-def _left(d) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = rotation_vector_to_matrix(d[:3]), d[3:]
-    return T
+    u, P = _proj_jac(X)
+    dX = np.concatenate([-skew(X), np.broadcast_to(np.eye(3), (len(X), 3, 3))], axis=2)  # d(exp(w) X + v)/d(w, v)
+    return P @ dX, P @ T_view_ref[:3, :3], u
 
 
 def relative_pose_disagreement(kmap: KeypointMap, free_a: dict, free_b: dict, T_a_b) -> tuple:
@@ -207,8 +196,11 @@ def relative_pose_disagreement(kmap: KeypointMap, free_a: dict, free_b: dict, T_
     T_b_a = invert(T_a_b)
     T_a_ref, T_b_ref = invert(free_a["T_free"]), invert(free_b["T_free"])
 
+    def left(d):  # the left perturbation [[exp(w), v], [0, 1]]
+        return homogeneous(rotation_vector_to_matrix(d[:3]), d[3:])
+
     def d_of(delta):
-        D = T_b_a @ _left(delta[:6]) @ T_a_ref @ invert(_left(delta[6:]) @ T_b_ref)
+        D = T_b_a @ left(delta[:6]) @ T_a_ref @ invert(left(delta[6:]) @ T_b_ref)
         return np.r_[matrix_to_rotation_vector(D[:3, :3]), D[:3, 3]]
 
     d0 = d_of(np.zeros(12))
@@ -366,8 +358,7 @@ def kappa_of(refine: str, pnp: bool = False) -> float:
 
 
 def assess(kmap: KeypointMap, surround: list, view_a: ViewObservation, view_b: ViewObservation, result,
-           focal_px: float, image_size, config: MapConfig | None = None, seed: int = 0,
-           kappa: float = 1.0) -> Integrity:
+           focal_px: float, image_size, config: MapConfig | None = None, seed: int = 0) -> Integrity:
     """Integrity tests and protection levels of a two-view localisation (see the module docstring).
 
     Parameters
@@ -386,8 +377,6 @@ def assess(kmap: KeypointMap, surround: list, view_a: ViewObservation, view_b: V
         The calibrated focal length (px): normalized residuals to pixels.
     image_size : (int, int)
         Width, height (px).
-    kappa : float
-        The estimator's covariance optimism (:func:`kappa_of`): the covariance's standard deviations times it.
 
     Returns
     -------
@@ -492,7 +481,7 @@ def assess(kmap: KeypointMap, surround: list, view_a: ViewObservation, view_b: V
 
     # --- protection levels -------------------------------------------------------------------------------------------
     tests["inflation_chi2"] = max(1.0, ratio) if np.isfinite(ratio) else 1.0
-    pr, pa = protection_levels(result.covariance, tests, kappa=kappa)
+    pr, pa = protection_levels(result.covariance, tests)  # the covariance as calibrated (locate_dataset: KAPPA)
     if refuse:
         return Integrity("refused", refuse + warn, float("inf"), float("inf"), tests)
     if pr * 1e3 > ALERT_MM or np.rad2deg(pa) > ALERT_DEG:
