@@ -6,6 +6,9 @@ STAMP := $(VENV)/.installed
 OUT ?= runs
 SEEDS ?= 20
 BUDGET_SEEDS ?= 10
+CAL_SEEDS ?= 10
+# the Table 3 sweeps: the extractor comparison and the plots are the single run's
+CAL_SWEEP := --set pipeline.compare_extractors=false --set outputs.plots=false --set outputs.rerun=false
 # Headless rendering through Mesa's EGL (Debian: libegl1 libgl1-mesa-dri).
 export MUJOCO_GL ?= egl
 
@@ -32,12 +35,23 @@ reproduce: $(STAMP)
 	$(BIN)/bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-insitu
 	$(BIN)/bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-insitu-air \
 		--set camera.preset=air_webcam
+	$(BIN)/bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-insitu-ideal \
+		--set camera.imaging=ideal
 	$(BIN)/bench budget scenarios/ta40_in_situ_manifold.yaml --seeds $(BUDGET_SEEDS) --seed 1 --out $(OUT)/budget-insitu
 	$(BIN)/bench run scenarios/xy_table_webcam.yaml --out $(OUT)/xy_table_webcam
 	$(BIN)/bench run scenarios/xy_table_underwater.yaml --out $(OUT)/xy_table_underwater
 	$(BIN)/bench sweep scenarios/xy_table_webcam.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-xy_table_webcam
 	$(BIN)/bench sweep scenarios/xy_table_underwater.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-xy_table_underwater
+	$(BIN)/bench sweep scenarios/xy_table_webcam.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-xy_table_webcam-ideal \
+		--set sim.imaging=ideal
 	$(BIN)/bench run scenarios/camera_calibration_webcam.yaml --out $(OUT)/camera_calibration_webcam
+	$(BIN)/bench run scenarios/camera_calibration_webcam.yaml --out $(OUT)/camera_calibration_webcam-ideal \
+		--set camera.imaging=ideal
+	$(BIN)/bench sweep scenarios/camera_calibration_webcam.yaml --seeds $(CAL_SEEDS) --seed 1 \
+		--out $(OUT)/sweep-camera_calibration_webcam $(CAL_SWEEP)
+	$(BIN)/bench sweep scenarios/camera_calibration_webcam.yaml --seeds $(CAL_SEEDS) --seed 1 \
+		--out $(OUT)/sweep-camera_calibration_webcam-ideal $(CAL_SWEEP) --set camera.imaging=ideal
+	$(BIN)/python tools/real_webcam_sim.py --seeds $$(seq -s ' ' 1 $(CAL_SEEDS)) --json $(OUT)/real_webcam_sim.json
 	$(BIN)/bench run scenarios/camera_calibration_underwater.yaml --out $(OUT)/camera_calibration_underwater
 	$(BIN)/bench run scenarios/flatport_study.yaml --out $(OUT)/flatport_study
 	$(BIN)/bench run scenarios/flatport_study.yaml --out $(OUT)/flatport_study_k3 --set calibration.k3=true

@@ -15,33 +15,56 @@ def _tool():
     return mod
 
 
+def _sweep(folder: Path, metrics: list) -> None:
+    folder.mkdir(parents=True)
+    db = sqlite3.connect(folder / "sweep.sqlite")
+    db.execute("CREATE TABLE runs (params TEXT, seed INT, status TEXT, metrics TEXT, result_path TEXT)")
+    for seed, m in enumerate(metrics):
+        db.execute("INSERT INTO runs VALUES (?, ?, 'done', ?, NULL)", ("{}", seed, json.dumps(m)))
+    db.commit()
+    db.close()
+
+
+def _insitu(err, scale=1.0, integrity=None):
+    m = {"base_pos_err_mm": err * scale, "base_rot_err_deg": err * scale / 100, "valve_tool_err_mm": err / 4,
+         "base_pos_bound_mm": 1.0, "base_rot_bound_deg": 0.01, "base_pos_crb_mm": 0.9, "base_pos_floor_mm": 0.4,
+         "base_rot_crb_deg": 0.009, "base_rot_floor_deg": 0.004}
+    if integrity:
+        ok, refused, radius = integrity
+        m.update({"integrity_ok": ok, "integrity_refused": refused, "protection_radius_mm": radius,
+                  "protection_angle_deg": None if radius is None else radius / 10})
+    return m
+
+
 def test_report_from_runs(tmp_path):
     runs = tmp_path / "runs"
     (runs / "table2").mkdir(parents=True)
     (runs / "table2" / "result.json").write_text(json.dumps({"metrics": {
         "max_abs_reduced_error_linear": 2e-14, "mc_heldout_rms_mm_rms": 0.0264, "heldout_rms_bound_mm": 0.0266,
         "mc_seeds": 500}, "tables": {}, "timings_s": {}}))
-    sweep = runs / "sweep-insitu"
-    sweep.mkdir()
-    db = sqlite3.connect(sweep / "sweep.sqlite")
-    db.execute("CREATE TABLE runs (params TEXT, seed INT, status TEXT, metrics TEXT, result_path TEXT)")
-    for seed, err in enumerate([1.0, 2.0, 3.0]):
-        db.execute("INSERT INTO runs VALUES (?, ?, 'done', ?, NULL)",
-                   ("{}", seed, json.dumps({"base_pos_err_mm": err, "base_rot_err_deg": err / 100,
-                                            "valve_tool_err_mm": err / 4, "base_pos_bound_mm": 1.0,
-                                            "base_rot_bound_deg": 0.01, "base_pos_crb_mm": 0.9,
-                                            "base_pos_floor_mm": 0.4, "base_rot_crb_deg": 0.009,
-                                            "base_rot_floor_deg": 0.004})))
-    db.commit()
-    db.close()
+    # realistic: ok, warning, refused; the warning's 2 mm error lies outside its 1.5 mm radius
+    _sweep(runs / "sweep-insitu", [_insitu(1.0, integrity=(1, 0, 4.0)), _insitu(2.0, integrity=(0, 0, 1.5)),
+                                   _insitu(3.0, integrity=(0, 1, None))])
+    _sweep(runs / "sweep-insitu-ideal", [_insitu(e, 0.5) for e in (1.0, 2.0, 3.0, 4.0)])
+    t3 = {"thesis_table3_alpha_std_px": 4.64, "thesis_table3_beta_std_px": 6.30}
+    _sweep(runs / "sweep-camera_calibration_webcam",
+           [{**t3, "table3_chi_mean_px": c, "table3_alpha_std_px": 4.0, "table3_beta_std_px": 5.0} for c in (.2, .4)])
+    (runs / "real_webcam_sim.json").write_text(json.dumps({"args": {"seeds": [1, 2]}, "summary": {
+        "rms_px": {"real": 0.5, "sim_median": 0.45, "sim_min": 0.4, "sim_max": 0.5}}}))
     tool = _tool()
     assert tool.main(["--runs", str(runs), "--docs", str(tmp_path / "docs")]) == 0
     doc = (tmp_path / "docs" / "results.md").read_text()
     head = doc[:doc.index("\n## ")]  # the headline table, before the first section
-    assert head.startswith("# Results") and "| what | measured | target | thesis |" in head
+    assert head.startswith("# Results")
+    assert "| what | measured (realistic imaging) | ideal imaging | target | thesis |" in head
     assert "0.0264 RMS over 500 draws (bound 0.0266)" in head
-    assert "2 mm / 0.02° / 0.5 mm" in head  # medians of the three seeds
+    # medians of the three realistic seeds, the four ideal ones beside them
+    assert "| 2 mm / 0.02° / 0.5 mm | 1.25 mm / 0.0125° / 0.625 mm (4 seeds) |" in head
     assert "Efficiency (RMS bound / RMS error over the seeds): pos: 0.46" in doc  # 1 / sqrt(14 / 3)
+    assert "| pos: 0.46, rot: 0.46 | pos: 0.73, rot: 0.73 |" in head  # ideal: 1 / sqrt(0.25 * 30 / 4)
+    assert "| 1 / 1 / 1; radius / error 2.4; 1 outside their protection level |" in head  # median(4, 0.75)
+    assert "| 0.3; 4 / 5 |" in head and "| 0.443; 4.6 / 6.3 |" in head  # Table 3: chi median of 0.2, 0.4
+    assert "| 0.45 vs 0.5 (× 0.90) |" in head
     assert "Not run yet" in doc and "xy_table_webcam" in doc
     assert "figures/bound-sweep-insitu.png" in doc
     assert (tmp_path / "docs" / "figures" / "bound-sweep-insitu.png").is_file()

@@ -1,8 +1,9 @@
 """``make reproduce``'s last step: ``docs/results.md``, generated from runs.
 
 Reads what ``make reproduce`` wrote under ``--runs`` (each part optional; a missing part is listed as not run) and
-writes ``docs/results.md``: the headline table first (what, measured, target, thesis), then every table, the
-thesis's numbers beside ours, targets beside measurements, figures copied to ``docs/figures/``. Nothing here is typed
+writes ``docs/results.md``: the headline table first (what, measured under realistic imaging, the same under ideal
+imaging where ``make reproduce`` ran the ideal twin, target, thesis), then every table, the thesis's numbers beside
+ours, targets beside measurements, figures copied to ``docs/figures/``. Nothing here is typed
 by hand: re-run ``make reproduce`` to refresh it. The README quotes rows of the headline table verbatim
 (``tests/test_docs.py`` checks that each still appears here).
 """
@@ -51,6 +52,22 @@ def _sweep_runs(folder) -> list:
     finally:
         con.close()
     return [{"params": json.loads(p), "seed": s, "metrics": json.loads(m or "{}"), "result": r} for p, s, m, r in rows]
+
+
+def _xy_errors(runs) -> dict:
+    """``{(method, d_mm, axis): [per-seed RMS error]}`` and ``{(method, d_mm, "thesis"): [x, y, z]}`` from the
+    seeds' ``position_error_vs_intraocular`` tables (RMS over the pair combinations)."""
+    per = {}
+    for r in runs:
+        res = _load(r["result"]) if r["result"] else None
+        if not res:
+            continue
+        t = res["tables"]["position_error_vs_intraocular"]
+        for i, (d, m) in enumerate(zip(t["d_mm"], t["method"], strict=True)):
+            for ax in "xyz":
+                per.setdefault((m, d, ax), []).append(t[f"err_{ax}_mm"][i])
+            per.setdefault((m, d, "thesis"), [t.get(f"thesis_err_{a}_mm", [None] * 999)[i] for a in "xyz"])
+    return per
 
 
 def _stats(values):
@@ -105,7 +122,7 @@ class Report:
         self.runs, self.docs = runs, docs
         self.figures = docs / "figures"
         self.md: list[str] = []
-        self.headline: list[list[str]] = []  # [what, measured, target, thesis]
+        self.headline: list[list[str]] = []  # [what, measured (realistic), ideal, target, thesis]
         self.missing: list[str] = []
 
     def figure(self, src, name, caption) -> None:
@@ -116,8 +133,8 @@ class Report:
         shutil.copyfile(src, self.figures / name)
         self.md.append(f"![{caption}](figures/{name})\n\n*{caption}*\n")
 
-    def head(self, what, measured, target="", thesis="") -> None:
-        self.headline.append([what, measured, target, thesis])
+    def head(self, what, measured, target="", thesis="", ideal="") -> None:
+        self.headline.append([what, measured, ideal or "—", target, thesis])
 
     # --- sections ----------------------------------------------------------------------------------------------------
     def table2(self):
@@ -166,8 +183,10 @@ class Report:
         self.figure(self.runs / "tracker_base_frame" / "base_accuracy_vs_noise.png", "tracker_base_accuracy.png",
                     "Base frame accuracy vs tracker noise and arc span, with the Cramér-Rao bound")
 
-    def insitu(self, folder="sweep-insitu", title="TA-40 in situ, underwater camera (`make demo`'s scenario)"):
+    def insitu(self, folder="sweep-insitu", title="TA-40 in situ, underwater camera (`make demo`'s scenario)",
+               ideal=None):
         runs = _sweep_runs(self.runs / folder)
+        twin = _sweep_runs(self.runs / ideal) if ideal else []
         if not runs:
             self.missing.append(f"{title} (`runs/{folder}`)")
             return
@@ -176,7 +195,8 @@ class Report:
                 ("base_rot_bound_deg", ""), ("base_pos_crb_mm", ""), ("base_pos_floor_mm", ""),
                 ("base_pos_bound_mc_mm", ""), ("keypoint_sigma_px", ""),
                 ("valve_tool_err_uncompensated_mm", ""), ("panel_sift_keypoints", ""), ("arm_heldout_rms_mm", ""),
-                ("mount_rot_err_deg", ""), ("parking_attempts", "")]
+                ("mount_rot_err_deg", ""), ("parking_attempts", ""), ("integrity_ok", ""),
+                ("protection_radius_mm", ""), ("protection_angle_deg", "")]
         rows, st = [], {}
         for k, target in keys:
             st[k] = _stats(r["metrics"].get(k) for r in runs)
@@ -200,12 +220,40 @@ class Report:
                 self.md.append(f"![Error against the limit per seed]({'figures/' + name})\n\n*Per seed (ordered "
                                "by error): the base error (bars), the limit = CRB ⊕ model floor (red), the CRB and "
                                "the floor alone.*\n")
-        self.head(f"{title}: base position / rotation, valve tool tip (median of {n})",
-                  f"{_fmt(st['base_pos_err_mm'].get('median'))} mm / {_fmt(st['base_rot_err_deg'].get('median'))}° "
-                  f"/ {_fmt(st['valve_tool_err_mm'].get('median'))} mm",
-                  "≤ 2 mm / ≤ 0.05° / ≤ 3 mm", "")
+        def errors(st):
+            return (f"{_fmt(st['base_pos_err_mm'].get('median'))} mm / {_fmt(st['base_rot_err_deg'].get('median'))}"
+                    f"° / {_fmt(st['valve_tool_err_mm'].get('median'))} mm")
+
+        tw = {k: _stats(r["metrics"].get(k) for r in twin) for k, _ in keys} if twin else None
+        if ideal and not twin:
+            self.missing.append(f"{title}, ideal imaging (`runs/{ideal}`)")
+        self.head(f"{title}: base position / rotation, valve tool tip (median of {n})", errors(st),
+                  "≤ 2 mm / ≤ 0.05° / ≤ 3 mm", "", errors(tw) + f" ({len(twin)} seeds)" if tw else "")
         if eff:
-            self.head(f"{title}: efficiency (RMS bound / RMS error)", ", ".join(eff), "≥ 0.75", "")
+            self.head(f"{title}: efficiency (RMS bound / RMS error)", ", ".join(eff), "≥ 0.75", "",
+                      ", ".join(f"{q}: {tw[f'base_{q}_bound_{u}']['rms'] / tw[f'base_{q}_err_{u}']['rms']:.2f}"
+                                for q, u in (("pos", "mm"), ("rot", "deg"))
+                                if tw[f"base_{q}_bound_{u}"]["n"] and tw[f"base_{q}_err_{u}"]["n"]) if tw else "")
+        ok = st.get("integrity_ok", {})
+        if ok.get("n"):
+            self.head(f"{title}: integrity ok / warning / refused, protection radius / error (median)",
+                      self._integrity(runs), "0 outside", "", self._integrity(twin) if twin else "")
+
+    @staticmethod
+    def _integrity(runs) -> str:
+        """``ok / warning / refused``, the median protection radius over the error, and how many poses not refused
+        lay outside their protection radius or angle (confident and wrong)."""
+        m = [r["metrics"] for r in runs]
+        ok = sum(1 for x in m if x.get("integrity_ok") == 1)
+        refused = sum(1 for x in m if x.get("integrity_refused") == 1)
+        kept = [x for x in m if x.get("integrity_refused") != 1]
+        ratio = [x["protection_radius_mm"] / x["base_pos_err_mm"] for x in kept
+                 if x.get("protection_radius_mm") is not None and x.get("base_pos_err_mm")]
+        outside = sum(1 for x in kept if x.get("protection_radius_mm") is not None
+                      and (x["base_pos_err_mm"] > x["protection_radius_mm"]
+                           or x["base_rot_err_deg"] > x["protection_angle_deg"]))
+        med = _fmt(np.median(ratio), 2) if ratio else "—"
+        return f"{ok} / {len(m) - ok - refused} / {refused}; radius / error {med}; {outside} outside their protection level"
 
     def budget(self, folder="budget-insitu", title="Error budget of the in-situ localisation"):
         r = _load(self.runs / folder / "result.json")
@@ -244,16 +292,15 @@ class Report:
             self.missing.append(f"{name} (`runs/{name}`, `runs/sweep-{name}`)")
             return
         self.md.append(f"## {name}: thesis Tables {thesis_tables}\n")
-        per = {}
-        for r in runs:  # every seed's table: RMS over the pair combinations per (d, method)
-            res = _load(r["result"]) if r["result"] else None
-            if not res:
-                continue
-            t = res["tables"]["position_error_vs_intraocular"]
-            for i, (d, m) in enumerate(zip(t["d_mm"], t["method"], strict=True)):
-                for ax in "xyz":
-                    per.setdefault((m, d, ax), []).append(t[f"err_{ax}_mm"][i])
-                per.setdefault((m, d, "thesis"), [t.get(f"thesis_err_{a}_mm", [None] * 999)[i] for a in "xyz"])
+        per = _xy_errors(runs)
+        twin_runs = _sweep_runs(self.runs / f"sweep-{name}-ideal")
+        twin = _xy_errors(twin_runs)
+
+        def ideal(d):  # the ideal twin's medians at d_o = d mm, "" when it was not run
+            if ("lms_ratio", d, "x") not in twin:
+                return ""
+            return " / ".join(_fmt(np.median(twin[("lms_ratio", d, ax)]), 2) for ax in "xyz") + \
+                f" mm ({len(twin_runs)} seeds)"
         if per:
             ds = sorted({d for (_, d, _) in per})
             self.md.append(f"Median over {len(runs)} seeds (`bench sweep scenarios/{name}.yaml --seeds "
@@ -273,13 +320,14 @@ class Report:
                 th = per[("lms_ratio", 100.0, "thesis")]
                 self.head(f"{name}: LMS + error ratio at d = 100 mm, x / y / z (median of {len(runs)}; 75 %)",
                           " / ".join(_fmt(v, 2) for v in med) + " mm (" + " / ".join(_fmt(v, 2) for v in q75) + ")",
-                          "≤ 1.0 mm" if "webcam" in name else "≤ 2.0 mm", " / ".join(_fmt(v) for v in th) + " mm")
+                          "≤ 1.0 mm" if "webcam" in name else "≤ 2.0 mm", " / ".join(_fmt(v) for v in th) + " mm",
+                          ideal(100.0))
             if ("lms_ratio", 20.0, "x") in per:
                 med = [np.median(per[("lms_ratio", 20.0, ax)]) for ax in "xyz"]
                 th = per[("lms_ratio", 20.0, "thesis")]
                 self.head(f"{name}: LMS + error ratio at d = 20 mm (median of {len(runs)})",
                           " / ".join(_fmt(v, 2) for v in med) + " mm", "≤ 5 mm",
-                          " / ".join(_fmt(v) for v in th) + " mm")
+                          " / ".join(_fmt(v) for v in th) + " mm", ideal(20.0))
         if run is not None:
             tot = run["timings_s"].get("total_s")
             if tot is not None and "webcam" in name:
@@ -306,12 +354,67 @@ class Report:
                                 strict=True))
                 self.md.append(f"**{tname}**\n\n" + _table(cols, rows) + "\n")
         if "reproj_rms_px" in m:
-            self.head(f"{name}: reprojection RMS (px), OpenCV on the same corners, focal error (%)",
-                      f"{_fmt(m['reproj_rms_px'], 3)}, {_fmt(m.get('opencv_reproj_rms_px'), 3)}, "
-                      f"{_fmt(m.get('focal_err_pct'), 3)}", "≤ 0.1 px and ≤ OpenCV; ≤ 0.1 %" if "webcam" in name
-                      else "")
+            def fig(m):
+                return (f"{_fmt(m['reproj_rms_px'], 3)}, {_fmt(m.get('opencv_reproj_rms_px'), 3)}, "
+                        f"{_fmt(m.get('focal_err_pct'), 3)}")
+
+            twin = _load(self.runs / f"{name}-ideal" / "result.json")
+            self.head(f"{name}: reprojection RMS (px), OpenCV on the same corners, focal error (%)", fig(m),
+                      "ideal: ≤ 0.1 px and ≤ OpenCV; ≤ 0.1 %" if "webcam" in name else "", "",
+                      fig(twin["metrics"]) if twin and "reproj_rms_px" in twin["metrics"] else "")
         for png in sorted((self.runs / name).glob("*.png")):
             self.figure(png, f"{name}_{png.name}", f"{name}: {png.stem.replace('_', ' ')}")
+
+    def table3(self, name="camera_calibration_webcam"):
+        """Table 3's protocol over seeds: χ and the spread of α, β over the seven pictures, realistic beside ideal."""
+        runs = _sweep_runs(self.runs / f"sweep-{name}")
+        if not runs:
+            self.missing.append(f"Table 3 over seeds (`runs/sweep-{name}`)")
+            return
+        twin = _sweep_runs(self.runs / f"sweep-{name}-ideal")
+        keys = ("table3_chi_mean_px", "table3_alpha_std_px", "table3_beta_std_px", "table3_alpha_mean_err_pct",
+                "reproj_rms_px", "focal_err_pct", "corner_rms_px")
+        thesis = {"table3_chi_mean_px": 0.443, "table3_alpha_std_px": runs[0]["metrics"].get(
+            "thesis_table3_alpha_std_px"), "table3_beta_std_px": runs[0]["metrics"].get("thesis_table3_beta_std_px")}
+        st = {k: _stats(r["metrics"].get(k) for r in runs) for k in keys}
+        tw = {k: _stats(r["metrics"].get(k) for r in twin) for k in keys}
+
+        def cell(s):
+            return f"{_fmt(s['median'], 3)} ({_fmt(s['q25'], 2)} – {_fmt(s['q75'], 2)})" if s.get("n") else "—"
+
+        self.md.append(f"## Table 3 over seeds ({name})\n\n`bench sweep scenarios/{name}.yaml --seeds {len(runs)} "
+                       "--set pipeline.compare_extractors=false` (folder `sweep-{name}`, and `-ideal` with "
+                       "`camera.imaging=ideal`): median (interquartile range)\n".replace("{name}", name))
+        self.md.append(_table(["metric", f"realistic ({len(runs)} seeds)", f"ideal ({len(twin)} seeds)", "thesis"],
+                              [[f"`{k}`", cell(st[k]), cell(tw[k]), _fmt(thesis.get(k), 3)] for k in keys]) + "\n")
+        def fig(st):
+            return (f"{_fmt(st['table3_chi_mean_px'].get('median'), 3)}; "
+                    f"{_fmt(st['table3_alpha_std_px'].get('median'), 2)} / "
+                    f"{_fmt(st['table3_beta_std_px'].get('median'), 2)}")
+
+        self.head(f"Table 3 protocol ({name}): χ (px); std of α / β over the pictures (px) (median of {len(runs)})",
+                  fig(st), "χ 0.33 – 0.58; std within 2× of Table 3's",
+                  f"0.443; {_fmt(thesis['table3_alpha_std_px'], 2)} / {_fmt(thesis['table3_beta_std_px'], 2)}",
+                  fig(tw) if twin else "")
+
+    def real_webcam(self, name="real_webcam_sim.json"):
+        """The real webcam photos simulated (``tools/real_webcam_sim.py``): the calibration residuals, sim vs real."""
+        r = _load(self.runs / name)
+        if r is None:
+            self.missing.append(f"the real webcam photos simulated (`runs/{name}`)")
+            return
+        sm = r["summary"]
+        seeds = r["args"]["seeds"]
+        self.md.append(f"## The real webcam photos simulated\n\n`python tools/real_webcam_sim.py --seeds "
+                       f"{' '.join(map(str, seeds))}`: the real photos' calibration residuals beside the simulated "
+                       "ones (same camera, board and 19 poses; same detector and calibration code)\n")
+        self.md.append(_table(["statistic", "real photos", "simulated (median)", "range"],
+                              [[f"`{k}`", _fmt(v["real"], 3), _fmt(v["sim_median"], 3),
+                                f"{_fmt(v['sim_min'], 3)} – {_fmt(v['sim_max'], 3)}"] for k, v in sm.items()]) + "\n")
+        rms = sm["rms_px"]
+        self.head(f"The real webcam photos simulated: calibration RMS (px), simulated (median of {len(seeds)}) vs real",
+                  f"{_fmt(rms['sim_median'], 3)} vs {_fmt(rms['real'], 3)} (× {rms['sim_median'] / rms['real']:.2f})",
+                  "× 0.7 – 1.3", "")
 
     def flatport(self, name, title):
         r = _load(self.runs / name / "result.json")
@@ -337,7 +440,8 @@ class Report:
 
     # --- output -----------------------------------------------------------------------------------------------------
     def write(self) -> None:
-        head = _table(["what", "measured", "target", "thesis"], self.headline) if self.headline else ""
+        head = _table(["what", "measured (realistic imaging)", "ideal imaging", "target", "thesis"],
+                      self.headline) if self.headline else ""
         missing = ("\n\nNot run yet (`make reproduce` runs them): " + "; ".join(self.missing) + ".") \
             if self.missing else ""
         doc = ("# Results (generated by `make reproduce`; do not edit)\n\n" + head + missing + "\n\n"
@@ -354,13 +458,15 @@ def main(argv=None) -> int:
     rep = Report(Path(args.runs), Path(args.docs))
     rep.table2()
     rep.tracker()
-    rep.insitu()
+    rep.insitu(ideal="sweep-insitu-ideal")
     rep.insitu("sweep-insitu-air", "TA-40 in situ, air camera (`camera.preset=air_webcam`)")
     rep.budget()
     rep.xy_table("xy_table_webcam", "5-8")
     rep.xy_table("xy_table_underwater", "11-14")
     rep.camera("camera_calibration_webcam")
     rep.camera("camera_calibration_underwater")
+    rep.table3()
+    rep.real_webcam()
     rep.flatport("flatport_study", "Flat-port study: the polynomial (Heikkilä) model vs working distance")
     rep.flatport("flatport_study_k3", "Flat-port study with k3")
     rep.write()

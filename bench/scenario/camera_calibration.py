@@ -761,6 +761,9 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
         m["table3_beta_mean_err_pct"] = (t3["beta_px"][-1] / f_true[1] - 1) * 100
         m["table3_theta_mean_deg"] = t3["theta_deg"][-1]
         m["table3_chi_mean_px"] = t3["chi_px"][-1]
+        for c in ("alpha", "beta"):  # the spread over the pictures (sample std), Table 3's beside it
+            m[f"table3_{c}_std_px"] = float(np.std(t3[f"{c}_px"][:-1], ddof=1)) if len(per_view) > 1 else float("nan")
+            m[f"thesis_table3_{c}_std_px"] = float(np.std(thesis3[f"{c}_px"][:7], ddof=1))
     views = {"view": list(det.names), "chi_px": [float(v) for v in cal.per_view_rms_px],
              "opencv_chi_px": [float(v) for v in ref.per_view_rms_px],
              "corner_rms_px": [float(np.sqrt(np.mean(e**2))) for e in err]}

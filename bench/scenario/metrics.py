@@ -44,6 +44,7 @@ PLACEHOLDERS = {
           "`heikkila` / `heikkila_jk`: against the true lens with formal / jackknife standard errors; `oracle` / "
           "`oracle_jk`: against the oracle fit"),
     "k": (r"1|2|3", "`1`, `2`, `3` standard errors"),
+    "c": (r"alpha|beta", "`alpha` (α) or `beta` (β)"),
     "extractor": (r"thesis|opencv", "corner extractor: `thesis` or `opencv`"),
     "case": (r"d0_[0-9p]+mm_(?:aligned|tilted)", "port case `d0_<lens-to-glass mm>mm_<aligned|tilted>` (a decimal "
                                                  "point written `p`), one per `port.lens_to_glass_mm` × alignment"),
@@ -293,6 +294,10 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "`camera.preset: air_webcam`"),
         Metric("table3_theta_mean_deg", "deg", "Table 3: average per-view skew angle θ", "`camera.preset: air_webcam`"),
         Metric("table3_chi_mean_px", "px", "Table 3: average per-view χ", "`camera.preset: air_webcam`"),
+        Metric("table3_<c>_std_px", "px", "Table 3: sample std of the per-view α (`alpha`) or β (`beta`) over the "
+               "pictures", "`camera.preset: air_webcam`"),
+        Metric("thesis_table3_<c>_std_px", "px", "the same std over the thesis's seven pictures",
+               "`camera.preset: air_webcam`"),
         Metric("focal_ratio_water_air", "1", "focal length in water / in air (paraxial: 1.34)",
                "`camera.medium: both`"),
         Metric("thesis_focal_ratio_water_air", "1", "the thesis's Table 15 / Table 9 focal lengths",

@@ -62,6 +62,9 @@ def test_webcam_smoke_accuracy_and_contract(webcam_run):
     assert t3["alpha_px"][-1] == pytest.approx(np.mean(t3["alpha_px"][:4]))
     assert all(abs(th - 90.0) < 0.1 for th in t3["theta_deg"])  # the true camera has no skew
     assert abs(m["table3_alpha_mean_err_pct"]) < 0.5 and m["table3_chi_mean_px"] < 0.1
+    assert m["table3_alpha_std_px"] == pytest.approx(np.std(t3["alpha_px"][:4], ddof=1), abs=1e-12)
+    assert m["thesis_table3_alpha_std_px"] == pytest.approx(4.64, abs=0.005)  # Table 3's seven α
+    assert m["thesis_table3_beta_std_px"] == pytest.approx(6.30, abs=0.005)
     for name in ("camera", "table3", "intrinsics", "figure44", "residuals"):
         assert (out / res["artifacts"][name]).is_file(), name
     # no truth outside truth/: the nominal camera file is Table 3's average, not the true camera
