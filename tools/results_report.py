@@ -253,7 +253,8 @@ class Report:
                       and (x["base_pos_err_mm"] > x["protection_radius_mm"]
                            or x["base_rot_err_deg"] > x["protection_angle_deg"]))
         med = _fmt(np.median(ratio), 2) if ratio else "—"
-        return f"{ok} / {len(m) - ok - refused} / {refused}; radius / error {med}; {outside} outside their protection level"
+        return (f"{ok} / {len(m) - ok - refused} / {refused}; radius / error {med}; "
+                f"{outside} outside their protection level")
 
     def budget(self, folder="budget-insitu", title="Error budget of the in-situ localisation"):
         r = _load(self.runs / folder / "result.json")
