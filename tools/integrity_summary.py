@@ -1,6 +1,7 @@
 """Summarise an envelope sweep of the in-situ localisation's integrity (issue 13; docs/integrity.md).
 
     python tools/integrity_summary.py SWEEP_DIR [--doc docs/integrity.md] [--figure docs/figures/...png]
+                                      [--locate relocated/locate.json]
 
 Reads every finished run of a ``bench sweep`` of ``scenarios/ta40_envelope.yaml`` (``SWEEP_DIR/sweep.sqlite``, each
 run's ``locate.json`` and its dataset's ``truth/truth.yaml`` - the evaluator's side) and reports, as the pipeline
@@ -19,7 +20,9 @@ reported them (the constants of :mod:`bench.vision.integrity` at the time of the
   :func:`bench.vision.integrity.protection_levels`);
 * a Stanford-style plot: position error against protection radius for every run, coloured by integrity.
 
-With ``--doc``, the markdown goes between ``<!-- envelope:begin -->`` and ``<!-- envelope:end -->`` of that file.
+``--locate`` reads each run's localisation from another file of its folder (``tools/relocate_sweep.py`` writes
+``relocated/locate.json``: the same datasets localised by a later version). With ``--doc``, the markdown goes
+between ``<!-- envelope:begin -->`` and ``<!-- envelope:end -->`` of that file.
 """
 
 from __future__ import annotations
@@ -52,8 +55,9 @@ def _texture_label(tex) -> str:
     return Path(next(iter(tex.values()))).stem
 
 
-def load_runs(sweep: Path) -> list:
-    """One dict per finished run: params, integrity, protection levels, true errors, NEES."""
+def load_runs(sweep: Path, locate: str = "locate.json") -> list:
+    """One dict per finished run: params, integrity, protection levels, true errors, NEES (``locate``: the
+    localisation's file in the run's folder)."""
     db = sqlite3.connect(sweep / "sweep.sqlite")
     rows = db.execute("SELECT run_id, params, seed, status, message, metrics, timings FROM runs").fetchall()
     db.close()
@@ -64,7 +68,7 @@ def load_runs(sweep: Path) -> list:
                "texture": _texture_label(params.get("site.textures", {})), "water": params.get("site.water", "?"),
                "standoff_m": float(params.get("site.standoff_m", float("nan"))),
                "total_s": json.loads(timings or "{}").get("total_s", float("nan"))}
-        loc_path, truth_path = sweep / "runs" / rid / "locate.json", sweep / "runs" / rid / "dataset" / "truth" / \
+        loc_path, truth_path = sweep / "runs" / rid / locate, sweep / "runs" / rid / "dataset" / "truth" / \
             "truth.yaml"
         if status != "done" or not loc_path.is_file():
             run.update(integrity="failed", success=False)
@@ -144,11 +148,13 @@ HEADER = ("| cell | runs | ok | warning | refused | failed | silent | ok: pos er
           "(runs not refused) |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
-def report(runs, figure: Path | None) -> str:
+def report(runs, figure: Path | None, locate: str = "locate.json") -> str:
     done = [r for r in runs if r.get("integrity") != "failed"]
     lines = [f"{len(runs)} runs ({len(done)} finished), run time median "
              f"{np.nanmedian([r['total_s'] for r in runs]):.0f} s on the shared 2-core machine.", "",
-             "As run (the constants of bench/vision/integrity.py at the time of the run):", "", HEADER]
+             "As run (the constants of bench/vision/integrity.py at the time of the run):" if locate == "locate.json"
+             else f"Localised again by a later version (`{locate}`, `tools/relocate_sweep.py`: the renders and lab "
+                  "calibrations as run):", "", HEADER]
     lines += _stats(runs, "all")
     for w in ("clear_ocean", "coastal", "turbid_harbour"):
         for s in sorted({r["standoff_m"] for r in runs}):
@@ -239,14 +245,16 @@ def main(argv=None) -> int:
     ap.add_argument("sweep", type=Path, nargs="+", help="one or more bench sweep folders (their runs pooled)")
     ap.add_argument("--doc", type=Path, help="markdown file with the envelope markers to fill")
     ap.add_argument("--figure", type=Path, help="Stanford plot (PNG)")
+    ap.add_argument("--locate", default="locate.json",
+                    help="each run's localisation file, relative to its folder (default locate.json)")
     args = ap.parse_args(argv)
     runs = []
     for sweep in args.sweep:
         if not (sweep / "sweep.sqlite").is_file():
             print(f"integrity_summary: {sweep}: no sweep.sqlite (not a bench sweep folder)", file=sys.stderr)
             return 2
-        runs += load_runs(sweep)
-    text = report(runs, args.figure)
+        runs += load_runs(sweep, args.locate)
+    text = report(runs, args.figure, args.locate)
     print(text)
     if args.doc:
         doc = args.doc.read_text()

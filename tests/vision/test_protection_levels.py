@@ -144,6 +144,32 @@ def test_summary_measures_coverage_silent_failures_and_fits_kappa(tmp_path):
     assert (tmp_path / "figures" / "stanford.png").stat().st_size > 1000
     assert S.main([str(tmp_path)]) == 2  # not a sweep folder
     assert S.main([str(sweep), str(tmp_path)]) == 2
+    # --locate: each run's localisation from another file of its folder (tools/relocate_sweep.py)
+    for run in (sweep / "runs").iterdir():
+        (run / "relocated").mkdir()
+        (run / "relocated" / "locate.json").write_text((run / "locate.json").read_text())
+    (next((sweep / "runs").iterdir()) / "locate.json").unlink()  # the old file is not read
+    again = S.report(S.load_runs(sweep, "relocated/locate.json"), None, "relocated/locate.json")
+    assert "Localised again" in again and "| all | 60 |" in again
+
+
+def test_relocate_sweep_refuses_what_it_cannot_redo(tmp_path, capsys):
+    sys.path.insert(0, str(ROOT / "tools"))
+    import relocate_sweep as R
+
+    with pytest.raises(SystemExit, match="not a bench sweep folder"):
+        R.main([str(tmp_path), str(ROOT / "scenarios" / "ta40_envelope.yaml")])
+    sweep = _fake_sweep(tmp_path, np.random.default_rng(1), n=2, optimism=1.0)
+    with pytest.raises(SystemExit, match="expected in_situ"):
+        R.main([str(sweep), str(ROOT / "scenarios" / "xy_table_webcam.yaml")])
+    with pytest.raises(SystemExit, match="--name"):
+        R.main([str(sweep), str(ROOT / "scenarios" / "ta40_envelope.yaml"), "--name", "dataset"])
+    db = sqlite3.connect(sweep / "sweep.sqlite")
+    db.execute("UPDATE runs SET params = ?", (json.dumps({"pipeline.refine": "bundle"}),))
+    db.commit()
+    db.close()
+    with pytest.raises(SystemExit, match="pipeline.refine"):
+        R.main([str(sweep), str(ROOT / "scenarios" / "ta40_envelope.yaml")])
 
 
 def _panel_map(rng, n=150, spread_m=0.0):
