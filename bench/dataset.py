@@ -25,7 +25,6 @@ import csv
 import io
 import os
 import shutil
-import sys
 import tempfile
 import threading
 import warnings
@@ -151,29 +150,43 @@ def check_image_file(path: Path, expected_size=None) -> None:
         raise ConfigError(path, "<file>", f"{fmt} cut short: truncated or corrupt (Pillow: {exc})") from None
 
 
-def _imread_capturing_stderr(path: Path):
-    """``cv2.imread`` with what the decoder libraries print on file descriptor 2 captured.
+#: Pillow modes read as grey ``(H, W)``; 16/32-bit and float modes are refused; every other mode becomes RGB.
+_GREY_MODES = ("L", "1", "LA", "La")
+_DEEP_MODES = ("I", "I;16", "I;16B", "I;16L", "I;16N", "F")
 
-    libpng reports a corrupt file (``libpng error: IDAT: CRC error``, without a newline) straight to stderr, which
-    would run into the one-line error; the text is returned instead (and passed on to stderr unchanged when the image
-    decoded after all).
+
+def read_image(path: Path) -> np.ndarray:
+    """Decode an image file through Pillow: ``uint8 (H, W, 3)`` RGB, or ``(H, W)`` grey for a grey file (alpha
+    dropped, palettes expanded; the raw sensor layout, EXIF orientation not applied).
+
+    One-line :class:`ConfigError` naming the file for a file Pillow cannot decode (corrupt data, cut short: the
+    decoder's own words) and for a 16/32-bit or float image. Pillow's pixel limit is lifted: call
+    :func:`check_image_file` first, which applies :data:`MAX_IMAGE_PIXELS` to the header's size.
     """
-    import cv2
+    import zlib
 
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as tmp:
-        os.dup2(tmp.fileno(), 2)
-        try:
-            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-        tmp.seek(0)
-        said = tmp.read().decode(errors="replace").strip()
-    if said and img is not None:
-        os.write(2, (said + "\n").encode())
-    return img, said
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with _PILLOW_LIMIT:
+            limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
+            try:
+                im = Image.open(path)
+            finally:
+                Image.MAX_IMAGE_PIXELS = limit
+        with im:
+            im.load()
+            if im.mode in _DEEP_MODES:
+                raise ConfigError(path, "<file>", f"expected an 8-bit image, got Pillow mode {im.mode!r}")
+            im = im.convert("L") if im.mode in _GREY_MODES else im.convert("RGB") if im.mode != "RGB" else im
+            img = np.asarray(im)
+    except UnidentifiedImageError:
+        raise ConfigError(path, "<file>", "not an image file Pillow can read") from None
+    except (OSError, SyntaxError, ValueError, EOFError, zlib.error) as exc:
+        raise ConfigError(path, "<file>", f"not readable ({exc})") from None
+    if img.size == 0:
+        raise ConfigError(path, "<file>", "empty image")
+    return img
 
 
 @dataclass(frozen=True)
@@ -192,24 +205,15 @@ class View:
 
         ``expected_size`` = ``(width, height)`` checks the image against the camera file.
         """
-        import cv2
-
         if self.image_path is None:
             raise ConfigError(self.name, "image", "this view is a frame of readings only: it has no image")
         if not self.image_path.is_file():
             raise ConfigError(self.image_path, "<file>", f"image of view {self.name!r} not found")
         try:
             check_image_file(self.image_path, expected_size)
+            img = read_image(self.image_path)
         except ConfigError as exc:
             raise ConfigError(exc.source, exc.field, f"image of view {self.name!r}: {exc.problem}") from None
-        img, said = _imread_capturing_stderr(self.image_path)
-        if img is None or img.size == 0:
-            why = f" ({said.splitlines()[-1]})" if said else ""
-            raise ConfigError(self.image_path, "<file>", f"image of view {self.name!r} is empty or not readable{why}")
-        if img.dtype != np.uint8:
-            raise ConfigError(self.image_path, "<file>", f"expected an 8-bit image, got {img.dtype}")
-        if img.ndim == 3:
-            img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2RGB)
         if expected_size is not None and (img.shape[1], img.shape[0]) != tuple(expected_size):
             raise ConfigError(self.image_path, "<size>", f"image is {img.shape[1]}x{img.shape[0]}, the camera file "
                                                          f"says {expected_size[0]}x{expected_size[1]}")

@@ -38,3 +38,27 @@ def test_jpeg_with_a_fill_byte_before_its_frame_header_is_read(tmp_path, rng):
         assert np.array_equal(np.asarray(im.convert("RGB")), got)
     bgr = cv2.imdecode(np.frombuffer(filled, np.uint8), cv2.IMREAD_COLOR)
     assert np.array_equal(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), got)
+
+
+def test_read_image_decodes_as_opencv_and_refuses_deep_images(tmp_path, rng):
+    """Pillow's decoding: RGB and grey PNGs equal to OpenCV's, a palette PNG expanded to RGB, alpha dropped, a
+    16-bit PNG refused in one line naming the file."""
+    import pytest
+
+    from bench.dataset import read_image
+    from bench.errors import ConfigError
+
+    rgb = rng.integers(0, 256, (30, 40, 3)).astype(np.uint8)
+    cv2.imwrite(str(tmp_path / "rgb.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    assert np.array_equal(read_image(tmp_path / "rgb.png"), rgb)
+    cv2.imwrite(str(tmp_path / "grey.png"), rgb[..., 0])
+    assert np.array_equal(read_image(tmp_path / "grey.png"), rgb[..., 0])
+    Image.fromarray(np.dstack([rgb, np.full((30, 40), 7, np.uint8)])).save(tmp_path / "rgba.png")
+    assert np.array_equal(read_image(tmp_path / "rgba.png"), rgb)
+    Image.fromarray(rgb).quantize(16).save(tmp_path / "palette.png")
+    pal = read_image(tmp_path / "palette.png")
+    assert pal.shape == (30, 40, 3) and np.array_equal(pal, cv2.cvtColor(cv2.imread(str(tmp_path / "palette.png")),
+                                                                         cv2.COLOR_BGR2RGB))
+    cv2.imwrite(str(tmp_path / "deep.png"), rng.integers(0, 65536, (30, 40)).astype(np.uint16))
+    with pytest.raises(ConfigError, match=r"deep.png: <file>: expected an 8-bit image, got Pillow mode 'I;16'"):
+        read_image(tmp_path / "deep.png")

@@ -21,8 +21,8 @@ keypoint coordinates is the camera model's business (``bench.camera``); detectio
 Channel order: SIFT runs on grey levels, and the grey of a colour image depends on which channel is red
 (``0.299 R + 0.587 G + 0.114 B``); ``cv2.imread`` gives BGR, the bench's renderer and
 :meth:`bench.dataset.View.image` give RGB. A 3- or 4-channel array is therefore refused unless the caller says which
-it is (``channel_order="rgb"`` or ``"bgr"``); a grey ``(H, W)`` array needs nothing; an image file (a path) is read
-with OpenCV, which knows its own channel order.
+it is (``channel_order="rgb"`` or ``"bgr"``); a grey ``(H, W)`` array needs nothing; an image file (a path) is
+decoded by Pillow (:func:`bench.dataset.read_image`), which knows its own channel order.
 """
 
 from __future__ import annotations
@@ -93,8 +93,9 @@ class Matches:
 
 
 def _read_image(path) -> np.ndarray:
-    """An 8-bit image file read by OpenCV, as grey; one-line error naming the file if missing or unreadable."""
-    from bench.dataset import check_image_file
+    """An 8-bit image file (decoded by Pillow: :func:`bench.dataset.read_image`) as grey; one-line error naming
+    the file if missing or unreadable."""
+    from bench.dataset import check_image_file, read_image
 
     path = Path(path)
     if path.is_dir():
@@ -102,16 +103,8 @@ def _read_image(path) -> np.ndarray:
     if not path.is_file():
         raise ConfigError(path, "<file>", "image not found")
     check_image_file(path)
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None or img.size == 0:
-        raise ConfigError(path, "<file>", "not a readable image")
-    if img.dtype != np.uint8:
-        raise ConfigError(path, "<file>", f"expected an 8-bit image, got {img.dtype}")
-    if img.ndim == 3 and img.shape[2] == 1:
-        img = img[..., 0]
-    if img.ndim == 3:
-        img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)  # OpenCV decodes colour files as BGR
-    return img
+    img = read_image(path)
+    return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
 
 
 def _grey(image, channel_order=None, name="image") -> np.ndarray:
