@@ -7,6 +7,11 @@ OUT ?= runs
 SEEDS ?= 20
 BUDGET_SEEDS ?= 10
 CAL_SEEDS ?= 10
+# issue 13's operating envelope (300 runs, ~75 min on 2 cores): appearance x water x standoff, 5 seeds
+ENVELOPE_GRID := --param 'site.textures=[{}, {backplate: data/textures/industrial_rocket_launch.jpg}, \
+	{backplate: data/textures/natural_gravel.png}, {backplate: data/textures/lowtexture_cameraman.png}, \
+	{backplate: data/textures/repetitive_brick.png}]' \
+	--param site.water=clear_ocean,coastal,turbid_harbour --param site.standoff_m=0.5,0.7,1.0,1.5
 # the Table 3 sweeps: the extractor comparison and the plots are the single run's
 CAL_SWEEP := --set pipeline.compare_extractors=false --set outputs.plots=false --set outputs.rerun=false
 # Headless rendering through Mesa's EGL (Debian: libegl1 libgl1-mesa-dri).
@@ -38,6 +43,8 @@ reproduce: $(STAMP)
 	$(BIN)/bench sweep scenarios/ta40_in_situ_manifold.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-insitu-ideal \
 		--set camera.imaging=ideal
 	$(BIN)/bench budget scenarios/ta40_in_situ_manifold.yaml --seeds $(BUDGET_SEEDS) --seed 1 --out $(OUT)/budget-insitu
+	$(BIN)/bench sweep scenarios/ta40_envelope.yaml --seeds 5 --seed 1 --set camera.supersample=1 $(ENVELOPE_GRID) \
+		--out $(OUT)/envelope
 	$(BIN)/bench run scenarios/xy_table_webcam.yaml --out $(OUT)/xy_table_webcam
 	$(BIN)/bench run scenarios/xy_table_underwater.yaml --out $(OUT)/xy_table_underwater
 	$(BIN)/bench sweep scenarios/xy_table_webcam.yaml --seeds $(SEEDS) --seed 1 --out $(OUT)/sweep-xy_table_webcam

@@ -417,6 +417,37 @@ class Report:
                   f"{_fmt(rms['sim_median'], 3)} vs {_fmt(rms['real'], 3)} (× {rms['sim_median'] / rms['real']:.2f})",
                   "× 0.7 – 1.3", "")
 
+    def envelope(self, folder="envelope", locate="locate.json"):
+        """Issue 13's envelope sweep (``tools/integrity_summary.py``'s tables and Stanford plot) and its headline."""
+        sys.path.insert(0, str(ROOT / "tools"))
+        import integrity_summary as S
+
+        sweep = self.runs / folder
+        if not (sweep / "sweep.sqlite").is_file():
+            self.missing.append(f"the operating envelope (`runs/{folder}`)")
+            return
+        runs = S.load_runs(sweep, locate)
+        fig = self.figures / "integrity_stanford.png"
+        self.figures.mkdir(parents=True, exist_ok=True)
+        self.md.append(f"## The operating envelope: integrity (issue 13)\n\n`bench sweep scenarios/ta40_envelope.yaml` "
+                       f"(folder `{folder}`; the grid in the scenario's header), summarised by "
+                       f"`tools/integrity_summary.py`\n")
+        self.md.append(S.report(runs, fig, locate))
+        cell = [r for r in runs if r["water"] in ("clear_ocean", "coastal") and r["standoff_m"] <= 1.0]
+        ok = [r for r in runs if r.get("integrity") == "ok"]
+        if not ok:
+            return
+        e = np.array([r["err_mm"] for r in ok])
+        a = np.array([r["err_deg"] for r in ok])
+        cov = np.mean([r["nees_pos"] <= S.Q95 for r in ok])
+        ratio = np.median([r["pr_mm"] for r in ok]) / np.median(e)
+        avail = sum(r.get("integrity") == "ok" for r in cell) / max(len(cell), 1)
+        self.head(f"Operating envelope ({len(runs)} runs): silent failures; availability clear + coastal 0.5-1.0 m; "
+                  "ok runs: error median / p95, 95 % coverage (position), protection radius / error",
+                  f"{sum(S.silent(r) for r in runs)}; {100 * avail:.0f} %; {np.median(e):.2f} mm / "
+                  f"{np.percentile(e, 95):.2f} mm, {np.percentile(a, 95):.3f}° p95; {100 * cov:.0f} %; {ratio:.1f}",
+                  "0; ≥ 90 %; ≤ 0.5 / ≤ 2 mm, ≤ 0.05°; 90-99 %; ≤ 3")
+
     def flatport(self, name, title):
         r = _load(self.runs / name / "result.json")
         if r is None:
@@ -455,6 +486,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", default="runs", help="the folder make reproduce wrote (default runs)")
     ap.add_argument("--docs", default=str(ROOT / "docs"))
+    ap.add_argument("--envelope-locate", default="locate.json",
+                    help="the envelope runs' localisation file (relocated/locate.json: tools/relocate_sweep.py)")
     args = ap.parse_args(argv)
     rep = Report(Path(args.runs), Path(args.docs))
     rep.table2()
@@ -468,6 +501,7 @@ def main(argv=None) -> int:
     rep.camera("camera_calibration_underwater")
     rep.table3()
     rep.real_webcam()
+    rep.envelope(locate=args.envelope_locate)
     rep.flatport("flatport_study", "Flat-port study: the polynomial (Heikkilä) model vs working distance")
     rep.flatport("flatport_study_k3", "Flat-port study with k3")
     rep.write()
