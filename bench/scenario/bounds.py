@@ -4,6 +4,8 @@ pose) and :mod:`bench.scenario.xy_table_bound` (the x-y table's camera positions
 
 * :func:`true_projector` - pixels of camera-frame points through the *true* optics (lens, and the flat port where
   there is one): what a perfect feature detector would report.
+* :func:`best_central_camera` - the central camera closest to the true optics over a depth range (what no central
+  model removes is the model floor).
 * :func:`ideal_features` - exact projections of a fixed set of 3D points with a unique descriptor per point (perfect
   correspondences), optionally with Gaussian pixel noise.
 * :func:`keypoint_sigma_px` - SIFT localisation noise measured against the truth (distance from the true epipolar
@@ -32,6 +34,7 @@ import numpy as np
 import scipy.optimize
 
 from bench.camera.model import CameraModel
+from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import invert, transform_points
 from bench.vision.features import Features
 from bench.vision.insitu import MapConfig, ViewObservation, reference_matches
@@ -65,6 +68,57 @@ def true_projector(camera: CameraModel, port=None, profile=None):
         return uv + np.stack([(s1 * r2 + s2 * r2**2) * K[0, 0], (s3 * r2 + s4 * r2**2) * K[1, 1]], axis=-1)
 
     return project
+
+
+def best_central_camera(lens: CameraModel, port, depth_range, n: int = 3000, rng=None, profile=None) -> tuple:
+    """The central camera closest to lens + flat ``port`` over a depth range: ``(camera, T_lens_central (4, 4))``.
+
+    Least squares over ``fx, fy, cx, cy, k1, k2, k3`` and the central camera's pose in the lens frame (rotation
+    vector, centre) of the pixel difference between the central projection and the true one (lens + port) for
+    ``n`` points spread over the image at depths ``depth_range`` (m): what a calibration on noise-free data at
+    those ranges would find at best. Without a port: the lens itself, identity. A realistic imaging ``profile``
+    adds its static warp to the true optics (:func:`~bench.scenario.bounds.true_projector`).
+    """
+    if port is None and (profile is None or not profile.on("distortion")):
+        return lens, np.eye(4)
+    rng = np.random.default_rng(0) if rng is None else rng
+    true = true_projector(lens, port, profile)
+    mag = port.n_water / port.n_air if port is not None else 1.0
+    K0 = lens.K.copy()
+    K0[:2, :2] *= mag
+    x_max = (lens.width / 2) / K0[0, 0]
+    y_max = (lens.height / 2) / K0[1, 1]
+    z = rng.uniform(*depth_range, n)
+    p = np.c_[rng.uniform(-x_max, x_max, n) * z, rng.uniform(-y_max, y_max, n) * z, z]
+    uv = true(p)
+    w, h = lens.size
+    ok = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] > 0) & (uv[:, 0] < w - 1) & (uv[:, 1] > 0) & (uv[:, 1] < h - 1)
+    p, uv = p[ok], uv[ok]
+    d0 = np.r_[lens.dist, np.zeros(5 - len(lens.dist))] if len(lens.dist) < 5 else np.array(lens.dist, float)
+
+    def camera(x):
+        K = K0.copy()
+        K[0, 0], K[1, 1], K[0, 2], K[1, 2] = x[:4]
+        d = d0.copy()
+        d[[0, 1, 4]] = x[4:7]
+        return lens.replace(K=K, dist=d, name="best central camera")
+
+    def pose(x):
+        T = np.eye(4)  # T_lens_central
+        T[:3, :3], T[:3, 3] = rotation_vector_to_matrix(x[7:10]), x[10:13]
+        return T
+
+    def residual(x):
+        T = pose(x)
+        p_c = (p - T[:3, 3]) @ T[:3, :3]
+        return (camera(x).project(p_c) - uv).ravel()
+
+    z_v = 0.0 if port is None else \
+        (port.d0 + port.t) - (port.d0 + port.t * port.n_air / port.n_glass) * port.n_water / port.n_air
+    x0 = np.r_[K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], d0[[0, 1, 4]], np.zeros(3), 0.0, 0.0, z_v]
+    sol = scipy.optimize.least_squares(residual, x0, x_scale=np.r_[np.full(4, 10.0), np.full(3, 0.01), np.full(3, 1e-3),
+                                                   np.full(3, 1e-3)], method="lm")
+    return camera(sol.x), pose(sol.x)
 
 
 def ideal_features(p_world, T_world_cam, project, size, noise_px: float = 0.0, rng=None) -> Features:

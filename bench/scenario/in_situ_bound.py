@@ -32,6 +32,7 @@ from bench.robot.orientation import link5_frame
 from bench.scenario.bounds import (  # noqa: F401 - the generic parts, re-exported for the in-situ scenario
     Block,
     MultiViewModel,
+    best_central_camera,
     crb,
     ideal_features,
     keypoint_sigma_px,
@@ -183,59 +184,6 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
     cov = res["cov"][:6, :6]
     return {"cov": cov, "pos_bound_m": float(np.sqrt(np.trace(cov[3:, 3:]))),
             "rot_bound_rad": float(np.sqrt(np.trace(cov[:3, :3]))), "observations": res["observations"]}
-
-
-def best_central_camera(lens: CameraModel, port, depth_range, n: int = 3000, rng=None, profile=None) -> tuple:
-    """The central camera closest to lens + flat ``port`` over a depth range: ``(camera, T_lens_central (4, 4))``.
-
-    Least squares over ``fx, fy, cx, cy, k1, k2, k3`` and the central camera's pose in the lens frame (rotation
-    vector, centre) of the pixel difference between the central projection and the true one (lens + port) for
-    ``n`` points spread over the image at depths ``depth_range`` (m): what a calibration on noise-free data at
-    those ranges would find at best. Without a port: the lens itself, identity. A realistic imaging ``profile``
-    adds its static warp to the true optics (:func:`~bench.scenario.bounds.true_projector`).
-    """
-    from scipy.optimize import least_squares
-
-    if port is None and (profile is None or not profile.on("distortion")):
-        return lens, np.eye(4)
-    rng = np.random.default_rng(0) if rng is None else rng
-    true = true_projector(lens, port, profile)
-    mag = port.n_water / port.n_air if port is not None else 1.0
-    K0 = lens.K.copy()
-    K0[:2, :2] *= mag
-    x_max = (lens.width / 2) / K0[0, 0]
-    y_max = (lens.height / 2) / K0[1, 1]
-    z = rng.uniform(*depth_range, n)
-    p = np.c_[rng.uniform(-x_max, x_max, n) * z, rng.uniform(-y_max, y_max, n) * z, z]
-    uv = true(p)
-    w, h = lens.size
-    ok = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] > 0) & (uv[:, 0] < w - 1) & (uv[:, 1] > 0) & (uv[:, 1] < h - 1)
-    p, uv = p[ok], uv[ok]
-    d0 = np.r_[lens.dist, np.zeros(5 - len(lens.dist))] if len(lens.dist) < 5 else np.array(lens.dist, float)
-
-    def camera(x):
-        K = K0.copy()
-        K[0, 0], K[1, 1], K[0, 2], K[1, 2] = x[:4]
-        d = d0.copy()
-        d[[0, 1, 4]] = x[4:7]
-        return lens.replace(K=K, dist=d, name="best central camera")
-
-    def pose(x):
-        T = np.eye(4)  # T_lens_central
-        T[:3, :3], T[:3, 3] = rotation_vector_to_matrix(x[7:10]), x[10:13]
-        return T
-
-    def residual(x):
-        T = pose(x)
-        p_c = (p - T[:3, 3]) @ T[:3, :3]
-        return (camera(x).project(p_c) - uv).ravel()
-
-    z_v = 0.0 if port is None else \
-        (port.d0 + port.t) - (port.d0 + port.t * port.n_air / port.n_glass) * port.n_water / port.n_air
-    x0 = np.r_[K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], d0[[0, 1, 4]], np.zeros(3), 0.0, 0.0, z_v]
-    sol = least_squares(residual, x0, x_scale=np.r_[np.full(4, 10.0), np.full(3, 0.01), np.full(3, 1e-3),
-                                                   np.full(3, 1e-3)], method="lm")
-    return camera(sol.x), pose(sol.x)
 
 
 def model_floor(robot, eps_true, mount, lens: CameraModel, port, T_site_b2, views, names, X_site, method="svd",

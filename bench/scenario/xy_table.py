@@ -775,7 +775,7 @@ def plot_tables(summary: dict, poses: str, path) -> str:
                     label=f"{a} (thesis)")
             if f"bound_{a}_mm" in summary:  # the Cramér-Rao bound and the ideal estimator's Monte Carlo
                 ax.plot(d, np.array(summary[f"bound_{a}_mm"])[sel], ":", color=colors[a], lw=1.6,
-                        label=f"{a} bound (CRB)")
+                        label=f"{a} limit (CRB ⊕ floor)")
                 ax.plot(d, np.array(summary[f"bound_mc_{a}_mm"])[sel], "x", color=colors[a], ms=6,
                         label=f"{a} ideal estimator (MC)")
         if "eq123_z_mm" in summary:
@@ -789,7 +789,7 @@ def plot_tables(summary: dict, poses: str, path) -> str:
         ax.set_xlabel("intraocular distance d_o (mm)")
     axes[0, 0].legend(fontsize=6, ncol=2)
     fig.suptitle(f"x-y table positioning error vs intraocular distance ({figs}); dashed: the thesis"
-                 + ("; dotted: the Cramér-Rao bound" if "bound_x_mm" in summary else ""))
+                 + ("; dotted: the limit (Cramér-Rao bound ⊕ model floor)" if "bound_x_mm" in summary else ""))
     fig.tight_layout()
     atomic_save_figure(fig, path, dpi=110)
     plt.close(fig)
@@ -799,18 +799,23 @@ def plot_tables(summary: dict, poses: str, path) -> str:
 # ------------------------------------------------------------------------------------------------ the bound
 
 
-def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose) -> tuple:
-    """EVALUATOR SIDE: measured feature noise, the Cramér-Rao bound of every estimate, a Monte Carlo of the ideal
-    estimator and Eq. 123's stereo depth error (:mod:`bench.scenario.xy_table_bound`).
+def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose, cov_K=None) -> tuple:
+    """EVALUATOR SIDE: measured feature noise, the complete Cramér-Rao bound of every estimate (the table's errors,
+    the intrinsics under the pipeline's calibration covariance ``cov_K`` (4, 4) px^2 of ``fx, fy, cx, cy`` when it
+    calibrated the camera, ``R0`` when it searched it), the model floor, a Monte Carlo of the ideal estimator and
+    Eq. 123's stereo depth error (:mod:`bench.scenario.xy_table_bound`).
 
     Returns ``(metrics, columns)``: ``columns`` per intraocular distance (``d_mm`` and the bound's columns of the
-    position-error table, mm and deg).
+    position-error table, mm and deg: ``crb_*`` the bound, ``floor_*`` the model floor, ``bound_*`` the limit, their
+    root-sum-square).
     """
     from dataclasses import replace
 
     from bench.scenario.xy_table_bound import (
         TableKinematics,
+        Unknowns,
         experiment_bounds,
+        floor_positions,
         map_points,
         mc_ideal_positions,
         measured_sigma_px,
@@ -822,7 +827,8 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose) -> tuple:
     p, b = cfg["pipeline"], cfg["bound"]
     ref = pc.reference
     lens, port = true_optics(truth)
-    project = true_projector(lens, port)
+    profile = imaging(cfg)
+    project = true_projector(lens, port, profile)
     T_true = {n: np.array(T) for n, T in truth["T_table_cam"].items()}
     kind = "corners" if p["features"] == "corners" else "sift"
     sigma, n_sigma = measured_sigma_px(res, kind, T_true, lens, project, truth, ref, pc.map, port)
@@ -840,16 +846,26 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose) -> tuple:
     centres = np.stack([res.T_table_cam[n][:3, 3] for n in names])
     X, seen = map_points(res, ref, T_model[ref], map_view_names(names, centres, ref, (), pc.map_min_baseline_m,
                                                                   pc.map_exclude))
-    bounds = experiment_bounds(res, kin, pc, X, seen, project, lens.size, sigma, verbose)
+    unknowns = Unknowns(lens.K, cov_K, R0_free=p["mount_bias"] == "estimated")
+    bounds = experiment_bounds(res, kin, pc, X, seen, project, lens.size, sigma, verbose, unknowns)
+    metrics["bound_intrinsics_free"] = float(cov_K is not None)
+    metrics["bound_R0_free"] = float(unknowns.R0_free)
     cols = {k: [] for k in ("d_mm", "bound_x_mm", "bound_y_mm", "bound_z_mm", "bound_pos_mm", "bound_rot_deg",
-                            "bound_mc_x_mm", "bound_mc_y_mm", "bound_mc_z_mm", "bound_mc_pos_mm", "eq123_z_mm")}
+                            "crb_x_mm", "crb_y_mm", "crb_z_mm", "crb_pos_mm", "floor_x_mm", "floor_y_mm",
+                            "floor_z_mm", "floor_pos_mm", "bound_mc_x_mm", "bound_mc_y_mm", "bound_mc_z_mm",
+                            "bound_mc_pos_mm", "eq123_z_mm")}
+    # the model floor: the estimator on noise-free features through the true optics, exact table, R0 and centre
+    T_mc = np.array(truth["T_mount_cam"])
+    spec_true = TableSpec(np.array(truth["camera_offset_m"]) + T_mc[:3, 3], spec.travel_m, spec.resolution_m,
+                          spec.resolution_rad)
+    floor, floor_fails, misfit = floor_positions(kin, X, seen, lens, port, profile, spec_true, T_mc[:3, :3],
+                                                 replace(pc, methods=("lms_ratio",)))
+    metrics["floor_failures"] = float(floor_fails)
+    metrics["floor_misfit_px"] = misfit
     # the Monte Carlo: the thesis's estimator (LMS + error ratio) on ideal features, true lens, R0 and centre
     mc = {}
     d_mc = [float(d) for d in b["mc_intraocular_mm"] if float(d) in res.pairs]
     if b["mc_trials"] > 0 and d_mc:
-        T_mc = np.array(truth["T_mount_cam"])
-        spec_true = TableSpec(np.array(truth["camera_offset_m"]) + T_mc[:3, 3], spec.travel_m, spec.resolution_m,
-                              spec.resolution_rad)
         mc = mc_ideal_positions(kin, X, seen, lens, spec_true, T_mc[:3, :3],
                                 replace(pc, methods=("lms_ratio",), intraocular_mm=tuple(d_mc)), sigma,
                                 np.random.default_rng([cfg["seed"], 17]), b["mc_trials"],
@@ -862,10 +878,16 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose) -> tuple:
         if not got:
             continue
         var = np.mean([np.diag(v["cov_pos"]) for v in got], axis=0)
+        f = floor.get(round(d, 6))
+        fl = np.sqrt(np.mean(f**2, axis=0)) if f is not None and len(f) else np.full(3, np.nan)  # RMS over pairs
         cols["d_mm"].append(float(d))
         for i, ax in enumerate("xyz"):
-            cols[f"bound_{ax}_mm"].append(float(np.sqrt(var[i]) * 1e3))
-        cols["bound_pos_mm"].append(float(np.sqrt(var.sum()) * 1e3))
+            cols[f"crb_{ax}_mm"].append(float(np.sqrt(var[i]) * 1e3))
+            cols[f"floor_{ax}_mm"].append(float(fl[i] * 1e3))
+            cols[f"bound_{ax}_mm"].append(float(np.sqrt(var[i] + np.nan_to_num(fl[i]) ** 2) * 1e3))
+        cols["crb_pos_mm"].append(float(np.sqrt(var.sum()) * 1e3))
+        cols["floor_pos_mm"].append(float(np.sqrt(np.sum(fl**2)) * 1e3))
+        cols["bound_pos_mm"].append(float(np.sqrt(var.sum() + np.sum(np.nan_to_num(fl) ** 2)) * 1e3))
         cols["bound_rot_deg"].append(float(np.rad2deg(np.sqrt(np.mean([np.trace(v["cov_rot"]) for v in got])))))
         e = mc.get(round(d, 6))
         rms = np.sqrt(np.mean(e**2, axis=0)) * 1e3 if e is not None and len(e) else np.full(3, np.nan)
@@ -904,9 +926,12 @@ def run(cfg, out_dir, verbose=True):
     # --- the camera -------------------------------------------------------------------------------------------------
     t1 = time.perf_counter()
     K_true = np.array(truth["camera_K"])
+    cov_K = None  # the calibration's covariance of fx, fy, cx, cy (px^2): the complete bound's intrinsics prior
     if p["camera"] == "calibrated":
         cal, n_cal = calibrate_from_rig_views(ds, p["camera_model"])
         camera = cal.camera
+        i_K = [cal.parameter_names.index(n) for n in ("fx", "fy", "cx", "cy")]
+        cov_K = np.asarray(cal.covariance, float)[np.ix_(i_K, i_K)]
         metrics["reproj_rms_px"] = float(cal.rms_px)
         metrics["calibration_views_used"] = float(n_cal)
     elif p["camera"] == "nominal":
@@ -987,7 +1012,7 @@ def run(cfg, out_dir, verbose=True):
         metrics["inliers_median"] = float(np.median([c.inliers for c in ok]))
     if cfg["bound"]["enabled"] and res.success:
         t1 = time.perf_counter()
-        bound_metrics, columns = _bound(cfg, truth, res, pc, spec, verbose)
+        bound_metrics, columns = _bound(cfg, truth, res, pc, spec, verbose, cov_K)
         metrics.update(bound_metrics)
         by_d = {round(d, 6): i for i, d in enumerate(columns.pop("d_mm"))}
         for col, vals in columns.items():
@@ -1019,7 +1044,8 @@ def run(cfg, out_dir, verbose=True):
             metrics[f"{m}_bound_pos_at_{label}_mm"] = summary["bound_pos_mm"][i]
             if label in ("100", "50"):
                 for ax in "xyz":
-                    metrics[f"{m}_bound_{ax}_mm_at_{label}"] = summary[f"bound_{ax}_mm"][i]
+                    for col in ("bound", "crb", "floor"):
+                        metrics[f"{m}_{col}_{ax}_mm_at_{label}"] = summary[f"{col}_{ax}_mm"][i]
                 metrics[f"{m}_bound_mc_pos_at_{label}_mm"] = summary["bound_mc_pos_mm"][i]
                 metrics[f"{m}_efficiency_at_{label}"] = summary["efficiency"][i]
                 metrics[f"bound_rot_at_{label}_deg"] = summary["bound_rot_deg"][i]

@@ -22,10 +22,13 @@ the simulation:
 * the pair's displacement free (6 parameters, about camera ``a``'s centre): what vision has to find, as the base
   pose of the in-situ localisation; the pair's relative pose comes from its readings.
 
-**Exact in the bound** (not noise): the camera's intrinsics and the housing's glass (the true optics project), the
-camera's rotation ``R0`` on its support and its centre. Their calibrations (§5.2.1, §5.3; Eq. 197-198) have
-errors that are fixed for the whole experiment - biases, not noise - and the error budget measures what they cost
-(``optics_model``, ``kinematics``).
+**The complete bound** (:class:`Unknowns`, the scenario's default) adds what the experiment does not know exactly
+besides the table: the intrinsics ``fx, fy, cx, cy`` under the covariance of the camera calibration the pipeline ran
+on the rig views (§5.2.1), and the camera's rotation ``R0`` on its support, which the thesis's search (Eq. 197-198)
+estimates from the same images (free). **Exact in the bound**: the housing's glass and the lens's distortion (the
+true optics project) and the camera's centre on the support. What no central camera model removes of the true
+optics is the **model floor** (:func:`floor_positions`): the estimator on noise-free features, reported beside the
+bound; the limit is their root-sum-square.
 
 Linearisation point: the true camera poses (the table's true errors, the true ``R0`` and centre); the points where
 the pipeline's map put them, moved into the true reference camera frame.
@@ -40,6 +43,7 @@ from __future__ import annotations
 
 import functools
 import sys
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -48,11 +52,13 @@ from bench.geometry.transforms import invert, transform_points
 from bench.scenario.bounds import (
     Block,
     MultiViewModel,
+    best_central_camera,
     crb,
     function_jacobian,
     ideal_features,
     keypoint_sigma_px,
     point_sigma_px,
+    true_projector,
 )
 from bench.vision.insitu import build_map
 from bench.vision.xy_table_positioning import PositioningConfig, TableSpec, estimate_positions, map_view_names
@@ -189,20 +195,40 @@ def map_points(result, reference: str, T_table_ref, names_for_map) -> tuple:
 
 class _PairModel(MultiViewModel):
     """Pixels in the views of one estimate: blocks ``xi`` (the pair's displacement about camera ``a``'s centre:
-    rotation vector, then translation) and ``table`` (the table's errors, :class:`TableKinematics`), then the
-    points."""
+    rotation vector, then translation), ``table`` (the table's errors, :class:`TableKinematics`), optionally
+    ``d_R0`` (the camera's rotation on its support, a right perturbation ``R0 exp(w)`` about its centre, rad) and
+    ``d_K`` (``dfx, dfy, dcx, dcy`` px, applied to the pixels as ``c + dc + (f + df) / f (uv - c)`` with ``K`` the
+    true lens's: exact for a lens whose distortion acts before K), then the points."""
 
-    def __init__(self, kin: TableKinematics, views, locate, pivot, X, project, size, vis):
+    def __init__(self, kin: TableKinematics, views, locate, pivot, X, project, size, vis, K=None,
+                 with_R0: bool = False):
         self.kin, self.idx = kin, np.array([kin.names.index(n) for n in views])
         self.locate, self.pivot = np.asarray(locate, bool), np.asarray(pivot, float)
+        self.K, self.with_R0 = (None if K is None else np.asarray(K, float)), bool(with_R0)
         blocks, values = [Block("xi", 6)], [np.zeros(6)]
         if kin.params:
             blocks.append(Block("table", len(kin.params), step=1e-8))
             values.append(kin.v0)
+        if self.with_R0:
+            blocks.append(Block("d_R0", 3))
+            values.append(np.zeros(3))
+        if self.K is not None:
+            blocks.append(Block("d_K", 4, step=1e-3))
+            values.append(np.zeros(4))
         super().__init__(self._poses, blocks, values, X, project, size, vis)
 
-    def _poses(self, xi, v_table=None):
+    def _split(self, values):
+        xi, *rest = values
+        v_table = rest.pop(0) if self.kin.params else None
+        d_R0 = rest.pop(0) if self.with_R0 else None
+        d_K = rest.pop(0) if self.K is not None else None
+        return xi, v_table, d_R0, d_K
+
+    def _poses(self, *values):
+        xi, v_table, d_R0, _ = self._split(values)
         T = self.kin.poses(self.kin.v0 if v_table is None else v_table)[self.idx]
+        if d_R0 is not None:
+            T[:, :3, :3] = T[:, :3, :3] @ rotation_vector_to_matrix(d_R0)
         R = rotation_vector_to_matrix(xi[:3])
         D = np.eye(4)
         D[:3, :3] = R
@@ -210,9 +236,50 @@ class _PairModel(MultiViewModel):
         T[self.locate] = D @ T[self.locate]
         return T
 
+    def pixels(self, *args):
+        uv = super().pixels(*args)
+        *values, _ = args
+        d_K = self._split(values)[3]
+        if d_K is None:
+            return uv
+        f, c = np.array([self.K[0, 0], self.K[1, 1]]), self.K[:2, 2]
+        return c + d_K[2:] + (1 + d_K[:2] / f) * (uv - c)
+
+
+@dataclass(frozen=True)
+class Unknowns:
+    """What an estimate does not know exactly besides the table's errors (the complete bound).
+
+    ``cov_K`` (4, 4): the covariance (px^2) of the intrinsics ``fx, fy, cx, cy`` from the camera calibration the
+    pipeline ran on the rig views (:attr:`~bench.camera.calibration.CalibrationResult.covariance`), ``K`` the true
+    lens's (where the pixels are perturbed); ``None``: the intrinsics exact. ``R0_free``: the camera's rotation on its
+    support is estimated from the same images (the thesis's search, Eq. 197-198), a free parameter of the bound, with
+    a loose prior of :data:`R0_PRIOR_DEG` that only holds the rotation about the line of camera centres (which no
+    image of a straight campaign sees and no camera position depends on).
+    """
+
+    K: np.ndarray | None = None
+    cov_K: np.ndarray | None = None
+    R0_free: bool = False
+
+    def model_kwargs(self) -> dict:
+        return {"K": self.K if self.cov_K is not None else None, "with_R0": self.R0_free}
+
+    def priors(self) -> dict:
+        out = {}
+        if self.cov_K is not None:
+            out["d_K"] = np.linalg.inv(np.asarray(self.cov_K, float))
+        if self.R0_free:
+            out["d_R0"] = np.eye(3) / np.deg2rad(R0_PRIOR_DEG) ** 2
+        return out
+
+
+#: the loose prior (deg, per axis) on the camera's rotation on its support when it is estimated from the images
+R0_PRIOR_DEG = 10.0
+
 
 def position_bound(kin: TableKinematics, prior_info, reference: str, pair, map_views, X, seen: dict, project, size,
-                   sigma_px: float, shared=None) -> dict:
+                   sigma_px: float, shared=None, unknowns: Unknowns | None = None) -> dict:
     """Cramér-Rao bound of one estimate (module docstring): camera ``pair[0]``'s position relative to the reference.
 
     Parameters
@@ -233,8 +300,11 @@ def position_bound(kin: TableKinematics, prior_info, reference: str, pair, map_v
         Pixel noise (px, per axis).
     shared : (views, J, Jp), optional
         :meth:`~bench.scenario.bounds.MultiViewModel.jacobian_blocks` of a model of ``views`` without a displaced
-        pair: the rows of the table errors and the points do not depend on the pair, so the experiment computes them
-        once (:func:`experiment_bounds`) and only the pair's rows are differentiated here.
+        pair (and the same ``unknowns``): the rows of the table errors and the points do not depend on the pair, so
+        the experiment computes them once (:func:`experiment_bounds`) and only the pair's rows are differentiated
+        here.
+    unknowns : Unknowns, optional
+        The intrinsics' and the camera rotation's uncertainty (the complete bound); default: both exact.
 
     Returns
     -------
@@ -243,15 +313,17 @@ def position_bound(kin: TableKinematics, prior_info, reference: str, pair, map_v
         ``observations``, ``points``.
     """
     a, b = pair
+    unknowns = Unknowns() if unknowns is None else unknowns
     views = [reference, *map_views, a, b]
     T0 = model_poses(kin)
     model = _PairModel(kin, views, [n in (a, b) for n in views], T0[a][:3, 3], X, project, size,
-                       np.stack([seen[n] for n in views]))
+                       np.stack([seen[n] for n in views]), **unknowns.model_kwargs())
     jac = None
     if shared is not None:
         names, J_all, Jp_all = shared
         idx = [names.index(n) for n in views]
-        loc = _PairModel(kin, [a, b], [True, True], T0[a][:3, 3], X, project, size, np.stack([seen[a], seen[b]]))
+        loc = _PairModel(kin, [a, b], [True, True], T0[a][:3, 3], X, project, size, np.stack([seen[a], seen[b]]),
+                         **unknowns.model_kwargs())
         J = J_all[idx]
         J[-2:] = loc.jacobian_blocks(*loc.values0, X)[0]
         jac = (J, Jp_all[idx])
@@ -262,21 +334,23 @@ def position_bound(kin: TableKinematics, prior_info, reference: str, pair, map_v
         T = model.camera_poses(*values)
         return np.r_[T[ia, :3, 3] - T[0, :3, 3], matrix_to_rotation_vector(T[ia, :3, :3] @ Ra0.T)]
 
-    res = crb(model, sigma_px, {"table": prior_info} if kin.params else {}, function_jacobian(model, g), jac)
+    priors = {"table": prior_info} if kin.params else {}
+    res = crb(model, sigma_px, {**priors, **unknowns.priors()}, function_jacobian(model, g), jac)
     cov = res["cov_g"]
     return {"cov_pos": cov[:3, :3], "cov_rot": cov[3:, 3:], "observations": res["observations"],
             "points": res["points"]}
 
 
 def experiment_bounds(result, kin: TableKinematics, config: PositioningConfig, X, seen, project, size,
-                      sigma_px: float, verbose: bool = False) -> dict:
+                      sigma_px: float, verbose: bool = False, unknowns: Unknowns | None = None) -> dict:
     """The bound of every pair of the experiment: ``{(d_mm, a, b): position_bound(...)}`` (the same views as the
     pipeline: :func:`~bench.vision.xy_table_positioning.map_view_names` minus the pair)."""
+    unknowns = Unknowns() if unknowns is None else unknowns
     names = list(result.observations)
     centres = np.stack([result.T_table_cam[n][:3, 3] for n in names])
     prior = np.linalg.inv(table_error_prior(kin.params)) if kin.params else None
     base = _PairModel(kin, names, np.zeros(len(names), bool), np.zeros(3), X, project, size,
-                      np.stack([seen[n] for n in names]))
+                      np.stack([seen[n] for n in names]), **unknowns.model_kwargs())
     shared = (names, *base.jacobian_blocks(*base.values0, X))
     out = {}
     n_all = sum(len(p) for p in result.pairs.values())
@@ -286,7 +360,7 @@ def experiment_bounds(result, kin: TableKinematics, config: PositioningConfig, X
                                   config.map_exclude)
             if used:
                 out[(d_mm, a, b)] = position_bound(kin, prior, config.reference, (a, b), used, X, seen, project,
-                                                   size, sigma_px, shared)
+                                                   size, sigma_px, shared, unknowns)
             if verbose:
                 print(f"\r  bound: {len(out)}/{n_all} estimates", end="", file=sys.stderr)
     if verbose:
@@ -295,14 +369,16 @@ def experiment_bounds(result, kin: TableKinematics, config: PositioningConfig, X
 
 
 def mc_ideal_positions(kin: TableKinematics, X, seen: dict, camera, spec: TableSpec, R0, config: PositioningConfig,
-                       sigma_px: float, rng: np.random.Generator, trials: int, table_errors: bool = True) -> dict:
+                       sigma_px: float, rng: np.random.Generator, trials: int, table_errors: bool = True,
+                       project=None) -> dict:
     """Errors of the scenario's estimator on ideal features (module docstring) over ``trials`` draws.
 
     Each draw: the table's errors as the simulator draws them (none if ``table_errors`` is false), the true camera
     poses and the readings the table then gives, exact projections of ``X`` where ``seen`` with Gaussian noise
     ``sigma_px`` through ``camera`` (a central camera: the true lens, which also undistorts the keypoints), the true
     camera centre on the support (``spec``) and rotation ``R0``. Returns ``{d_mm: (K, 3) errors (m)}`` of the
-    successful estimates of ``config.methods`` pooled over the draws, and ``"failures"``.
+    successful estimates of ``config.methods`` pooled over the draws, and ``"failures"``. ``project``: the pixels
+    through other optics than ``camera`` (the model floor, :func:`floor_positions`).
     """
     from bench.sim.scenes.xy_table import NO_ERRORS, TableModel, random_table_errors
 
@@ -313,8 +389,8 @@ def mc_ideal_positions(kin: TableKinematics, X, seen: dict, camera, spec: TableS
         run = table.run(kin.steps)
         T = dict(zip(names, run.T_table_mount @ kin.T_mount_cam, strict=True))
         read = {n: r for n, r in zip(names, run.true if kin.exact else run.read, strict=True) if n in seen}
-        feats = {n: ideal_features(np.where(seen[n][:, None], X, np.nan), T[n], camera.project, camera.size,
-                                   sigma_px, rng) for n in read}
+        feats = {n: ideal_features(np.where(seen[n][:, None], X, np.nan), T[n], project or camera.project,
+                                   camera.size, sigma_px, rng) for n in read}
         res = estimate_positions(feats, read, camera, spec, config, R0=R0)
         c_ref = T[config.reference][:3, 3]
         for c in res.combinations:
@@ -323,3 +399,27 @@ def mc_ideal_positions(kin: TableKinematics, X, seen: dict, camera, spec: TableS
                 continue
             out.setdefault(round(c.d_m * 1e3, 6), []).append(c.p_table - (T[c.a][:3, 3] - c_ref))
     return {**{d: np.array(e) for d, e in out.items()}, "failures": fails}
+
+
+def floor_positions(kin: TableKinematics, X, seen: dict, lens, port, profile, spec: TableSpec, R0,
+                    config: PositioningConfig) -> tuple:
+    """The model floor of every estimate: the scenario's estimator on *noise-free* features through the true optics
+    (``lens``, the flat ``port`` or None, a realistic imaging ``profile``'s static warp or None), the table exact (no
+    errors: its readings are the carriage's positions), the true camera centre (``spec``) and rotation ``R0``, and as
+    the pipeline's camera the best central camera over the points' depths
+    (:func:`~bench.scenario.bounds.best_central_camera`). ~0 without a port and warp (a central model is exact);
+    with them, what no central camera model removes.
+
+    Returns ``({d_mm: (K, 3) errors (m)}, failures, misfit_px)``: the estimates' errors as
+    :func:`mc_ideal_positions` gives them, and the central camera's RMS pixel misfit over the observations.
+    """
+    T0 = model_poses(kin)
+    depths = np.concatenate([transform_points(invert(T0[n]), X[seen[n]])[:, 2] for n in seen if n in T0])
+    central, _ = best_central_camera(lens, port, (float(depths.min()), float(depths.max())), profile=profile)
+    project = true_projector(lens, port, profile)
+    out = mc_ideal_positions(kin, X, seen, central, spec, R0, config, 0.0, np.random.default_rng(0), 1,
+                             table_errors=False, project=project)
+    fails = out.pop("failures")
+    miss = np.concatenate([np.linalg.norm(central.project(p) - project(p), axis=1)
+                           for p in (transform_points(invert(T0[n]), X[seen[n]]) for n in seen if n in T0)])
+    return out, fails, float(np.sqrt(np.nanmean(miss**2)))

@@ -13,8 +13,10 @@ from bench.geometry.transforms import homogeneous, rot_x, rot_y, rot_z
 from bench.scenario.bounds import ml_estimate, point_sigma_px
 from bench.scenario.xy_table_bound import (
     TableKinematics,
+    Unknowns,
     _PairModel,
     experiment_bounds,
+    floor_positions,
     mc_ideal_positions,
     model_poses,
     position_bound,
@@ -144,6 +146,52 @@ def test_thesis_estimator_exact_on_exact_data(scene):
     assert mc.pop("failures") == 0
     assert sorted(mc) == [20.0, 40.0] and sum(len(e) for e in mc.values()) == 7  # 1-2, 2-3, 5-6, 6-7; 1-3, 3-5, 5-7
     assert max(np.abs(e).max() for e in mc.values()) < 1e-9
+
+
+def test_complete_bound_blocks_and_monotonicity(scene):
+    """The intrinsics (d_K) and camera-rotation (d_R0) blocks: their block differences equal one column at a time,
+    d_K moves the pixels exactly as ``c + dc + (f + df) / f (uv - c)``; the complete bound is never below the bound
+    with those exact, equals it (1e-9 relative) as the intrinsics' covariance goes to zero and R0 stays exact, and
+    grows with that covariance."""
+    kin, _, cam, X, seen = scene
+    T0 = model_poses(kin)
+    views = ["p04", *MAP, *PAIR]
+    vis = np.stack([seen[n] for n in views])
+    model = _PairModel(kin, views, [n in PAIR for n in views], T0[PAIR[0]][:3, 3], X, cam.project, cam.size, vis,
+                       K=cam.K, with_R0=True)
+    assert model.n_params == 6 + 9 + 3 + 4
+    J = model.jacobian(*model.values0, X)
+    assert np.allclose(J, model.jacobian_columnwise(*model.values0, X), rtol=1e-6, atol=1e-4)
+    dK = np.array([3.0, -2.0, 1.5, 0.5])
+    uv0 = model.pixels(*model.values0, X)
+    uv = model.pixels(*model.values0[:3], dK, X)
+    f, c = np.diag(cam.K)[:2], cam.K[:2, 2]
+    assert np.abs(uv - (c + dK[2:] + (1 + dK[:2] / f) * (uv0 - c))).max() < 1e-9
+    prior = np.linalg.inv(table_error_prior(kin.params))
+
+    def trace(unknowns):
+        b = position_bound(kin, prior, "p04", PAIR, MAP, X, seen, cam.project, cam.size, 0.2, unknowns=unknowns)
+        return np.trace(b["cov_pos"])
+
+    exact = trace(None)
+    assert trace(Unknowns(cam.K, np.eye(4) * 1e-10)) == pytest.approx(exact, rel=1e-9)
+    small, large = trace(Unknowns(cam.K, np.eye(4) * 1.0)), trace(Unknowns(cam.K, np.eye(4) * 100.0))
+    assert exact < small < large
+    assert trace(Unknowns(R0_free=True)) >= exact * (1 - 1e-9)
+    assert trace(Unknowns(cam.K, np.eye(4) * 100.0, R0_free=True)) >= large * (1 - 1e-9)
+
+
+def test_model_floor_is_zero_for_a_central_camera(scene):
+    """The floor's estimator on noise-free features: exact (1e-9 m) through a central lens (no port, no warp), where
+    the best central camera is the lens itself."""
+    kin, _, cam, X, seen = scene
+    T_mc = kin.T_mount_cam
+    config = PositioningConfig(reference="p04", intraocular_mm=(20.0, 40.0), map_min_baseline_m=0.03,
+                               methods=("lms_ratio",))
+    floor, fails, misfit = floor_positions(kin, X, seen, cam, None, None, TableSpec(T_mc[:3, 3].copy()),
+                                           T_mc[:3, :3], config)
+    assert fails == 0 and misfit == 0.0 and sorted(floor) == [20.0, 40.0]
+    assert max(np.abs(e).max() for e in floor.values()) < 1e-9
 
 
 def test_corner_noise_measurement():
