@@ -246,6 +246,8 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("lms_ratio_floor_<axis>_mm_at_<at2>", "mm", "the model floor along one axis: the estimator on "
                "noise-free features through the true optics with the best central camera",
                "`bound.enabled`, features not exact"),
+        Metric("calibration_fx_std_px", "px", "standard deviation of the calibrated fx: the calibration's covariance "
+               "plus what the rig's stated tolerances (target.yaml) leave in it", "`pipeline.camera: calibrated`"),
         Metric("floor_failures", "count", "estimates of the model floor's run that failed",
                "`bound.enabled`, features not exact"),
         Metric("floor_misfit_px", "px", "RMS pixel misfit of the best central camera to the true optics",

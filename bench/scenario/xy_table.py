@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from bench.camera.calibrate_dataset import load_target
+from bench.camera.calibrate_dataset import load_target, load_target_tolerance
 from bench.camera.calibration import calibrate_camera
 from bench.camera.corners import extract_corners_opencv
 from bench.camera.io import camera_yaml_text
@@ -584,7 +584,10 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                        notes=f"{s['poses']} position {num}")
         w.write_text("camera.yaml", camera_yaml_text(nominal_cam))
         w.write_text("table.yaml", spec_yaml)
-        w.write_text("target.yaml", TARGET_YAML)
+        from bench.sim.imaging import stated_tolerance
+
+        tol = stated_tolerance(profile)  # the rig's print tolerances as its maker states them (not the draws)
+        w.write_text("target.yaml", TARGET_YAML + (yaml.safe_dump({"tolerance": tol}) if tol else ""))
         w.write_text("truth/truth.yaml", yaml.safe_dump(truth, sort_keys=False))
         w.write_text("truth/sim_checks.json", json.dumps(checks, indent=2) + "\n")
     if verbose:
@@ -595,8 +598,16 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
 # ------------------------------------------------------------------------------------------------ pipeline side
 
 
-def calibrate_from_rig_views(ds, model: str):
-    """Corners (OpenCV extractor, ``target.yaml``) in the ``calibration`` views -> :func:`calibrate_camera`."""
+def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48):
+    """Corners (OpenCV extractor, ``target.yaml``) in the ``calibration`` views -> :func:`calibrate_camera`.
+
+    Returns ``(calibration, views used, cov_K)``: ``cov_K`` (4, 4) px^2 is the covariance of ``fx, fy, cx, cy`` -
+    the calibration's own (its corner noise) plus, when ``target.yaml`` states the rig's tolerances, what they leave
+    in it (the second moment of ``tolerance_draws`` calibrations of the same detections against rigs drawn from them:
+    :func:`bench.camera.target_tolerance.consider_samples`, as the in-situ lab step does).
+    """
+    from bench.camera.target_tolerance import consider_samples
+
     geometry = load_target(ds.root / "target.yaml")
     Xs, uvs, size = [], [], None
     for v in ds.views:
@@ -613,7 +624,22 @@ def calibrate_from_rig_views(ds, model: str):
     cal = calibrate_camera(Xs, uvs, size, model=model)
     if not cal.success:
         raise ConfigError(ds.root, "calibration views", f"camera calibration failed: {cal.message}")
-    return cal, len(Xs)
+    i_K = [cal.parameter_names.index(n) for n in ("fx", "fy", "cx", "cy")]
+    cov_K = np.asarray(cal.covariance, float)[np.ix_(i_K, i_K)]
+    tolerance = load_target_tolerance(ds.root / "target.yaml")
+    if tolerance is not None and tolerance.any and tolerance_draws > 0:
+        k0 = np.array([cal.K[0, 0], cal.K[1, 1], cal.K[0, 2], cal.K[1, 2]])
+
+        def solve(Xs_m):
+            c = calibrate_camera(Xs_m, uvs, size, model=model)
+            return np.array([c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2]]) - k0 if c.success else None
+
+        d = consider_samples(geometry, tolerance, Xs, solve, tolerance_draws)
+        if len(d) < 10:
+            raise ConfigError(ds.root / "target.yaml", "tolerance", f"only {len(d)} of {tolerance_draws} "
+                              "calibrations against the toleranced rig converged: the tolerances are implausible")
+        cov_K = cov_K + d.T @ d / len(d)  # about the nominal result: a consider covariance
+    return cal, len(Xs), cov_K
 
 
 def true_optics(truth: dict) -> tuple:
@@ -928,10 +954,9 @@ def run(cfg, out_dir, verbose=True):
     K_true = np.array(truth["camera_K"])
     cov_K = None  # the calibration's covariance of fx, fy, cx, cy (px^2): the complete bound's intrinsics prior
     if p["camera"] == "calibrated":
-        cal, n_cal = calibrate_from_rig_views(ds, p["camera_model"])
+        cal, n_cal, cov_K = calibrate_from_rig_views(ds, p["camera_model"])
         camera = cal.camera
-        i_K = [cal.parameter_names.index(n) for n in ("fx", "fy", "cx", "cy")]
-        cov_K = np.asarray(cal.covariance, float)[np.ix_(i_K, i_K)]
+        metrics["calibration_fx_std_px"] = float(np.sqrt(cov_K[0, 0]))
         metrics["reproj_rms_px"] = float(cal.rms_px)
         metrics["calibration_views_used"] = float(n_cal)
     elif p["camera"] == "nominal":

@@ -98,6 +98,7 @@ def test_webcam_smoke(webcam):
     # the pairs present among the chosen views: d = 20: 2-4, 4-6, 12-14, 14-16, 15-17; d = 100: 2-12 ... 6-16
     assert [t["combinations"][i] for i in _rows(res, "lms_ratio", 20.0) + _rows(res, "lms_ratio", 100.0)] == [5, 4]
     assert m["reproj_rms_px"] < 0.15 and m["focal_err_pct"] < 0.2  # the camera calibrated from 4 rig views
+    assert 0.05 < m["calibration_fx_std_px"] < 3.0  # the bound's intrinsics prior: ideal imaging, no rig tolerance
     # the Eq. 197-198 search: theta_y0 is weakly observable (a view rotation error e shifts it by ~7 e: the rotary
     # stage's backlash of 0.01-0.05 deg alone moves it by up to 0.4 deg); the coinciding-ray count of theta_z0 is
     # flat within a few tenths of a degree of its maximum. The positions hardly depend on either.
@@ -261,3 +262,25 @@ def test_render_cache_key_follows_the_image_chain_version(monkeypatch):
     assert xy_table.OpticsCamera(make_xml, lens, optics, 1, None, "c")._key == key
     monkeypatch.setattr(campaign, "IMAGE_CHAIN_VERSION", campaign.IMAGE_CHAIN_VERSION + 1)
     assert xy_table.OpticsCamera(make_xml, lens, optics, 1, None, "c")._key != key
+
+
+def test_intrinsics_prior_takes_the_rig_tolerances(webcam, tmp_path):
+    """The complete bound's intrinsics prior: the calibration's own covariance of fx, fy, cx, cy; with the rig's
+    tolerances stated in target.yaml, plus what they leave in it (consider covariance), the calibration unchanged."""
+    import shutil
+
+    from bench.dataset import load_dataset
+    from bench.scenario.xy_table import calibrate_from_rig_views
+    from bench.sim.imaging import imaging_profile, stated_tolerance
+
+    out, _ = webcam
+    ds_dir = tmp_path / "ds"
+    shutil.copytree(out / "dataset", ds_dir)
+    cal, n, cov0 = calibrate_from_rig_views(load_dataset(ds_dir), "pinhole")
+    i = [cal.parameter_names.index(k) for k in ("fx", "fy", "cx", "cy")]
+    assert np.array_equal(cov0, np.asarray(cal.covariance)[np.ix_(i, i)])
+    target = ds_dir / "target.yaml"
+    target.write_text(target.read_text() + yaml.safe_dump({"tolerance": stated_tolerance(imaging_profile())}))
+    cal1, n1, cov1 = calibrate_from_rig_views(load_dataset(ds_dir), "pinhole", tolerance_draws=12)
+    assert n1 == n and np.array_equal(cal1.K, cal.K)
+    assert np.all(np.diag(cov1) > np.diag(cov0)) and np.sqrt(cov1[0, 0]) > 5 * np.sqrt(cov0[0, 0])
