@@ -910,10 +910,10 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose, cov_K=None) ->
         for i, ax in enumerate("xyz"):
             cols[f"crb_{ax}_mm"].append(float(np.sqrt(var[i]) * 1e3))
             cols[f"floor_{ax}_mm"].append(float(fl[i] * 1e3))
-            cols[f"bound_{ax}_mm"].append(float(np.sqrt(var[i] + np.nan_to_num(fl[i]) ** 2) * 1e3))
+            cols[f"bound_{ax}_mm"].append(float(np.sqrt(var[i] + fl[i] ** 2) * 1e3))  # NaN: the floor failed
         cols["crb_pos_mm"].append(float(np.sqrt(var.sum()) * 1e3))
         cols["floor_pos_mm"].append(float(np.sqrt(np.sum(fl**2)) * 1e3))
-        cols["bound_pos_mm"].append(float(np.sqrt(var.sum() + np.sum(np.nan_to_num(fl) ** 2)) * 1e3))
+        cols["bound_pos_mm"].append(float(np.sqrt(var.sum() + np.sum(fl**2)) * 1e3))
         cols["bound_rot_deg"].append(float(np.rad2deg(np.sqrt(np.mean([np.trace(v["cov_rot"]) for v in got])))))
         e = mc.get(round(d, 6))
         rms = np.sqrt(np.mean(e**2, axis=0)) * 1e3 if e is not None and len(e) else np.full(3, np.nan)

@@ -68,16 +68,15 @@ def _check_contract(res, methods_d):
 
 def _check_bound(res, sigma_max):
     """The bound: the simulator's table reproduced, measured feature noise, the complete Cramér-Rao bound (table,
-    intrinsics, R0) below the thesis's estimator on ideal features (Monte Carlo) and below the achieved error, the
-    limit its root-sum-square with the model floor per axis, one limit per d_o whatever the method. (The limit itself
-    may exceed one seed's error: the floor is one noise-free realisation of the port's model error.)"""
+    intrinsics, R0) and the limit (its root-sum-square with the model floor, per axis) below the thesis's estimator
+    on ideal features (Monte Carlo) and below the achieved error, one limit per d_o whatever the method."""
     m, t = res["metrics"], res["tables"]["position_error_vs_intraocular"]
     assert m["bound_pose_check_mm"] < 1e-9  # the bound's table model gives the simulator's true camera poses
     assert 0.01 < m["keypoint_sigma_px"] < sigma_max and m["keypoint_sigma_matches"] > 100
     assert 0.005 < m["table_reading_rms_mm"] < 0.1 and 0.001 < m["table_reading_rms_deg"] < 0.1
     b, mc, e = (m[f"lms_ratio_{k}_pos_at_100_mm"] for k in ("bound", "bound_mc", "err"))
     crb = np.sqrt(sum(m[f"lms_ratio_crb_{ax}_mm_at_100"] ** 2 for ax in "xyz"))
-    assert 0 < crb < mc and crb < e
+    assert 0 < crb <= b < mc and b < e
     assert m["bound_intrinsics_free"] == 1 and m["bound_R0_free"] == 1 and m["floor_failures"] == 0
     assert m["lms_ratio_efficiency_at_100"] == pytest.approx(b / e)
     assert np.sqrt(sum(m[f"lms_ratio_bound_{ax}_mm_at_100"] ** 2 for ax in "xyz")) == pytest.approx(b)
