@@ -7,17 +7,20 @@ calibration of it (``runs/<id>/calibrated``: camera, arm + mount, and the calibr
 :func:`bench.vision.locate_dataset.locate_dataset` on them again, with the scenario's own pipeline settings (as the
 ``in_situ`` kind passes them: ``pipeline.method``, ``refine``, the RANSAC keys, the run's seed) and writes
 ``runs/<id>/<name>/locate.json``; ``SCENARIO`` is the sweep's scenario file (a sweep over a ``pipeline.*`` key
-is refused: its runs would need that key's value each). Use: the integrity tests or the estimator changed after a
+is refused: its runs would need that key's value each; so is one over ``sources.*``, whose runs used oracle files,
+and a scenario of another name than the runs'). Use: the integrity tests or the estimator changed after a
 long sweep whose renders and lab calibrations did not (``git diff`` of ``bench/sim`` and of the calibrations is
 empty): the re-localised runs are then what a new sweep would give, at ~3 s per run instead of ~25 s.
 ``tools/integrity_summary.py --locate <name>/locate.json`` summarises them. A run already re-localised is skipped
-(``--force`` redoes it); a run that fails is reported and the others go on.
+(``--force`` redoes it, removing the old file first); a run that fails is reported and the others go on. The
+workers end with this process, whatever ends it (:func:`bench.scenario.sweep._end_with_parent`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sqlite3
 import sys
 import time
@@ -52,6 +55,7 @@ def relocate(run_dir: str, seed: int, pipeline: dict, name: str) -> tuple:
     run = Path(run_dir)
     cal = run / "calibrated"
     priors = cal / "calibration_priors.yaml"
+    (run / name / "locate.json").unlink(missing_ok=True)  # never a stale result beside a failed run
     t0 = time.perf_counter()
     try:
         with warnings.catch_warnings():
@@ -65,6 +69,8 @@ def relocate(run_dir: str, seed: int, pipeline: dict, name: str) -> tuple:
                                     else None)
     except BenchError as exc:
         return run.name, f"error: {exc}", time.perf_counter() - t0
+    except Exception as exc:  # noqa: BLE001 - one run's failure is reported; the others go on
+        return run.name, f"error: {type(exc).__name__}: {exc}", time.perf_counter() - t0
     return run.name, rep["integrity"], time.perf_counter() - t0
 
 
@@ -78,7 +84,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.workers < 1:
         raise SystemExit(f"--workers: expected >= 1, got {args.workers}")
-    if not args.name or "/" in args.name or args.name in ("dataset", "calibrated", "."):
+    if not args.name or "/" in args.name or args.name.startswith(".") or args.name in ("dataset", "calibrated"):
         raise SystemExit(f"--name {args.name!r}: expected a new sub-folder name (not dataset or calibrated)")
     from bench.errors import BenchError
     from bench.scenario.runner import load_scenario
@@ -91,29 +97,43 @@ def main(argv=None) -> int:
         raise SystemExit(f"{args.scenario}: kind {cfg.get('kind')!r}, expected in_situ")
     todo = []
     for rid, seed, params in _runs(args.sweep):
-        swept = sorted(k for k in params if k.startswith("pipeline."))
+        swept = sorted(k for k in params if k.startswith(("pipeline.", "sources.")))
         if swept:
-            raise SystemExit(f"{args.sweep}: run {rid} sets {', '.join(swept)}: re-localise such sweeps one value "
-                             "at a time")
+            raise SystemExit(f"{args.sweep}: run {rid} sets {', '.join(swept)}: its localisation cannot be redone "
+                             "from the scenario's settings and the lab's files")
         run = args.sweep / "runs" / rid
         res = run / "result.json"
         if not (run / "dataset").is_dir() or not res.is_file():
             print(f"{rid}: no dataset or result.json, skipped", file=sys.stderr)
             continue
+        name = json.loads(res.read_text()).get("scenario")
+        if name != cfg.get("name"):
+            raise SystemExit(f"{run}: a run of scenario {name!r}, not of {args.scenario} ({cfg.get('name')!r})")
         if (run / args.name / "locate.json").is_file() and not args.force:
             continue
         todo.append((str(run), seed, cfg["pipeline"]))
     print(f"{len(todo)} runs to re-localise", file=sys.stderr)
+    from bench.scenario.sweep import _end_with_parent
+
     counts = {}
-    with ProcessPoolExecutor(args.workers) as pool:
+    pool = ProcessPoolExecutor(args.workers, initializer=_end_with_parent, initargs=(os.getpid(),))
+    try:
         futs = [pool.submit(relocate, r, s, p, args.name) for r, s, p in todo]
         for i, f in enumerate(as_completed(futs), 1):
             rid, integrity, dt = f.result()
             key = integrity if not integrity.startswith("error") else "error"
             counts[key] = counts.get(key, 0) + 1
             print(f"\r[{i}/{len(todo)}] {rid}: {integrity[:60]} ({dt:.1f} s)" + " " * 10, end="", file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted after {sum(counts.values())} runs {counts}: the next start does the rest",
+              file=sys.stderr)
+        return 130
+    finally:  # an interrupt: the running runs stopped, the queued ones dropped
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            proc.terminate()
+        pool.shutdown(wait=True, cancel_futures=True)
     print(f"\n{counts}", file=sys.stderr)
-    return 0
+    return 1 if counts.get("error") else 0
 
 
 if __name__ == "__main__":

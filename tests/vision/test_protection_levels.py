@@ -162,13 +162,30 @@ def test_relocate_sweep_refuses_what_it_cannot_redo(tmp_path, capsys):
     sweep = _fake_sweep(tmp_path, np.random.default_rng(1), n=2, optimism=1.0)
     with pytest.raises(SystemExit, match="expected in_situ"):
         R.main([str(sweep), str(ROOT / "scenarios" / "xy_table_webcam.yaml")])
-    with pytest.raises(SystemExit, match="--name"):
-        R.main([str(sweep), str(ROOT / "scenarios" / "ta40_envelope.yaml"), "--name", "dataset"])
+    for bad in ("dataset", "..", "a/b"):
+        with pytest.raises(SystemExit, match="--name"):
+            R.main([str(sweep), str(ROOT / "scenarios" / "ta40_envelope.yaml"), "--name", bad])
     db = sqlite3.connect(sweep / "sweep.sqlite")
     db.execute("UPDATE runs SET params = ?", (json.dumps({"pipeline.refine": "bundle"}),))
     db.commit()
     db.close()
     with pytest.raises(SystemExit, match="pipeline.refine"):
+        R.main([str(sweep), str(ROOT / "scenarios" / "ta40_envelope.yaml")])
+    db = sqlite3.connect(sweep / "sweep.sqlite")
+    db.execute("UPDATE runs SET params = ?", (json.dumps({"sources.camera": "perfect"}),))
+    db.commit()
+    db.close()
+    with pytest.raises(SystemExit, match="sources.camera"):
+        R.main([str(sweep), str(ROOT / "scenarios" / "ta40_envelope.yaml")])
+    # a run of another scenario
+    db = sqlite3.connect(sweep / "sweep.sqlite")
+    db.execute("UPDATE runs SET params = '{}'")
+    db.commit()
+    db.close()
+    for run in (sweep / "runs").iterdir():
+        (run / "dataset").mkdir(exist_ok=True)
+        (run / "result.json").write_text(json.dumps({"scenario": "ta40_in_situ_manifold"}))
+    with pytest.raises(SystemExit, match="a run of scenario 'ta40_in_situ_manifold'"):
         R.main([str(sweep), str(ROOT / "scenarios" / "ta40_envelope.yaml")])
 
 
