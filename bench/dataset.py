@@ -115,9 +115,9 @@ def check_image_file(path: Path, expected_size=None) -> None:
 
     Limits: :data:`MAX_IMAGE_PIXELS`; a file larger than 8 bytes per pixel plus 1 MB (more than 16-bit RGBA stored
     raw) is not an image of the size its header claims; formats whose header is not read up to
-    :data:`MAX_IMAGE_BYTES`. Then Pillow's ``verify()`` walks the file (a PNG's chunks up to IEND) without decoding:
-    a file cut short is refused here; a chunk failing its CRC is left to the decoder, whose own message
-    :meth:`View.image` reports.
+    :data:`MAX_IMAGE_BYTES`. Then Pillow's ``verify()`` walks the file (a PNG's chunks up to IEND, each against its
+    CRC) without decoding: a file cut short or a chunk failing its CRC is refused here. A PNG of 16 bits per sample
+    is refused from its header (Pillow would decode a 16-bit colour PNG to 8 bits without a word).
     """
     from PIL import UnidentifiedImageError
 
@@ -129,6 +129,11 @@ def check_image_file(path: Path, expected_size=None) -> None:
                                               f"({MAX_IMAGE_BYTES / 2**20:.0f} MB)")
         return
     fmt, w, h = hdr
+    if fmt == "PNG":
+        with path.open("rb") as f:
+            head = f.read(26)
+        if head[12:16] == b"IHDR" and len(head) > 24 and head[24] == 16:  # IHDR: width, height, bit depth
+            raise ConfigError(path, "<file>", "expected an 8-bit image, got a PNG of 16 bits per sample")
     if w <= 0 or h <= 0:
         raise ConfigError(path, "<header>", f"{fmt} header gives a {w}x{h} image: corrupt")
     if w * h > MAX_IMAGE_PIXELS:
@@ -142,8 +147,8 @@ def check_image_file(path: Path, expected_size=None) -> None:
     try:
         with _open_header(path) as im:
             im.verify()
-    except SyntaxError:
-        pass  # a chunk failing its CRC: the decoder says which (libpng: "IDAT: CRC error")
+    except SyntaxError as exc:  # a chunk failing its CRC (Pillow: "broken PNG file (bad header checksum in ...)")
+        raise ConfigError(path, "<file>", f"{fmt} file corrupt: {exc}") from None
     except UnidentifiedImageError:
         raise ConfigError(path, "<file>", f"{fmt} file corrupt or cut short after its header") from None
     except (OSError, EOFError, ValueError) as exc:

@@ -62,3 +62,31 @@ def test_read_image_decodes_as_opencv_and_refuses_deep_images(tmp_path, rng):
     cv2.imwrite(str(tmp_path / "deep.png"), rng.integers(0, 65536, (30, 40)).astype(np.uint16))
     with pytest.raises(ConfigError, match=r"deep.png: <file>: expected an 8-bit image, got Pillow mode 'I;16'"):
         read_image(tmp_path / "deep.png")
+
+
+def test_corrupt_or_deep_png_refused_before_decoding(tmp_path, rng):
+    """check_image_file: every single-bit flip in a PNG's compressed data fails its chunk's CRC (Pillow's decoder
+    alone would decode some of them to wrong pixels), and a 16-bit colour PNG (which Pillow decodes to 8 bits) is
+    refused from its header, each in one line naming the file."""
+    import pytest
+
+    from bench.errors import ConfigError
+
+    img = cv2.GaussianBlur(rng.integers(0, 256, (40, 50, 3)).astype(np.uint8), (5, 5), 1.0)
+    good = tmp_path / "good.png"
+    cv2.imwrite(str(good), img)
+    check_image_file(good)
+    data = good.read_bytes()
+    start = data.index(b"IDAT") + 4
+    length = int.from_bytes(data[start - 8:start - 4], "big")
+    for k, pos in enumerate(rng.integers(start, start + length, 40)):
+        bad = tmp_path / f"flip{k}.png"
+        b = bytearray(data)
+        b[pos] ^= 1 << int(rng.integers(8))
+        bad.write_bytes(bytes(b))
+        with pytest.raises(ConfigError, match=rf"flip{k}.png: <file>: PNG file corrupt: .*checksum"):
+            check_image_file(bad)
+    deep = tmp_path / "deep.png"
+    cv2.imwrite(str(deep), (img.astype(np.uint16) * 257))
+    with pytest.raises(ConfigError, match=r"deep.png: <file>: expected an 8-bit image, got a PNG of 16 bits"):
+        check_image_file(deep)
