@@ -165,28 +165,24 @@ def test_relocate_sweep_refuses_what_it_cannot_redo(tmp_path, capsys):
     for bad in ("dataset", "..", "a/b"):
         with pytest.raises(SystemExit, match="--name"):
             R.main([str(sweep), str(ROOT / "scenarios" / "ta40_envelope.yaml"), "--name", bad])
-    db = sqlite3.connect(sweep / "sweep.sqlite")
-    db.execute("UPDATE runs SET params = ?", (json.dumps({"pipeline.refine": "bundle"}),))
-    db.commit()
-    db.close()
-    with pytest.raises(SystemExit, match="pipeline.refine"):
-        R.main([str(sweep), str(ROOT / "scenarios" / "ta40_envelope.yaml")])
-    db = sqlite3.connect(sweep / "sweep.sqlite")
-    db.execute("UPDATE runs SET params = ?", (json.dumps({"sources.camera": "perfect"}),))
-    db.commit()
-    db.close()
-    with pytest.raises(SystemExit, match="sources.camera"):
-        R.main([str(sweep), str(ROOT / "scenarios" / "ta40_envelope.yaml")])
-    # a run of another scenario
-    db = sqlite3.connect(sweep / "sweep.sqlite")
-    db.execute("UPDATE runs SET params = '{}'")
-    db.commit()
-    db.close()
+    envelope = str(ROOT / "scenarios" / "ta40_envelope.yaml")
+
+    def set_params(params):
+        db = sqlite3.connect(sweep / "sweep.sqlite")
+        db.execute("UPDATE runs SET params = ?", (json.dumps(params),))
+        db.commit()
+        db.close()
+
+    for key, value in (("pipeline.refine", "bundle"), ("sources.camera", "perfect")):
+        set_params({key: value})
+        with pytest.raises(SystemExit, match=key):
+            R.main([str(sweep), envelope])
+    set_params({})  # a run of another scenario
     for run in (sweep / "runs").iterdir():
         (run / "dataset").mkdir(exist_ok=True)
         (run / "result.json").write_text(json.dumps({"scenario": "ta40_in_situ_manifold"}))
     with pytest.raises(SystemExit, match="a run of scenario 'ta40_in_situ_manifold'"):
-        R.main([str(sweep), str(ROOT / "scenarios" / "ta40_envelope.yaml")])
+        R.main([str(sweep), envelope])
 
 
 def _panel_map(rng, n=150, spread_m=0.0):
