@@ -656,8 +656,9 @@ def true_optics(truth: dict) -> tuple:
     return lens, port
 
 
-def true_projection_features(truth: dict, names, n_points: int, rng) -> dict:
-    """EVALUATOR-SIDE TRUTH INJECTION: exact projections of known points on the reference object as features.
+def true_projection_features(truth: dict, names, n_points: int, rng, profile=None) -> dict:
+    """EVALUATOR-SIDE TRUTH INJECTION: exact projections of known points on the reference object as features, through
+    the true optics (lens, port, and a realistic imaging ``profile``'s static warp, as the renders have it).
 
     Rig: its 72 corners (ids as descriptors). Panel: ``n_points`` points drawn on the backplate plane (panel z = 0,
     inside its outline) with random unit descriptors (occlusion by the valves is ignored). Points outside an image
@@ -665,7 +666,7 @@ def true_projection_features(truth: dict, names, n_points: int, rng) -> dict:
     """
     T_tr = np.array(truth["T_table_reference"])
     lens, port = true_optics(truth)
-    project = true_projector(lens, port)
+    project = true_projector(lens, port, profile)
     if truth["reference_corners"] is not None:
         p_obj = np.array(truth["reference_corners"])
         ids = np.arange(len(p_obj))
@@ -977,7 +978,7 @@ def run(cfg, out_dir, verbose=True):
     if p["features"] == "true_projection":
         injected.append("features")
         feats = true_projection_features(truth, names, s["true_projection_points"],
-                                         np.random.default_rng((cfg["seed"], 7)))
+                                         np.random.default_rng((cfg["seed"], 7)), imaging(cfg))
     elif p["features"] == "sift":
         feats = {v.name: sift_features(v.image(expected_size=camera.size), "rgb") for v in views}
     else:

@@ -283,3 +283,19 @@ def test_intrinsics_prior_takes_the_rig_tolerances(webcam, tmp_path):
     cal1, n1, cov1 = calibrate_from_rig_views(load_dataset(ds_dir), "pinhole", tolerance_draws=12)
     assert n1 == n and np.array_equal(cal1.K, cal.K)
     assert np.all(np.diag(cov1) > np.diag(cov0)) and np.sqrt(cov1[0, 0]) > 5 * np.sqrt(cov0[0, 0])
+
+
+def test_true_projection_features_are_exact_through_the_true_optics(tmp_path):
+    """Every source switched off (exact projections of the reference object, the true camera, R0 and centre, a
+    table without errors, ideal imaging): the thesis's estimator is exact (1e-6 mm). With the realistic profile's
+    static warp (its thin prism) the injected projections carry it as the renders do, and the true lens, which has
+    no prism, no longer undoes it: the error is no longer zero."""
+    exact = SMOKE_WEBCAM + ["pipeline.features=true_projection", "pipeline.camera=truth", "pipeline.mount_bias=truth",
+                            "sim.table_errors=false", "sim.camera_centre_error_mm=[0, 0, 0]", "bound.enabled=false"]
+    res = json.loads(Path(run_scenario_file(WEBCAM, out=tmp_path / "ideal", seed=3, overrides=exact, verbose=False,
+                                            quiet=True)).read_text())
+    assert res["metrics"]["lms_ratio_err_pos_at_100_mm"] < 1e-6
+    warped = [o for o in exact if o != "sim.imaging=ideal"] + ["sim.imaging=realistic"]
+    res = json.loads(Path(run_scenario_file(WEBCAM, out=tmp_path / "realistic", seed=3, overrides=warped,
+                                            verbose=False, quiet=True)).read_text())
+    assert res["metrics"]["lms_ratio_err_pos_at_100_mm"] > 1e-4
