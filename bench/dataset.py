@@ -63,18 +63,19 @@ _PILLOW_LIMIT = threading.Lock()
 _VIEW_KEYS = {"name", "image", "role", "notes"}
 
 
-def _open_header(path: Path):
+def _open_header(path: Path, formats=_HEADER_FORMATS):
     """``PIL.Image.open`` (lazy: reads the header, not the image data) without Pillow's own pixel limit.
 
     Pillow refuses a huge header without saying the size it claims; :func:`check_image_file` applies
-    :data:`MAX_IMAGE_PIXELS` to the size read here instead. ``PIL.UnidentifiedImageError`` for other formats.
+    :data:`MAX_IMAGE_PIXELS` to the size read here instead. ``PIL.UnidentifiedImageError`` for a format not in
+    ``formats`` (None: any Pillow reads).
     """
     from PIL import Image
 
     with _PILLOW_LIMIT:  # Pillow's limit is a module global: lifted for this call only
         limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
         try:
-            return Image.open(path, formats=_HEADER_FORMATS)
+            return Image.open(path, formats=formats)
         finally:
             Image.MAX_IMAGE_PIXELS = limit
 
@@ -170,16 +171,10 @@ def read_image(path: Path) -> np.ndarray:
     """
     import zlib
 
-    from PIL import Image, UnidentifiedImageError
+    from PIL import UnidentifiedImageError
 
     try:
-        with _PILLOW_LIMIT:
-            limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
-            try:
-                im = Image.open(path)
-            finally:
-                Image.MAX_IMAGE_PIXELS = limit
-        with im:
+        with _open_header(path, formats=None) as im:
             im.load()
             if im.mode in _DEEP_MODES:
                 raise ConfigError(path, "<file>", f"expected an 8-bit image, got Pillow mode {im.mode!r}")
