@@ -173,3 +173,19 @@ def consider_samples(geometry: BoardGeometry, tol: TargetTolerance, Xs, solve, d
         if r is not None:
             out.append(np.asarray(r, float))
     return np.array(out)
+
+
+#: fewest successful calibrations against the toleranced target for a consider covariance
+MIN_CONSIDER_DRAWS = 10
+
+
+def consider_covariance(geometry: BoardGeometry, tol: TargetTolerance, Xs, solve, draws: int = 48,
+                        source="target.yaml") -> tuple:
+    """The consider covariance ``(p, p)``: the second moment about zero of :func:`consider_samples`' deviations (the
+    nominal result is the centre), and the number of runs behind it. One-line :class:`ConfigError` naming
+    ``source`` when fewer than :data:`MIN_CONSIDER_DRAWS` runs succeed (the stated tolerances are implausible)."""
+    d = consider_samples(geometry, tol, Xs, solve, draws)
+    if len(d) < MIN_CONSIDER_DRAWS:
+        raise ConfigError(source, "tolerance", f"only {len(d)} of {draws} calibrations against the toleranced rig "
+                                               "converged: the tolerances are implausible")
+    return d.T @ d / len(d), len(d)

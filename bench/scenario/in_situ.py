@@ -837,8 +837,8 @@ def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5
     """What the rig's stated tolerances leave in the lab results: the second moment (14, 14) of the deviations of
     ``fx, fy, cx, cy`` (px), ``k1, k2, p1, p2`` and the mount (right perturbation: rotation vector rad, translation
     m) over calibrations of the same detections against perturbed rigs
-    (:func:`bench.camera.target_tolerance.consider_samples`), and the number of runs that succeeded."""
-    from bench.camera.target_tolerance import consider_samples
+    (:func:`bench.camera.target_tolerance.consider_covariance`), and the number of runs that succeeded."""
+    from bench.camera.target_tolerance import consider_covariance
     from bench.geometry.quaternion import matrix_to_rotation_vector
 
     def lab_vector(c):
@@ -857,11 +857,7 @@ def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5
         D = M_inv @ h.T_mount_cam
         return np.r_[lab_vector(c) - v0, matrix_to_rotation_vector(D[:3, :3]), D[:3, 3]]
 
-    d = consider_samples(geometry, tolerance, Xs, solve, draws)
-    if len(d) < 10:
-        raise ConfigError("target.yaml", "tolerance", f"only {len(d)} of {draws} calibrations against the "
-                                                      "toleranced rig converged: the tolerances are implausible")
-    return d.T @ d / len(d), len(d)  # about the nominal result: a consider covariance
+    return consider_covariance(geometry, tolerance, Xs, solve, draws)
 
 
 def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:

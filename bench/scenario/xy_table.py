@@ -604,9 +604,9 @@ def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48):
     Returns ``(calibration, views used, cov_K)``: ``cov_K`` (4, 4) px^2 is the covariance of ``fx, fy, cx, cy`` -
     the calibration's own (its corner noise) plus, when ``target.yaml`` states the rig's tolerances, what they leave
     in it (the second moment of ``tolerance_draws`` calibrations of the same detections against rigs drawn from them:
-    :func:`bench.camera.target_tolerance.consider_samples`, as the in-situ lab step does).
+    :func:`bench.camera.target_tolerance.consider_covariance`, as the in-situ lab step does).
     """
-    from bench.camera.target_tolerance import consider_samples
+    from bench.camera.target_tolerance import consider_covariance
 
     geometry = load_target(ds.root / "target.yaml")
     Xs, uvs, size = [], [], None
@@ -634,11 +634,7 @@ def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48):
             c = calibrate_camera(Xs_m, uvs, size, model=model)
             return np.array([c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2]]) - k0 if c.success else None
 
-        d = consider_samples(geometry, tolerance, Xs, solve, tolerance_draws)
-        if len(d) < 10:
-            raise ConfigError(ds.root / "target.yaml", "tolerance", f"only {len(d)} of {tolerance_draws} "
-                              "calibrations against the toleranced rig converged: the tolerances are implausible")
-        cov_K = cov_K + d.T @ d / len(d)  # about the nominal result: a consider covariance
+        cov_K = cov_K + consider_covariance(geometry, tolerance, Xs, solve, tolerance_draws, ds.root / "target.yaml")[0]
     return cal, len(Xs), cov_K
 
 

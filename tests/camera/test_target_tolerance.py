@@ -5,7 +5,13 @@ import numpy as np
 import pytest
 
 from bench.camera.corners import planar_board, two_plane_rig
-from bench.camera.target_tolerance import TargetTolerance, consider_samples, object_point_covariance, parse_tolerance
+from bench.camera.target_tolerance import (
+    TargetTolerance,
+    consider_covariance,
+    consider_samples,
+    object_point_covariance,
+    parse_tolerance,
+)
 from bench.errors import ConfigError
 
 
@@ -94,3 +100,17 @@ def test_consider_samples_calls_the_solver_with_perturbed_targets():
     assert len(consider_samples(g, tol, Xs, lambda Xs_m: None, draws=5)) == 0
     with pytest.raises(ValueError, match="not the target's corners"):
         consider_samples(g, tol, [X0 + 1e-3], solve, draws=1)
+
+
+def test_consider_covariance_is_the_second_moment_and_refuses_too_few_runs():
+    """The consider covariance is the second moment about zero of the runs' deviations (exactly, for a solve that
+    returns known vectors); fewer than MIN_CONSIDER_DRAWS successful runs: a one-line error naming the file."""
+    geometry = planar_board((4, 4), 0.02)
+    Xs = [geometry.object_points()]
+    tol = parse_tolerance({"print_rms_mm": [0.05, 0.05]}, "target.yaml")
+    vectors = iter(np.arange(24, dtype=float).reshape(12, 2))
+    cov, n = consider_covariance(geometry, tol, Xs, lambda _: next(vectors), draws=12)
+    d = np.arange(24, dtype=float).reshape(12, 2)
+    assert n == 12 and np.allclose(cov, d.T @ d / 12, rtol=0, atol=1e-12)
+    with pytest.raises(ConfigError, match=r"rig/target.yaml: tolerance: only 0 of 12 calibrations"):
+        consider_covariance(geometry, tol, Xs, lambda _: None, draws=12, source="rig/target.yaml")
