@@ -113,9 +113,9 @@ def main(argv=None) -> int:
             continue
         todo.append((str(run), seed, cfg["pipeline"]))
     print(f"{len(todo)} runs to re-localise", file=sys.stderr)
-    from bench.scenario.sweep import _end_with_parent
+    from bench.scenario.sweep import _end_with_parent, stop_pool
 
-    counts = {}
+    counts, futs = {}, []
     pool = ProcessPoolExecutor(args.workers, initializer=_end_with_parent, initargs=(os.getpid(),))
     try:
         futs = [pool.submit(relocate, r, s, p, args.name) for r, s, p in todo]
@@ -129,9 +129,7 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 130
     finally:  # an interrupt: the running runs stopped, the queued ones dropped
-        for proc in list((getattr(pool, "_processes", None) or {}).values()):
-            proc.terminate()
-        pool.shutdown(wait=True, cancel_futures=True)
+        stop_pool(pool, any(not f.done() for f in futs))
     print(f"\n{counts}", file=sys.stderr)
     return 1 if counts.get("error") else 0
 

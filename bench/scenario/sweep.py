@@ -231,12 +231,18 @@ def _local_backend(tasks, workers):
             for fut in done:
                 yield pending.pop(fut), fut.result()
     finally:
-        if pending:
-            for proc in list((getattr(pool, "_processes", None) or {}).values()):  # running runs: stop them
-                proc.terminate()
-            pool.shutdown(wait=True, cancel_futures=True)
-        else:
-            pool.shutdown(wait=True)
+        stop_pool(pool, bool(pending))
+
+
+def stop_pool(pool: ProcessPoolExecutor, unfinished: bool) -> None:
+    """Shut a worker pool down; with ``unfinished`` work (an exception, Ctrl-C) its running tasks are terminated and
+    the queued ones dropped instead of being run to the end."""
+    if unfinished:
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):  # running tasks: stop them
+            proc.terminate()
+        pool.shutdown(wait=True, cancel_futures=True)
+    else:
+        pool.shutdown(wait=True)
 
 
 RAY_HELP = "see docs/sweeps.md, 'Running on a Ray cluster'"
