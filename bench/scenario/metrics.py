@@ -25,9 +25,10 @@ class Metric(NamedTuple):
 # placeholder -> (regular expression, what it stands for)
 PLACEHOLDERS = {
     "axis": (r"x|y|z", "`x`, `y`, `z`"),
-    "method": (r"quaternion_ratio|lms_ratio|quaternion|lms",
+    "method": (r"quaternion_ratio|lms_ratio|quaternion|lms|bundle",
                "`quaternion`, `lms` (RANSAC + the thesis's quaternion / the LMS rotation), `quaternion_ratio`, "
-               "`lms_ratio` (the same + error-ratio elimination)"),
+               "`lms_ratio` (the same + error-ratio elimination), `bundle` (the maximum-likelihood bundle, "
+               "`pipeline.bundle`)"),
     "at": (r"100|50|min_d|max_d", "intraocular distance d_o: `100`, `50` mm, the smallest (`min_d`) or largest "
                                   "(`max_d`) of `pipeline.intraocular_mm`"),
     "d": (r"[0-9]+(?:\.[0-9]+)?", "any intraocular distance d_o of `pipeline.intraocular_mm`, in mm"),
@@ -260,6 +261,8 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "`bound.enabled`, features not exact"),
         Metric("lms_ratio_efficiency_at_<at2>", "1", "limit / achieved 3D error",
                "`bound.enabled`, features not exact"),
+        Metric("bundle_efficiency_at_<at2>", "1", "limit / achieved 3D error of the bundle (the same limit)",
+               "`bound.enabled`, features not exact, `pipeline.bundle`"),
         Metric("bound_rot_at_<at2>_deg", "deg", "rotation bound at that d_o", "`bound.enabled`, features not exact"),
     ),
     "camera_calibration": (

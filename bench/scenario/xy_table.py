@@ -72,7 +72,9 @@ THESIS_TABLES = {"table4": (DATA / "thesis_tables_5_8.csv", {"quaternion": 5, "q
                  "table10": (DATA / "thesis_tables_11_14.csv", {"quaternion": 11, "quaternion_ratio": 12, "lms": 13,
                                                                 "lms_ratio": 14}, "Figures 55-58")}
 LABELS = {"quaternion": "RANSAC, quaternion", "quaternion_ratio": "RANSAC, quaternion, error-ratio elimination",
-          "lms": "RANSAC, LMS", "lms_ratio": "RANSAC, LMS, error-ratio elimination"}
+          "lms": "RANSAC, LMS", "lms_ratio": "RANSAC, LMS, error-ratio elimination",
+          "bundle": "bundle: the pair, R0, intrinsics and points by maximum likelihood"}
+THESIS_METHODS = ("quaternion", "quaternion_ratio", "lms", "lms_ratio")
 TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
 CAMERA_CHOICES = ("calibrated", "nominal", "truth")
 BIAS_CHOICES = ("estimated", "truth", "zero")
@@ -125,6 +127,7 @@ SCHEMA = {
         "ransac_iterations": (int, 100),
         "d_r_mm": (float, 20.0),
         "r_lim": (float, 0.1),
+        "bundle": (bool, True),                 # the ML bundle beside the four (bench.vision.xy_table_bundle)
     },
     # the Cramér-Rao bound of every estimate and a Monte Carlo of the ideal estimator (xy_table_bound)
     "bound": {"enabled": (bool, True), "mc_trials": (int, 2), "mc_intraocular_mm": (list, [50, 100])},
@@ -755,22 +758,24 @@ def add_thesis_columns(summary: dict, thesis: dict) -> dict:
 
 
 def format_tables(summary: dict, poses: str) -> str:
-    """Our four tables in the thesis's layout, each cell ``ours (thesis)`` in mm."""
+    """Our four tables in the thesis's layout, each cell ``ours (thesis)`` in mm, and the bundle's beside them."""
     _, numbers, _ = THESIS_TABLES[poses]
     lines = []
     ds = sorted(set(summary["d_mm"]))
-    for m in ("quaternion", "quaternion_ratio", "lms", "lms_ratio"):
+    for m in (*THESIS_METHODS, "bundle"):
         idx = {d: i for i, (d, mm) in enumerate(zip(summary["d_mm"], summary["method"], strict=True)) if mm == m}
         if not idx:
             continue
-        lines.append(f"Table {numbers[m]} ({LABELS[m]}): RMS position error, ours (thesis), mm")
+        lines.append(f"Table {numbers[m]} ({LABELS[m]}): RMS position error, ours (thesis), mm" if m in numbers else
+                     f"Beside the tables ({LABELS[m]}; not in the thesis): RMS position error, mm")
         lines.append("d_o [mm]      " + "".join(f"{d:>14g}" for d in ds))
 
         def cell(i, col):
             ours, th = summary[col][i], summary[f"thesis_{col}"][i]
             if col == "combinations":
                 return f"{ours:d} ({th:g})" if np.isfinite(th) else f"{ours:d}"
-            return f"{ours:.1f} ({th:.1f})" if np.isfinite(th) else f"{ours:.1f}"
+            mm = f"{ours:.1f}" if not abs(ours) < 1 else f"{ours:.2f}"  # the bundle's sub-mm errors
+            return f"{mm} ({th:.1f})" if np.isfinite(th) else mm
 
         lines.append("Combinations  " + "".join(f"{cell(idx[d], 'combinations'):>14}" for d in ds))
         for ax in "xyz":
@@ -780,34 +785,52 @@ def format_tables(summary: dict, poses: str) -> str:
 
 
 def plot_tables(summary: dict, poses: str, path) -> str:
-    """Error vs intraocular distance, one panel per method (Figures 49-52 / 55-58), the thesis's values dashed."""
+    """Error vs intraocular distance, one panel per method (Figures 49-52 / 55-58), the thesis's values dashed; with the
+    bundle a fifth panel and the efficiency (limit / error) of LMS + error ratio and the bundle."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     _, numbers, figs = THESIS_TABLES[poses]
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), sharex=True)
+    has_bundle = "bundle" in summary["method"]
+    fig, axes = plt.subplots(2, 3 if has_bundle else 2, figsize=(16 if has_bundle else 11, 7.5), sharex=True)
     colors = {"x": "tab:blue", "y": "tab:orange", "z": "tab:green"}
-    for ax, m in zip(axes.ravel(), ("quaternion", "quaternion_ratio", "lms", "lms_ratio"), strict=True):
+    panels = [axes[0, 0], axes[0, 1], axes[1, 0], axes[1, 1]] + ([axes[0, 2]] if has_bundle else [])
+    for ax, m in zip(panels, (*THESIS_METHODS, "bundle"), strict=False):
         sel = [i for i, mm in enumerate(summary["method"]) if mm == m]
         d = np.array(summary["d_mm"])[sel]
         for a in "xyz":
             ax.plot(d, np.array(summary[f"err_{a}_mm"])[sel], "o-", color=colors[a], ms=4, label=f"{a} (ours)")
-            ax.plot(d, np.array(summary[f"thesis_err_{a}_mm"])[sel], "s--", color=colors[a], ms=3, alpha=0.55,
-                    label=f"{a} (thesis)")
+            if m in numbers:
+                ax.plot(d, np.array(summary[f"thesis_err_{a}_mm"])[sel], "s--", color=colors[a], ms=3, alpha=0.55,
+                        label=f"{a} (thesis)")
             if f"bound_{a}_mm" in summary:  # the Cramér-Rao bound and the ideal estimator's Monte Carlo
                 ax.plot(d, np.array(summary[f"bound_{a}_mm"])[sel], ":", color=colors[a], lw=1.6,
                         label=f"{a} limit (CRB ⊕ floor)")
-                ax.plot(d, np.array(summary[f"bound_mc_{a}_mm"])[sel], "x", color=colors[a], ms=6,
-                        label=f"{a} ideal estimator (MC)")
-        if "eq123_z_mm" in summary:
+                if m in numbers:
+                    ax.plot(d, np.array(summary[f"bound_mc_{a}_mm"])[sel], "x", color=colors[a], ms=6,
+                            label=f"{a} ideal estimator (MC)")
+        if "eq123_z_mm" in summary and m in numbers:
             ax.plot(d, np.array(summary["eq123_z_mm"])[sel], "-.", color=colors["z"], lw=1, alpha=0.8,
                     label="z: Eq. 123 (disparity sqrt(2) sigma, / sqrt(inliers))")
         ax.set_yscale("log")
-        ax.set_title(f"Table {numbers[m]}: {LABELS[m]}", fontsize=10)
+        ax.set_title(f"Table {numbers[m]}: {LABELS[m]}" if m in numbers else f"not in the thesis: {LABELS[m]}",
+                     fontsize=10)
         ax.set_ylabel("RMS position error (mm)")
         ax.grid(alpha=0.3, which="both")
+    if has_bundle:  # how close each estimator comes to the limit
+        ax = axes[1, 2]
+        if "efficiency" in summary:
+            for m, style in (("lms_ratio", "o-"), ("bundle", "s-")):
+                sel = [i for i, mm in enumerate(summary["method"]) if mm == m]
+                ax.plot(np.array(summary["d_mm"])[sel], np.array(summary["efficiency"])[sel], style, ms=4,
+                        label=LABELS[m].split(":")[0] if m == "bundle" else "RANSAC, LMS, error ratio")
+            ax.axhline(0.75, color="grey", ls="--", lw=1, label="issue 11's target 0.75")
+            ax.legend(fontsize=7)
+        ax.set_ylim(0, 1.1)
+        ax.set_title("efficiency: limit / RMS error (3D)", fontsize=10)
+        ax.grid(alpha=0.3)
     for ax in axes[1]:
         ax.set_xlabel("intraocular distance d_o (mm)")
     axes[0, 0].legend(fontsize=6, ncol=2)
@@ -1006,9 +1029,11 @@ def run(cfg, out_dir, verbose=True):
         map_exclude=tuple(view_name(n) for n in _ints(cfg, "pipeline.map_exclude")),
         map=MapConfig(orientation_tol_deg=p["orientation_tol_deg"], gap_max_m=p["gap_mm"] * 1e-3),
         ransac_iterations=p["ransac_iterations"], d_r_m=p["d_r_mm"] * 1e-3, r_lim=p["r_lim"],
-        bias_refine=p["bias_refine"], bias_depth_statistic=p["bias_depth_statistic"], seed=cfg["seed"])
+        bias_refine=p["bias_refine"], bias_depth_statistic=p["bias_depth_statistic"], seed=cfg["seed"],
+        methods=THESIS_METHODS + (("bundle",) if p["bundle"] else ()))
     spec = load_table_spec(ds.root / "table.yaml")
-    res = estimate_positions(feats, {n: ds.view(n).table for n in feats}, camera, spec, pc, R0=R0, verbose=verbose)
+    res = estimate_positions(feats, {n: ds.view(n).table for n in feats}, camera, spec, pc, R0=R0, verbose=verbose,
+                             cov_K=cov_K)
     timings.update({k: float(v) for k, v in res.timings_s.items()})
 
     # --- score ------------------------------------------------------------------------------------------------------
@@ -1027,7 +1052,7 @@ def run(cfg, out_dir, verbose=True):
     metrics["estimates_failed"] = float(sum(not c.success for c in res.combinations))
     metrics["keypoints_median"] = float(np.median(list(res.keypoints.values())))
     metrics["keypoints_reference"] = float(res.keypoints[ref])
-    ok = [c for c in res.combinations if c.success]
+    ok = [c for c in res.combinations if c.success and c.method != "bundle"]  # the thesis's map and inlier counts
     if ok:
         metrics["map_points_median"] = float(np.median([c.map_points for c in ok]))
         metrics["pairs_3d_median"] = float(np.median([c.pairs_3d for c in ok]))
@@ -1047,7 +1072,7 @@ def run(cfg, out_dir, verbose=True):
     for m in pc.methods:
         # per-axis errors at 100, 50 mm and the extreme d_o (all methods); for LMS + error ratio the 3D error at
         # every d_o, and the bound named to pair with the error it bounds (x_err_y / x_bound_y: sweeps put the
-        # efficiency RMS bound / RMS error beside them)
+        # efficiency RMS bound / RMS error beside them); for the bundle its efficiency at 100 and 50 mm
         labels = [(100.0, "100"), (50.0, "50"), (ds_list[0], "min_d"), (ds_list[-1], "max_d")]
         if m == "lms_ratio":
             labels += [(d, f"{d:g}") for d in ds_list if d not in (100.0, 50.0)]
@@ -1061,7 +1086,11 @@ def run(cfg, out_dir, verbose=True):
             if label in ("100", "50", "min_d", "max_d"):
                 for ax in "xyz":
                     metrics[f"{m}_err_{ax}_mm_at_{label}"] = summary[f"err_{ax}_mm"][i]
-            if m != "lms_ratio" or "bound_pos_mm" not in summary or label in ("min_d", "max_d"):
+            if "bound_pos_mm" not in summary or label in ("min_d", "max_d"):
+                continue
+            if m == "bundle" and label in ("100", "50"):  # the same limit as LMS + error ratio: its efficiency
+                metrics[f"{m}_efficiency_at_{label}"] = summary["efficiency"][i]
+            if m != "lms_ratio":
                 continue
             metrics[f"{m}_bound_pos_at_{label}_mm"] = summary["bound_pos_mm"][i]
             if label in ("100", "50"):

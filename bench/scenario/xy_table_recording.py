@@ -26,7 +26,7 @@ from bench.geometry.transforms import transform_points
 from bench.scenario.recording import GREY, Recording, run_name
 
 COLOURS = {"quaternion": (230, 120, 40), "quaternion_ratio": (240, 190, 40), "lms": (60, 120, 230),
-           "lms_ratio": (40, 200, 60)}
+           "lms_ratio": (40, 200, 60), "bundle": (200, 60, 200)}
 
 
 def _outline(truth):

@@ -114,6 +114,8 @@ class KeypointMap:
     observations : list of (ndarray (n_i,) int, ndarray (n_i, 2))
         Per map point: the surrounding views that contributed to it and its keypoint in each (normalized) - what
         :func:`bundle_refine` re-uses.
+    ref_index : ndarray (M,) int
+        Each map point's index among the reference view's keypoints (with the matches, its keypoint in every view).
     """
 
     p_ref: np.ndarray
@@ -126,6 +128,7 @@ class KeypointMap:
     x_ref: np.ndarray | None = None
     T_ref_views: np.ndarray | None = None
     observations: list | None = None
+    ref_index: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.p_ref)
@@ -213,7 +216,7 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
     T_ref_views = np.array([invert(T_world_ref) @ np.asarray(v.T_base_cam, float) for v in surrounding])
     return KeypointMap(np.array(P).reshape(-1, 3), np.array(Pstar).reshape(-1, 3), reference.features.subset(idx),
                        np.array(nv, dtype=int), np.array(spread), T_world_ref, stats, reference.x_n[idx],
-                       T_ref_views, observations)
+                       T_ref_views, observations, idx)
 
 
 @dataclass

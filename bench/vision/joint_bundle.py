@@ -34,6 +34,7 @@ import numpy as np
 from bench.camera.model import check_dist, distort, distortion_jacobian, to_pixels
 from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.robot.orientation import link5_frame
+from bench.vision.bundle import solve
 
 
 @dataclass(frozen=True)
@@ -193,45 +194,17 @@ def residuals_and_jacobian(problem: _Problem, theta, T_b2, X) -> tuple:
     return problem.uv - uv, J, J_pt, float(z.min())
 
 
-def _normal_equations(problem, r, J, J_pt, M, prior_info, prior_res, keep=None):
-    """The reduced system (points eliminated): ``S (n, n)``, gradient ``g (n,)`` and the points' back-substitution.
-    Observations outside ``keep`` (N,) bool weigh nothing; a point left with fewer than two is held where it is."""
-    n = J.shape[2]
-    if keep is not None:
-        w = keep.astype(float)
-        r, J, J_pt = r * w[:, None], J * w[:, None, None], J_pt * w[:, None, None]
-    A = np.einsum("nki,nkj->ij", J, J) + prior_info
-    g_c = np.einsum("nki,nk->i", J, r) + prior_res
-    B = np.zeros((M, n, 3))
-    np.add.at(B, problem.point, np.swapaxes(J, 1, 2) @ J_pt)
-    C = np.zeros((M, 3, 3))
-    np.add.at(C, problem.point, np.swapaxes(J_pt, 1, 2) @ J_pt)
-    g_m = np.zeros((M, 3))
-    np.add.at(g_m, problem.point, np.einsum("nki,nk->ni", J_pt, r))
-    Cinv = np.linalg.inv(C + 1e-9 * np.eye(3))  # regularised: a point gated down to one view (B = 0) stays put
-    BCinv = B @ Cinv
-    S = A - np.einsum("mik,mjk->ij", BCinv, B)
-    g = g_c - np.einsum("mik,mk->i", BCinv, g_m)
+class _Bound:
+    """The problem at a fixed starting base pose, as :func:`bench.vision.bundle.solve` takes it."""
 
-    def points_step(dc):
-        return -np.einsum("mkl,ml->mk", Cinv, g_m + np.einsum("mik,i->mk", B, dc))
+    def __init__(self, problem: _Problem, T_b2):
+        self.problem, self.T_b2, self.point = problem, T_b2, problem.point
 
-    return 0.5 * (S + S.T), g, points_step
+    def residuals(self, theta, X):
+        return residuals(self.problem, theta, self.T_b2, X)
 
-
-def _seen_twice(point, keep, M: int) -> np.ndarray:
-    """``keep`` without the observations of points it leaves in one view: such a point is unobserved along its ray
-    (the step, the cost and the degrees of freedom then agree on what counts)."""
-    seen = np.bincount(point[keep], minlength=M)
-    return keep & (seen[point] >= 2)
-
-
-def _cost(problem, theta, T_b2, X, keep, prior_info, mean) -> float:
-    """Sum of the kept observations' squared pixel residuals plus the priors' (in the same units)."""
-    r = residuals(problem, theta, T_b2, X)[keep]
-    d = theta - mean
-    c = float(np.sum(r**2) + d @ prior_info @ d)
-    return c if np.isfinite(c) else np.inf
+    def linearise(self, theta, X):
+        return residuals_and_jacobian(self.problem, theta, self.T_b2, X)
 
 
 def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, point, uv, X, sigma_enc: float,
@@ -297,48 +270,13 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     if lab is not None:
         info0[k:, k:] = np.linalg.inv(lab)
     mean = np.r_[np.zeros(6), q_read.ravel(), np.zeros(n - 6 - 6 * V)]
-    theta = mean.copy()
-    it_total, s_px = 0, float(sigma_px)
-    keep = np.ones(len(problem.view), dtype=bool)
-    for _ in range(rounds):
-        prior_info = info0 * s_px**2  # in units of the pixel residuals' weight
-        for _ in range(iterations):
-            it_total += 1
-            r, J, J_pt, z_min = residuals_and_jacobian(problem, theta, T_site_b2, X)
-            if z_min <= 0:
-                return JointBundleResult(False, "points behind a camera", T_site_b2, nan6, q_read, s_px, np.nan,
-                                         len(r), it_total)
-            S, g, points_step = _normal_equations(problem, r, J, J_pt, M, prior_info, prior_info @ (theta - mean),
-                                                  keep)
-            if not np.all(np.diag(S) > 0):  # a parameter nothing observes (a degenerate view set): no step
-                return JointBundleResult(False, "singular reduced system", T_site_b2, nan6, q_read, s_px, np.nan,
-                                         len(r), it_total)
-            d = np.sqrt(np.diag(S))
-            dc = -np.linalg.solve(S / np.outer(d, d), g / d) / d
-            if not np.all(np.isfinite(dc)):
-                return JointBundleResult(False, "singular reduced system", T_site_b2, nan6, q_read, s_px, np.nan,
-                                         len(r), it_total)
-            # backtracking: the Gauss-Newton step is halved until the cost (pixels kept + priors) decreases - weakly
-            # observed directions (intrinsics against the mount) can make a full step overshoot and diverge
-            dX, t = points_step(dc), 1.0
-            c0 = _cost(problem, theta, T_site_b2, X, keep, prior_info, mean)
-            while t > 1e-4 and not _cost(problem, theta + t * dc, T_site_b2, X + t * dX, keep, prior_info,
-                                         mean) <= c0:
-                t /= 2
-            if t <= 1e-4:
-                break  # no descent along the step: at the minimum to numerical precision
-            theta, X = theta + t * dc, X + t * dX
-            if np.abs(t * dc).max() < 1e-12:
-                break
-        e = np.linalg.norm(residuals(problem, theta, T_site_b2, X), axis=1)
-        if gate:  # heavy tails (a keypoint on a similar-looking feature nearby): gate at gate x the robust sigma
-            sigma_robust = float(np.median(e[keep])) / 1.1774  # the Rayleigh median of a 2D Gaussian of sigma
-            keep = _seen_twice(problem.point, e <= gate * sigma_robust, M)
-        dof = max(2 * int(keep.sum()) - 3 * int(np.unique(problem.point[keep]).size) - 6, 1)
-        s_px = float(np.sqrt(np.sum(e[keep] ** 2) / dof))
-    r, J, J_pt, _ = residuals_and_jacobian(problem, theta, T_site_b2, X)
-    S, _, _ = _normal_equations(problem, r, J, J_pt, M, info0 * s_px**2, np.zeros(n), keep)
-    cov = s_px**2 * np.linalg.inv(S)[:6, :6]
+    sol = solve(_Bound(problem, T_site_b2), mean, mean, info0, X, sigma_px, iterations, rounds, gate, dof_offset=6)
+    if not sol.success:
+        return JointBundleResult(False, sol.message, T_site_b2, nan6, q_read, sol.sigma_px, np.nan, len(problem.view),
+                                 sol.iterations)
+    theta, keep, s_px = sol.theta, sol.keep, sol.sigma_px
+    cov = sol.covariance()[:6, :6]
+    r = residuals(problem, theta, T_site_b2, sol.X)
     xi, q, d_K, d_d, d_m = problem.split(theta)
     T = np.array(T_site_b2, dtype=float)
     T[:3, :3] = rotation_vector_to_matrix(xi[:3]) @ T[:3, :3]
@@ -348,8 +286,8 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     extra = ((", intrinsics" if cov_K is not None else "") + (", distortion" if cov_dist is not None else "")
              + (", mount" if cov_mount is not None else ""))
     return JointBundleResult(True, f"ok; joint bundle of {M} points, {len(r)} of {len(keep)} observations kept, {V} "
-                             f"views' joints{extra}, sigma {s_px:.3g} px", T, 0.5 * (cov + cov.T), q, s_px, rms,
-                             len(r), it_total, problem.intrinsics(d_K), problem.mount @ _se3(d_m),
+                             f"views' joints{extra}, sigma {s_px:.3g} px", T, cov, q, s_px, rms,
+                             len(r), sol.iterations, problem.intrinsics(d_K), problem.mount @ _se3(d_m),
                              problem.distortion(d_d))
 
 

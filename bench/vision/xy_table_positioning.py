@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -57,16 +57,19 @@ import yaml
 
 from bench.dataset import load_dataset
 from bench.errors import ConfigError
-from bench.geometry.transforms import homogeneous, rot_y
+from bench.geometry.transforms import homogeneous, rot_y, transform_points
 from bench.vision.absolute_orientation import absolute_orientation
 from bench.vision.features import Features, detect_sift
 from bench.vision.handeye import mount_rotation, search_mount_rotation
 from bench.vision.insitu import MapConfig, ViewObservation, build_map, locate, reference_matches
 from bench.vision.ransac import ransac_absolute_orientation
+from bench.vision.xy_table_bundle import R0_PRIOR_DEG, pair_bundle, pair_observations
 
 #: the four methods of Tables 5-8 (11-14): name -> (rotation estimator, error-ratio elimination)
 METHODS = {"quaternion": ("rodrigues", False), "lms": ("svd", False), "quaternion_ratio": ("rodrigues", True),
            "lms_ratio": ("svd", True)}
+#: the maximum-likelihood estimate beside them (:mod:`bench.vision.xy_table_bundle`, started from ``lms_ratio``'s)
+BUNDLE = "bundle"
 TABLE_SPEC_KEYS = {"camera_offset_mm", "travel_mm", "resolution_mm", "resolution_deg", "notes"}
 DESCRIPTOR_SIZE = 128
 
@@ -210,7 +213,13 @@ class PositioningConfig:
     ransac_iterations, d_r_m, r_lim : int, float, float
         RANSAC samples (100), inlier distance (20 mm), error-ratio limit (0.1).
     methods : tuple of str
-        Keys of :data:`METHODS`.
+        Keys of :data:`METHODS` (the thesis's estimators) and :data:`BUNDLE` (the bundle over the estimate's views,
+        :func:`~bench.vision.xy_table_bundle.pair_bundle`, started from ``lms_ratio``'s estimate).
+    bundle_R0_prior_deg : float
+        The bundle's prior (deg per axis) on the correction of the searched ``R0``.
+    bundle_readings : bool
+        The bundle refines every view's table reading under a prior of one resolution step (``table.yaml``'s
+        ``resolution_mm`` / ``resolution_deg``, a uniform quantisation: step / sqrt(12)); False: readings exact.
     bias_grid_y_deg, bias_grid_z_deg : (start, stop, step)
         Search grids of ``theta_y0`` (thesis steps of 0.5 deg) and ``theta_z0`` (0.1 deg), inclusive.
     bias_refine : bool
@@ -236,6 +245,8 @@ class PositioningConfig:
     d_r_m: float = 0.020
     r_lim: float = 0.1
     methods: tuple = ("quaternion", "lms", "quaternion_ratio", "lms_ratio")
+    bundle_R0_prior_deg: float = R0_PRIOR_DEG
+    bundle_readings: bool = False
     bias_grid_y_deg: tuple = (-12.0, 12.0, 0.5)
     bias_grid_z_deg: tuple = (-5.0, 5.0, 0.1)
     bias_refine: bool = False
@@ -251,7 +262,9 @@ class Combination:
 
     ``p_table`` is the estimated position of camera ``a`` relative to the reference camera, in the table's axes (m;
     NaN on failure); ``map_points``, ``pairs_3d``, ``ransac_inliers``, ``inliers`` count the map ``1p``, the
-    triangulated ``1p <-> 2p`` correspondences, RANSAC's consensus and what is left after the error-ratio elimination.
+    triangulated ``1p <-> 2p`` correspondences, RANSAC's consensus and what is left after the error-ratio elimination
+    (the bundle: the pixel observations its gate kept); ``cov_p`` (3, 3) the bundle's first-order covariance of
+    ``p_table`` (m^2; None for the thesis's estimators).
     """
 
     d_m: float
@@ -265,6 +278,7 @@ class Combination:
     pairs_3d: int
     ransac_inliers: int
     inliers: int
+    cov_p: np.ndarray | None = None
 
 
 @dataclass
@@ -402,8 +416,31 @@ def _align(p1, p2, cfg: PositioningConfig, seed) -> dict:
     return {m: out[m] for m in cfg.methods}
 
 
+def _bundle_estimate(d_mm, a, b, kmap, used, start, obs, features, matches, read, names, R0, spec, camera, cov_K,
+                     cov_dist, n_pairs_3d, cfg) -> Combination:
+    """The bundle's estimate of camera ``a`` (:func:`bench.vision.xy_table_bundle.pair_bundle`), started from the
+    LMS + error-ratio estimate ``start`` (its ``_align`` tuple)."""
+    T, ok, msg, n_ransac, _ = start
+    nan3 = np.full(3, np.nan)
+    if not ok:
+        return Combination(d_mm * 1e-3, a, b, BUNDLE, False, f"no start (LMS + error ratio: {msg})", nan3, len(kmap),
+                           n_pairs_3d, n_ransac, 0)
+    views = [cfg.reference, *used, a, b]
+    view, point, uv, points = pair_observations(kmap, views, matches, features, (a, b))
+    T_table_ref = obs[cfg.reference].T_base_cam
+    X = transform_points(T_table_ref, kmap.p_ref[points])
+    in_pair = np.zeros(len(views), bool)
+    in_pair[-2:] = True
+    sigma = np.array([spec.resolution_m, spec.resolution_m, spec.resolution_rad]) / np.sqrt(12)  # one step
+    res = pair_bundle(read[[names.index(n) for n in views]], in_pair, T_table_ref @ T, R0, spec.camera_offset_m,
+                      camera.K, camera.dist, view, point, uv, X, cov_K, sigma if cfg.bundle_readings else None,
+                      cov_dist, cfg.bundle_R0_prior_deg)
+    return Combination(d_mm * 1e-3, a, b, BUNDLE, res.success, res.message, res.p_table, len(kmap), n_pairs_3d,
+                       n_ransac, res.observations, res.cov_p)
+
+
 def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, config: PositioningConfig,
-                       R0=None, verbose: bool = False) -> PositioningResult:
+                       R0=None, verbose: bool = False, cov_K=None, cov_dist=None) -> PositioningResult:
     """The x-y table experiment on already detected features (module docstring, steps 1-4).
 
     Parameters
@@ -420,6 +457,12 @@ def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, 
         The camera's rotation on its support; None: the thesis's search (Eq. 197-198).
     verbose : bool
         Progress on stderr.
+    cov_K : (4, 4), optional
+        Covariance (px^2) of the camera's ``fx, fy, cx, cy`` (its calibration's): the bundle method refines them
+        under it; None: the bundle takes them as exact.
+    cov_dist : (4, 4), optional
+        Covariance of the distortion's ``k1, k2, p1, p2`` about the camera's: the bundle refines them under it (a
+        loose prior about zero for a pin-hole calibration); None: exact.
 
     Returns
     -------
@@ -434,8 +477,12 @@ def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, 
     if cfg.reference not in features:
         raise ConfigError("pipeline", "reference", f"no table view named {cfg.reference!r}")
     for m in cfg.methods:
-        if m not in METHODS:
-            raise ValueError(f"methods: unknown {m!r} (known: {', '.join(METHODS)})")
+        if m not in METHODS and m != BUNDLE:
+            raise ValueError(f"methods: unknown {m!r} (known: {', '.join([*METHODS, BUNDLE])})")
+    thesis_methods = tuple(m for m in cfg.methods if m in METHODS)
+    if BUNDLE in cfg.methods and "lms_ratio" not in thesis_methods:
+        thesis_methods += ("lms_ratio",)  # the bundle starts from it
+    align_cfg = replace(cfg, methods=thesis_methods)
     read = check_readings(np.stack([readings[n] for n in names]), spec, names)
     T_table_stage = stage_poses(read)
     obs = {}
@@ -471,7 +518,7 @@ def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, 
     pairs = intraocular_pairs(names, read, cfg.reference, cfg.intraocular_mm, cfg.pair_tolerance_m)
     maps = {}
     combos = []
-    t_map = t_locate = t_align = 0.0
+    t_map = t_locate = t_align = t_bundle = 0.0
     k = 0
     n_pairs = sum(len(p) for p in pairs.values())
     for d_mm, plist in pairs.items():
@@ -503,13 +550,22 @@ def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, 
                 combos += [Combination(d_mm * 1e-3, a, b, m, False, loc.message, np.full(3, np.nan), n_map,
                                        0 if loc.p1 is None else len(loc.p1), 0, 0) for m in cfg.methods]
                 continue
-            for m, (T, ok, msg, n_ransac, n_kept) in _align(loc.p1, loc.p2, cfg, (cfg.seed, k)).items():
+            aligned = _align(loc.p1, loc.p2, align_cfg, (cfg.seed, k))
+            for m, (T, ok, msg, n_ransac, n_kept) in aligned.items():
+                if m not in cfg.methods:
+                    continue
                 p = R_table_ref @ T[:3, 3]  # camera a's centre relative to the reference, table axes
                 combos.append(Combination(d_mm * 1e-3, a, b, m, ok, msg, p, n_map, len(loc.p1), n_ransac, n_kept))
-            t_align += time.perf_counter() - t4
+            t5 = time.perf_counter()
+            t_align += t5 - t4
+            if BUNDLE in cfg.methods:
+                combos.append(_bundle_estimate(d_mm, a, b, kmap, used, aligned["lms_ratio"], obs, features,
+                                               ref_matches, read, names, R0, spec, camera, cov_K, cov_dist,
+                                               len(loc.p1), cfg))
+                t_bundle += time.perf_counter() - t5
     if verbose and n_pairs:
         print(file=sys.stderr)
-    timings.update({"maps_s": t_map, "locate_s": t_locate, "align_s": t_align,
+    timings.update({"maps_s": t_map, "locate_s": t_locate, "align_s": t_align, "bundle_s": t_bundle,
                     "positioning_total_s": time.perf_counter() - t0})
     ok = sum(c.success for c in combos)
     msg = f"{ok} of {len(combos)} estimates over {n_pairs} pairs, {len(maps)} distinct maps"

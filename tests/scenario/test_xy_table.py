@@ -54,7 +54,7 @@ def _check_contract(res, methods_d):
     t = res["tables"]["position_error_vs_intraocular"]
     assert check_metrics("xy_table", res["metrics"]) == ([], [])  # (undeclared, missing)
     assert COLUMNS <= set(t)
-    assert set(t["method"]) == {"quaternion", "lms", "quaternion_ratio", "lms_ratio"}
+    assert set(t["method"]) == {"quaternion", "lms", "quaternion_ratio", "lms_ratio", "bundle"}
     assert sorted(set(t["d_mm"])) == methods_d
     m = res["metrics"]
     for ax in "xyz":
@@ -110,7 +110,7 @@ def test_webcam_smoke(webcam):
     row = _rows(res, "lms_ratio", 100.0)[0]
     assert t["thesis_table"][row] == 8 and t["thesis_err_x_mm"][row] == 4.2 and t["thesis_err_z_mm"][row] == 1.5
     with open(out / "position_error_vs_intraocular.csv") as f:
-        assert len(list(csv.DictReader(f))) == 8
+        assert len(list(csv.DictReader(f))) == 10  # five methods at two d_o
 
 
 def test_underwater_smoke(underwater):

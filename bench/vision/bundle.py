@@ -1,0 +1,166 @@
+"""The bundle solver shared by the localisations' maximum-likelihood estimators (issue 11).
+
+A problem has a parameter vector ``theta (n,)`` (poses, joints, intrinsics, ... under a Gaussian prior) and ``M``
+3-D points ``X (M, 3)`` seen in ``N`` observations (``problem.point (N,)`` says which point each is). It supplies
+
+* ``problem.residuals(theta, X) -> (N, 2)`` - measured minus predicted pixels;
+* ``problem.linearise(theta, X) -> (r (N, 2), J (N, 2, n), J_pt (N, 2, 3), z_min)`` - the residuals, their
+  derivatives by the parameters and by each observation's own point, and the smallest depth of a point in a camera.
+
+:func:`solve` minimises ``sum |r|^2 / s^2 + (theta - mean)^T info (theta - mean)`` by Gauss-Newton with the points
+eliminated point by point (Schur complement), a backtracking line search, and rounds that re-estimate the pixel noise
+``s`` and gate the observations whose residual exceeds ``gate`` x its robust value (keypoints' errors have heavy
+tails). It returns a :class:`BundleSolution` instead of raising when the system is singular or a point falls behind a
+camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import csr_matrix
+
+
+@dataclass(frozen=True)
+class BundleSolution:
+    """Outcome of :func:`solve`.
+
+    ``theta`` (n,) and ``X`` (M, 3) the estimates (the start when ``success`` is False); ``keep`` (N,) bool the
+    observations the gate kept; ``sigma_px`` the pixel noise the kept residuals give; ``S`` (n, n) the reduced
+    normal matrix at the solution in units of the pixel residuals (its inverse times ``sigma_px^2`` is the
+    parameters' covariance; NaN on failure); ``iterations`` Gauss-Newton steps taken.
+    """
+
+    success: bool
+    message: str
+    theta: np.ndarray
+    X: np.ndarray
+    keep: np.ndarray
+    sigma_px: float
+    S: np.ndarray
+    iterations: int
+
+    def covariance(self) -> np.ndarray:
+        """First-order covariance ``sigma_px^2 S^-1`` (n, n) of ``theta``, the points marginalised."""
+        cov = self.sigma_px**2 * np.linalg.inv(self.S)
+        return 0.5 * (cov + cov.T)
+
+
+def normal_equations(point, r, J, J_pt, M: int, prior_info, prior_res, keep=None):
+    """The reduced system (points eliminated): ``S (n, n)``, gradient ``g (n,)`` and the points' back-substitution.
+    Observations outside ``keep`` (N,) bool weigh nothing; a point left with fewer than two is held where it is."""
+    N, n = J.shape[0], J.shape[2]
+    if keep is not None:
+        w = keep.astype(float)
+        r, J, J_pt = r * w[:, None], J * w[:, None, None], J_pt * w[:, None, None]
+    Jf = J.reshape(2 * N, n)
+    A = Jf.T @ Jf + prior_info
+    g_c = Jf.T @ r.reshape(2 * N) + prior_res
+    by_point = csr_matrix((np.ones(N), (point, np.arange(N))), shape=(M, N))  # sums over each point's observations
+    B = (by_point @ (np.swapaxes(J, 1, 2) @ J_pt).reshape(N, 3 * n)).reshape(M, n, 3)
+    C = (by_point @ (np.swapaxes(J_pt, 1, 2) @ J_pt).reshape(N, 9)).reshape(M, 3, 3)
+    g_m = by_point @ np.einsum("nki,nk->ni", J_pt, r)
+    Cinv = np.linalg.inv(C + 1e-9 * np.eye(3))  # regularised: a point gated down to one view (B = 0) stays put
+    BCinv = B @ Cinv
+    S = A - np.einsum("mik,mjk->ij", BCinv, B)
+    g = g_c - np.einsum("mik,mk->i", BCinv, g_m)
+
+    def points_step(dc):
+        return -np.einsum("mkl,ml->mk", Cinv, g_m + np.einsum("mik,i->mk", B, dc))
+
+    return 0.5 * (S + S.T), g, points_step
+
+
+def seen_twice(point, keep, M: int) -> np.ndarray:
+    """``keep`` without the observations of points it leaves in one view: such a point is unobserved along its ray
+    (the step, the cost and the degrees of freedom then agree on what counts)."""
+    seen = np.bincount(point[keep], minlength=M)
+    return keep & (seen[point] >= 2)
+
+
+def _cost(problem, theta, X, keep, prior_info, mean) -> float:
+    """Sum of the kept observations' squared pixel residuals plus the priors' (in the same units)."""
+    r = problem.residuals(theta, X)[keep]
+    d = theta - mean
+    c = float(np.sum(r**2) + d @ prior_info @ d)
+    return c if np.isfinite(c) else np.inf
+
+
+def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10, rounds: int = 3,
+          gate: float | None = 3.5, dof_offset: int = 0, gate_start: bool = False) -> BundleSolution:
+    """Maximum-likelihood ``theta`` and points (module docstring).
+
+    Parameters
+    ----------
+    problem
+        With ``point``, ``residuals`` and ``linearise`` (module docstring).
+    theta0, mean : ndarray (n,)
+        The start and the prior's mean.
+    info0 : ndarray (n, n)
+        The prior's information (inverse covariance, in the parameters' units); zero rows for free parameters.
+    X : ndarray (M, 3)
+        Starting points; every point must be observed at least twice.
+    sigma_px : float
+        Starting pixel noise (px), re-estimated from the kept residuals after each round.
+    iterations, rounds : int
+        Gauss-Newton iterations per round; rounds of re-estimating the noise and the gate.
+    gate : float or None
+        After each round, observations whose residual exceeds ``gate`` x the robust sigma (median residual /
+        1.1774, the Rayleigh median of a 2-D Gaussian) weigh nothing in the next; ``None`` keeps every one.
+    dof_offset : int
+        Parameters the pixels determine besides the points (subtracted from the degrees of freedom of the noise
+        estimate).
+    gate_start : bool
+        Gate the starting residuals too, so that gross outliers (false matches hundreds of pixels off) do not steer
+        the first round - for a start that is off systematically by far less than they are.
+    """
+    theta, mean, X = np.array(theta0, float), np.asarray(mean, float), np.array(X, float)
+    point = np.asarray(problem.point, int)
+    n, M = len(theta), len(X)
+    nan = np.full((n, n), np.nan)
+    it_total, s_px = 0, float(sigma_px)
+    keep = np.ones(len(point), dtype=bool)
+    if gate and gate_start:
+        e = np.linalg.norm(problem.residuals(theta, X), axis=1)
+        keep = seen_twice(point, e <= gate * float(np.median(e)) / 1.1774, M)
+
+    def failed(msg):
+        return BundleSolution(False, msg, np.array(theta0, float), np.array(X, float), keep, s_px, nan, it_total)
+
+    for _ in range(rounds):
+        prior_info = info0 * s_px**2  # in units of the pixel residuals' weight
+        for _ in range(iterations):
+            it_total += 1
+            r, J, J_pt, z_min = problem.linearise(theta, X)
+            if z_min <= 0:
+                return failed("points behind a camera")
+            S, g, points_step = normal_equations(point, r, J, J_pt, M, prior_info, prior_info @ (theta - mean), keep)
+            if not np.all(np.diag(S) > 0):  # a parameter nothing observes (a degenerate view set): no step
+                return failed("singular reduced system")
+            d = np.sqrt(np.diag(S))
+            dc = -np.linalg.solve(S / np.outer(d, d), g / d) / d
+            if not np.all(np.isfinite(dc)):
+                return failed("singular reduced system")
+            # backtracking: the Gauss-Newton step is halved until the cost (pixels kept + priors) decreases - weakly
+            # observed directions (intrinsics against a mount) can make a full step overshoot and diverge
+            dX, t = points_step(dc), 1.0
+            c0 = _cost(problem, theta, X, keep, prior_info, mean)
+            if -float(g @ dc) <= 1e-12 * c0:
+                break  # the quadratic model's decrease is at rounding level: converged
+            while t > 1e-4 and not _cost(problem, theta + t * dc, X + t * dX, keep, prior_info, mean) <= c0:
+                t /= 2
+            if t <= 1e-4:
+                break  # no descent along the step: at the minimum to numerical precision
+            theta, X = theta + t * dc, X + t * dX
+            if np.abs(t * dc).max() < 1e-12:
+                break
+        e = np.linalg.norm(problem.residuals(theta, X), axis=1)
+        if gate:
+            sigma_robust = float(np.median(e[keep])) / 1.1774
+            keep = seen_twice(point, e <= gate * sigma_robust, M)
+        dof = max(2 * int(keep.sum()) - 3 * int(np.unique(point[keep]).size) - dof_offset, 1)
+        s_px = float(np.sqrt(np.sum(e[keep] ** 2) / dof))
+    r, J, J_pt, _ = problem.linearise(theta, X)
+    S, _, _ = normal_equations(point, r, J, J_pt, M, info0 * s_px**2, np.zeros(n), keep)
+    return BundleSolution(True, "ok", theta, X, keep, s_px, S, it_total)

@@ -1,0 +1,319 @@
+"""The x-y table's maximum-likelihood position estimate: a bundle over the views of one estimate (issue 11).
+
+The thesis's estimators (:func:`~bench.vision.xy_table_positioning.estimate_positions`: the map ``1p``, ``2p``,
+RANSAC and an absolute orientation) take the camera's rotation on its support ``R0`` from the search of Eq. 197-198
+and the calibrated intrinsics as exact, and fix the map ``1p`` before aligning ``2p`` to it. :func:`pair_bundle`
+estimates, together and from the pixels of every view the estimate uses (the reference, the views of its map and the
+pair - the observation pattern of the bound in :mod:`bench.scenario.xy_table_bound`),
+
+* the pair's displacement ``xi`` (6: rotation vector, then translation, about camera ``a``'s starting centre, table
+  frame) - the unknown the experiment is about; the pair's relative pose comes from its readings;
+* the rotation ``R0`` as ``R0 exp(w)`` (3, right perturbation, under a loose prior of ``R0_prior_deg`` per axis
+  that holds only the rotation about the line of camera centres, which no view of a straight campaign observes);
+* optionally the intrinsics ``fx, fy, cx, cy`` (4) under the rig calibration's covariance as a prior;
+* every map point (table frame), eliminated point by point (:func:`bench.vision.bundle.solve`).
+
+Camera poses (:mod:`bench.vision.xy_table_positioning`): ``T_table_cam = S [R0 exp(w) | o]`` with ``S`` the stage
+pose of the view's readings; a view of the pair has ``D(xi) C0 S`` instead, ``C0`` the start (the thesis's estimate
+moved onto the readings) and ``D(xi)`` the displacement. Residuals are pixels through the calibrated camera (Eq.
+50, 75-76); the projection and the point derivatives are analytic, the pose blocks central differences (checked
+against a difference quotient of the residuals in the tests). The table's readings are taken as exact: the table
+errs by ~0.02 mm and ~0.03 deg per reading in the simulation, inside what the pixels resolve.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.camera.model import check_dist, distort, distortion_jacobian
+from bench.geometry.quaternion import rotation_vector_to_matrix
+from bench.geometry.transforms import invert, rot_y
+from bench.vision.bundle import solve
+from bench.vision.joint_bundle import distortion_parameter_jacobian
+
+#: the loose prior (deg, per axis) on the camera's rotation on its support: the search's estimate is ~2 deg off
+R0_PRIOR_DEG = 10.0
+
+
+@dataclass(frozen=True)
+class PairBundleResult:
+    """Outcome of :func:`pair_bundle`.
+
+    ``p_table`` (3,) camera ``a``'s centre relative to the reference camera's, table axes (m; NaN on failure) with
+    its first-order covariance ``cov_p`` (3, 3) (m^2); ``R0`` (3, 3) and ``K`` (3, 3) as refined; ``sigma_px`` the
+    pixel noise the kept residuals give and ``rms_px`` their RMS per axis; ``observations`` those the gate kept;
+    ``shared`` the solution's blocks that every estimate of the campaign shares (``w``, ``d_K``, distortion).
+    """
+
+    success: bool
+    message: str
+    p_table: np.ndarray
+    cov_p: np.ndarray
+    R0: np.ndarray
+    K: np.ndarray
+    sigma_px: float
+    rms_px: float
+    observations: int
+    iterations: int
+    shared: np.ndarray | None = None
+
+
+def _displacements(xi, pivot) -> np.ndarray:
+    """``D (..., 4, 4)``: rotation ``exp(xi[..., :3])`` about ``pivot``, then translation ``xi[..., 3:]``."""
+    R = rotation_vector_to_matrix(xi[..., :3])
+    D = np.zeros((*R.shape[:-2], 4, 4))
+    D[..., :3, :3], D[..., 3, 3] = R, 1.0
+    D[..., :3, 3] = pivot + xi[..., 3:] - R @ pivot
+    return D
+
+
+def stage_poses_of(readings) -> np.ndarray:
+    """``T_table_stage (..., 4, 4)`` of readings ``(..., 3)`` ``[x_m, z_m, rot_rad]``: Trans(x, 0, z) Ry(rot) (as
+    :func:`bench.vision.xy_table_positioning.stage_poses`, batched)."""
+    r = np.asarray(readings, float)
+    T = np.zeros((*r.shape[:-1], 4, 4))
+    T[..., :3, :3] = rot_y(r[..., 2])
+    T[..., 0, 3], T[..., 2, 3], T[..., 3, 3] = r[..., 0], r[..., 1], 1.0
+    return T
+
+
+class PairProblem:
+    """The observations and the camera model of :func:`pair_bundle`. Parameters: ``xi`` (6), ``w`` (3), then ``d_K``
+    (4: ``dfx, dfy, dcx, dcy`` px) when ``with_K``, then every view's reading correction ``(dx, dz, drot)`` (3 V: m,
+    m, rad) when ``with_readings``. Poses and camera points are computed for a batch of parameter vectors at once
+    (the difference quotients of :meth:`linearise` in one pass)."""
+
+    step = 1e-7
+
+    def __init__(self, readings, in_pair, C0, pivot, R0, offset_m, K, dist, view, point, uv, with_K: bool,
+                 with_readings: bool = False, with_dist: bool = False):
+        self.read, self.in_pair = np.asarray(readings, float), np.asarray(in_pair, bool)
+        self.C0, self.pivot = np.asarray(C0, float), np.asarray(pivot, float)
+        self.R0, self.offset = np.asarray(R0, float), np.asarray(offset_m, float)
+        self.K = np.asarray(K, float)
+        self.dist = np.zeros(5) if dist is None or not len(dist) else check_dist(dist)
+        self.view, self.point, self.uv = np.asarray(view, int), np.asarray(point, int), np.asarray(uv, float)
+        self.with_K, self.with_readings, self.with_dist = bool(with_K), bool(with_readings), bool(with_dist)
+        self.V = len(self.read)
+        self.k_dist = 9 + 4 * self.with_K  # where the distortion's corrections start
+        self.k_read = self.k_dist + 4 * self.with_dist  # where the readings' corrections start
+        self.n = self.k_read + 3 * self.V * self.with_readings
+
+    def intrinsics(self, theta) -> np.ndarray:
+        K = self.K.copy()
+        if self.with_K:
+            K[0, 0] += theta[9]
+            K[1, 1] += theta[10]
+            K[:2, 2] += theta[11:13]
+        return K
+
+    def distortion(self, theta) -> np.ndarray:
+        """The distortion ``(5,)`` with ``k1, k2, p1, p2`` corrected (``k3`` as calibrated)."""
+        if not self.with_dist:
+            return self.dist
+        return self.dist + np.r_[theta[self.k_dist:self.k_dist + 4], 0.0]
+
+    def rotation(self, theta) -> np.ndarray:
+        """``R0 exp(w)`` (..., 3, 3): the camera's rotation on its support."""
+        return self.R0 @ rotation_vector_to_matrix(np.asarray(theta)[..., 6:9])
+
+    def readings(self, theta) -> np.ndarray:
+        """The views' readings ``(..., V, 3)`` with their corrections."""
+        theta = np.asarray(theta, float)
+        if not self.with_readings:
+            return np.broadcast_to(self.read, (*theta.shape[:-1], self.V, 3))
+        return self.read + theta[..., self.k_read:].reshape(*theta.shape[:-1], self.V, 3)
+
+    def poses(self, theta) -> np.ndarray:
+        """``T_table_cam (..., V, 4, 4)`` of every view for parameters ``theta (..., n)``."""
+        theta = np.asarray(theta, float)
+        X = np.zeros((*theta.shape[:-1], 1, 4, 4))
+        X[..., :3, :3], X[..., :3, 3], X[..., 3, 3] = self.rotation(theta)[..., None, :, :], self.offset, 1.0
+        T = stage_poses_of(self.readings(theta)) @ X
+        T[..., self.in_pair, :, :] = (_displacements(theta[..., :6], self.pivot)[..., None, :, :] @ self.C0
+                                      @ T[..., self.in_pair, :, :])
+        return T
+
+    def centre_a(self, theta) -> np.ndarray:
+        """Camera ``a``'s centre (table frame, m): the pair's first view."""
+        return self.poses(theta)[..., np.flatnonzero(self.in_pair)[0], :3, 3]
+
+    def centre_offset(self, theta) -> np.ndarray:
+        """Camera ``a``'s centre relative to the reference camera's (view 0), table axes (m)."""
+        T = self.poses(theta)
+        return T[..., np.flatnonzero(self.in_pair)[0], :3, 3] - T[..., 0, :3, 3]
+
+    def camera_points(self, T_cam_table, X) -> np.ndarray:
+        """``p_cam (..., N, 3)`` of every observation for poses ``T_cam_table (..., V, 4, 4)``."""
+        P = X @ np.swapaxes(T_cam_table[..., :3, :3], -1, -2) + T_cam_table[..., None, :3, 3]  # (..., V, M, 3)
+        return P[..., self.view, self.point, :]
+
+    def residuals(self, theta, X) -> np.ndarray:
+        """Pixel residuals ``uv - K distort(pi(p_cam))`` (N, 2) (a trial step may make ``K`` invalid: no check)."""
+        p = self.camera_points(invert(self.poses(theta)), X)
+        K = self.intrinsics(theta)
+        return self.uv - (distort(p[:, :2] / p[:, 2:3], self.distortion(theta)) @ K[:2, :2].T + K[:2, 2])
+
+    def linearise(self, theta, X) -> tuple:
+        """Residuals (N, 2), ``J (N, 2, n)``, ``J_pt (N, 2, 3)`` and the smallest depth of a point in a camera.
+
+        The pose parameters by central differences, in one batch: ``xi`` and ``w`` one by one, the readings'
+        corrections one coordinate of every view at once (an observation depends on its own view's only)."""
+        m = 9 + 3 * self.with_readings
+        E = np.zeros((1 + 2 * m, self.n))
+        E[1:10, :9] = np.eye(9) * self.step
+        for c in range(3 * self.with_readings):
+            E[10 + c, self.k_read + c::3] = self.step
+        E[1 + m:] = -E[1:1 + m]
+        T_ct = invert(self.poses(theta + E))
+        P = self.camera_points(T_ct, X)
+        p, T_ct = P[0], T_ct[0]
+        K = self.intrinsics(theta)
+        z = p[:, 2]
+        x_n = p[:, :2] / z[:, None]
+        dist = self.distortion(theta)
+        x_d = distort(x_n, dist)
+        Jproj = np.zeros((len(p), 2, 3))
+        Jproj[:, 0, 0] = Jproj[:, 1, 1] = 1.0 / z
+        Jproj[:, :, 2] = -x_n / z[:, None]
+        A = K[:2, :2] @ distortion_jacobian(x_n, dist) @ Jproj  # d uv / d p_cam (N, 2, 3)
+        J = np.zeros((len(p), 2, self.n))
+        dr = -np.einsum("nij,cnj->nic", A, (P[1:1 + m] - P[1 + m:]) / (2 * self.step))  # (N, 2, m)
+        J[:, :, :9] = dr[:, :, :9]
+        if self.with_K:  # u = fx x_d + s y_d + cx, v = fy y_d + cy
+            J[:, 0, 9], J[:, 1, 10], J[:, 0, 11], J[:, 1, 12] = -x_d[:, 0], -x_d[:, 1], -1.0, -1.0
+        if self.with_dist:
+            J[:, :, self.k_dist:self.k_dist + 4] = -K[:2, :2] @ distortion_parameter_jacobian(x_n)
+        rows = np.arange(len(p))
+        for c in range(3 * self.with_readings):
+            J[rows, :, self.k_read + 3 * self.view + c] = dr[:, :, 9 + c]
+        J_pt = -A @ T_ct[self.view, :3, :3]
+        return self.uv - (x_d @ K[:2, :2].T + K[:2, 2]), J, J_pt, float(z.min())
+
+
+def pair_observations(kmap, views: list, matches: dict, features: dict, pair) -> tuple:
+    """``(view, point, uv, points)`` of one estimate: every map point in the reference (view 0), in the map's views
+    where the map found it (``kmap.observations``; ``views[1:-2]`` in the map's order) and in the pair's two views
+    (``views[-2:]``) where the reference keypoint was matched (``matches[name]``, reference -> view). ``points``
+    are the map indices of the points kept (those seen at least twice), renumbered ``0..M-1`` in ``point``."""
+    ref = views[0]
+    lookup = {}
+    for name in views[1:]:
+        m = matches[name]
+        lookup[name] = dict(zip(np.asarray(m.i1, int).tolist(), np.asarray(m.i2, int).tolist(), strict=True))
+    view, point, uv, points = [], [], [], []
+    for i, r in enumerate(np.asarray(kmap.ref_index, int)):
+        obs = [(0, features[ref].uv[r])]
+        for k in kmap.observations[i][0]:
+            name = views[1 + int(k)]
+            if r in lookup[name]:
+                obs.append((1 + int(k), features[name].uv[lookup[name][r]]))
+        for j, name in zip((len(views) - 2, len(views) - 1), pair, strict=True):
+            if r in lookup[name]:
+                obs.append((j, features[name].uv[lookup[name][r]]))
+        if len(obs) < 2:
+            continue
+        view += [o[0] for o in obs]
+        point += [len(points)] * len(obs)
+        uv += [o[1] for o in obs]
+        points.append(i)
+    return (np.array(view, int), np.array(point, int), np.array(uv, float).reshape(-1, 2),
+            np.array(points, int))
+
+
+def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, point, uv, X, cov_K=None,
+                reading_sigma=None, cov_dist=None, R0_prior_deg: float = R0_PRIOR_DEG, sigma_px: float = 0.5,
+                iterations: int = 10, rounds: int = 2, gate: float | None = 3.5, shared_start=None) -> PairBundleResult:
+    """Camera ``a``'s position relative to the reference by maximum likelihood (module docstring).
+
+    Parameters
+    ----------
+    readings : ndarray (V, 3)
+        The table's readings ``[x_m, z_m, rot_rad]`` of the views: the reference first, the pair's two last.
+    in_pair : ndarray (V,) bool
+        The pair's views (``a`` the first of them).
+    T_table_a0 : ndarray (4, 4)
+        Camera ``a``'s starting pose (the thesis's estimate, e.g. LMS + error ratio, in the table frame).
+    R0 : ndarray (3, 3)
+        The camera's rotation on its support to start from (the search's) and the prior's mean.
+    offset_m : ndarray (3,)
+        The camera centre on the stage (``table.yaml``).
+    K, dist : ndarray (3, 3), (5,) or None
+        The calibrated camera.
+    view, point, uv : ndarray (N,), (N,), (N, 2)
+        Observation ``n`` is of point ``point[n]`` in view ``view[n]`` at ``uv[n]`` (px) (:func:`pair_observations`).
+    X : ndarray (M, 3)
+        Starting points (table frame, m); each observed at least twice.
+    cov_K : ndarray (4, 4), optional
+        Covariance (px^2) of ``fx, fy, cx, cy`` from the rig calibration: given, they are refined under it.
+    cov_dist : ndarray (4, 4), optional
+        Covariance of the distortion's ``k1, k2, p1, p2`` (from the calibration, or a loose prior about zero for a
+        pin-hole calibration): given, they are refined under it.
+    reading_sigma : (3,), optional
+        Standard deviations of the readings (m, m, rad; e.g. a resolution step / sqrt(12)): given, every view's
+        reading is refined under it as a prior; None: the readings are exact.
+    R0_prior_deg : float
+        Standard deviation (deg, per axis) of the prior on ``R0``'s correction.
+    sigma_px, iterations, rounds, gate
+        As :func:`bench.vision.bundle.solve` (the starting residuals are gated too).
+    shared_start : ndarray, optional
+        Where to start the blocks every estimate of a campaign shares (``w``, then ``d_K`` and the distortion's
+        corrections when estimated: :attr:`PairBundleResult.shared`), e.g. another pair's solution: fewer
+        iterations; the priors stay centred on ``R0``, ``K`` and ``dist`` as given.
+    """
+    readings, in_pair = np.asarray(readings, float), np.asarray(in_pair, bool)
+    nan3 = np.full(3, np.nan)
+    if in_pair.sum() < 1 or not in_pair[-1] or in_pair[0]:
+        raise ValueError("in_pair: the pair's views come last and the reference first")
+    if not R0_prior_deg > 0:
+        raise ValueError(f"R0_prior_deg must be > 0, got {R0_prior_deg}")
+    if reading_sigma is not None and not (np.shape(reading_sigma) == (3,) and np.all(np.asarray(reading_sigma) > 0)):
+        raise ValueError(f"reading_sigma: three standard deviations > 0 expected, got {reading_sigma!r}")
+    X0 = np.eye(4)
+    X0[:3, :3], X0[:3, 3] = R0, offset_m
+    i_a = int(np.flatnonzero(in_pair)[0])
+    C0 = np.asarray(T_table_a0, float) @ invert(stage_poses_of(readings[i_a]) @ X0)  # the readings' pair moved
+    problem = PairProblem(readings, in_pair, C0, np.asarray(T_table_a0, float)[:3, 3], R0, offset_m, K, dist, view,
+                          point, uv, cov_K is not None, reading_sigma is not None, cov_dist is not None)
+    n = problem.n
+    info0 = np.zeros((n, n))
+    info0[6:9, 6:9] = np.eye(3) / np.deg2rad(R0_prior_deg) ** 2
+    if cov_K is not None:
+        info0[9:13, 9:13] = np.linalg.inv(np.asarray(cov_K, float))
+    if cov_dist is not None:
+        info0[problem.k_dist:problem.k_read, problem.k_dist:problem.k_read] = np.linalg.inv(np.asarray(cov_dist,
+                                                                                                         float))
+    if reading_sigma is not None:
+        k = problem.k_read
+        info0[k:, k:] = np.diag(np.tile(1.0 / np.asarray(reading_sigma, float) ** 2, problem.V))
+    if len(np.asarray(X)) < 3:
+        return PairBundleResult(False, f"{len(X)} points (need >= 3)", nan3, np.full((3, 3), np.nan), problem.R0,
+                                problem.K, np.nan, np.nan, 0, 0)
+    theta0 = np.zeros(n)
+    if shared_start is not None:
+        shared_start = np.asarray(shared_start, float)
+        if shared_start.shape != (problem.k_read - 6,):
+            raise ValueError(f"shared_start: {problem.k_read - 6} values expected, got shape {shared_start.shape}")
+        theta0[6:problem.k_read] = shared_start
+    sol = solve(problem, theta0, np.zeros(n), info0, X, sigma_px, iterations, rounds, gate, dof_offset=6,
+                gate_start=True)
+    if not sol.success:
+        return PairBundleResult(False, sol.message, nan3, np.full((3, 3), np.nan), problem.R0, problem.K,
+                                sol.sigma_px, np.nan, 0, sol.iterations)
+    G = np.zeros((3, n))  # d (c_a - c_ref) / d theta: the pair's displacement and the reference's reading
+    for c in [*range(6), *range(problem.k_read, problem.k_read + 3 * problem.with_readings)]:
+        e = np.zeros(n)
+        e[c] = problem.step
+        G[:, c] = (problem.centre_offset(sol.theta + e) - problem.centre_offset(sol.theta - e)) / (2 * problem.step)
+    cov_p = G @ sol.covariance() @ G.T
+    r = problem.residuals(sol.theta, sol.X)[sol.keep]
+    rms = float(np.sqrt(np.mean(r**2)))
+    kept = int(sol.keep.sum())
+    extra = ((", intrinsics" if cov_K is not None else "") + (", distortion" if cov_dist is not None else "")
+             + (", readings" if reading_sigma is not None else ""))
+    return PairBundleResult(True, f"ok; bundle of {len(X)} points, {kept} of {len(sol.keep)} observations kept, "
+                            f"R0{extra}, sigma {sol.sigma_px:.3g} px", problem.centre_offset(sol.theta),
+                            0.5 * (cov_p + cov_p.T), problem.rotation(sol.theta), problem.intrinsics(sol.theta),
+                            sol.sigma_px, rms, kept, sol.iterations, sol.theta[6:problem.k_read].copy())
