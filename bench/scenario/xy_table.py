@@ -128,6 +128,9 @@ SCHEMA = {
         "d_r_mm": (float, 20.0),
         "r_lim": (float, 0.1),
         "bundle": (bool, True),                 # the ML bundle beside the four (bench.vision.xy_table_bundle)
+        "bundle_intraocular_mm": (list, [50, 100]),  # of intraocular_mm, the d_o where it runs too (~0.3 s each)
+        "bundle_distortion_sigma": (list, [0.3, 0.3, 0.03, 0.03]),  # prior std of k1 k2 p1 p2 about the camera's
+        "bundle_readings": (bool, False),       # also refine every view's reading (prior: one resolution step)
     },
     # the Cramér-Rao bound of every estimate and a Monte Carlo of the ideal estimator (xy_table_bound)
     "bound": {"enabled": (bool, True), "mc_trials": (int, 2), "mc_intraocular_mm": (list, [50, 100])},
@@ -214,6 +217,15 @@ def _check(cfg):
     d = p["intraocular_mm"]
     if not d or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in d):
         raise ConfigError(src, "pipeline.intraocular_mm", f"expected positive distances (mm), got {d!r}")
+    bad = [x for x in p["bundle_intraocular_mm"] if not (isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                         and x > 0)]
+    if bad:
+        raise ConfigError(src, "pipeline.bundle_intraocular_mm", f"expected positive distances (mm), got {bad[0]!r}")
+    sd = p["bundle_distortion_sigma"]
+    if sd and not (len(sd) == 4 and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0
+                                        for x in sd)):
+        raise ConfigError(src, "pipeline.bundle_distortion_sigma", f"expected [] or four standard deviations > 0 "
+                                                                    f"(k1, k2, p1, p2), got {sd!r}")
     d = cfg["bound"]["mc_intraocular_mm"]
     if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in d):
         raise ConfigError(src, "bound.mc_intraocular_mm", f"expected positive distances (mm), got {d!r}")
@@ -735,6 +747,8 @@ def score(result, truth: dict, reference: str, methods) -> tuple:
     for d in sorted(result.pairs):
         for m in methods:
             sel = (np.abs(d_all - d) < 1e-6) & (meth == m)
+            if not sel.any():  # a method not run at this d_o (the bundle's pipeline.bundle_intraocular_mm)
+                continue
             good = sel & ok
             rms = np.sqrt(np.mean(err[good] ** 2, axis=0)) if good.any() else np.full(3, np.nan)
             summary["d_mm"].append(float(d))
@@ -761,13 +775,13 @@ def format_tables(summary: dict, poses: str) -> str:
     """Our four tables in the thesis's layout, each cell ``ours (thesis)`` in mm, and the bundle's beside them."""
     _, numbers, _ = THESIS_TABLES[poses]
     lines = []
-    ds = sorted(set(summary["d_mm"]))
     for m in (*THESIS_METHODS, "bundle"):
         idx = {d: i for i, (d, mm) in enumerate(zip(summary["d_mm"], summary["method"], strict=True)) if mm == m}
         if not idx:
             continue
         lines.append(f"Table {numbers[m]} ({LABELS[m]}): RMS position error, ours (thesis), mm" if m in numbers else
                      f"Beside the tables ({LABELS[m]}; not in the thesis): RMS position error, mm")
+        ds = sorted(idx)  # the bundle runs at some d_o only
         lines.append("d_o [mm]      " + "".join(f"{d:>14g}" for d in ds))
 
         def cell(i, col):
@@ -1030,10 +1044,13 @@ def run(cfg, out_dir, verbose=True):
         map=MapConfig(orientation_tol_deg=p["orientation_tol_deg"], gap_max_m=p["gap_mm"] * 1e-3),
         ransac_iterations=p["ransac_iterations"], d_r_m=p["d_r_mm"] * 1e-3, r_lim=p["r_lim"],
         bias_refine=p["bias_refine"], bias_depth_statistic=p["bias_depth_statistic"], seed=cfg["seed"],
-        methods=THESIS_METHODS + (("bundle",) if p["bundle"] else ()))
+        methods=THESIS_METHODS + (("bundle",) if p["bundle"] else ()),
+        bundle_intraocular_mm=tuple(float(d) for d in p["bundle_intraocular_mm"]), bundle_readings=p["bundle_readings"])
+    sd = p["bundle_distortion_sigma"]
+    cov_dist = np.diag(np.square(np.asarray(sd, float))) if sd else None  # [] keeps the camera's distortion fixed
     spec = load_table_spec(ds.root / "table.yaml")
     res = estimate_positions(feats, {n: ds.view(n).table for n in feats}, camera, spec, pc, R0=R0, verbose=verbose,
-                             cov_K=cov_K)
+                             cov_K=cov_K, cov_dist=cov_dist)
     timings.update({k: float(v) for k, v in res.timings_s.items()})
 
     # --- score ------------------------------------------------------------------------------------------------------

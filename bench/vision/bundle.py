@@ -88,7 +88,7 @@ def _cost(problem, theta, X, keep, prior_info, mean) -> float:
 
 
 def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10, rounds: int = 3,
-          gate: float | None = 3.5, dof_offset: int = 0, gate_start: bool = False) -> BundleSolution:
+          gate: float | None = 3.5, dof_offset: int = 0, gate_start=None) -> BundleSolution:
     """Maximum-likelihood ``theta`` and points (module docstring).
 
     Parameters
@@ -111,9 +111,10 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
     dof_offset : int
         Parameters the pixels determine besides the points (subtracted from the degrees of freedom of the noise
         estimate).
-    gate_start : bool
-        Gate the starting residuals too, so that gross outliers (false matches hundreds of pixels off) do not steer
-        the first round - for a start that is off systematically by far less than they are.
+    gate_start : ndarray (N,) int, optional
+        Gate the starting residuals too, group by group (e.g. by view: the start may fit some views far better
+        than others), so that gross outliers (false matches hundreds of pixels off) do not steer the first round;
+        None: the first round keeps every observation.
     """
     theta, mean, X = np.array(theta0, float), np.asarray(mean, float), np.array(X, float)
     point = np.asarray(problem.point, int)
@@ -121,9 +122,14 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
     nan = np.full((n, n), np.nan)
     it_total, s_px = 0, float(sigma_px)
     keep = np.ones(len(point), dtype=bool)
-    if gate and gate_start:
+    if gate and gate_start is not None:
         e = np.linalg.norm(problem.residuals(theta, X), axis=1)
-        keep = seen_twice(point, e <= gate * float(np.median(e)) / 1.1774, M)
+        group = np.asarray(gate_start, int)
+        ok = np.zeros(len(e), bool)
+        for g in np.unique(group):
+            sel = group == g
+            ok[sel] = e[sel] <= gate * float(np.median(e[sel])) / 1.1774
+        keep = seen_twice(point, ok, M)
 
     def failed(msg):
         return BundleSolution(False, msg, np.array(theta0, float), np.array(X, float), keep, s_px, nan, it_total)

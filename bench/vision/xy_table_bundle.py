@@ -43,8 +43,7 @@ class PairBundleResult:
 
     ``p_table`` (3,) camera ``a``'s centre relative to the reference camera's, table axes (m; NaN on failure) with
     its first-order covariance ``cov_p`` (3, 3) (m^2); ``R0`` (3, 3) and ``K`` (3, 3) as refined; ``sigma_px`` the
-    pixel noise the kept residuals give and ``rms_px`` their RMS per axis; ``observations`` those the gate kept;
-    ``shared`` the solution's blocks that every estimate of the campaign shares (``w``, ``d_K``, distortion).
+    pixel noise the kept residuals give and ``rms_px`` their RMS per axis; ``observations`` those the gate kept.
     """
 
     success: bool
@@ -57,7 +56,6 @@ class PairBundleResult:
     rms_px: float
     observations: int
     iterations: int
-    shared: np.ndarray | None = None
 
 
 def _displacements(xi, pivot) -> np.ndarray:
@@ -225,7 +223,7 @@ def pair_observations(kmap, views: list, matches: dict, features: dict, pair) ->
 
 def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, point, uv, X, cov_K=None,
                 reading_sigma=None, cov_dist=None, R0_prior_deg: float = R0_PRIOR_DEG, sigma_px: float = 0.5,
-                iterations: int = 10, rounds: int = 2, gate: float | None = 3.5, shared_start=None) -> PairBundleResult:
+                iterations: int = 20, rounds: int = 2, gate: float | None = 3.5) -> PairBundleResult:
     """Camera ``a``'s position relative to the reference by maximum likelihood (module docstring).
 
     Parameters
@@ -258,10 +256,6 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
         Standard deviation (deg, per axis) of the prior on ``R0``'s correction.
     sigma_px, iterations, rounds, gate
         As :func:`bench.vision.bundle.solve` (the starting residuals are gated too).
-    shared_start : ndarray, optional
-        Where to start the blocks every estimate of a campaign shares (``w``, then ``d_K`` and the distortion's
-        corrections when estimated: :attr:`PairBundleResult.shared`), e.g. another pair's solution: fewer
-        iterations; the priors stay centred on ``R0``, ``K`` and ``dist`` as given.
     """
     readings, in_pair = np.asarray(readings, float), np.asarray(in_pair, bool)
     nan3 = np.full(3, np.nan)
@@ -291,14 +285,8 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
     if len(np.asarray(X)) < 3:
         return PairBundleResult(False, f"{len(X)} points (need >= 3)", nan3, np.full((3, 3), np.nan), problem.R0,
                                 problem.K, np.nan, np.nan, 0, 0)
-    theta0 = np.zeros(n)
-    if shared_start is not None:
-        shared_start = np.asarray(shared_start, float)
-        if shared_start.shape != (problem.k_read - 6,):
-            raise ValueError(f"shared_start: {problem.k_read - 6} values expected, got shape {shared_start.shape}")
-        theta0[6:problem.k_read] = shared_start
-    sol = solve(problem, theta0, np.zeros(n), info0, X, sigma_px, iterations, rounds, gate, dof_offset=6,
-                gate_start=True)
+    sol = solve(problem, np.zeros(n), np.zeros(n), info0, X, sigma_px, iterations, rounds, gate, dof_offset=6,
+                gate_start=problem.view)
     if not sol.success:
         return PairBundleResult(False, sol.message, nan3, np.full((3, 3), np.nan), problem.R0, problem.K,
                                 sol.sigma_px, np.nan, 0, sol.iterations)
@@ -316,4 +304,4 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
     return PairBundleResult(True, f"ok; bundle of {len(X)} points, {kept} of {len(sol.keep)} observations kept, "
                             f"R0{extra}, sigma {sol.sigma_px:.3g} px", problem.centre_offset(sol.theta),
                             0.5 * (cov_p + cov_p.T), problem.rotation(sol.theta), problem.intrinsics(sol.theta),
-                            sol.sigma_px, rms, kept, sol.iterations, sol.theta[6:problem.k_read].copy())
+                            sol.sigma_px, rms, kept, sol.iterations)

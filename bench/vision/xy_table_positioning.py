@@ -217,6 +217,8 @@ class PositioningConfig:
         :func:`~bench.vision.xy_table_bundle.pair_bundle`, started from ``lms_ratio``'s estimate).
     bundle_R0_prior_deg : float
         The bundle's prior (deg per axis) on the correction of the searched ``R0``.
+    bundle_intraocular_mm : tuple of float or None
+        The intraocular distances at which the bundle runs (~0.3 s per estimate); None: all.
     bundle_readings : bool
         The bundle refines every view's table reading under a prior of one resolution step (``table.yaml``'s
         ``resolution_mm`` / ``resolution_deg``, a uniform quantisation: step / sqrt(12)); False: readings exact.
@@ -246,6 +248,7 @@ class PositioningConfig:
     r_lim: float = 0.1
     methods: tuple = ("quaternion", "lms", "quaternion_ratio", "lms_ratio")
     bundle_R0_prior_deg: float = R0_PRIOR_DEG
+    bundle_intraocular_mm: tuple | None = None
     bundle_readings: bool = False
     bias_grid_y_deg: tuple = (-12.0, 12.0, 0.5)
     bias_grid_z_deg: tuple = (-5.0, 5.0, 0.1)
@@ -558,7 +561,8 @@ def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, 
                 combos.append(Combination(d_mm * 1e-3, a, b, m, ok, msg, p, n_map, len(loc.p1), n_ransac, n_kept))
             t5 = time.perf_counter()
             t_align += t5 - t4
-            if BUNDLE in cfg.methods:
+            if BUNDLE in cfg.methods and (cfg.bundle_intraocular_mm is None or
+                                          any(abs(d_mm - d) < 1e-9 for d in cfg.bundle_intraocular_mm)):
                 combos.append(_bundle_estimate(d_mm, a, b, kmap, used, aligned["lms_ratio"], obs, features,
                                                ref_matches, read, names, R0, spec, camera, cov_K, cov_dist,
                                                len(loc.p1), cfg))

@@ -110,7 +110,7 @@ def test_webcam_smoke(webcam):
     row = _rows(res, "lms_ratio", 100.0)[0]
     assert t["thesis_table"][row] == 8 and t["thesis_err_x_mm"][row] == 4.2 and t["thesis_err_z_mm"][row] == 1.5
     with open(out / "position_error_vs_intraocular.csv") as f:
-        assert len(list(csv.DictReader(f))) == 10  # five methods at two d_o
+        assert len(list(csv.DictReader(f))) == 9  # four methods at two d_o, the bundle at 100 mm
 
 
 def test_underwater_smoke(underwater):

@@ -1,8 +1,6 @@
 """The x-y table's bundle (bench.vision.xy_table_bundle): its Jacobian against difference quotients, exactness on
 noise-free data with a wrong R0 and wrong intrinsics, its covariance against a Monte Carlo, degenerate input."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -17,7 +15,6 @@ from bench.vision.xy_table_positioning import (
     stage_camera,
     stage_poses,
 )
-
 from tests.vision.test_xy_table_positioning import CAMERA, DEG, _scene
 
 READ = lab_table_model().read(table4_commands())
@@ -26,35 +23,34 @@ R0_SEARCHED = mount_rotation(0.3 * DEG, 7.0 * DEG, -0.5 * DEG)  # the search is 
 COV_K = np.diag([30.0, 30.0, 10.0, 10.0]) ** 2
 
 
-def _wrong_camera():
-    K = CAMERA.K.copy()
-    K[0, 0] *= 1.01
-    K[1, 1] *= 1.01
-    K[:2, 2] += (1.5, -2.0)
-    return CAMERA.replace(K=K)
-
-
-def _problem(rng, n=60):
-    """A small problem: the reference, three map views and a pair, random points seen by all, a perturbed start."""
-    S = stage_poses(READ[[10, 0, 5, 20, 3, 13]])
-    T = S @ stage_camera(R0, np.zeros(3))
+def _setup(rng, n=60):
+    """A small campaign: the reference, three map views and a pair, ``n`` points seen by all; exact pixels."""
+    read = READ[[10, 0, 5, 20, 3, 13]]
+    T = stage_poses(read) @ stage_camera(R0, np.zeros(3))
     X = transform_points(T[0], np.c_[rng.uniform(-0.2, 0.2, (n, 2)), rng.uniform(0.6, 0.8, n)])
-    view = np.repeat(np.arange(6), n)
-    point = np.tile(np.arange(n), 6)
+    view, point = np.repeat(np.arange(6), n), np.tile(np.arange(n), 6)
     in_pair = np.array([0, 0, 0, 0, 1, 1], bool)
-    T_a0 = T[4].copy()
-    T_a0[:3, 3] += (0.002, -0.001, 0.003)
-    p = PairProblem(S, in_pair, T_a0 @ np.linalg.inv(T[4]), T_a0[:3, 3], R0_SEARCHED, np.zeros(3), CAMERA.K,
-                    np.array([-0.1, 0.05, 1e-3, -2e-3, 0.0]), view, point, np.zeros((6 * n, 2)), True)
-    return p, X + rng.normal(0, 1e-3, X.shape)
+    truth = PairProblem(read, in_pair, np.eye(4), T[4][:3, 3], R0, np.zeros(3), CAMERA.K, DIST, view, point,
+                        np.zeros((6 * n, 2)), False)
+    return read, T, X, view, point, in_pair, -truth.residuals(np.zeros(truth.n), X)
+
+
+DIST = np.array([-0.1, 0.05, 1e-3, -2e-3, 0.0])
 
 
 def test_jacobian_matches_difference_quotients():
+    """Every block (pair, R0, intrinsics, distortion, readings) and the points against central differences."""
     rng = np.random.default_rng(0)
-    p, X = _problem(rng)
-    theta = rng.normal(0, 1e-2, p.n) * np.r_[np.ones(9), 100 * np.ones(4)]
+    read, T, X, view, point, in_pair, uv = _setup(rng)
+    T_a0 = T[4].copy()
+    T_a0[:3, 3] += (0.002, -0.001, 0.003)
+    p = PairProblem(read, in_pair, T_a0 @ np.linalg.inv(T[4]), T_a0[:3, 3], R0_SEARCHED, np.zeros(3), CAMERA.K, DIST,
+                    view, point, uv, True, True, True)
+    X = X + rng.normal(0, 1e-3, X.shape)
+    scale = np.r_[np.ones(9), 100 * np.ones(4), 0.1 * np.ones(4), np.tile([1e-3, 1e-3, 1e-3], p.V)]
+    theta = rng.normal(0, 1e-2, p.n) * scale
     r, J, J_pt, z = p.linearise(theta, X)
-    assert z > 0 and np.array_equal(r, p.residuals(theta, X))
+    assert p.n == 9 + 4 + 4 + 3 * 6 and z > 0 and np.array_equal(r, p.residuals(theta, X))
     h = 1e-6
     for c in range(p.n):
         e = np.zeros(p.n)
@@ -68,15 +64,22 @@ def test_jacobian_matches_difference_quotients():
         assert np.abs(J_pt[:, :, k] - fd).max() <= 1e-5 * np.abs(fd).max()
 
 
-@pytest.mark.parametrize("wrong", ["none", "R0", "R0+K"])
+@pytest.mark.parametrize("wrong", ["none", "R0", "R0+K+dist"])
 def test_noise_free_bundle_is_exact(wrong):
-    """Exact pixels: whatever R0 and intrinsics it starts from (the intrinsics under a prior), the bundle finds every
-    camera a to <= 1e-9 m - where the thesis's estimators, given the same wrong R0 and K, err by millimetres."""
+    """Exact pixels: whatever R0, intrinsics and distortion it starts from (under priors), the bundle finds every
+    camera a to <= 1e-9 m - where the thesis's estimators, given the same wrong R0 and camera, err by millimetres."""
     feats, readings, T_tc = _scene(READ, np.zeros(3), R0, "p11", n_points=400)
     cfg = PositioningConfig(reference="p11", intraocular_mm=(50.0, 100.0), methods=("lms_ratio", "bundle"))
-    camera = _wrong_camera() if "K" in wrong else CAMERA
+    camera = CAMERA
+    if "K" in wrong:
+        K = CAMERA.K.copy()
+        K[0, 0] *= 1.01
+        K[1, 1] *= 1.01
+        K[:2, 2] += (1.5, -2.0)
+        camera = CAMERA.replace(K=K, dist=np.array([0.02, -0.05, 1e-3, -1e-3, 0.0]), model="heikkila")
     res = estimate_positions(feats, readings, camera, TableSpec(np.zeros(3)), cfg, R0=R0 if wrong == "none" else
-                             R0_SEARCHED, cov_K=COV_K if "K" in wrong else None)
+                             R0_SEARCHED, cov_K=COV_K if "K" in wrong else None,
+                             cov_dist=np.diag([0.3, 0.3, 0.03, 0.03]) ** 2 if "dist" in wrong else None)
     err = {m: [] for m in cfg.methods}
     for c in res.combinations:
         assert c.success, c.message
@@ -87,35 +90,56 @@ def test_noise_free_bundle_is_exact(wrong):
         assert max(err["lms_ratio"]) > 1e-4
 
 
+def test_refined_readings_absorb_a_reading_error():
+    """Exact pixels, one map view's reading off by 0.05 deg and the reference's by 0.05 mm: with the readings exact
+    the bundle errs by tens of micrometres (and its residuals show it: sigma ~0.2 px); refining every reading under
+    a one-step prior takes that error down tenfold and the residuals to ~0."""
+    rng = np.random.default_rng(3)
+    read, T, X, view, point, in_pair, uv = _setup(rng, n=80)
+    bad = read.copy()
+    bad[2, 2] += np.deg2rad(0.05)
+    bad[0, 0] += 5e-5
+    sigma = np.array([1e-4, 1e-4, np.deg2rad(0.1)]) / np.sqrt(12)
+    args = (bad, in_pair, T[4], R0_SEARCHED, np.zeros(3), CAMERA.K, DIST, view, point, uv, X)
+    exact = pair_bundle(*args, cov_K=COV_K)
+    refined = pair_bundle(*args, cov_K=COV_K, reading_sigma=sigma)
+    true = T[4][:3, 3] - T[0][:3, 3]
+    e_exact, e_refined = (np.abs(r.p_table - true).max() for r in (exact, refined))
+    assert e_exact > 2e-5 and exact.sigma_px > 0.1
+    assert e_refined < e_exact / 10 and refined.sigma_px < 1e-3, (e_exact, e_refined, refined.sigma_px)
+
+
 def test_covariance_agrees_with_monte_carlo():
-    """0.2 px Gaussian pixel noise, 40 draws of one estimate: the RMS error per axis matches the bundle's own
-    first-order standard deviation within 25 % (the chi-square spread of 40 draws is ~11 %)."""
-    feats, readings, T_tc = _scene(READ, np.zeros(3), R0, "p11", n_points=300, seed=5)
-    cfg = PositioningConfig(reference="p11", intraocular_mm=(100.0,), methods=("bundle",))
+    """0.2 px Gaussian pixel noise, 60 draws: the RMS error of camera a's position per axis matches the bundle's
+    own first-order standard deviation within 25 % (the chi-square spread of 60 draws is ~9 %)."""
     rng = np.random.default_rng(1)
+    read, T, X, view, point, in_pair, uv = _setup(rng, n=80)
+    true = T[4][:3, 3] - T[0][:3, 3]
     errs, stds = [], []
-    for _ in range(40):
-        noisy = {n: dataclasses.replace(f, uv=f.uv + rng.normal(0, 0.2, f.uv.shape)) for n, f in feats.items()}
-        res = estimate_positions(noisy, readings, CAMERA, TableSpec(np.zeros(3)), cfg, R0=R0_SEARCHED, cov_K=COV_K)
-        c = next(c for c in res.combinations if (c.a, c.b) == ("p02", "p12"))
-        assert c.success, c.message
-        errs.append(c.p_table - (T_tc["p02"][:3, 3] - T_tc["p11"][:3, 3]))
-        stds.append(np.sqrt(np.diag(c.cov_p)))
+    for _ in range(60):
+        T_a0 = T[4].copy()
+        T_a0[:3, 3] += rng.normal(0, 1e-3, 3)
+        res = pair_bundle(read, in_pair, T_a0, R0_SEARCHED, np.zeros(3), CAMERA.K, DIST, view, point,
+                          uv + rng.normal(0, 0.2, uv.shape), X + rng.normal(0, 1e-3, X.shape), cov_K=COV_K)
+        assert res.success, res.message
+        errs.append(res.p_table - true)
+        stds.append(np.sqrt(np.diag(res.cov_p)))
     rms, std = np.sqrt(np.mean(np.square(errs), axis=0)), np.sqrt(np.mean(np.square(stds), axis=0))
     assert np.all(np.abs(rms / std - 1) < 0.25), (rms, std)
 
 
 def test_degenerate_input():
     rng = np.random.default_rng(2)
-    p, X = _problem(rng, n=2)
-    S = p.S
-    res = pair_bundle(S, p.in_pair, np.eye(4), R0, np.zeros(3), CAMERA.K, None, p.view, p.point, p.uv, X)
+    read, T, X, view, point, in_pair, uv = _setup(rng, n=2)
+    args = (np.zeros(3), CAMERA.K, None, view, point, uv, X)
+    res = pair_bundle(read, in_pair, T[4], R0, *args)
     assert not res.success and "points" in res.message and np.all(np.isnan(res.p_table))
     with pytest.raises(ValueError, match="in_pair"):
-        pair_bundle(S, p.in_pair[::-1], np.eye(4), R0, np.zeros(3), CAMERA.K, None, p.view, p.point, p.uv, X)
+        pair_bundle(read, in_pair[::-1], T[4], R0, *args)
     with pytest.raises(ValueError, match="R0_prior_deg"):
-        pair_bundle(S, p.in_pair, np.eye(4), R0, np.zeros(3), CAMERA.K, None, p.view, p.point, p.uv, X,
-                    R0_prior_deg=0.0)
+        pair_bundle(read, in_pair, T[4], R0, *args, R0_prior_deg=0.0)
+    with pytest.raises(ValueError, match="reading_sigma"):
+        pair_bundle(read, in_pair, T[4], R0, *args, reading_sigma=[1e-4, 0.0, 1e-3])
 
 
 def test_unknown_method_names_the_bundle():
