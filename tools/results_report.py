@@ -70,6 +70,22 @@ def _xy_errors(runs) -> dict:
     return per
 
 
+def _xy_efficiency(runs) -> dict:
+    """The x-y table's efficiency at d_o = 100 mm over the seeds, RMS limit / RMS 3D error, per estimator (``LMS +
+    ratio``, ``bundle``), and the seeds used ``n``; ``{}`` without the bound's metrics."""
+    ms = [r["metrics"] for r in (_load(x["result"]) if x["result"] else None for x in runs) if r]
+    ms = [m for m in ms if np.isfinite(m.get("lms_ratio_bound_pos_at_100_mm", np.nan))]
+    if not ms:
+        return {}
+    b = np.sqrt(np.mean([m["lms_ratio_bound_pos_at_100_mm"] ** 2 for m in ms]))
+    out = {"n": len(ms)}
+    for label, key in (("LMS + ratio", "lms_ratio_err_pos_at_100_mm"), ("bundle", "bundle_err_pos_at_100_mm")):
+        e = [m[key] for m in ms if np.isfinite(m.get(key, np.nan))]
+        if len(e) == len(ms):
+            out[label] = float(b / np.sqrt(np.mean(np.square(e))))
+    return out
+
+
 def _stats(values):
     v = np.array([x for x in values if x is not None and np.isfinite(x)], dtype=float)
     if not len(v):
@@ -322,6 +338,19 @@ class Report:
                         f"{_fmt(np.median(per[(m, d, ax)]), 2)} ({_fmt(per[(m, d, 'thesis')]['xyz'.index(ax)], 3)})"
                         for d in ds])
                 self.md.append(f"**{m}**\n\n" + _table(["d_o (mm)"] + [_fmt(d) for d in ds], rows) + "\n")
+            bd = [d for d in ds if ("bundle", d, "x") in per]
+            if bd:  # the maximum-likelihood bundle, beside the thesis's four (not in the thesis)
+                rows = [[f"error {ax}"] + [_fmt(np.median(per[("bundle", d, ax)]), 2) for d in bd] for ax in "xyz"]
+                self.md.append("**bundle** (maximum likelihood over the estimate's views: the pair, R0, the "
+                               "intrinsics and the distortion under priors, the points; not in the thesis)\n\n"
+                               + _table(["d_o (mm)"] + [_fmt(d) for d in bd], rows) + "\n")
+            eff = _xy_efficiency(runs)
+            if eff:
+                tw = _xy_efficiency(twin_runs)
+                self.head(f"{name}: efficiency at d = 100 mm (RMS limit / RMS error over {eff['n']} seeds)",
+                          ", ".join(f"{k} {v:.2f}" for k, v in eff.items() if k != "n"), "≥ 0.75", "",
+                          ", ".join(f"{k} {v:.2f}" for k, v in tw.items() if k != "n") + f" ({tw['n']} seeds)"
+                          if tw else "")
             if ("lms_ratio", 100.0, "x") in per:
                 med = [np.median(per[("lms_ratio", 100.0, ax)]) for ax in "xyz"]
                 q75 = [np.percentile(per[("lms_ratio", 100.0, ax)], 75) for ax in "xyz"]

@@ -19,7 +19,8 @@ housing's glass (underwater optics: not a central camera); image noise and SIFT.
 The pipeline (``run``) uses only the public part: camera calibration from the rig views (Heikkilä's model or the
 pinhole, :mod:`bench.camera.calibration`), then :mod:`bench.vision.xy_table_positioning` - features, the thesis's
 search for ``R0`` (Eq. 197-198), and for every intraocular distance and pair the map ``1p``, ``2p``, RANSAC and the
-four alignment methods. The evaluator scores each estimated position against the true camera centres (relative to
+four alignment methods, and at ``pipeline.bundle_intraocular_mm`` the maximum-likelihood bundle beside them
+(:mod:`bench.vision.xy_table_bundle`: ``R0``, the intrinsics and the distortion refined with the pair). The evaluator scores each estimated position against the true camera centres (relative to
 the reference view's, in the table's axes) and prints our four tables beside the thesis's.
 
 Error sources can be switched off one at a time (``sim.*`` keys) and truth can be injected on the evaluator's side
@@ -73,7 +74,7 @@ THESIS_TABLES = {"table4": (DATA / "thesis_tables_5_8.csv", {"quaternion": 5, "q
                                                                 "lms_ratio": 14}, "Figures 55-58")}
 LABELS = {"quaternion": "RANSAC, quaternion", "quaternion_ratio": "RANSAC, quaternion, error-ratio elimination",
           "lms": "RANSAC, LMS", "lms_ratio": "RANSAC, LMS, error-ratio elimination",
-          "bundle": "bundle: the pair, R0, intrinsics and points by maximum likelihood"}
+          "bundle": "bundle: the pair, R0, intrinsics, distortion and points by maximum likelihood"}
 THESIS_METHODS = ("quaternion", "quaternion_ratio", "lms", "lms_ratio")
 TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
 CAMERA_CHOICES = ("calibrated", "nominal", "truth")
@@ -829,8 +830,8 @@ def plot_tables(summary: dict, poses: str, path) -> str:
             ax.plot(d, np.array(summary["eq123_z_mm"])[sel], "-.", color=colors["z"], lw=1, alpha=0.8,
                     label="z: Eq. 123 (disparity sqrt(2) sigma, / sqrt(inliers))")
         ax.set_yscale("log")
-        ax.set_title(f"Table {numbers[m]}: {LABELS[m]}" if m in numbers else f"not in the thesis: {LABELS[m]}",
-                     fontsize=10)
+        ax.set_title(f"Table {numbers[m]}: {LABELS[m]}" if m in numbers else
+                     "not in the thesis - " + LABELS[m].replace(": ", ":\n"), fontsize=9)
         ax.set_ylabel("RMS position error (mm)")
         ax.grid(alpha=0.3, which="both")
     if has_bundle:  # how close each estimator comes to the limit

@@ -36,7 +36,11 @@ views of a pair) and per pair ``(a, b)`` with neither being the reference:
    LMS [21] (SVD) rotation, without and with error-ratio elimination (``r_lim`` = 0.1): the four methods of
    Tables 5-8 / 11-14;
 4. the position of camera ``a`` relative to the reference camera in the table's axes:
-   ``p = R_table_ref t_ref_a`` with the estimated ``R0``.
+   ``p = R_table_ref t_ref_a`` with the estimated ``R0``;
+5. beside the thesis's four, optionally (method ``bundle``, at the distances ``bundle_intraocular_mm``): the
+   maximum-likelihood estimate from the pixels of every view the estimate uses, started from LMS + error ratio's -
+   the pair's displacement, ``R0``, the intrinsics and the distortion under their priors, the points
+   (:func:`bench.vision.xy_table_bundle.pair_bundle`).
 
 Features: SIFT keypoints (:func:`sift_features`) or, for the calibration rig of section 5.4, the corners of the rig
 with their ids (:func:`corner_features`: each corner id becomes a one-hot descriptor, so the same matching code pairs
