@@ -178,6 +178,18 @@ def distortion_jacobian(x_n, dist) -> np.ndarray:
     return J
 
 
+def distortion_parameter_jacobian(x_n) -> np.ndarray:
+    """``d distort(x_n) / d (k1, k2, p1, p2)`` (N, 2, 4) (:func:`distort` is linear in them; Eq. 75-76)."""
+    x, y = x_n[:, 0], x_n[:, 1]
+    r2 = x * x + y * y
+    J = np.empty((len(x_n), 2, 4))
+    J[:, 0, 0], J[:, 1, 0] = x * r2, y * r2
+    J[:, 0, 1], J[:, 1, 1] = x * r2 * r2, y * r2 * r2
+    J[:, 0, 2], J[:, 1, 2] = 2 * x * y, r2 + 2 * y * y
+    J[:, 0, 3], J[:, 1, 3] = r2 + 2 * x * x, 2 * x * y
+    return J
+
+
 @dataclass(frozen=True)
 class UndistortResult:
     """Outcome of :func:`undistort` with ``full_output=True``.

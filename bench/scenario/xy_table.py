@@ -20,8 +20,9 @@ The pipeline (``run``) uses only the public part: camera calibration from the ri
 pinhole, :mod:`bench.camera.calibration`), then :mod:`bench.vision.xy_table_positioning` - features, the thesis's
 search for ``R0`` (Eq. 197-198), and for every intraocular distance and pair the map ``1p``, ``2p``, RANSAC and the
 four alignment methods, and at ``pipeline.bundle_intraocular_mm`` the maximum-likelihood bundle beside them
-(:mod:`bench.vision.xy_table_bundle`: ``R0``, the intrinsics and the distortion refined with the pair). The evaluator scores each estimated position against the true camera centres (relative to
-the reference view's, in the table's axes) and prints our four tables beside the thesis's.
+(:mod:`bench.vision.xy_table_bundle`: ``R0``, the intrinsics and the distortion refined with the pair). The
+evaluator scores each estimated position against the true camera centres (relative to the reference view's, in the
+table's axes) and prints our four tables beside the thesis's, and the bundle's beside them.
 
 Error sources can be switched off one at a time (``sim.*`` keys) and truth can be injected on the evaluator's side
 (``pipeline.camera: truth``, ``pipeline.mount_bias: truth``, ``pipeline.features: true_projection``); every injection is

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.camera.model import check_dist, distort, distortion_jacobian, to_pixels
+from bench.camera.model import check_dist, distort, distortion_jacobian, distortion_parameter_jacobian, to_pixels
 from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.robot.orientation import link5_frame
 from bench.vision.bundle import solve
@@ -134,18 +134,6 @@ def residuals(problem: _Problem, theta, T_b2, X) -> np.ndarray:
     p = problem.camera_points(problem.poses(theta, T_b2), X)
     _, _, d_K, d_d, _ = problem.split(theta)
     return problem.uv - problem.pixels(p, d_K, d_d)
-
-
-def distortion_parameter_jacobian(x_n) -> np.ndarray:
-    """``d distort(x_n) / d (k1, k2, p1, p2)`` (N, 2, 4) (:func:`bench.camera.model.distort`; linear in them)."""
-    x, y = x_n[:, 0], x_n[:, 1]
-    r2 = x * x + y * y
-    J = np.empty((len(x_n), 2, 4))
-    J[:, 0, 0], J[:, 1, 0] = x * r2, y * r2
-    J[:, 0, 1], J[:, 1, 1] = x * r2 * r2, y * r2 * r2
-    J[:, 0, 2], J[:, 1, 2] = 2 * x * y, r2 + 2 * y * y
-    J[:, 0, 3], J[:, 1, 3] = r2 + 2 * x * x, 2 * x * y
-    return J
 
 
 def residuals_and_jacobian(problem: _Problem, theta, T_b2, X) -> tuple:

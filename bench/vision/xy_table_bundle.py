@@ -27,11 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.camera.model import check_dist, distort, distortion_jacobian
+from bench.camera.model import check_dist, distort, distortion_jacobian, distortion_parameter_jacobian
 from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import invert, rot_y
 from bench.vision.bundle import solve
-from bench.vision.joint_bundle import distortion_parameter_jacobian
 
 #: the loose prior (deg, per axis) on the camera's rotation on its support: the search's estimate is ~2 deg off
 R0_PRIOR_DEG = 10.0
