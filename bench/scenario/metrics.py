@@ -257,6 +257,10 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "covariance (`pipeline.camera: calibrated`)", "`bound.enabled`, features not exact"),
         Metric("bound_R0_free", "1 / 0", "1 when the bound estimates R0 with the camera positions "
                "(`pipeline.mount_bias: estimated`)", "`bound.enabled`, features not exact"),
+        Metric("bound_centre_free", "1 / 0", "1 when the bound takes the camera centre on the stage under the "
+               "tolerance table.yaml states (`sim.camera_centre_tolerance_mm`)", "`bound.enabled`, features not exact"),
+        Metric("bound_distortion_free", "1 / 0", "1 when the bound takes the distortion under the pipeline's stated "
+               "prior (`pipeline.bundle`, `pipeline.bundle_distortion_sigma`)", "`bound.enabled`, features not exact"),
         Metric("lms_ratio_bound_mc_pos_at_<at2>_mm", "mm", "the ideal estimator's Monte Carlo, 3D RMS",
                "`bound.enabled`, features not exact"),
         Metric("lms_ratio_efficiency_at_<at2>", "1", "limit / achieved 3D error",

@@ -104,6 +104,7 @@ SCHEMA = {
         "table_readout": (str, "steps"),        # steps (the step the table is at) | exact (the carriage's position)
         "mount_bias_deg": (list, [0.3, 6.2, -1.8]),        # true theta_x0, theta_y0, theta_z0 (Eq. 197)
         "camera_centre_error_mm": (list, [0.5, 0.3, 1.0]),  # true camera centre minus the nominal one (support)
+        "camera_centre_tolerance_mm": (float, 1.0),  # what table.yaml states of it (1 sigma per axis; 0: not stated)
         "focal_error_pct": (float, 1.5),        # true intrinsics vs the nominal camera file (uniform +-)
         "principal_error_px": (float, 4.0),
         "distortion_error_pct": (float, 5.0),
@@ -208,6 +209,7 @@ def _check(cfg):
         if cfg[sec][k] <= 0:
             raise ConfigError(src, key, f"must be > 0, got {cfg[sec][k]}")
     for key in ("sim.focal_error_pct", "sim.principal_error_px", "sim.distortion_error_pct",
+                "sim.camera_centre_tolerance_mm",
                 "pipeline.map_min_baseline_mm"):
         sec, k = key.split(".")
         if cfg[sec][k] < 0:
@@ -591,6 +593,8 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                  f"camera_offset_mm: {[float(v) for v in tm.camera_offset_m * 1e3]}\n"
                  f"travel_mm: {tm.travel_m * 1e3:g}\nresolution_mm: {tm.resolution_m * 1e3:g}\n"
                  f"resolution_deg: {np.rad2deg(tm.resolution_rad):g}\n")
+    if s["camera_centre_tolerance_mm"] > 0:  # how well the lab knows where the camera centre sits on the stage
+        spec_yaml += f"camera_offset_tolerance_mm: {s['camera_centre_tolerance_mm']:g}\n"
     with DatasetWriter(out_dataset, kind="xy_table", name=cfg["name"], overwrite=True,
                        command="sim render", identity=cfg["name"],
                        created_by=f"bench sim render {Path(cfg['_file']).name} (seed {cfg['seed']})") as w:
@@ -861,11 +865,12 @@ def plot_tables(summary: dict, poses: str, path) -> str:
 # ------------------------------------------------------------------------------------------------ the bound
 
 
-def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose, cov_K=None) -> tuple:
+def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose, cov_K=None, cov_dist=None) -> tuple:
     """EVALUATOR SIDE: measured feature noise, the complete Cramér-Rao bound of every estimate (the table's errors,
     the intrinsics under the pipeline's calibration covariance ``cov_K`` (4, 4) px^2 of ``fx, fy, cx, cy`` when it
-    calibrated the camera, ``R0`` when it searched it), the model floor, a Monte Carlo of the ideal estimator and
-    Eq. 123's stereo depth error (:mod:`bench.scenario.xy_table_bound`).
+    calibrated the camera, ``R0`` when it searched it, the distortion under ``cov_dist`` (4, 4) when the pipeline's
+    bundle refines it under that prior), the model floor, a Monte Carlo of the ideal estimator and Eq. 123's stereo
+    depth error (:mod:`bench.scenario.xy_table_bound`).
 
     Returns ``(metrics, columns)``: ``columns`` per intraocular distance (``d_mm`` and the bound's columns of the
     position-error table, mm and deg: ``crb_*`` the bound, ``floor_*`` the model floor, ``bound_*`` the limit, their
@@ -908,10 +913,13 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose, cov_K=None) ->
     centres = np.stack([res.T_table_cam[n][:3, 3] for n in names])
     X, seen = map_points(res, ref, T_model[ref], map_view_names(names, centres, ref, (), pc.map_min_baseline_m,
                                                                   pc.map_exclude))
-    unknowns = Unknowns(lens.K, cov_K, R0_free=p["mount_bias"] == "estimated")
+    unknowns = Unknowns(lens.K, cov_K, R0_free=p["mount_bias"] == "estimated", cov_dist=cov_dist,
+                        offset_sigma=spec.camera_offset_sigma_m)
     bounds = experiment_bounds(res, kin, pc, X, seen, project, lens.size, sigma, verbose, unknowns)
     metrics["bound_intrinsics_free"] = float(cov_K is not None)
     metrics["bound_R0_free"] = float(unknowns.R0_free)
+    metrics["bound_distortion_free"] = float(cov_dist is not None)
+    metrics["bound_centre_free"] = float(unknowns.offset_sigma is not None)
     cols = {k: [] for k in ("d_mm", "bound_x_mm", "bound_y_mm", "bound_z_mm", "bound_pos_mm", "bound_rot_deg",
                             "crb_x_mm", "crb_y_mm", "crb_z_mm", "crb_pos_mm", "floor_x_mm", "floor_y_mm",
                             "floor_z_mm", "floor_pos_mm", "bound_mc_x_mm", "bound_mc_y_mm", "bound_mc_z_mm",
@@ -1078,7 +1086,8 @@ def run(cfg, out_dir, verbose=True):
         metrics["inliers_median"] = float(np.median([c.inliers for c in ok]))
     if cfg["bound"]["enabled"] and res.success:
         t1 = time.perf_counter()
-        bound_metrics, columns = _bound(cfg, truth, res, pc, spec, verbose, cov_K)
+        bound_metrics, columns = _bound(cfg, truth, res, pc, spec, verbose, cov_K,
+                                        cov_dist if "bundle" in pc.methods else None)
         metrics.update(bound_metrics)
         by_d = {round(d, 6): i for i, d in enumerate(columns.pop("d_mm"))}
         for col, vals in columns.items():

@@ -25,10 +25,12 @@ the simulation:
 **The complete bound** (:class:`Unknowns`, the scenario's default) adds what the experiment does not know exactly
 besides the table: the intrinsics ``fx, fy, cx, cy`` under the covariance of the camera calibration the pipeline ran
 on the rig views (§5.2.1), and the camera's rotation ``R0`` on its support, which the thesis's search (Eq. 197-198)
-estimates from the same images (free). **Exact in the bound**: the housing's glass and the lens's distortion (the
-true optics project) and the camera's centre on the support. What no central camera model removes of the true
-optics is the **model floor** (:func:`floor_positions`): the estimator on noise-free features, reported beside the
-bound; the limit is their root-sum-square.
+estimates from the same images (free), and the distortion's ``k1, k2, p1, p2`` under the prior the pipeline states
+(its bundle's, ``pipeline.bundle_distortion_sigma``: a pin-hole calibration tells nothing about them), and the camera
+centre on the stage under the tolerance ``table.yaml`` states. **Exact in the bound**: the housing's glass (the true
+optics project). What no central
+camera model removes of the true optics is the **model floor** (:func:`floor_positions`): the estimator on noise-free
+features, reported beside the bound; the limit is their root-sum-square.
 
 Linearisation point: the true camera poses (the table's true errors, the true ``R0`` and centre); the points where
 the pipeline's map put them, moved into the true reference camera frame.
@@ -47,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.camera.model import distortion_parameter_jacobian
 from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
 from bench.geometry.transforms import invert, transform_points
 from bench.scenario.bounds import (
@@ -61,6 +64,7 @@ from bench.scenario.bounds import (
     true_projector,
 )
 from bench.vision.insitu import build_map
+from bench.vision.xy_table_bundle import R0_PRIOR_DEG
 from bench.vision.xy_table_positioning import PositioningConfig, TableSpec, estimate_positions, map_view_names
 
 #: the table's error parameters (:class:`~bench.sim.scenes.xy_table.TableErrors`; the wobble as its two components)
@@ -198,13 +202,18 @@ class _PairModel(MultiViewModel):
     rotation vector, then translation), ``table`` (the table's errors, :class:`TableKinematics`), optionally
     ``d_R0`` (the camera's rotation on its support, a right perturbation ``R0 exp(w)`` about its centre, rad) and
     ``d_K`` (``dfx, dfy, dcx, dcy`` px, applied to the pixels as ``c + dc + (f + df) / f (uv - c)`` with ``K`` the
-    true lens's: exact for a lens whose distortion acts before K), then the points."""
+    true lens's: exact for a lens whose distortion acts before K) and ``d_dist`` (``dk1, dk2, dp1, dp2``, applied to
+    the pixels to first order as ``K d distort(x_n) / d(k1, k2, p1, p2) d_dist`` at the points' pinhole coordinates
+    ``x_n``: exact in the derivative for a lens in air, the in-water direction behind a port) and ``d_o`` (the camera
+    centre on the stage, m, in the mount frame), then the points."""
 
     def __init__(self, kin: TableKinematics, views, locate, pivot, X, project, size, vis, K=None,
-                 with_R0: bool = False):
+                 with_R0: bool = False, K_lens=None, with_offset: bool = False):
         self.kin, self.idx = kin, np.array([kin.names.index(n) for n in views])
         self.locate, self.pivot = np.asarray(locate, bool), np.asarray(pivot, float)
         self.K, self.with_R0 = (None if K is None else np.asarray(K, float)), bool(with_R0)
+        self.K_lens = None if K_lens is None else np.asarray(K_lens, float)
+        self.with_offset = bool(with_offset)
         blocks, values = [Block("xi", 6)], [np.zeros(6)]
         if kin.params:
             blocks.append(Block("table", len(kin.params), step=1e-8))
@@ -215,6 +224,12 @@ class _PairModel(MultiViewModel):
         if self.K is not None:
             blocks.append(Block("d_K", 4, step=1e-3))
             values.append(np.zeros(4))
+        if self.K_lens is not None:
+            blocks.append(Block("d_dist", 4, step=1e-6))
+            values.append(np.zeros(4))
+        if self.with_offset:
+            blocks.append(Block("d_o", 3))
+            values.append(np.zeros(3))
         super().__init__(self._poses, blocks, values, X, project, size, vis)
 
     def _split(self, values):
@@ -222,11 +237,15 @@ class _PairModel(MultiViewModel):
         v_table = rest.pop(0) if self.kin.params else None
         d_R0 = rest.pop(0) if self.with_R0 else None
         d_K = rest.pop(0) if self.K is not None else None
-        return xi, v_table, d_R0, d_K
+        d_dist = rest.pop(0) if self.K_lens is not None else None
+        d_o = rest.pop(0) if self.with_offset else None
+        return xi, v_table, d_R0, d_K, d_dist, d_o
 
     def _poses(self, *values):
-        xi, v_table, d_R0, _ = self._split(values)
+        xi, v_table, d_R0, _, _, d_o = self._split(values)
         T = self.kin.poses(self.kin.v0 if v_table is None else v_table)[self.idx]
+        if d_o is not None:  # the centre moved in the mount frame: R_table_mount d_o
+            T[:, :3, 3] += (T[:, :3, :3] @ self.kin.T_mount_cam[:3, :3].T) @ d_o
         if d_R0 is not None:
             T[:, :3, :3] = T[:, :3, :3] @ rotation_vector_to_matrix(d_R0)
         R = rotation_vector_to_matrix(xi[:3])
@@ -238,8 +257,13 @@ class _PairModel(MultiViewModel):
 
     def pixels(self, *args):
         uv = super().pixels(*args)
-        *values, _ = args
-        d_K = self._split(values)[3]
+        *values, X = args
+        _, _, _, d_K, d_dist, _ = self._split(values)
+        if d_dist is not None:
+            T_cam_world = np.linalg.inv(self.camera_poses(*values))
+            p = np.matmul(X, np.swapaxes(T_cam_world[:, :3, :3], 1, 2)) + T_cam_world[:, None, :3, 3]  # (V, M, 3)
+            J = distortion_parameter_jacobian((p[..., :2] / p[..., 2:3]).reshape(-1, 2)).reshape(*p.shape[:2], 2, 4)
+            uv = uv + np.einsum("ij,vmjk,k->vmi", self.K_lens[:2, :2], J, d_dist)
         if d_K is None:
             return uv
         f, c = np.array([self.K[0, 0], self.K[1, 1]]), self.K[:2, 2]
@@ -254,28 +278,35 @@ class Unknowns:
     pipeline ran on the rig views (:attr:`~bench.camera.calibration.CalibrationResult.covariance`), ``K`` the true
     lens's (where the pixels are perturbed); ``None``: the intrinsics exact. ``R0_free``: the camera's rotation on its
     support is estimated from the same images (the thesis's search, Eq. 197-198), a free parameter of the bound, with
-    a loose prior of :data:`R0_PRIOR_DEG` that only holds the rotation about the line of camera centres (which no
-    image of a straight campaign sees and no camera position depends on).
+    a loose prior of :data:`~bench.vision.xy_table_bundle.R0_PRIOR_DEG` (the pipeline's bundle uses the same) that
+    only holds the rotation about the line of camera centres (which no image of a straight campaign sees and no
+    camera position depends on). ``cov_dist`` (4, 4): the covariance of the distortion's ``k1, k2, p1, p2`` the
+    pipeline states (its bundle's prior: a pin-hole calibration says nothing about them); ``None``: exact.
+    ``offset_sigma`` (3,): the stated tolerance (1 sigma, m) of the camera centre on the stage (``table.yaml``'s
+    ``camera_offset_tolerance_mm``); ``None``: exact.
     """
 
     K: np.ndarray | None = None
     cov_K: np.ndarray | None = None
     R0_free: bool = False
+    cov_dist: np.ndarray | None = None
+    offset_sigma: np.ndarray | None = None
 
     def model_kwargs(self) -> dict:
-        return {"K": self.K if self.cov_K is not None else None, "with_R0": self.R0_free}
+        return {"K": self.K if self.cov_K is not None else None, "with_R0": self.R0_free,
+                "K_lens": self.K if self.cov_dist is not None else None, "with_offset": self.offset_sigma is not None}
 
     def priors(self) -> dict:
         out = {}
         if self.cov_K is not None:
             out["d_K"] = np.linalg.inv(np.asarray(self.cov_K, float))
+        if self.cov_dist is not None:
+            out["d_dist"] = np.linalg.inv(np.asarray(self.cov_dist, float))
+        if self.offset_sigma is not None:
+            out["d_o"] = np.diag(1.0 / np.square(np.asarray(self.offset_sigma, float)))
         if self.R0_free:
             out["d_R0"] = np.eye(3) / np.deg2rad(R0_PRIOR_DEG) ** 2
         return out
-
-
-#: the loose prior (deg, per axis) on the camera's rotation on its support when it is estimated from the images
-R0_PRIOR_DEG = 10.0
 
 
 def position_bound(kin: TableKinematics, prior_info, reference: str, pair, map_views, X, seen: dict, project, size,

@@ -21,6 +21,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import csr_matrix
 
+#: rounds :func:`solve` may add while the noise estimate still halves (exact data)
+EXTRA_ROUNDS = 4
+#: the smallest pixel noise (px) the priors are weighed with (no real image is this clean; on exact data it keeps
+#: the directions only the priors hold - a gauge - conditioned while their pull on the rest stays ~1e-10 relative)
+SIGMA_FLOOR_PX = 1e-3
+#: relative singular-value cut-off of the Gauss-Newton step
+RCOND = 1e-12
+
 
 @dataclass(frozen=True)
 class BundleSolution:
@@ -79,6 +87,21 @@ def seen_twice(point, keep, M: int) -> np.ndarray:
     return keep & (seen[point] >= 2)
 
 
+def _gated(e, keep, point, M: int, gate: float, groups=None) -> np.ndarray:
+    """The observations to keep: residual ``e`` (N,) within ``gate`` x the robust sigma (median / 1.1774, the
+    Rayleigh median of a 2-D Gaussian) of those kept so far - per group, the larger of the group's (over all its
+    observations) and the whole set's, when ``groups`` (N,) is given."""
+    s_all = float(np.median(e[keep])) / 1.1774
+    if groups is None:
+        return seen_twice(point, e <= gate * s_all, M)
+    groups = np.asarray(groups, int)
+    ok = np.zeros(len(e), bool)
+    for g in np.unique(groups):
+        sel = groups == g
+        ok[sel] = e[sel] <= gate * max(float(np.median(e[sel])) / 1.1774, s_all)
+    return seen_twice(point, ok, M)
+
+
 def _cost(problem, theta, X, keep, prior_info, mean) -> float:
     """Sum of the kept observations' squared pixel residuals plus the priors' (in the same units)."""
     r = problem.residuals(theta, X)[keep]
@@ -88,7 +111,7 @@ def _cost(problem, theta, X, keep, prior_info, mean) -> float:
 
 
 def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10, rounds: int = 3,
-          gate: float | None = 3.5, dof_offset: int = 0, gate_start=None) -> BundleSolution:
+          gate: float | None = 3.5, dof_offset: int = 0, gate_groups=None) -> BundleSolution:
     """Maximum-likelihood ``theta`` and points (module docstring).
 
     Parameters
@@ -104,17 +127,20 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
     sigma_px : float
         Starting pixel noise (px), re-estimated from the kept residuals after each round.
     iterations, rounds : int
-        Gauss-Newton iterations per round; rounds of re-estimating the noise and the gate.
+        Gauss-Newton iterations per round; rounds of re-estimating the noise and the gate (at least; up to
+        :data:`EXTRA_ROUNDS` more while the noise estimate halves from one round to the next).
     gate : float or None
         After each round, observations whose residual exceeds ``gate`` x the robust sigma (median residual /
         1.1774, the Rayleigh median of a 2-D Gaussian) weigh nothing in the next; ``None`` keeps every one.
     dof_offset : int
         Parameters the pixels determine besides the points (subtracted from the degrees of freedom of the noise
         estimate).
-    gate_start : ndarray (N,) int, optional
-        Gate the starting residuals too, group by group (e.g. by view: the start may fit some views far better
-        than others), so that gross outliers (false matches hundreds of pixels off) do not steer the first round;
-        None: the first round keeps every observation.
+    gate_groups : ndarray (N,) int, optional
+        Gate group by group (e.g. by view), each at ``gate`` x the larger of its own robust sigma and the whole
+        set's, and gate the starting residuals too: a start may fit some views far better than others (a view whose
+        model is off - a reading error the bundle will correct - then keeps its observations), and gross outliers
+        (false matches hundreds of pixels off) do not steer the first round. None: one gate for all, the first
+        round keeps every observation.
     """
     theta, mean, X = np.array(theta0, float), np.asarray(mean, float), np.array(X, float)
     point = np.asarray(problem.point, int)
@@ -122,30 +148,33 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
     nan = np.full((n, n), np.nan)
     it_total, s_px = 0, float(sigma_px)
     keep = np.ones(len(point), dtype=bool)
-    if gate and gate_start is not None:
-        e = np.linalg.norm(problem.residuals(theta, X), axis=1)
-        group = np.asarray(gate_start, int)
-        ok = np.zeros(len(e), bool)
-        for g in np.unique(group):
-            sel = group == g
-            ok[sel] = e[sel] <= gate * float(np.median(e[sel])) / 1.1774
-        keep = seen_twice(point, ok, M)
+    if gate and gate_groups is not None:
+        keep = _gated(np.linalg.norm(problem.residuals(theta, X), axis=1), keep, point, M, gate, gate_groups)
 
     def failed(msg):
         return BundleSolution(False, msg, np.array(theta0, float), np.array(X, float), keep, s_px, nan, it_total)
 
-    for _ in range(rounds):
-        prior_info = info0 * s_px**2  # in units of the pixel residuals' weight
+    k, s_used = 0, np.inf
+    # rounds: at least ``rounds``, and more (up to EXTRA_ROUNDS) while the noise estimate still falls by half - the
+    # priors weigh s^2 info0 in pixel units, so on near-exact data they would otherwise pull the estimate by s^2
+    while k < rounds or (k < rounds + EXTRA_ROUNDS and s_px < 0.5 * s_used):
+        k, s_used = k + 1, s_px
+        # in units of the pixel residuals' weight; the floor keeps what only the priors hold (a gauge) held on
+        # exact data
+        prior_info = info0 * s_px**2
         for _ in range(iterations):
             it_total += 1
             r, J, J_pt, z_min = problem.linearise(theta, X)
             if z_min <= 0:
                 return failed("points behind a camera")
             S, g, points_step = normal_equations(point, r, J, J_pt, M, prior_info, prior_info @ (theta - mean), keep)
-            if not np.all(np.diag(S) > 0):  # a parameter nothing observes (a degenerate view set): no step
+            diag = np.diag(S)
+            if not (np.all(np.isfinite(diag)) and diag.max() > 0):
                 return failed("singular reduced system")
-            d = np.sqrt(np.diag(S))
-            dc = -np.linalg.solve(S / np.outer(d, d), g / d) / d
+            d = np.sqrt(np.maximum(diag, RCOND * diag.max()))  # a direction nothing holds stays where it is
+            # least squares on the scaled system: a direction only a (vanishing) prior holds - a gauge, on exact
+            # data - is left where it is instead of amplifying rounding
+            dc = -np.linalg.lstsq(S / np.outer(d, d), g / d, rcond=RCOND)[0] / d
             if not np.all(np.isfinite(dc)):
                 return failed("singular reduced system")
             # backtracking: the Gauss-Newton step is halved until the cost (pixels kept + priors) decreases - weakly
@@ -163,10 +192,14 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
                 break
         e = np.linalg.norm(problem.residuals(theta, X), axis=1)
         if gate:
-            sigma_robust = float(np.median(e[keep])) / 1.1774
-            keep = seen_twice(point, e <= gate * sigma_robust, M)
+            keep = _gated(e, keep, point, M, gate, gate_groups)
         dof = max(2 * int(keep.sum()) - 3 * int(np.unique(point[keep]).size) - dof_offset, 1)
         s_px = float(np.sqrt(np.sum(e[keep] ** 2) / dof))
     r, J, J_pt, _ = problem.linearise(theta, X)
-    S, _, _ = normal_equations(point, r, J, J_pt, M, info0 * s_px**2, np.zeros(n), keep)
+    S, _, _ = normal_equations(point, r, J, J_pt, M, info0 * max(s_px, SIGMA_FLOOR_PX) ** 2, np.zeros(n), keep)
+    d = np.sqrt(np.abs(np.diag(S)))
+    if not (np.all(d > 0) and np.linalg.eigvalsh(S / np.outer(d, d)).min() > RCOND):
+        # a parameter neither the pixels nor a prior hold (a degenerate view set): no covariance to report
+        return BundleSolution(False, "singular reduced system (a parameter nothing observes)", theta, X, keep, s_px,
+                              nan, it_total)
     return BundleSolution(True, "ok", theta, X, keep, s_px, S, it_total)

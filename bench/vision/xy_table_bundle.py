@@ -10,15 +10,16 @@ pair - the observation pattern of the bound in :mod:`bench.scenario.xy_table_bou
   frame) - the unknown the experiment is about; the pair's relative pose comes from its readings;
 * the rotation ``R0`` as ``R0 exp(w)`` (3, right perturbation, under a loose prior of ``R0_prior_deg`` per axis
   that holds only the rotation about the line of camera centres, which no view of a straight campaign observes);
-* optionally the intrinsics ``fx, fy, cx, cy`` (4) under the rig calibration's covariance as a prior;
+* optionally the intrinsics ``fx, fy, cx, cy`` (4) under the rig calibration's covariance as a prior, the
+  distortion's ``k1, k2, p1, p2`` (4) under a stated prior, the camera centre on the stage (3) under the tolerance
+  ``table.yaml`` states, and every view's reading ``(x, z, rot)`` (3 per view) under a prior of one resolution step;
 * every map point (table frame), eliminated point by point (:func:`bench.vision.bundle.solve`).
 
-Camera poses (:mod:`bench.vision.xy_table_positioning`): ``T_table_cam = S [R0 exp(w) | o]`` with ``S`` the stage
-pose of the view's readings; a view of the pair has ``D(xi) C0 S`` instead, ``C0`` the start (the thesis's estimate
-moved onto the readings) and ``D(xi)`` the displacement. Residuals are pixels through the calibrated camera (Eq.
-50, 75-76); the projection and the point derivatives are analytic, the pose blocks central differences (checked
-against a difference quotient of the residuals in the tests). The table's readings are taken as exact: the table
-errs by ~0.02 mm and ~0.03 deg per reading in the simulation, inside what the pixels resolve.
+Camera poses (:mod:`bench.vision.xy_table_positioning`): ``T_table_cam = S [R0 exp(w) | o + do]`` with ``S`` the
+stage pose of the view's readings; a view of the pair has ``D(xi) C0 S`` instead, ``C0`` the start (the thesis's
+estimate moved onto the readings) and ``D(xi)`` the displacement. Residuals are pixels through the calibrated camera
+(Eq. 50, 75-76); the projection and the point derivatives are analytic, the pose blocks central differences (checked
+against a difference quotient of the residuals in the tests).
 """
 
 from __future__ import annotations
@@ -85,7 +86,7 @@ class PairProblem:
     step = 1e-7
 
     def __init__(self, readings, in_pair, C0, pivot, R0, offset_m, K, dist, view, point, uv, with_K: bool,
-                 with_readings: bool = False, with_dist: bool = False):
+                 with_readings: bool = False, with_dist: bool = False, with_offset: bool = False):
         self.read, self.in_pair = np.asarray(readings, float), np.asarray(in_pair, bool)
         self.C0, self.pivot = np.asarray(C0, float), np.asarray(pivot, float)
         self.R0, self.offset = np.asarray(R0, float), np.asarray(offset_m, float)
@@ -93,9 +94,13 @@ class PairProblem:
         self.dist = np.zeros(5) if dist is None or not len(dist) else check_dist(dist)
         self.view, self.point, self.uv = np.asarray(view, int), np.asarray(point, int), np.asarray(uv, float)
         self.with_K, self.with_readings, self.with_dist = bool(with_K), bool(with_readings), bool(with_dist)
+        self.with_offset = bool(with_offset)
         self.V = len(self.read)
         self.k_dist = 9 + 4 * self.with_K  # where the distortion's corrections start
-        self.k_read = self.k_dist + 4 * self.with_dist  # where the readings' corrections start
+        self.k_off = self.k_dist + 4 * self.with_dist  # the camera centre's on the stage
+        self.k_read = self.k_off + 3 * self.with_offset  # the readings'
+        #: the columns differentiated numerically with every view at once: the pair, R0 and the centre
+        self.shared_fd = [*range(9), *range(self.k_off, self.k_read)]
         self.n = self.k_read + 3 * self.V * self.with_readings
 
     def intrinsics(self, theta) -> np.ndarray:
@@ -123,11 +128,19 @@ class PairProblem:
             return np.broadcast_to(self.read, (*theta.shape[:-1], self.V, 3))
         return self.read + theta[..., self.k_read:].reshape(*theta.shape[:-1], self.V, 3)
 
+    def centre_on_stage(self, theta) -> np.ndarray:
+        """The camera centre on the stage ``(..., 3)`` (m), corrected."""
+        theta = np.asarray(theta, float)
+        if not self.with_offset:
+            return np.broadcast_to(self.offset, (*theta.shape[:-1], 3))
+        return self.offset + theta[..., self.k_off:self.k_read]
+
     def poses(self, theta) -> np.ndarray:
         """``T_table_cam (..., V, 4, 4)`` of every view for parameters ``theta (..., n)``."""
         theta = np.asarray(theta, float)
         X = np.zeros((*theta.shape[:-1], 1, 4, 4))
-        X[..., :3, :3], X[..., :3, 3], X[..., 3, 3] = self.rotation(theta)[..., None, :, :], self.offset, 1.0
+        X[..., :3, :3], X[..., 3, 3] = self.rotation(theta)[..., None, :, :], 1.0
+        X[..., :3, 3] = self.centre_on_stage(theta)[..., None, :]
         T = stage_poses_of(self.readings(theta)) @ X
         T[..., self.in_pair, :, :] = (_displacements(theta[..., :6], self.pivot)[..., None, :, :] @ self.C0
                                       @ T[..., self.in_pair, :, :])
@@ -156,13 +169,14 @@ class PairProblem:
     def linearise(self, theta, X) -> tuple:
         """Residuals (N, 2), ``J (N, 2, n)``, ``J_pt (N, 2, 3)`` and the smallest depth of a point in a camera.
 
-        The pose parameters by central differences, in one batch: ``xi`` and ``w`` one by one, the readings'
-        corrections one coordinate of every view at once (an observation depends on its own view's only)."""
-        m = 9 + 3 * self.with_readings
+        The pose parameters by central differences, in one batch: ``xi``, ``w`` and the centre one by one, the
+        readings' corrections one coordinate of every view at once (an observation depends on its own view's only)."""
+        ns = len(self.shared_fd)
+        m = ns + 3 * self.with_readings
         E = np.zeros((1 + 2 * m, self.n))
-        E[1:10, :9] = np.eye(9) * self.step
+        E[1 + np.arange(ns), self.shared_fd] = self.step
         for c in range(3 * self.with_readings):
-            E[10 + c, self.k_read + c::3] = self.step
+            E[1 + ns + c, self.k_read + c::3] = self.step
         E[1 + m:] = -E[1:1 + m]
         T_ct = invert(self.poses(theta + E))
         P = self.camera_points(T_ct, X)
@@ -178,14 +192,14 @@ class PairProblem:
         A = K[:2, :2] @ distortion_jacobian(x_n, dist) @ Jproj  # d uv / d p_cam (N, 2, 3)
         J = np.zeros((len(p), 2, self.n))
         dr = -np.einsum("nij,cnj->nic", A, (P[1:1 + m] - P[1 + m:]) / (2 * self.step))  # (N, 2, m)
-        J[:, :, :9] = dr[:, :, :9]
+        J[:, :, self.shared_fd] = dr[:, :, :ns]
         if self.with_K:  # u = fx x_d + s y_d + cx, v = fy y_d + cy
             J[:, 0, 9], J[:, 1, 10], J[:, 0, 11], J[:, 1, 12] = -x_d[:, 0], -x_d[:, 1], -1.0, -1.0
         if self.with_dist:
             J[:, :, self.k_dist:self.k_dist + 4] = -K[:2, :2] @ distortion_parameter_jacobian(x_n)
         rows = np.arange(len(p))
         for c in range(3 * self.with_readings):
-            J[rows, :, self.k_read + 3 * self.view + c] = dr[:, :, 9 + c]
+            J[rows, :, self.k_read + 3 * self.view + c] = dr[:, :, ns + c]
         J_pt = -A @ T_ct[self.view, :3, :3]
         return self.uv - (x_d @ K[:2, :2].T + K[:2, 2]), J, J_pt, float(z.min())
 
@@ -221,7 +235,8 @@ def pair_observations(kmap, views: list, matches: dict, features: dict, pair) ->
 
 
 def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, point, uv, X, cov_K=None,
-                reading_sigma=None, cov_dist=None, R0_prior_deg: float = R0_PRIOR_DEG, sigma_px: float = 0.5,
+                reading_sigma=None, cov_dist=None, offset_sigma=None, R0_prior_deg: float = R0_PRIOR_DEG,
+                sigma_px: float = 0.5,
                 iterations: int = 20, rounds: int = 2, gate: float | None = 3.5) -> PairBundleResult:
     """Camera ``a``'s position relative to the reference by maximum likelihood (module docstring).
 
@@ -248,6 +263,9 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
     cov_dist : ndarray (4, 4), optional
         Covariance of the distortion's ``k1, k2, p1, p2`` (from the calibration, or a loose prior about zero for a
         pin-hole calibration): given, they are refined under it.
+    offset_sigma : (3,), optional
+        The stated tolerance (1 sigma per axis, m) of the camera centre on the stage (``table.yaml``): given, the
+        centre is refined under it; None: exact.
     reading_sigma : (3,), optional
         Standard deviations of the readings (m, m, rad; e.g. a resolution step / sqrt(12)): given, every view's
         reading is refined under it as a prior; None: the readings are exact.
@@ -262,6 +280,8 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
         raise ValueError("in_pair: the pair's views come last and the reference first")
     if not R0_prior_deg > 0:
         raise ValueError(f"R0_prior_deg must be > 0, got {R0_prior_deg}")
+    if offset_sigma is not None and not (np.shape(offset_sigma) == (3,) and np.all(np.asarray(offset_sigma) > 0)):
+        raise ValueError(f"offset_sigma: three standard deviations > 0 expected, got {offset_sigma!r}")
     if reading_sigma is not None and not (np.shape(reading_sigma) == (3,) and np.all(np.asarray(reading_sigma) > 0)):
         raise ValueError(f"reading_sigma: three standard deviations > 0 expected, got {reading_sigma!r}")
     X0 = np.eye(4)
@@ -269,15 +289,17 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
     i_a = int(np.flatnonzero(in_pair)[0])
     C0 = np.asarray(T_table_a0, float) @ invert(stage_poses_of(readings[i_a]) @ X0)  # the readings' pair moved
     problem = PairProblem(readings, in_pair, C0, np.asarray(T_table_a0, float)[:3, 3], R0, offset_m, K, dist, view,
-                          point, uv, cov_K is not None, reading_sigma is not None, cov_dist is not None)
+                          point, uv, cov_K is not None, reading_sigma is not None, cov_dist is not None,
+                          offset_sigma is not None)
     n = problem.n
     info0 = np.zeros((n, n))
     info0[6:9, 6:9] = np.eye(3) / np.deg2rad(R0_prior_deg) ** 2
     if cov_K is not None:
         info0[9:13, 9:13] = np.linalg.inv(np.asarray(cov_K, float))
     if cov_dist is not None:
-        info0[problem.k_dist:problem.k_read, problem.k_dist:problem.k_read] = np.linalg.inv(np.asarray(cov_dist,
-                                                                                                         float))
+        info0[problem.k_dist:problem.k_off, problem.k_dist:problem.k_off] = np.linalg.inv(np.asarray(cov_dist, float))
+    if offset_sigma is not None:
+        info0[problem.k_off:problem.k_read, problem.k_off:problem.k_read] = np.diag(1.0 / np.square(offset_sigma))
     if reading_sigma is not None:
         k = problem.k_read
         info0[k:, k:] = np.diag(np.tile(1.0 / np.asarray(reading_sigma, float) ** 2, problem.V))
@@ -285,12 +307,12 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
         return PairBundleResult(False, f"{len(X)} points (need >= 3)", nan3, np.full((3, 3), np.nan), problem.R0,
                                 problem.K, np.nan, np.nan, 0, 0)
     sol = solve(problem, np.zeros(n), np.zeros(n), info0, X, sigma_px, iterations, rounds, gate, dof_offset=6,
-                gate_start=problem.view)
+                gate_groups=problem.view)
     if not sol.success:
         return PairBundleResult(False, sol.message, nan3, np.full((3, 3), np.nan), problem.R0, problem.K,
                                 sol.sigma_px, np.nan, 0, sol.iterations)
-    G = np.zeros((3, n))  # d (c_a - c_ref) / d theta: the pair's displacement and the reference's reading
-    for c in [*range(6), *range(problem.k_read, problem.k_read + 3 * problem.with_readings)]:
+    G = np.zeros((3, n))  # d (c_a - c_ref) / d theta: the pair's displacement, the centre, the reference's reading
+    for c in [*range(6), *range(problem.k_off, problem.k_read + 3 * problem.with_readings)]:
         e = np.zeros(n)
         e[c] = problem.step
         G[:, c] = (problem.centre_offset(sol.theta + e) - problem.centre_offset(sol.theta - e)) / (2 * problem.step)
@@ -299,6 +321,7 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
     rms = float(np.sqrt(np.mean(r**2)))
     kept = int(sol.keep.sum())
     extra = ((", intrinsics" if cov_K is not None else "") + (", distortion" if cov_dist is not None else "")
+             + (", camera centre" if offset_sigma is not None else "")
              + (", readings" if reading_sigma is not None else ""))
     return PairBundleResult(True, f"ok; bundle of {len(X)} points, {kept} of {len(sol.keep)} observations kept, "
                             f"R0{extra}, sigma {sol.sigma_px:.3g} px", problem.centre_offset(sol.theta),

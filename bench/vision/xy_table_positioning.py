@@ -74,7 +74,8 @@ METHODS = {"quaternion": ("rodrigues", False), "lms": ("svd", False), "quaternio
            "lms_ratio": ("svd", True)}
 #: the maximum-likelihood estimate beside them (:mod:`bench.vision.xy_table_bundle`, started from ``lms_ratio``'s)
 BUNDLE = "bundle"
-TABLE_SPEC_KEYS = {"camera_offset_mm", "travel_mm", "resolution_mm", "resolution_deg", "notes"}
+TABLE_SPEC_KEYS = {"camera_offset_mm", "camera_offset_tolerance_mm", "travel_mm", "resolution_mm", "resolution_deg",
+                   "notes"}
 DESCRIPTOR_SIZE = 128
 
 
@@ -94,12 +95,16 @@ class TableSpec:
         Travel of each slide, centred (section 5.2: 200 mm).
     resolution_m, resolution_rad : float
         Slide and rotary resolutions (0.1 mm, 0.1 deg).
+    camera_offset_sigma_m : ndarray (3,) or None
+        The stated tolerance (1 sigma per axis, m) of the camera centre on the stage (``camera_offset_tolerance_mm``):
+        the bundle refines the centre under it; None: the centre is taken as exact.
     """
 
     camera_offset_m: np.ndarray
     travel_m: float = 0.2
     resolution_m: float = 1e-4
     resolution_rad: float = float(np.deg2rad(0.1))
+    camera_offset_sigma_m: np.ndarray | None = None
 
 
 def load_table_spec(path) -> TableSpec:
@@ -125,8 +130,15 @@ def load_table_spec(path) -> TableSpec:
         if not _is_number(v) or v <= 0:
             raise ConfigError(path, key, f"expected a positive number, got {v!r}")
         vals[key] = float(v)
+    tol = doc.get("camera_offset_tolerance_mm")
+    if tol is not None:
+        tol = [tol] * 3 if _is_number(tol) else tol
+        if not (isinstance(tol, list) and len(tol) == 3 and all(_is_number(v) and v > 0 for v in tol)):
+            raise ConfigError(path, "camera_offset_tolerance_mm", f"expected one or 3 positive numbers (mm, 1 sigma), "
+                                                                  f"got {doc['camera_offset_tolerance_mm']!r}")
+        tol = np.array(tol, float) * 1e-3
     return TableSpec(np.array(off, float) * 1e-3, vals["travel_mm"] * 1e-3, vals["resolution_mm"] * 1e-3,
-                     float(np.deg2rad(vals["resolution_deg"])))
+                     float(np.deg2rad(vals["resolution_deg"])), tol)
 
 
 def _is_number(v) -> bool:
@@ -441,7 +453,7 @@ def _bundle_estimate(d_mm, a, b, kmap, used, start, obs, features, matches, read
     sigma = np.array([spec.resolution_m, spec.resolution_m, spec.resolution_rad]) / np.sqrt(12)  # one step
     res = pair_bundle(read[[names.index(n) for n in views]], in_pair, T_table_ref @ T, R0, spec.camera_offset_m,
                       camera.K, camera.dist, view, point, uv, X, cov_K, sigma if cfg.bundle_readings else None,
-                      cov_dist, cfg.bundle_R0_prior_deg)
+                      cov_dist, spec.camera_offset_sigma_m, cfg.bundle_R0_prior_deg)
     return Combination(d_mm * 1e-3, a, b, BUNDLE, res.success, res.message, res.p_table, len(kmap), n_pairs_3d,
                        n_ransac, res.observations, res.cov_p)
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from bench.camera.presets import load_preset
-from bench.geometry.transforms import homogeneous, rot_x, rot_y, rot_z
+from bench.geometry.transforms import homogeneous, rot_x, rot_y, rot_z, transform_points
 from bench.scenario.bounds import ml_estimate, point_sigma_px
 from bench.scenario.xy_table_bound import (
     TableKinematics,
@@ -158,15 +158,23 @@ def test_complete_bound_blocks_and_monotonicity(scene):
     views = ["p04", *MAP, *PAIR]
     vis = np.stack([seen[n] for n in views])
     model = _PairModel(kin, views, [n in PAIR for n in views], T0[PAIR[0]][:3, 3], X, cam.project, cam.size, vis,
-                       K=cam.K, with_R0=True)
-    assert model.n_params == 6 + 9 + 3 + 4
+                       K=cam.K, with_R0=True, K_lens=cam.K, with_offset=True)
+    assert model.n_params == 6 + 9 + 3 + 4 + 4 + 3
     J = model.jacobian(*model.values0, X)
     assert np.allclose(J, model.jacobian_columnwise(*model.values0, X), rtol=1e-6, atol=1e-4)
     dK = np.array([3.0, -2.0, 1.5, 0.5])
     uv0 = model.pixels(*model.values0, X)
-    uv = model.pixels(*model.values0[:3], dK, X)
+    uv = model.pixels(*model.values0[:3], dK, np.zeros(4), np.zeros(3), X)
     f, c = np.diag(cam.K)[:2], cam.K[:2, 2]
     assert np.abs(uv - (c + dK[2:] + (1 + dK[:2] / f) * (uv0 - c))).max() < 1e-9
+    # d_dist: the lens's distortion moved by d (k1, k2, p1, p2); distort is linear in its coefficients, so through a
+    # lens in air the block moves the pixels exactly as the lens with dist + d does
+    dd = np.array([0.02, -0.01, 1e-3, -2e-3])
+    uv = model.pixels(*model.values0[:4], dd, np.zeros(3), X)
+    p_cam = transform_points(np.linalg.inv(model.camera_poses(*model.values0))[:, None], X[None])
+    moved = cam.replace(dist=cam.dist + np.r_[dd, np.zeros(len(cam.dist) - 4)], model="heikkila")
+    assert np.abs((uv - uv0) - (moved.project(p_cam) - cam.project(p_cam))).max() < 1e-9
+    assert np.abs(uv - uv0).max() > 0.5  # the check is not vacuous
     prior = np.linalg.inv(table_error_prior(kin.params))
 
     def trace(unknowns):
@@ -179,6 +187,18 @@ def test_complete_bound_blocks_and_monotonicity(scene):
     assert exact < small < large
     assert trace(Unknowns(R0_free=True)) >= exact * (1 - 1e-9)
     assert trace(Unknowns(cam.K, np.eye(4) * 100.0, R0_free=True)) >= large * (1 - 1e-9)
+    # the distortion under a prior: equal as it goes to zero, growing with it
+    assert trace(Unknowns(cam.K, cov_dist=np.eye(4) * 1e-16)) == pytest.approx(exact, rel=1e-9)
+    assert exact < trace(Unknowns(cam.K, cov_dist=np.diag([0.3, 0.3, 0.03, 0.03]) ** 2))
+    # the camera centre on the stage under a stated tolerance: the same
+    assert trace(Unknowns(offset_sigma=np.full(3, 1e-9))) == pytest.approx(exact, rel=1e-9)
+    assert exact < trace(Unknowns(offset_sigma=np.full(3, 1e-3)))
+    # d_o moves every camera centre by R_table_mount d_o and leaves the rotations
+    d_o = np.array([1e-3, -2e-3, 5e-4])
+    T0v, T1v = model.camera_poses(*model.values0), model.camera_poses(*model.values0[:5], d_o)
+    R_tm = T0v[:, :3, :3] @ kin.T_mount_cam[:3, :3].T
+    assert np.abs(T1v[:, :3, 3] - T0v[:, :3, 3] - R_tm @ d_o).max() < 1e-15
+    assert np.array_equal(T1v[:, :3, :3], T0v[:, :3, :3])
 
 
 def test_model_floor_is_zero_for_a_central_camera(scene):

@@ -252,8 +252,8 @@ def test_joint_offset_probe_names_a_missing_file(tmp_path, capsys):
 
 
 def test_joint_bundle_counts_a_point_only_where_two_views_keep_it():
-    from bench.vision.joint_bundle import _seen_twice
+    from bench.vision.bundle import seen_twice
 
     point = np.array([0, 0, 1, 1, 1, 2])
     keep = np.array([True, False, True, True, False, True])
-    assert _seen_twice(point, keep, 3).tolist() == [False, False, True, True, False, False]
+    assert seen_twice(point, keep, 3).tolist() == [False, False, True, True, False, False]

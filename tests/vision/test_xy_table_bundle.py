@@ -39,18 +39,19 @@ DIST = np.array([-0.1, 0.05, 1e-3, -2e-3, 0.0])
 
 
 def test_jacobian_matches_difference_quotients():
-    """Every block (pair, R0, intrinsics, distortion, readings) and the points against central differences."""
+    """Every block (pair, R0, intrinsics, distortion, centre, readings) and the points against central
+    differences."""
     rng = np.random.default_rng(0)
     read, T, X, view, point, in_pair, uv = _setup(rng)
     T_a0 = T[4].copy()
     T_a0[:3, 3] += (0.002, -0.001, 0.003)
     p = PairProblem(read, in_pair, T_a0 @ np.linalg.inv(T[4]), T_a0[:3, 3], R0_SEARCHED, np.zeros(3), CAMERA.K, DIST,
-                    view, point, uv, True, True, True)
+                    view, point, uv, True, True, True, True)
     X = X + rng.normal(0, 1e-3, X.shape)
-    scale = np.r_[np.ones(9), 100 * np.ones(4), 0.1 * np.ones(4), np.tile([1e-3, 1e-3, 1e-3], p.V)]
+    scale = np.r_[np.ones(9), 100 * np.ones(4), 0.1 * np.ones(4), 0.1 * np.ones(3), np.tile([1e-3, 1e-3, 1e-3], p.V)]
     theta = rng.normal(0, 1e-2, p.n) * scale
     r, J, J_pt, z = p.linearise(theta, X)
-    assert p.n == 9 + 4 + 4 + 3 * 6 and z > 0 and np.array_equal(r, p.residuals(theta, X))
+    assert p.n == 9 + 4 + 4 + 3 + 3 * 6 and z > 0 and np.array_equal(r, p.residuals(theta, X))
     h = 1e-6
     for c in range(p.n):
         e = np.zeros(p.n)
@@ -64,11 +65,14 @@ def test_jacobian_matches_difference_quotients():
         assert np.abs(J_pt[:, :, k] - fd).max() <= 1e-5 * np.abs(fd).max()
 
 
-@pytest.mark.parametrize("wrong", ["none", "R0", "R0+K+dist"])
+@pytest.mark.parametrize("wrong", ["none", "R0", "R0+K+dist", "R0+K+dist+centre"])
 def test_noise_free_bundle_is_exact(wrong):
-    """Exact pixels: whatever R0, intrinsics and distortion it starts from (under priors), the bundle finds every
-    camera a to <= 1e-9 m - where the thesis's estimators, given the same wrong R0 and camera, err by millimetres."""
-    feats, readings, T_tc = _scene(READ, np.zeros(3), R0, "p11", n_points=400)
+    """Exact pixels: whatever R0, intrinsics, distortion and camera centre on the stage it starts from (under
+    priors), the bundle finds every camera a to <= 1e-9 m - where the thesis's estimators, given the same wrong R0,
+    camera and centre, err by millimetres."""
+    centre = np.array([5e-4, 3e-4, 1e-3]) if "centre" in wrong else np.zeros(3)  # true centre minus the nominal
+    feats, readings, T_tc = _scene(READ, centre, R0, "p11", n_points=400)
+    spec = TableSpec(np.zeros(3), camera_offset_sigma_m=np.full(3, 1e-3) if "centre" in wrong else None)
     cfg = PositioningConfig(reference="p11", intraocular_mm=(50.0, 100.0), methods=("lms_ratio", "bundle"))
     camera = CAMERA
     if "K" in wrong:
@@ -77,7 +81,7 @@ def test_noise_free_bundle_is_exact(wrong):
         K[1, 1] *= 1.01
         K[:2, 2] += (1.5, -2.0)
         camera = CAMERA.replace(K=K, dist=np.array([0.02, -0.05, 1e-3, -1e-3, 0.0]), model="heikkila")
-    res = estimate_positions(feats, readings, camera, TableSpec(np.zeros(3)), cfg, R0=R0 if wrong == "none" else
+    res = estimate_positions(feats, readings, camera, spec, cfg, R0=R0 if wrong == "none" else
                              R0_SEARCHED, cov_K=COV_K if "K" in wrong else None,
                              cov_dist=np.diag([0.3, 0.3, 0.03, 0.03]) ** 2 if "dist" in wrong else None)
     err = {m: [] for m in cfg.methods}

@@ -220,6 +220,13 @@ def test_table_yaml_errors(tmp_path):
         load_table_spec(tmp_path / "missing.yaml")
     spec = load_table_spec(_dataset(tmp_path, None, "camera_offset_mm: [-100, 0, 0]\ntravel_mm: 200\n") / "table.yaml")
     assert np.allclose(spec.camera_offset_m, [-0.1, 0, 0]) and spec.travel_m == pytest.approx(0.2)
+    assert spec.camera_offset_sigma_m is None
+    for text, sigma in (("2", [2e-3] * 3), ("[1, 2, 0.5]", [1e-3, 2e-3, 5e-4])):
+        (tmp_path / "t.yaml").write_text(f"camera_offset_mm: [0, 0, 0]\ncamera_offset_tolerance_mm: {text}\n")
+        assert np.allclose(load_table_spec(tmp_path / "t.yaml").camera_offset_sigma_m, sigma)
+    (tmp_path / "t.yaml").write_text("camera_offset_mm: [0, 0, 0]\ncamera_offset_tolerance_mm: [1, 0]\n")
+    with pytest.raises(ConfigError, match=r"camera_offset_tolerance_mm: expected one or 3 positive numbers"):
+        load_table_spec(tmp_path / "t.yaml")
 
 
 def test_unknown_reference_and_method():
