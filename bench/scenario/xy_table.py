@@ -134,6 +134,7 @@ SCHEMA = {
         "bundle_intraocular_mm": (list, [50, 100]),  # of intraocular_mm, the d_o where it runs too (~0.3 s each)
         "bundle_distortion_sigma": (list, [0.3, 0.3, 0.03, 0.03]),  # prior std of k1 k2 p1 p2 about the camera's
         "bundle_readings": (bool, False),       # also refine every view's reading (prior: one resolution step)
+        "bundle_centre": (bool, False),         # also refine the camera centre (prior: table.yaml's tolerance)
     },
     # the Cramér-Rao bound of every estimate and a Monte Carlo of the ideal estimator (xy_table_bound)
     "bound": {"enabled": (bool, True), "mc_trials": (int, 2), "mc_intraocular_mm": (list, [50, 100])},
@@ -1055,7 +1056,8 @@ def run(cfg, out_dir, verbose=True):
         ransac_iterations=p["ransac_iterations"], d_r_m=p["d_r_mm"] * 1e-3, r_lim=p["r_lim"],
         bias_refine=p["bias_refine"], bias_depth_statistic=p["bias_depth_statistic"], seed=cfg["seed"],
         methods=THESIS_METHODS + (("bundle",) if p["bundle"] else ()),
-        bundle_intraocular_mm=tuple(float(d) for d in p["bundle_intraocular_mm"]), bundle_readings=p["bundle_readings"])
+        bundle_intraocular_mm=tuple(float(d) for d in p["bundle_intraocular_mm"]), bundle_readings=p["bundle_readings"],
+        bundle_centre=p["bundle_centre"])
     sd = p["bundle_distortion_sigma"]
     cov_dist = np.diag(np.square(np.asarray(sd, float))) if sd else None  # [] keeps the camera's distortion fixed
     spec = load_table_spec(ds.root / "table.yaml")

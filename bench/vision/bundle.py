@@ -111,7 +111,8 @@ def _cost(problem, theta, X, keep, prior_info, mean) -> float:
 
 
 def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10, rounds: int = 3,
-          gate: float | None = 3.5, dof_offset: int = 0, gate_groups=None) -> BundleSolution:
+          gate: float | None = 3.5, dof_offset: int = 0, gate_groups=None, groups_in_rounds: bool = True
+          ) -> BundleSolution:
     """Maximum-likelihood ``theta`` and points (module docstring).
 
     Parameters
@@ -141,6 +142,10 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
         model is off - a reading error the bundle will correct - then keeps its observations), and gross outliers
         (false matches hundreds of pixels off) do not steer the first round. None: one gate for all, the first
         round keeps every observation.
+    groups_in_rounds : bool
+        Gate by group after the rounds too (with parameters that can absorb a group's misfit, e.g. each view's
+        reading); False: by group at the start only, then one gate for all (a view whose misfit the model cannot
+        absorb loses its worst observations).
     """
     theta, mean, X = np.array(theta0, float), np.asarray(mean, float), np.array(X, float)
     point = np.asarray(problem.point, int)
@@ -192,7 +197,7 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
                 break
         e = np.linalg.norm(problem.residuals(theta, X), axis=1)
         if gate:
-            keep = _gated(e, keep, point, M, gate, gate_groups)
+            keep = _gated(e, keep, point, M, gate, gate_groups if groups_in_rounds else None)
         dof = max(2 * int(keep.sum()) - 3 * int(np.unique(point[keep]).size) - dof_offset, 1)
         s_px = float(np.sqrt(np.sum(e[keep] ** 2) / dof))
     r, J, J_pt, _ = problem.linearise(theta, X)

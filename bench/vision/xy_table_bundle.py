@@ -307,7 +307,8 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
         return PairBundleResult(False, f"{len(X)} points (need >= 3)", nan3, np.full((3, 3), np.nan), problem.R0,
                                 problem.K, np.nan, np.nan, 0, 0)
     sol = solve(problem, np.zeros(n), np.zeros(n), info0, X, sigma_px, iterations, rounds, gate, dof_offset=6,
-                gate_groups=problem.view)
+                gate_groups=problem.view,
+                groups_in_rounds=reading_sigma is not None)  # a view's misfit: its reading, when refined
     if not sol.success:
         return PairBundleResult(False, sol.message, nan3, np.full((3, 3), np.nan), problem.R0, problem.K,
                                 sol.sigma_px, np.nan, 0, sol.iterations)

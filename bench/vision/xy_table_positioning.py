@@ -235,6 +235,11 @@ class PositioningConfig:
         The bundle's prior (deg per axis) on the correction of the searched ``R0``.
     bundle_intraocular_mm : tuple of float or None
         The intraocular distances at which the bundle runs (~0.3 s per estimate); None: all.
+    bundle_centre : bool
+        The bundle refines the camera centre on the stage under ``table.yaml``'s stated tolerance
+        (``camera_offset_tolerance_mm``). Off by default: under realistic imaging the centre's lateral coordinate,
+        the principal point and ``R0`` absorb the lens's unmodelled warp together (seed 1 of ``xy_table_webcam``:
+        the centre moves 16 mm, against a 1 mm tolerance, and z errs by 0.9 mm instead of 0.07 mm).
     bundle_readings : bool
         The bundle refines every view's table reading under a prior of one resolution step (``table.yaml``'s
         ``resolution_mm`` / ``resolution_deg``, a uniform quantisation: step / sqrt(12)); False: readings exact.
@@ -265,6 +270,7 @@ class PositioningConfig:
     methods: tuple = ("quaternion", "lms", "quaternion_ratio", "lms_ratio")
     bundle_R0_prior_deg: float = R0_PRIOR_DEG
     bundle_intraocular_mm: tuple | None = None
+    bundle_centre: bool = False
     bundle_readings: bool = False
     bias_grid_y_deg: tuple = (-12.0, 12.0, 0.5)
     bias_grid_z_deg: tuple = (-5.0, 5.0, 0.1)
@@ -453,7 +459,7 @@ def _bundle_estimate(d_mm, a, b, kmap, used, start, obs, features, matches, read
     sigma = np.array([spec.resolution_m, spec.resolution_m, spec.resolution_rad]) / np.sqrt(12)  # one step
     res = pair_bundle(read[[names.index(n) for n in views]], in_pair, T_table_ref @ T, R0, spec.camera_offset_m,
                       camera.K, camera.dist, view, point, uv, X, cov_K, sigma if cfg.bundle_readings else None,
-                      cov_dist, spec.camera_offset_sigma_m, cfg.bundle_R0_prior_deg)
+                      cov_dist, spec.camera_offset_sigma_m if cfg.bundle_centre else None, cfg.bundle_R0_prior_deg)
     return Combination(d_mm * 1e-3, a, b, BUNDLE, res.success, res.message, res.p_table, len(kmap), n_pairs_3d,
                        n_ransac, res.observations, res.cov_p)
 

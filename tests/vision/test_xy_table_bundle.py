@@ -73,7 +73,8 @@ def test_noise_free_bundle_is_exact(wrong):
     centre = np.array([5e-4, 3e-4, 1e-3]) if "centre" in wrong else np.zeros(3)  # true centre minus the nominal
     feats, readings, T_tc = _scene(READ, centre, R0, "p11", n_points=400)
     spec = TableSpec(np.zeros(3), camera_offset_sigma_m=np.full(3, 1e-3) if "centre" in wrong else None)
-    cfg = PositioningConfig(reference="p11", intraocular_mm=(50.0, 100.0), methods=("lms_ratio", "bundle"))
+    cfg = PositioningConfig(reference="p11", intraocular_mm=(50.0, 100.0), methods=("lms_ratio", "bundle"),
+                            bundle_centre="centre" in wrong)
     camera = CAMERA
     if "K" in wrong:
         K = CAMERA.K.copy()
