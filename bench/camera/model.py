@@ -190,6 +190,31 @@ def distortion_parameter_jacobian(x_n) -> np.ndarray:
     return J
 
 
+def thin_prism(x_n, s) -> np.ndarray:
+    """The thin-prism displacement ``(s1 r^2 + s2 r^4, s3 r^2 + s4 r^4)`` (N, 2) of normalized points ``x_n`` (N, 2):
+    a lens element tilted or decentred (Weng, Cohen & Herniou, PAMI 14(10) 1992; OpenCV's thin-prism terms). Added
+    to :func:`distort`'s output where a model carries it (the x-y table's bundle)."""
+    x_n, s = np.asarray(x_n, float), np.asarray(s, float)
+    r2 = np.sum(x_n**2, axis=-1)
+    return np.stack([s[0] * r2 + s[1] * r2**2, s[2] * r2 + s[3] * r2**2], -1)
+
+
+def thin_prism_jacobian(x_n, s) -> np.ndarray:
+    """``d thin_prism(x_n) / d x_n`` (N, 2, 2)."""
+    x_n, s = np.asarray(x_n, float), np.asarray(s, float)
+    r2 = np.sum(x_n**2, axis=-1)
+    gx, gy = s[0] + 2 * s[1] * r2, s[2] + 2 * s[3] * r2  # d(.)/d(r^2)
+    return 2 * np.stack([gx[:, None] * x_n, gy[:, None] * x_n], -2)
+
+
+def thin_prism_parameter_jacobian(x_n) -> np.ndarray:
+    """``d thin_prism(x_n) / d (s1, s2, s3, s4)`` (N, 2, 4) (linear in them)."""
+    r2 = np.sum(np.asarray(x_n, float) ** 2, axis=-1)
+    J = np.zeros((len(r2), 2, 4))
+    J[:, 0, 0], J[:, 0, 1], J[:, 1, 2], J[:, 1, 3] = r2, r2**2, r2, r2**2
+    return J
+
+
 @dataclass(frozen=True)
 class UndistortResult:
     """Outcome of :func:`undistort` with ``full_output=True``.

@@ -132,7 +132,7 @@ SCHEMA = {
         "r_lim": (float, 0.1),
         "bundle": (bool, True),                 # the ML bundle beside the four (bench.vision.xy_table_bundle)
         "bundle_intraocular_mm": (list, [50, 100]),  # of intraocular_mm, the d_o where it runs too (~0.3 s each)
-        "bundle_distortion_sigma": (list, [0.3, 0.3, 0.03, 0.03]),  # prior std of k1 k2 p1 p2 about the camera's
+        "bundle_distortion_sigma": (list, [0.3, 0.3, 0.03, 0.03]),  # k1 k2 p1 p2 (8: and the thin prism s1..s4)
         "bundle_readings": (bool, False),       # also refine every view's reading (prior: one resolution step)
         "bundle_centre": (bool, False),         # also refine the camera centre (prior: table.yaml's tolerance)
     },
@@ -227,10 +227,11 @@ def _check(cfg):
     if bad:
         raise ConfigError(src, "pipeline.bundle_intraocular_mm", f"expected positive distances (mm), got {bad[0]!r}")
     sd = p["bundle_distortion_sigma"]
-    if sd and not (len(sd) == 4 and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0
-                                        for x in sd)):
-        raise ConfigError(src, "pipeline.bundle_distortion_sigma", f"expected [] or four standard deviations > 0 "
-                                                                    f"(k1, k2, p1, p2), got {sd!r}")
+    if sd and not (len(sd) in (4, 8) and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0
+                                             for x in sd)):
+        raise ConfigError(src, "pipeline.bundle_distortion_sigma", f"expected [], four standard deviations > 0 "
+                                                                    f"(k1, k2, p1, p2) or eight (and the thin prism's "
+                                                                    f"s1..s4), got {sd!r}")
     d = cfg["bound"]["mc_intraocular_mm"]
     if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in d):
         raise ConfigError(src, "bound.mc_intraocular_mm", f"expected positive distances (mm), got {d!r}")

@@ -49,7 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.camera.model import distortion_parameter_jacobian
+from bench.camera.model import distortion_parameter_jacobian, thin_prism_parameter_jacobian
 from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
 from bench.geometry.transforms import invert, transform_points
 from bench.scenario.bounds import (
@@ -202,13 +202,14 @@ class _PairModel(MultiViewModel):
     rotation vector, then translation), ``table`` (the table's errors, :class:`TableKinematics`), optionally
     ``d_R0`` (the camera's rotation on its support, a right perturbation ``R0 exp(w)`` about its centre, rad) and
     ``d_K`` (``dfx, dfy, dcx, dcy`` px, applied to the pixels as ``c + dc + (f + df) / f (uv - c)`` with ``K`` the
-    true lens's: exact for a lens whose distortion acts before K) and ``d_dist`` (``dk1, dk2, dp1, dp2``, applied to
+    true lens's: exact for a lens whose distortion acts before K) and ``d_dist`` (``dk1, dk2, dp1, dp2``, and with
+    ``n_dist = 8`` the thin prism's ``s1..s4`` (:func:`bench.camera.model.thin_prism`), applied to
     the pixels to first order as ``K d distort(x_n) / d(k1, k2, p1, p2) d_dist`` at the points' pinhole coordinates
     ``x_n``: exact in the derivative for a lens in air, the in-water direction behind a port) and ``d_o`` (the camera
     centre on the stage, m, in the mount frame), then the points."""
 
     def __init__(self, kin: TableKinematics, views, locate, pivot, X, project, size, vis, K=None,
-                 with_R0: bool = False, K_lens=None, with_offset: bool = False):
+                 with_R0: bool = False, K_lens=None, with_offset: bool = False, n_dist: int = 4):
         self.kin, self.idx = kin, np.array([kin.names.index(n) for n in views])
         self.locate, self.pivot = np.asarray(locate, bool), np.asarray(pivot, float)
         self.K, self.with_R0 = (None if K is None else np.asarray(K, float)), bool(with_R0)
@@ -225,8 +226,8 @@ class _PairModel(MultiViewModel):
             blocks.append(Block("d_K", 4, step=1e-3))
             values.append(np.zeros(4))
         if self.K_lens is not None:
-            blocks.append(Block("d_dist", 4, step=1e-6))
-            values.append(np.zeros(4))
+            blocks.append(Block("d_dist", n_dist, step=1e-6))
+            values.append(np.zeros(n_dist))
         if self.with_offset:
             blocks.append(Block("d_o", 3))
             values.append(np.zeros(3))
@@ -262,8 +263,11 @@ class _PairModel(MultiViewModel):
         if d_dist is not None:
             T_cam_world = np.linalg.inv(self.camera_poses(*values))
             p = np.matmul(X, np.swapaxes(T_cam_world[:, :3, :3], 1, 2)) + T_cam_world[:, None, :3, 3]  # (V, M, 3)
-            J = distortion_parameter_jacobian((p[..., :2] / p[..., 2:3]).reshape(-1, 2)).reshape(*p.shape[:2], 2, 4)
-            uv = uv + np.einsum("ij,vmjk,k->vmi", self.K_lens[:2, :2], J, d_dist)
+            x_n = (p[..., :2] / p[..., 2:3]).reshape(-1, 2)
+            J = distortion_parameter_jacobian(x_n)
+            if len(d_dist) == 8:  # and the thin prism's s1..s4
+                J = np.concatenate([J, thin_prism_parameter_jacobian(x_n)], axis=-1)
+            uv = uv + np.einsum("ij,vmjk,k->vmi", self.K_lens[:2, :2], J.reshape(*p.shape[:2], 2, -1), d_dist)
         if d_K is None:
             return uv
         f, c = np.array([self.K[0, 0], self.K[1, 1]]), self.K[:2, 2]
@@ -294,7 +298,8 @@ class Unknowns:
 
     def model_kwargs(self) -> dict:
         return {"K": self.K if self.cov_K is not None else None, "with_R0": self.R0_free,
-                "K_lens": self.K if self.cov_dist is not None else None, "with_offset": self.offset_sigma is not None}
+                "K_lens": self.K if self.cov_dist is not None else None, "with_offset": self.offset_sigma is not None,
+                "n_dist": 4 if self.cov_dist is None else len(self.cov_dist)}
 
     def priors(self) -> dict:
         out = {}

@@ -164,9 +164,7 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
     # priors weigh s^2 info0 in pixel units, so on near-exact data they would otherwise pull the estimate by s^2
     while k < rounds or (k < rounds + EXTRA_ROUNDS and s_px < 0.5 * s_used):
         k, s_used = k + 1, s_px
-        # in units of the pixel residuals' weight; the floor keeps what only the priors hold (a gauge) held on
-        # exact data
-        prior_info = info0 * s_px**2
+        prior_info = info0 * s_px**2  # in units of the pixel residuals' weight
         for _ in range(iterations):
             it_total += 1
             r, J, J_pt, z_min = problem.linearise(theta, X)

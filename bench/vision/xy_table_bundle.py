@@ -28,7 +28,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.camera.model import check_dist, distort, distortion_jacobian, distortion_parameter_jacobian
+from bench.camera.model import (
+    check_dist,
+    distort,
+    distortion_jacobian,
+    distortion_parameter_jacobian,
+    thin_prism,
+    thin_prism_jacobian,
+    thin_prism_parameter_jacobian,
+)
 from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import invert, rot_y
 from bench.vision.bundle import solve
@@ -86,18 +94,21 @@ class PairProblem:
     step = 1e-7
 
     def __init__(self, readings, in_pair, C0, pivot, R0, offset_m, K, dist, view, point, uv, with_K: bool,
-                 with_readings: bool = False, with_dist: bool = False, with_offset: bool = False):
+                 with_readings: bool = False, with_dist: int = 0, with_offset: bool = False):
         self.read, self.in_pair = np.asarray(readings, float), np.asarray(in_pair, bool)
         self.C0, self.pivot = np.asarray(C0, float), np.asarray(pivot, float)
         self.R0, self.offset = np.asarray(R0, float), np.asarray(offset_m, float)
         self.K = np.asarray(K, float)
         self.dist = np.zeros(5) if dist is None or not len(dist) else check_dist(dist)
         self.view, self.point, self.uv = np.asarray(view, int), np.asarray(point, int), np.asarray(uv, float)
-        self.with_K, self.with_readings, self.with_dist = bool(with_K), bool(with_readings), bool(with_dist)
+        if with_dist not in (0, 4, 8):
+            raise ValueError(f"with_dist: 0, 4 (k1 k2 p1 p2) or 8 (and the thin prism s1..s4), got {with_dist!r}")
+        self.with_K, self.with_readings, self.n_dist = bool(with_K), bool(with_readings), int(with_dist)
+        self.with_dist = self.n_dist > 0
         self.with_offset = bool(with_offset)
         self.V = len(self.read)
         self.k_dist = 9 + 4 * self.with_K  # where the distortion's corrections start
-        self.k_off = self.k_dist + 4 * self.with_dist  # the camera centre's on the stage
+        self.k_off = self.k_dist + self.n_dist  # the camera centre's on the stage
         self.k_read = self.k_off + 3 * self.with_offset  # the readings'
         #: the columns differentiated numerically with every view at once: the pair, R0 and the centre
         self.shared_fd = [*range(9), *range(self.k_off, self.k_read)]
@@ -116,6 +127,15 @@ class PairProblem:
         if not self.with_dist:
             return self.dist
         return self.dist + np.r_[theta[self.k_dist:self.k_dist + 4], 0.0]
+
+    def prism(self, theta) -> np.ndarray:
+        """The thin prism's ``s1, s2, s3, s4`` (zero unless estimated)."""
+        return theta[self.k_dist + 4:self.k_off] if self.n_dist == 8 else np.zeros(4)
+
+    def distorted(self, x_n, theta) -> np.ndarray:
+        """Normalized points through the lens: Eq. 75-76 (and the thin prism when estimated)."""
+        x_d = distort(x_n, self.distortion(theta))
+        return x_d + thin_prism(x_n, self.prism(theta)) if self.n_dist == 8 else x_d
 
     def rotation(self, theta) -> np.ndarray:
         """``R0 exp(w)`` (..., 3, 3): the camera's rotation on its support."""
@@ -164,7 +184,7 @@ class PairProblem:
         """Pixel residuals ``uv - K distort(pi(p_cam))`` (N, 2) (a trial step may make ``K`` invalid: no check)."""
         p = self.camera_points(invert(self.poses(theta)), X)
         K = self.intrinsics(theta)
-        return self.uv - (distort(p[:, :2] / p[:, 2:3], self.distortion(theta)) @ K[:2, :2].T + K[:2, 2])
+        return self.uv - (self.distorted(p[:, :2] / p[:, 2:3], theta) @ K[:2, :2].T + K[:2, 2])
 
     def linearise(self, theta, X) -> tuple:
         """Residuals (N, 2), ``J (N, 2, n)``, ``J_pt (N, 2, 3)`` and the smallest depth of a point in a camera.
@@ -185,11 +205,14 @@ class PairProblem:
         z = p[:, 2]
         x_n = p[:, :2] / z[:, None]
         dist = self.distortion(theta)
-        x_d = distort(x_n, dist)
+        x_d = self.distorted(x_n, theta)
         Jproj = np.zeros((len(p), 2, 3))
         Jproj[:, 0, 0] = Jproj[:, 1, 1] = 1.0 / z
         Jproj[:, :, 2] = -x_n / z[:, None]
-        A = K[:2, :2] @ distortion_jacobian(x_n, dist) @ Jproj  # d uv / d p_cam (N, 2, 3)
+        D = distortion_jacobian(x_n, dist)
+        if self.n_dist == 8:
+            D = D + thin_prism_jacobian(x_n, self.prism(theta))
+        A = K[:2, :2] @ D @ Jproj  # d uv / d p_cam (N, 2, 3)
         J = np.zeros((len(p), 2, self.n))
         dr = -np.einsum("nij,cnj->nic", A, (P[1:1 + m] - P[1 + m:]) / (2 * self.step))  # (N, 2, m)
         J[:, :, self.shared_fd] = dr[:, :, :ns]
@@ -197,6 +220,8 @@ class PairProblem:
             J[:, 0, 9], J[:, 1, 10], J[:, 0, 11], J[:, 1, 12] = -x_d[:, 0], -x_d[:, 1], -1.0, -1.0
         if self.with_dist:
             J[:, :, self.k_dist:self.k_dist + 4] = -K[:2, :2] @ distortion_parameter_jacobian(x_n)
+        if self.n_dist == 8:
+            J[:, :, self.k_dist + 4:self.k_off] = -K[:2, :2] @ thin_prism_parameter_jacobian(x_n)
         rows = np.arange(len(p))
         for c in range(3 * self.with_readings):
             J[rows, :, self.k_read + 3 * self.view + c] = dr[:, :, ns + c]
@@ -260,9 +285,10 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
         Starting points (table frame, m); each observed at least twice.
     cov_K : ndarray (4, 4), optional
         Covariance (px^2) of ``fx, fy, cx, cy`` from the rig calibration: given, they are refined under it.
-    cov_dist : ndarray (4, 4), optional
+    cov_dist : ndarray (4, 4) or (8, 8), optional
         Covariance of the distortion's ``k1, k2, p1, p2`` (from the calibration, or a loose prior about zero for a
-        pin-hole calibration): given, they are refined under it.
+        pin-hole calibration), and of the thin prism's ``s1, s2, s3, s4`` about zero with 8: given, they are refined
+        under it.
     offset_sigma : (3,), optional
         The stated tolerance (1 sigma per axis, m) of the camera centre on the stage (``table.yaml``): given, the
         centre is refined under it; None: exact.
@@ -289,8 +315,8 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
     i_a = int(np.flatnonzero(in_pair)[0])
     C0 = np.asarray(T_table_a0, float) @ invert(stage_poses_of(readings[i_a]) @ X0)  # the readings' pair moved
     problem = PairProblem(readings, in_pair, C0, np.asarray(T_table_a0, float)[:3, 3], R0, offset_m, K, dist, view,
-                          point, uv, cov_K is not None, reading_sigma is not None, cov_dist is not None,
-                          offset_sigma is not None)
+                          point, uv, cov_K is not None, reading_sigma is not None,
+                          0 if cov_dist is None else len(cov_dist), offset_sigma is not None)
     n = problem.n
     info0 = np.zeros((n, n))
     info0[6:9, 6:9] = np.eye(3) / np.deg2rad(R0_prior_deg) ** 2

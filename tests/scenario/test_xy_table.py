@@ -172,7 +172,7 @@ def test_truth_injection_is_labelled(tmp_path):
     ("pipeline.camera=perfect", "pipeline.camera: expected one of calibrated, nominal, truth, got 'perfect'"),
     ("sim.positions=[1, 2, 30]", r"sim.positions: pose 30 is not in table4 \(1..21\)"),
     ("pipeline.features=corners", "pipeline.features: corners need the rig as reference object"),
-    ("pipeline.bundle_distortion_sigma=[0.3, 0.3]", r"pipeline.bundle_distortion_sigma: expected \[\] or four"),
+    ("pipeline.bundle_distortion_sigma=[0.3, 0.3]", r"pipeline.bundle_distortion_sigma: expected \[\], four"),
     ("pipeline.bundle_intraocular_mm=[-50]", "pipeline.bundle_intraocular_mm: expected positive distances"),
 ])
 def test_bad_scenario_keys_are_one_line_errors(override, message, tmp_path):

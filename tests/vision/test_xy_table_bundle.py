@@ -21,6 +21,7 @@ READ = lab_table_model().read(table4_commands())
 R0 = mount_rotation(0.3 * DEG, 6.2 * DEG, -1.8 * DEG)
 R0_SEARCHED = mount_rotation(0.3 * DEG, 7.0 * DEG, -0.5 * DEG)  # the search is ~2 deg off in the scenario
 COV_K = np.diag([30.0, 30.0, 10.0, 10.0]) ** 2
+COV_DIST = np.diag([0.3, 0.3, 0.03, 0.03, 3e-3, 3e-3, 3e-3, 3e-3]) ** 2  # k1 k2 p1 p2 and the thin prism's s1..s4
 
 
 def _setup(rng, n=60):
@@ -39,19 +40,20 @@ DIST = np.array([-0.1, 0.05, 1e-3, -2e-3, 0.0])
 
 
 def test_jacobian_matches_difference_quotients():
-    """Every block (pair, R0, intrinsics, distortion, centre, readings) and the points against central
-    differences."""
+    """Every block (pair, R0, intrinsics, distortion with the thin prism, centre, readings) and the points against
+    central differences."""
     rng = np.random.default_rng(0)
     read, T, X, view, point, in_pair, uv = _setup(rng)
     T_a0 = T[4].copy()
     T_a0[:3, 3] += (0.002, -0.001, 0.003)
     p = PairProblem(read, in_pair, T_a0 @ np.linalg.inv(T[4]), T_a0[:3, 3], R0_SEARCHED, np.zeros(3), CAMERA.K, DIST,
-                    view, point, uv, True, True, True, True)
+                    view, point, uv, True, True, 8, True)
     X = X + rng.normal(0, 1e-3, X.shape)
-    scale = np.r_[np.ones(9), 100 * np.ones(4), 0.1 * np.ones(4), 0.1 * np.ones(3), np.tile([1e-3, 1e-3, 1e-3], p.V)]
+    scale = np.r_[np.ones(9), 100 * np.ones(4), 0.1 * np.ones(4), 0.1 * np.ones(4), 0.1 * np.ones(3),
+                  np.tile([1e-3, 1e-3, 1e-3], p.V)]
     theta = rng.normal(0, 1e-2, p.n) * scale
     r, J, J_pt, z = p.linearise(theta, X)
-    assert p.n == 9 + 4 + 4 + 3 + 3 * 6 and z > 0 and np.array_equal(r, p.residuals(theta, X))
+    assert p.n == 9 + 4 + 8 + 3 + 3 * 6 and z > 0 and np.array_equal(r, p.residuals(theta, X))
     h = 1e-6
     for c in range(p.n):
         e = np.zeros(p.n)
@@ -65,10 +67,10 @@ def test_jacobian_matches_difference_quotients():
         assert np.abs(J_pt[:, :, k] - fd).max() <= 1e-5 * np.abs(fd).max()
 
 
-@pytest.mark.parametrize("wrong", ["none", "R0", "R0+K+dist", "R0+K+dist+centre"])
+@pytest.mark.parametrize("wrong", ["none", "R0", "R0+K+dist", "R0+K+dist+prism", "R0+K+dist+centre"])
 def test_noise_free_bundle_is_exact(wrong):
-    """Exact pixels: whatever R0, intrinsics, distortion and camera centre on the stage it starts from (under
-    priors), the bundle finds every camera a to <= 1e-9 m - where the thesis's estimators, given the same wrong R0,
+    """Exact pixels: whatever R0, intrinsics, distortion (with or without the thin prism) and camera centre on the
+    stage it starts from (under priors), the bundle finds every camera a to <= 1e-9 m - where the thesis's estimators, given the same wrong R0,
     camera and centre, err by millimetres."""
     centre = np.array([5e-4, 3e-4, 1e-3]) if "centre" in wrong else np.zeros(3)  # true centre minus the nominal
     feats, readings, T_tc = _scene(READ, centre, R0, "p11", n_points=400)
@@ -84,7 +86,7 @@ def test_noise_free_bundle_is_exact(wrong):
         camera = CAMERA.replace(K=K, dist=np.array([0.02, -0.05, 1e-3, -1e-3, 0.0]), model="heikkila")
     res = estimate_positions(feats, readings, camera, spec, cfg, R0=R0 if wrong == "none" else
                              R0_SEARCHED, cov_K=COV_K if "K" in wrong else None,
-                             cov_dist=np.diag([0.3, 0.3, 0.03, 0.03]) ** 2 if "dist" in wrong else None)
+                             cov_dist=(COV_DIST if "prism" in wrong else COV_DIST[:4, :4]) if "dist" in wrong else None)
     err = {m: [] for m in cfg.methods}
     for c in res.combinations:
         assert c.success, c.message
