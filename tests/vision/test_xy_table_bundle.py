@@ -70,8 +70,8 @@ def test_jacobian_matches_difference_quotients():
 @pytest.mark.parametrize("wrong", ["none", "R0", "R0+K+dist", "R0+K+dist+prism", "R0+K+dist+centre"])
 def test_noise_free_bundle_is_exact(wrong):
     """Exact pixels: whatever R0, intrinsics, distortion (with or without the thin prism) and camera centre on the
-    stage it starts from (under priors), the bundle finds every camera a to <= 1e-9 m - where the thesis's estimators, given the same wrong R0,
-    camera and centre, err by millimetres."""
+    stage it starts from (under priors), the bundle finds every camera a to <= 1e-9 m - where the thesis's
+    estimators, given the same wrong R0, camera and centre, err by millimetres."""
     centre = np.array([5e-4, 3e-4, 1e-3]) if "centre" in wrong else np.zeros(3)  # true centre minus the nominal
     feats, readings, T_tc = _scene(READ, centre, R0, "p11", n_points=400)
     spec = TableSpec(np.zeros(3), camera_offset_sigma_m=np.full(3, 1e-3) if "centre" in wrong else None)
