@@ -131,7 +131,7 @@ SCHEMA = {
         "d_r_mm": (float, 20.0),
         "r_lim": (float, 0.1),
         "bundle": (bool, True),                 # the ML bundle beside the four (bench.vision.xy_table_bundle)
-        "bundle_intraocular_mm": (list, [50, 100]),  # of intraocular_mm, the d_o where it runs too (~0.3 s each)
+        "bundle_intraocular_mm": (list, [50, 100]),  # d_o (among intraocular_mm) where it runs too (~0.3 s each)
         "bundle_distortion_sigma": (list, [0.3, 0.3, 0.03, 0.03]),  # k1 k2 p1 p2 (8: and the thin prism s1..s4)
         "bundle_readings": (bool, False),       # also refine every view's reading (prior: one resolution step)
         "bundle_centre": (bool, False),         # also refine the camera centre (prior: table.yaml's tolerance)
@@ -223,9 +223,13 @@ def _check(cfg):
     if not d or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in d):
         raise ConfigError(src, "pipeline.intraocular_mm", f"expected positive distances (mm), got {d!r}")
     bad = [x for x in p["bundle_intraocular_mm"] if not (isinstance(x, (int, float)) and not isinstance(x, bool)
-                                                         and x > 0)]
-    if bad:
-        raise ConfigError(src, "pipeline.bundle_intraocular_mm", f"expected positive distances (mm), got {bad[0]!r}")
+                                                         and any(abs(x - y) < 1e-9 for y in d))]
+    if p["bundle"] and bad:
+        raise ConfigError(src, "pipeline.bundle_intraocular_mm", f"{bad[0]!r} is not among pipeline.intraocular_mm "
+                                                                 f"({', '.join(f'{y:g}' for y in d)})")
+    if p["bundle"] and p["bundle_centre"] and not s["camera_centre_tolerance_mm"] > 0:
+        raise ConfigError(src, "pipeline.bundle_centre", "needs the centre's tolerance (sim.camera_centre_tolerance_mm "
+                                                         "> 0, written to table.yaml)")
     sd = p["bundle_distortion_sigma"]
     if sd and not (len(sd) in (4, 8) and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0
                                              for x in sd)):

@@ -296,6 +296,10 @@ class Unknowns:
     cov_dist: np.ndarray | None = None
     offset_sigma: np.ndarray | None = None
 
+    def __post_init__(self):
+        if (self.cov_K is not None or self.cov_dist is not None) and self.K is None:
+            raise ValueError("Unknowns: the intrinsics' or the distortion's prior needs K (the true lens's)")
+
     def model_kwargs(self) -> dict:
         return {"K": self.K if self.cov_K is not None else None, "with_R0": self.R0_free,
                 "K_lens": self.K if self.cov_dist is not None else None, "with_offset": self.offset_sigma is not None,

@@ -37,7 +37,8 @@ class BundleSolution:
     ``theta`` (n,) and ``X`` (M, 3) the estimates (the start when ``success`` is False); ``keep`` (N,) bool the
     observations the gate kept; ``sigma_px`` the pixel noise the kept residuals give; ``S`` (n, n) the reduced
     normal matrix at the solution in units of the pixel residuals (its inverse times ``sigma_px^2`` is the
-    parameters' covariance; NaN on failure); ``iterations`` Gauss-Newton steps taken.
+    parameters' covariance; NaN on failure); ``iterations`` Gauss-Newton steps taken; ``converged`` whether the last
+    round ended on a convergence test rather than on its iteration limit.
     """
 
     success: bool
@@ -48,6 +49,7 @@ class BundleSolution:
     sigma_px: float
     S: np.ndarray
     iterations: int
+    converged: bool = False
 
     def covariance(self) -> np.ndarray:
         """First-order covariance ``sigma_px^2 S^-1`` (n, n) of ``theta``, the points marginalised."""
@@ -165,6 +167,7 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
     while k < rounds or (k < rounds + EXTRA_ROUNDS and s_px < 0.5 * s_used):
         k, s_used = k + 1, s_px
         prior_info = info0 * s_px**2  # in units of the pixel residuals' weight
+        converged = False
         for _ in range(iterations):
             it_total += 1
             r, J, J_pt, z_min = problem.linearise(theta, X)
@@ -185,13 +188,16 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
             dX, t = points_step(dc), 1.0
             c0 = _cost(problem, theta, X, keep, prior_info, mean)
             if -float(g @ dc) <= 1e-12 * c0:
+                converged = True
                 break  # the quadratic model's decrease is at rounding level: converged
             while t > 1e-4 and not _cost(problem, theta + t * dc, X + t * dX, keep, prior_info, mean) <= c0:
                 t /= 2
             if t <= 1e-4:
+                converged = True
                 break  # no descent along the step: at the minimum to numerical precision
             theta, X = theta + t * dc, X + t * dX
             if np.abs(t * dc).max() < 1e-12:
+                converged = True
                 break
         e = np.linalg.norm(problem.residuals(theta, X), axis=1)
         if gate:
@@ -199,10 +205,19 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
         dof = max(2 * int(keep.sum()) - 3 * int(np.unique(point[keep]).size) - dof_offset, 1)
         s_px = float(np.sqrt(np.sum(e[keep] ** 2) / dof))
     r, J, J_pt, _ = problem.linearise(theta, X)
-    S, _, _ = normal_equations(point, r, J, J_pt, M, info0 * max(s_px, SIGMA_FLOOR_PX) ** 2, np.zeros(n), keep)
+    w = info0 * max(s_px, SIGMA_FLOOR_PX) ** 2
+    S, g, _ = normal_equations(point, r, J, J_pt, M, w, w @ (theta - mean), keep)
     d = np.sqrt(np.abs(np.diag(S)))
     if not (np.all(d > 0) and np.linalg.eigvalsh(S / np.outer(d, d)).min() > RCOND):
         # a parameter neither the pixels nor a prior hold (a degenerate view set): no covariance to report
         return BundleSolution(False, "singular reduced system (a parameter nothing observes)", theta, X, keep, s_px,
                               nan, it_total)
-    return BundleSolution(True, "ok", theta, X, keep, s_px, S, it_total)
+    if not converged:  # out of iterations: converged all the same if the step left is a tiny part of each sigma
+        S_l, g_l, _ = normal_equations(point, r, J, J_pt, M, prior_info, prior_info @ (theta - mean), keep)
+        d_l = np.sqrt(np.maximum(np.diag(S_l), RCOND * np.diag(S_l).max()))
+        # the Gauss-Newton step left on the last round's objective, scaled by sqrt(diag S): a sigma is ~ s_px there
+        step = np.linalg.lstsq(S_l / np.outer(d_l, d_l), g_l / d_l, rcond=RCOND)[0]
+        # residuals below SIGMA_FLOOR_PX are an exact fit: no image is that clean
+        converged = bool(np.abs(step).max() < 1e-3 * s_px) or s_px < SIGMA_FLOOR_PX
+    return BundleSolution(True, "ok" if converged else f"ok; the last round stopped at its {iterations} iterations",
+                          theta, X, keep, s_px, S, it_total, converged)

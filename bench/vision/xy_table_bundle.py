@@ -335,11 +335,12 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
     sol = solve(problem, np.zeros(n), np.zeros(n), info0, X, sigma_px, iterations, rounds, gate, dof_offset=6,
                 gate_groups=problem.view,
                 groups_in_rounds=reading_sigma is not None)  # a view's misfit: its reading, when refined
-    if not sol.success:
-        return PairBundleResult(False, sol.message, nan3, np.full((3, 3), np.nan), problem.R0, problem.K,
-                                sol.sigma_px, np.nan, 0, sol.iterations)
-    G = np.zeros((3, n))  # d (c_a - c_ref) / d theta: the pair's displacement, the centre, the reference's reading
-    for c in [*range(6), *range(problem.k_off, problem.k_read + 3 * problem.with_readings)]:
+    if not (sol.success and sol.converged):  # an estimate off its optimum is not offered with a covariance
+        return PairBundleResult(False, sol.message if not sol.success else f"not converged ({sol.message})", nan3,
+                                np.full((3, 3), np.nan), problem.R0, problem.K, sol.sigma_px, np.nan, 0,
+                                sol.iterations)
+    G = np.zeros((3, n))  # d (c_a - c_ref) / d theta, every column (the pair, the centre, the readings of ref and a)
+    for c in range(n):
         e = np.zeros(n)
         e[c] = problem.step
         G[:, c] = (problem.centre_offset(sol.theta + e) - problem.centre_offset(sol.theta - e)) / (2 * problem.step)

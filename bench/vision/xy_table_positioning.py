@@ -508,6 +508,14 @@ def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, 
     if BUNDLE in cfg.methods and "lms_ratio" not in thesis_methods:
         thesis_methods += ("lms_ratio",)  # the bundle starts from it
     align_cfg = replace(cfg, methods=thesis_methods)
+
+    def methods_at(d_mm):  # the bundle runs at its own distances only
+        return [m for m in cfg.methods if m != BUNDLE or cfg.bundle_intraocular_mm is None
+                or any(abs(d_mm - d) < 1e-9 for d in cfg.bundle_intraocular_mm)]
+
+    if BUNDLE in cfg.methods and cfg.bundle_centre and spec.camera_offset_sigma_m is None:
+        raise ConfigError("table.yaml", "camera_offset_tolerance_mm",
+                          "the bundle's camera centre (bundle_centre) needs the centre's stated tolerance")
     read = check_readings(np.stack([readings[n] for n in names]), spec, names)
     T_table_stage = stage_poses(read)
     obs = {}
@@ -564,7 +572,7 @@ def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, 
             if kmap is None or n_map < 3:
                 msg = "no views left for 1p" if kmap is None else f"the map has {n_map} points (need >= 3)"
                 combos += [Combination(d_mm * 1e-3, a, b, m, False, msg, np.full(3, np.nan), n_map, 0, 0, 0)
-                           for m in cfg.methods]
+                           for m in methods_at(d_mm)]
                 continue
             # the 1p <-> 2p correspondences (Eq. 165-166) come from locate(); the alignment is redone per method
             loc = locate(kmap, obs[a], obs[b], cfg.map, method="svd", d_r=cfg.d_r_m, iterations=cfg.ransac_iterations,
@@ -573,7 +581,7 @@ def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, 
             t_locate += t4 - t3
             if loc.p1 is None or len(loc.p1) < 3:
                 combos += [Combination(d_mm * 1e-3, a, b, m, False, loc.message, np.full(3, np.nan), n_map,
-                                       0 if loc.p1 is None else len(loc.p1), 0, 0) for m in cfg.methods]
+                                       0 if loc.p1 is None else len(loc.p1), 0, 0) for m in methods_at(d_mm)]
                 continue
             aligned = _align(loc.p1, loc.p2, align_cfg, (cfg.seed, k))
             for m, (T, ok, msg, n_ransac, n_kept) in aligned.items():
@@ -583,8 +591,7 @@ def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, 
                 combos.append(Combination(d_mm * 1e-3, a, b, m, ok, msg, p, n_map, len(loc.p1), n_ransac, n_kept))
             t5 = time.perf_counter()
             t_align += t5 - t4
-            if BUNDLE in cfg.methods and (cfg.bundle_intraocular_mm is None or
-                                          any(abs(d_mm - d) < 1e-9 for d in cfg.bundle_intraocular_mm)):
+            if BUNDLE in methods_at(d_mm):
                 combos.append(_bundle_estimate(d_mm, a, b, kmap, used, aligned["lms_ratio"], obs, features,
                                                ref_matches, read, names, R0, spec, camera, cov_K, cov_dist,
                                                len(loc.p1), cfg))

@@ -25,8 +25,9 @@ UNDERWATER = ROOT / "scenarios" / "xy_table_underwater.yaml"
 SMOKE = ["sim.supersample=1", "sim.calibration_views=4", "outputs.cache=false", "outputs.plots=false",
          "bound.mc_trials=1", "sim.imaging=ideal"]
 SMOKE_WEBCAM = SMOKE + ["sim.positions=[1, 2, 4, 5, 6, 11, 12, 14, 15, 16, 17, 20, 21]",
-                        "pipeline.intraocular_mm=[20, 100]"]
-SMOKE_UNDERWATER = SMOKE + ["sim.positions=[1, 2, 5, 6, 9, 11, 12, 15, 16]", "pipeline.intraocular_mm=[10, 100]"]
+                        "pipeline.intraocular_mm=[20, 100]", "pipeline.bundle_intraocular_mm=[100]"]
+SMOKE_UNDERWATER = SMOKE + ["sim.positions=[1, 2, 5, 6, 9, 11, 12, 15, 16]", "pipeline.intraocular_mm=[10, 100]",
+                            "pipeline.bundle_intraocular_mm=[100]"]
 COLUMNS = {"d_mm", "method", "combinations", "err_x_mm", "err_y_mm", "err_z_mm"}
 
 
@@ -173,12 +174,20 @@ def test_truth_injection_is_labelled(tmp_path):
     ("sim.positions=[1, 2, 30]", r"sim.positions: pose 30 is not in table4 \(1..21\)"),
     ("pipeline.features=corners", "pipeline.features: corners need the rig as reference object"),
     ("pipeline.bundle_distortion_sigma=[0.3, 0.3]", r"pipeline.bundle_distortion_sigma: expected \[\], four"),
-    ("pipeline.bundle_intraocular_mm=[-50]", "pipeline.bundle_intraocular_mm: expected positive distances"),
+    ("pipeline.bundle_intraocular_mm=[55]", r"pipeline.bundle_intraocular_mm: 55 is not among pipeline.intraocular_mm"),
+    ("pipeline.bundle_intraocular_mm=[-50]", "pipeline.bundle_intraocular_mm: -50 is not among"),
 ])
 def test_bad_scenario_keys_are_one_line_errors(override, message, tmp_path):
     """Schema and value checks (the kind's validate()) fail before anything is rendered or created."""
     with pytest.raises(ConfigError, match=message) as exc:
         run_scenario_file(WEBCAM, out=tmp_path / "run", overrides=[override], verbose=False, quiet=True)
+    assert "\n" not in str(exc.value) and not (tmp_path / "run").exists()
+
+
+def test_bundle_centre_needs_a_stated_tolerance(tmp_path):
+    over = ["pipeline.bundle_centre=true", "sim.camera_centre_tolerance_mm=0"]
+    with pytest.raises(ConfigError, match="pipeline.bundle_centre: needs the centre's tolerance") as exc:
+        run_scenario_file(WEBCAM, out=tmp_path / "run", overrides=over, verbose=False, quiet=True)
     assert "\n" not in str(exc.value) and not (tmp_path / "run").exists()
 
 

@@ -8,6 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from bench.camera.model import thin_prism
 from bench.camera.presets import load_preset
 from bench.geometry.transforms import homogeneous, rot_x, rot_y, rot_z, transform_points
 from bench.scenario.bounds import ml_estimate, point_sigma_px
@@ -175,6 +176,14 @@ def test_complete_bound_blocks_and_monotonicity(scene):
     moved = cam.replace(dist=cam.dist + np.r_[dd, np.zeros(len(cam.dist) - 4)], model="heikkila")
     assert np.abs((uv - uv0) - (moved.project(p_cam) - cam.project(p_cam))).max() < 1e-9
     assert np.abs(uv - uv0).max() > 0.5  # the check is not vacuous
+    # with the thin prism (8 coefficients) its four move the pixels by K thin_prism(x_n, s) (linear in s)
+    m8 = _PairModel(kin, views, [n in PAIR for n in views], T0[PAIR[0]][:3, 3], X, cam.project, cam.size, vis,
+                    K_lens=cam.K, n_dist=8)
+    sp = np.array([5e-4, 1e-4, -5e-4, 2e-4])
+    uv8 = m8.pixels(*m8.values0[:-1], np.r_[np.zeros(4), sp], X)
+    x_n = p_cam[..., :2] / p_cam[..., 2:3]
+    shift = thin_prism(x_n.reshape(-1, 2), sp).reshape(x_n.shape) @ cam.K[:2, :2].T
+    assert np.abs((uv8 - m8.pixels(*m8.values0, X)) - shift).max() < 1e-9 and np.abs(shift).max() > 0.01
     prior = np.linalg.inv(table_error_prior(kin.params))
 
     def trace(unknowns):
