@@ -64,8 +64,13 @@ from bench.scenario.bounds import (
     true_projector,
 )
 from bench.vision.insitu import build_map
-from bench.vision.xy_table_bundle import R0_PRIOR_DEG
-from bench.vision.xy_table_positioning import PositioningConfig, TableSpec, estimate_positions, map_view_names
+from bench.vision.xy_table_positioning import (
+    R0_PRIOR_DEG,
+    PositioningConfig,
+    TableSpec,
+    estimate_positions,
+    map_view_names,
+)
 
 #: the table's error parameters (:class:`~bench.sim.scenes.xy_table.TableErrors`; the wobble as its two components)
 TABLE_ERRORS = ("scale_x", "scale_z", "scale_rot", "backlash_x_m", "backlash_z_m", "backlash_rot_rad",
@@ -282,7 +287,7 @@ class Unknowns:
     pipeline ran on the rig views (:attr:`~bench.camera.calibration.CalibrationResult.covariance`), ``K`` the true
     lens's (where the pixels are perturbed); ``None``: the intrinsics exact. ``R0_free``: the camera's rotation on its
     support is estimated from the same images (the thesis's search, Eq. 197-198), a free parameter of the bound, with
-    a loose prior of :data:`~bench.vision.xy_table_bundle.R0_PRIOR_DEG` (the pipeline's bundle uses the same) that
+    a loose prior of :data:`~bench.vision.xy_table_positioning.R0_PRIOR_DEG` (the pipeline's bundle uses the same) that
     only holds the rotation about the line of camera centres (which no image of a straight campaign sees and no
     camera position depends on). ``cov_dist`` (4, 4): the covariance of the distortion's ``k1, k2, p1, p2`` the
     pipeline states (its bundle's prior: a pin-hole calibration says nothing about them); ``None``: exact.

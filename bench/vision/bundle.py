@@ -23,8 +23,8 @@ from scipy.sparse import csr_matrix
 
 #: rounds :func:`solve` may add while the noise estimate still halves (exact data)
 EXTRA_ROUNDS = 4
-#: the smallest pixel noise (px) the priors are weighed with (no real image is this clean; on exact data it keeps
-#: the directions only the priors hold - a gauge - conditioned while their pull on the rest stays ~1e-10 relative)
+#: the smallest pixel noise (px) the final covariance weighs the priors with, and below which residuals are an exact
+#: fit (no real image is this clean): on exact data the directions only the priors hold - a gauge - stay conditioned
 SIGMA_FLOOR_PX = 1e-3
 #: relative singular-value cut-off of the Gauss-Newton step
 RCOND = 1e-12
@@ -104,6 +104,16 @@ def _gated(e, keep, point, M: int, gate: float, groups=None) -> np.ndarray:
     return seen_twice(point, ok, M)
 
 
+def _scaled_step(S, g) -> tuple:
+    """The Gauss-Newton step ``-S^-1 g`` by least squares on the system scaled by ``sqrt(diag S)`` (a direction only
+    a vanishing prior holds - a gauge, on exact data - stays where it is instead of amplifying rounding): ``(step,
+    scaled)``, ``scaled`` the step in units of ``1 / sqrt(diag S)`` (there a parameter's sigma is ~ the pixel noise)."""
+    diag = np.diag(S)
+    d = np.sqrt(np.maximum(diag, RCOND * diag.max()))  # a direction nothing holds stays where it is
+    scaled = -np.linalg.lstsq(S / np.outer(d, d), g / d, rcond=RCOND)[0]
+    return scaled / d, scaled
+
+
 def _cost(problem, theta, X, keep, prior_info, mean) -> float:
     """Sum of the kept observations' squared pixel residuals plus the priors' (in the same units)."""
     r = problem.residuals(theta, X)[keep]
@@ -177,10 +187,7 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
             diag = np.diag(S)
             if not (np.all(np.isfinite(diag)) and diag.max() > 0):
                 return failed("singular reduced system")
-            d = np.sqrt(np.maximum(diag, RCOND * diag.max()))  # a direction nothing holds stays where it is
-            # least squares on the scaled system: a direction only a (vanishing) prior holds - a gauge, on exact
-            # data - is left where it is instead of amplifying rounding
-            dc = -np.linalg.lstsq(S / np.outer(d, d), g / d, rcond=RCOND)[0] / d
+            dc, _ = _scaled_step(S, g)
             if not np.all(np.isfinite(dc)):
                 return failed("singular reduced system")
             # backtracking: the Gauss-Newton step is halved until the cost (pixels kept + priors) decreases - weakly
@@ -205,19 +212,16 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
         dof = max(2 * int(keep.sum()) - 3 * int(np.unique(point[keep]).size) - dof_offset, 1)
         s_px = float(np.sqrt(np.sum(e[keep] ** 2) / dof))
     r, J, J_pt, _ = problem.linearise(theta, X)
-    w = info0 * max(s_px, SIGMA_FLOOR_PX) ** 2
-    S, g, _ = normal_equations(point, r, J, J_pt, M, w, w @ (theta - mean), keep)
+    S, _, _ = normal_equations(point, r, J, J_pt, M, info0 * max(s_px, SIGMA_FLOOR_PX) ** 2, np.zeros(n), keep)
     d = np.sqrt(np.abs(np.diag(S)))
     if not (np.all(d > 0) and np.linalg.eigvalsh(S / np.outer(d, d)).min() > RCOND):
         # a parameter neither the pixels nor a prior hold (a degenerate view set): no covariance to report
         return BundleSolution(False, "singular reduced system (a parameter nothing observes)", theta, X, keep, s_px,
                               nan, it_total)
     if not converged:  # out of iterations: converged all the same if the step left is a tiny part of each sigma
-        S_l, g_l, _ = normal_equations(point, r, J, J_pt, M, prior_info, prior_info @ (theta - mean), keep)
-        d_l = np.sqrt(np.maximum(np.diag(S_l), RCOND * np.diag(S_l).max()))
-        # the Gauss-Newton step left on the last round's objective, scaled by sqrt(diag S): a sigma is ~ s_px there
-        step = np.linalg.lstsq(S_l / np.outer(d_l, d_l), g_l / d_l, rcond=RCOND)[0]
-        # residuals below SIGMA_FLOOR_PX are an exact fit: no image is that clean
-        converged = bool(np.abs(step).max() < 1e-3 * s_px) or s_px < SIGMA_FLOOR_PX
+        # the Gauss-Newton step left on the last round's objective, in units where a sigma is ~ s_px
+        _, step = _scaled_step(*normal_equations(point, r, J, J_pt, M, prior_info, prior_info @ (theta - mean),
+                                                 keep)[:2])
+        converged = bool(np.abs(step).max() < 1e-3 * s_px) or s_px < SIGMA_FLOOR_PX  # below it: an exact fit
     return BundleSolution(True, "ok" if converged else f"ok; the last round stopped at its {iterations} iterations",
                           theta, X, keep, s_px, S, it_total, converged)

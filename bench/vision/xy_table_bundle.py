@@ -38,11 +38,9 @@ from bench.camera.model import (
     thin_prism_parameter_jacobian,
 )
 from bench.geometry.quaternion import rotation_vector_to_matrix
-from bench.geometry.transforms import invert, rot_y
+from bench.geometry.transforms import invert
 from bench.vision.bundle import solve
-
-#: the loose prior (deg, per axis) on the camera's rotation on its support: the search's estimate is ~2 deg off
-R0_PRIOR_DEG = 10.0
+from bench.vision.xy_table_positioning import R0_PRIOR_DEG, stage_poses
 
 
 @dataclass(frozen=True)
@@ -73,16 +71,6 @@ def _displacements(xi, pivot) -> np.ndarray:
     D[..., :3, :3], D[..., 3, 3] = R, 1.0
     D[..., :3, 3] = pivot + xi[..., 3:] - R @ pivot
     return D
-
-
-def stage_poses_of(readings) -> np.ndarray:
-    """``T_table_stage (..., 4, 4)`` of readings ``(..., 3)`` ``[x_m, z_m, rot_rad]``: Trans(x, 0, z) Ry(rot) (as
-    :func:`bench.vision.xy_table_positioning.stage_poses`, batched)."""
-    r = np.asarray(readings, float)
-    T = np.zeros((*r.shape[:-1], 4, 4))
-    T[..., :3, :3] = rot_y(r[..., 2])
-    T[..., 0, 3], T[..., 2, 3], T[..., 3, 3] = r[..., 0], r[..., 1], 1.0
-    return T
 
 
 class PairProblem:
@@ -161,14 +149,10 @@ class PairProblem:
         X = np.zeros((*theta.shape[:-1], 1, 4, 4))
         X[..., :3, :3], X[..., 3, 3] = self.rotation(theta)[..., None, :, :], 1.0
         X[..., :3, 3] = self.centre_on_stage(theta)[..., None, :]
-        T = stage_poses_of(self.readings(theta)) @ X
+        T = stage_poses(self.readings(theta)) @ X
         T[..., self.in_pair, :, :] = (_displacements(theta[..., :6], self.pivot)[..., None, :, :] @ self.C0
                                       @ T[..., self.in_pair, :, :])
         return T
-
-    def centre_a(self, theta) -> np.ndarray:
-        """Camera ``a``'s centre (table frame, m): the pair's first view."""
-        return self.poses(theta)[..., np.flatnonzero(self.in_pair)[0], :3, 3]
 
     def centre_offset(self, theta) -> np.ndarray:
         """Camera ``a``'s centre relative to the reference camera's (view 0), table axes (m)."""
@@ -313,7 +297,7 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
     X0 = np.eye(4)
     X0[:3, :3], X0[:3, 3] = R0, offset_m
     i_a = int(np.flatnonzero(in_pair)[0])
-    C0 = np.asarray(T_table_a0, float) @ invert(stage_poses_of(readings[i_a]) @ X0)  # the readings' pair moved
+    C0 = np.asarray(T_table_a0, float) @ invert(stage_poses(readings[i_a])[0] @ X0)  # the readings' pair moved
     problem = PairProblem(readings, in_pair, C0, np.asarray(T_table_a0, float)[:3, 3], R0, offset_m, K, dist, view,
                           point, uv, cov_K is not None, reading_sigma is not None,
                           0 if cov_dist is None else len(cov_dist), offset_sigma is not None)

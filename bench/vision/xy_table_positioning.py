@@ -67,13 +67,15 @@ from bench.vision.features import Features, detect_sift
 from bench.vision.handeye import mount_rotation, search_mount_rotation
 from bench.vision.insitu import MapConfig, ViewObservation, build_map, locate, reference_matches
 from bench.vision.ransac import ransac_absolute_orientation
-from bench.vision.xy_table_bundle import R0_PRIOR_DEG, pair_bundle, pair_observations
 
 #: the four methods of Tables 5-8 (11-14): name -> (rotation estimator, error-ratio elimination)
 METHODS = {"quaternion": ("rodrigues", False), "lms": ("svd", False), "quaternion_ratio": ("rodrigues", True),
            "lms_ratio": ("svd", True)}
 #: the maximum-likelihood estimate beside them (:mod:`bench.vision.xy_table_bundle`, started from ``lms_ratio``'s)
 BUNDLE = "bundle"
+#: the bundle's loose prior (deg, per axis) on the camera's rotation on its support: the search's estimate is ~2 deg
+#: off; it holds only the rotation about the line of camera centres, which no view of a straight campaign observes
+R0_PRIOR_DEG = 10.0
 TABLE_SPEC_KEYS = {"camera_offset_mm", "camera_offset_tolerance_mm", "travel_mm", "resolution_mm", "resolution_deg",
                    "notes"}
 DESCRIPTOR_SIZE = 128
@@ -166,9 +168,10 @@ def check_readings(readings, spec: TableSpec, names=None, source="table.csv") ->
 
 
 def stage_poses(readings) -> np.ndarray:
-    """Nominal ``T_table_stage (N, 4, 4)`` of readings ``(N, 3)`` ``[x_m, z_m, rot_rad]``: Trans(x, 0, z) Ry(rot)."""
+    """Nominal ``T_table_stage (..., N, 4, 4)`` of readings ``(..., N, 3)`` ``[x_m, z_m, rot_rad]``: Trans(x, 0, z)
+    Ry(rot)."""
     r = np.atleast_2d(np.asarray(readings, dtype=float))
-    return homogeneous(rot_y(r[:, 2]), np.stack([r[:, 0], np.zeros(len(r)), r[:, 1]], -1))
+    return homogeneous(rot_y(r[..., 2]), np.stack([r[..., 0], np.zeros(r.shape[:-1]), r[..., 1]], -1))
 
 
 def stage_camera(R0, camera_offset_m) -> np.ndarray:
@@ -445,6 +448,8 @@ def _bundle_estimate(d_mm, a, b, kmap, used, start, obs, features, matches, read
                      cov_dist, n_pairs_3d, cfg) -> Combination:
     """The bundle's estimate of camera ``a`` (:func:`bench.vision.xy_table_bundle.pair_bundle`), started from the
     LMS + error-ratio estimate ``start`` (its ``_align`` tuple)."""
+    from bench.vision.xy_table_bundle import pair_bundle, pair_observations  # it builds on this module
+
     T, ok, msg, n_ransac, _ = start
     nan3 = np.full(3, np.nan)
     if not ok:
