@@ -47,13 +47,13 @@ DESCRIPTOR_SEED = 20061  # fixed: the same 3D point has the same descriptor in e
 
 def true_projector(camera: CameraModel, port=None, profile=None):
     """``project(p_cam (..., 3)) -> uv (..., 2)`` through the true lens ``camera`` and, if given, the flat ``port``
-    (:func:`bench.sim.flatport.lens_port_projector`), and with a realistic imaging ``profile``
+    (:func:`bench.camera.flatport.lens_port_projector`), and with a realistic imaging ``profile``
     (:class:`bench.sim.imaging.ImagingProfile`) its static geometric warp: the thin prism of its ``distortion``
     stage, ``d = ((s1 r^2 + s2 r^4) fx, (s3 r^2 + s4 r^4) fy)`` in the lens's normalized coordinates
     (:class:`bench.sim.imaging.ImagingChain`; evaluated at the ideal pixel: the chain's inverse warp is smooth, the
     difference ~1e-4 px). Per-frame effects (rolling shutter under camera shake) and lateral chromatic aberration
     (|c| < 1e-4) are not in it."""
-    from bench.sim.flatport import lens_port_projector
+    from bench.camera.flatport import lens_port_projector
 
     base = lens_port_projector(camera, port)
     if profile is None or not profile.on("distortion"):
@@ -180,7 +180,7 @@ def keypoint_sigma_px(reference: ViewObservation, views: list, T_world_cam_true:
         dirs = camera_true.unproject(uv)
         if port is None:
             return np.zeros_like(dirs), dirs
-        from bench.sim.flatport import trace_rays
+        from bench.camera.flatport import trace_rays
 
         origin, direction, _ = trace_rays(dirs, port)
         return origin, direction

@@ -303,7 +303,7 @@ class TableRigScene:
 
 def project_true(camera: CameraModel, port, p_cam) -> np.ndarray:
     """True pixels ``(..., 2)`` of camera-frame points (m): the lens alone, or the flat port then the lens."""
-    from bench.sim.flatport import lens_port_projector
+    from bench.camera.flatport import lens_port_projector
 
     return lens_port_projector(camera, port)(np.asarray(p_cam, dtype=float))
 
@@ -656,7 +656,7 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
                            pixel_pitch=tc["pixel_pitch"])
     port = None
     if truth["port"] is not None:
-        from bench.sim.flatport import FlatPort
+        from bench.camera.flatport import FlatPort
 
         port = FlatPort(**{k: (np.array(v) if isinstance(v, list) else v) for k, v in truth["port"].items()})
     corners = np.array(truth["rig_corners"])

@@ -1,6 +1,6 @@
 """Scenario kind ``flatport_study``: where the polynomial (Heikkilä) camera model stops describing a flat port.
 
-A camera behind a flat port in water is not a single-viewpoint camera (:mod:`bench.sim.flatport`): the water rays do
+A camera behind a flat port in water is not a single-viewpoint camera (:mod:`bench.camera.flatport`): the water rays do
 not meet in one point. A central model calibrated in water - the thesis's Heikkilä model (Eq. 74-76, section 5.5,
 Table 15) - describes it well near the distance it was calibrated at and drifts away from it. This study measures
 how far, for several lens-to-glass distances ``d0``, with no image in between (pure numerics, exact optics):
@@ -18,7 +18,7 @@ how far, for several lens-to-glass distances ``d0``, with no image in between (p
 
    Start of the Levenberg-Marquardt fit: the paraxial description of the true optics - the lens's distortion, its
    focal lengths times ``n_water / n_air``, the true rig poses seen from the port's paraxial virtual centre
-   (:func:`bench.sim.flatport.axis_crossing` of a near-axial ray). The pipeline's own start (DLT/Zhang and the
+   (:func:`bench.camera.flatport.axis_crossing` of a near-axial ray). The pipeline's own start (DLT/Zhang and the
    radial alternation) stalls on these whole-image views through a port (LM stops at 4-29 px RMS, "points behind the
    camera"); :func:`~bench.camera.calibration.calibrate_camera` then restarts from its pinhole fit and reaches the
    same minimum as the paraxial start (tested). The start does not bias the result: the fit is the least-squares
@@ -33,7 +33,7 @@ how far, for several lens-to-glass distances ``d0``, with no image in between (p
 
 3. **Evaluation at working distances** (``evaluation.distance_min_m`` .. ``distance_max_m``, geometric, plus the
    calibration distance). For a grid of ``evaluation.grid`` pixels over the whole image, the true ray (lens
-   back-projection, then :func:`bench.sim.flatport.trace_rays` into the water) is followed to the point at depth ``z``
+   back-projection, then :func:`bench.camera.flatport.trace_rays` into the water) is followed to the point at depth ``z``
    (lens frame) = the working distance, and that point is projected by the fitted model: the distance to the pixel
    is the reprojection error (``rms_px``, ``max_px`` over the image). The object-space error (``rms_mm``,
    ``max_mm``) is the distance from the true point to the fitted camera's ray through the same pixel (the lateral
@@ -77,6 +77,7 @@ import cv2
 import numpy as np
 
 from bench.camera.calibration import calibrate_camera
+from bench.camera.flatport import FlatPort, axis_crossing, trace_rays
 from bench.camera.model import CameraModel
 from bench.errors import ConfigError
 from bench.fileio import atomic_save_figure
@@ -84,7 +85,6 @@ from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rotatio
 from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.schema import required
-from bench.sim.flatport import FlatPort, axis_crossing, trace_rays
 from bench.vision.absolute_orientation import absolute_orientation
 
 SCHEMA = {

@@ -679,7 +679,7 @@ def _oracle_files(cfg, ds, robot, out_dir, lab):
 
 def _true_optics(truth):
     """The true lens (CameraModel), port (FlatPort or None) and the central camera equivalent to both."""
-    from bench.sim.flatport import FlatPort
+    from bench.camera.flatport import FlatPort
 
     w, h = truth["image_size"]
     lens = CameraModel(int(w), int(h), np.array(truth["camera_K"]), np.array(truth["camera_dist"]), "true lens")

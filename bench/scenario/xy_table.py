@@ -668,7 +668,7 @@ def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48):
 def true_optics(truth: dict) -> tuple:
     """EVALUATOR SIDE: ``(lens, port)`` - the true lens (a :class:`CameraModel`) and the housing's flat port (None
     without one) from ``truth.yaml``; :func:`bench.scenario.bounds.true_projector` projects through both."""
-    from bench.sim.flatport import FlatPort
+    from bench.camera.flatport import FlatPort
 
     lens = CameraModel(int(truth["camera_size"][0]), int(truth["camera_size"][1]), np.array(truth["camera_K"]),
                        np.array(truth["camera_dist"]), name="true lens")

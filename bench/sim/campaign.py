@@ -171,7 +171,7 @@ class ArmScene:
     def project(self, p_cam) -> np.ndarray:
         """Pixels ``(..., 2)`` of camera-frame points ``p_cam (..., 3)`` through the lens (and the port); NaN where
         a point cannot be imaged."""
-        from bench.sim.flatport import lens_port_projector
+        from bench.camera.flatport import lens_port_projector
 
         return lens_port_projector(self.camera, self.port)(np.asarray(p_cam, dtype=float))
 

@@ -32,8 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.camera.flatport import FlatPort
 from bench.errors import ConfigError
-from bench.sim.flatport import FlatPort
 from bench.sim.medium import WATER_PRESETS, Light, MediumChain, Sensor, WaterMedium
 
 #: refractive indices: air 1.000, crown glass (BK7-like) ~1.52, sea water ~1.34 (visible band, 20 C, 35 PSU)

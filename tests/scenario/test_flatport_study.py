@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 
 from bench.camera.calibration import calibrate_camera
+from bench.camera.flatport import axis_crossing
 from bench.errors import ConfigError
 from bench.geometry.transforms import transform_points
 from bench.scenario import flatport_study as fs
 from bench.scenario.bounds import true_projector
 from bench.scenario.metrics import check_metrics
 from bench.scenario.runner import load_scenario, run_scenario_file
-from bench.sim.flatport import axis_crossing
 from bench.sim.scenes.rig import calibration_rig
 from bench.vision.absolute_orientation import absolute_orientation
 

@@ -135,9 +135,9 @@ def test_paraxial_intrinsics_keep_the_principal_point():
 def test_best_central_camera():
     """No port: the lens itself. A flat port: the fitted central camera is much closer to the true optics than the
     paraxial one, but not exact (the floor is the part no central model removes)."""
+    from bench.camera.flatport import lens_port_projector
     from bench.scenario.in_situ import _paraxial_K
     from bench.scenario.in_situ_bound import best_central_camera
-    from bench.sim.flatport import lens_port_projector
     from bench.sim.optics_presets import optics_preset
 
     lens = load_preset("underwater_in_air")

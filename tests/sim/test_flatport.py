@@ -5,9 +5,10 @@ import time
 import numpy as np
 import pytest
 
+from bench.camera.flatport import FlatPort, axis_crossing, project_flatport, refract, trace_rays
 from bench.camera.model import CameraModel
 from bench.errors import ConfigError
-from bench.sim.flatport import FlatPort, FlatPortStage, axis_crossing, project_flatport, refract, trace_rays
+from bench.sim.flatport import FlatPortStage
 
 PORT = FlatPort(d0=0.03, t=0.012, n_air=1.0, n_glass=1.49, n_water=1.34, tilt=[0.03, -0.02], decentre=[0.002, 0.001])
 
