@@ -33,9 +33,9 @@ how far, for several lens-to-glass distances ``d0``, with no image in between (p
 
 3. **Evaluation at working distances** (``evaluation.distance_min_m`` .. ``distance_max_m``, geometric, plus the
    calibration distance). For a grid of ``evaluation.grid`` pixels over the whole image, the true ray (lens
-   back-projection, then :func:`bench.camera.flatport.trace_rays` into the water) is followed to the point at depth ``z``
-   (lens frame) = the working distance, and that point is projected by the fitted model: the distance to the pixel
-   is the reprojection error (``rms_px``, ``max_px`` over the image). The object-space error (``rms_mm``,
+   back-projection, then :func:`bench.camera.flatport.trace_rays` into the water) is followed to the point at
+   depth ``z`` (lens frame) = the working distance, and that point is projected by the fitted model: the distance
+   to the pixel is the reprojection error (``rms_px``, ``max_px`` over the image). The object-space error (``rms_mm``,
    ``max_mm``) is the distance from the true point to the fitted camera's ray through the same pixel (the lateral
    error of a point the fitted camera would place at that range).
 
@@ -77,8 +77,9 @@ import cv2
 import numpy as np
 
 from bench.camera.calibration import calibrate_camera
-from bench.camera.flatport import FlatPort, axis_crossing, trace_rays
+from bench.camera.flatport import FlatPort, trace_rays
 from bench.camera.model import CameraModel
+from bench.camera.refractive import paraxial_centre
 from bench.errors import ConfigError
 from bench.fileio import atomic_save_figure
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rotation_angle, transform_points
@@ -276,14 +277,6 @@ def rig_views(lens: CameraModel, port: FlatPort, rig, calib: dict, rng: np.rando
         X_out.append(corners[keep])
         uv_out.append(uv[keep])
     return np.array(T_out), X_out, uv_out
-
-
-def paraxial_centre(port: FlatPort) -> np.ndarray:
-    """The port's paraxial virtual centre (3,) in the lens frame (m): where near-axial water rays seem to start."""
-    n = port.normal
-    perp = np.cross(n, [0.0, 1.0, 0.0])
-    d = n + 1e-4 * perp / np.linalg.norm(perp)
-    return n * float(axis_crossing(d, port))
 
 
 def fit_central_model(lens: CameraModel, port: FlatPort, T_lens_rig, X, uv, k3: bool):
