@@ -12,6 +12,10 @@ Keys (``../shared/design.md``)::
     heikkila_eq75   (when the camera has a pixel pitch, no skew and no k3) the thesis's s_u, f_px, f_mm, u0_px,
                     v0_px, k1_per_mm2, k2_per_mm4, T1_per_mm, T2_per_mm, pixels_per_mm (Tables 9/15 form), derived
     extra           (optional) a flat mapping of numbers/strings the writer wants to keep (e.g. reprojection RMS)
+    flat_port       (optional) a refractive camera (:class:`bench.camera.refractive.RefractiveCamera`): the matrices
+                    are then the *lens's* (inside the housing, in air) and this block the port in the lens frame:
+                    lens_to_glass_mm, glass_thickness_mm, n_air, n_glass, n_water, tilt_x_deg, tilt_y_deg,
+                    working_range_m. Read only where a refractive camera is accepted (``allow_refractive``).
 
 ``camera_matrix`` and ``dist_coeffs`` are authoritative; the derived blocks are written for people and checked on
 reading (a block that disagrees with the matrices is an error). ``cv2.FileStorage`` reads these files and the reader
@@ -34,7 +38,9 @@ from bench.errors import ConfigError
 from bench.fileio import atomic_write_text
 
 _KEYS = {"camera_matrix", "dist_coeffs", "image_width", "image_height", "model", "name", "pixel_pitch_mm",
-         "intrinsics_eq50", "heikkila_eq75", "extra"}
+         "intrinsics_eq50", "heikkila_eq75", "extra", "flat_port"}
+_PORT_KEYS = ("lens_to_glass_mm", "glass_thickness_mm", "n_air", "n_glass", "n_water", "tilt_x_deg", "tilt_y_deg",
+              "working_range_m")
 #: keys that OpenCV's calibration sample writes beside the camera; accepted and ignored
 _OPENCV_SAMPLE_KEYS = {"distortion_coefficients", "calibration_time", "nr_of_frames", "nrOfFrames", "board_width",
                        "board_height", "board_Width", "board_Height", "square_size", "square_Size", "flags",
@@ -62,8 +68,20 @@ def thesis_blocks(camera: CameraModel) -> dict:
     return out
 
 
-def camera_yaml_text(camera: CameraModel, extra: dict | None = None) -> str:
-    """The text of ``camera.yaml`` for ``camera`` (written by ``cv2.FileStorage``)."""
+def camera_yaml_text(camera, extra: dict | None = None) -> str:
+    """The text of ``camera.yaml`` for ``camera`` (a :class:`CameraModel` or a
+    :class:`~bench.camera.refractive.RefractiveCamera`: its lens, then the ``flat_port`` block; written by
+    ``cv2.FileStorage``)."""
+    port = None
+    if not isinstance(camera, CameraModel):  # a refractive camera: the lens's matrices and the port
+        port = {"lens_to_glass_mm": camera.port.d0 * 1e3, "glass_thickness_mm": camera.port.t * 1e3,
+                "n_air": camera.port.n_air, "n_glass": camera.port.n_glass, "n_water": camera.port.n_water,
+                "tilt_x_deg": float(np.rad2deg(camera.port.tilt[0])),
+                "tilt_y_deg": float(np.rad2deg(camera.port.tilt[1])), "working_range_m": camera.working_range_m}
+        if camera.port.decentre.any():
+            raise ValueError("flat_port: a decentred port is written with its decentre absorbed into d0 (use the "
+                             "port calibration's)")
+        camera = camera.lens.replace(name=camera.name)
     fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
     fs.write("camera_matrix", np.asarray(camera.K, dtype=np.float64))
     fs.write("dist_coeffs", np.asarray(camera.dist, dtype=np.float64).reshape(1, 5))
@@ -89,10 +107,15 @@ def camera_yaml_text(camera: CameraModel, extra: dict | None = None) -> str:
             else:
                 raise ValueError(f"extra.{key}: expected a finite number or a string, got {val!r}")
         fs.endWriteStruct()
+    if port is not None:
+        fs.startWriteStruct("flat_port", cv2.FILE_NODE_MAP)
+        for key in _PORT_KEYS:
+            fs.write(key, float(port[key]))
+        fs.endWriteStruct()
     return fs.releaseAndGetString()
 
 
-def write_camera_yaml(path, camera: CameraModel, extra: dict | None = None) -> Path:
+def write_camera_yaml(path, camera, extra: dict | None = None) -> Path:
     """Write ``camera.yaml`` atomically (temporary file in the same folder, then rename); returns the path."""
     return atomic_write_text(path, camera_yaml_text(camera, extra))  # a plain file's permissions (umask)
 
@@ -154,7 +177,7 @@ def _check_block(src, root, block, names, expected: dict | None):
             raise ConfigError(src, f"{block}.{k}", f"{val!r} disagrees with camera_matrix/dist_coeffs ({ref!r})")
 
 
-def read_camera_yaml(path, with_extra: bool = False):
+def read_camera_yaml(path, with_extra: bool = False, allow_refractive: bool = False):
     """Read ``camera.yaml`` (ours, or one written by OpenCV) into a :class:`CameraModel`.
 
     Parameters
@@ -162,10 +185,13 @@ def read_camera_yaml(path, with_extra: bool = False):
     path : str or Path
     with_extra : bool
         Also return the ``extra`` mapping (``{}`` when absent).
+    allow_refractive : bool
+        Accept a ``flat_port`` block (then a :class:`~bench.camera.refractive.RefractiveCamera` is returned); where
+        it is not accepted, the block is a one-line error naming it.
 
     Returns
     -------
-    camera : CameraModel
+    camera : CameraModel or RefractiveCamera
         ``name`` defaults to the file's parent folder name, ``model`` to the one derived from the coefficients.
     extra : dict, only with ``with_extra``
     """
@@ -231,7 +257,97 @@ def read_camera_yaml(path, with_extra: bool = False):
             for k in node.keys():
                 item = node.getNode(k)
                 extra[k] = item.string() if item.isString() else _scalar(src, f"extra.{k}", item)
+        if "flat_port" in keys:
+            if not allow_refractive:
+                raise ConfigError(src, "flat_port", "a refractive camera (lens behind a flat port) is not supported "
+                                                    "here: only the in-situ localisation (bench locate) takes one")
+            camera = _refractive(src, root.getNode("flat_port"), camera)
     finally:
         fs.release()
     return (camera, extra) if with_extra else camera
 
+
+def _refractive(src, node, lens):
+    from bench.camera.flatport import FlatPort
+    from bench.camera.refractive import RefractiveCamera
+
+    if not node.isMap():
+        raise ConfigError(src, "flat_port", "expected a mapping")
+    for k in node.keys():
+        if k not in _PORT_KEYS:
+            raise ConfigError(src, f"flat_port.{k}", f"unknown key (allowed: {', '.join(_PORT_KEYS)})")
+    v = {}
+    for k in _PORT_KEYS:
+        if node.getNode(k).empty():
+            raise ConfigError(src, f"flat_port.{k}", "missing")
+        v[k] = _scalar(src, f"flat_port.{k}", node.getNode(k))
+    try:
+        port = FlatPort(d0=v["lens_to_glass_mm"] * 1e-3, t=v["glass_thickness_mm"] * 1e-3, n_air=v["n_air"],
+                        n_glass=v["n_glass"], n_water=v["n_water"],
+                        tilt=np.deg2rad([v["tilt_x_deg"], v["tilt_y_deg"]]), source=src)
+        return RefractiveCamera(lens, port, v["working_range_m"], name=lens.name)
+    except (ConfigError, ValueError) as exc:
+        field, problem = (exc.field, exc.problem) if isinstance(exc, ConfigError) else str(exc).partition(": ")[::2]
+        field = {"d0": "lens_to_glass_mm", "t": "glass_thickness_mm", "tilt": "tilt_x_deg"}.get(field, field)
+        raise ConfigError(src, f"flat_port.{field}", problem or str(exc)) from None
+
+
+
+# ------------------------------------------------------------------------------------------------ housing.yaml
+
+#: ``housing.yaml``: the underwater housing's datasheet and the site's water, what a refractive calibration starts
+#: from and holds fixed (lens_to_glass_mm is the design value, a start: the calibration estimates it)
+HOUSING_KEYS = ("lens_to_glass_mm", "lens_to_glass_tolerance_mm", "glass_thickness_mm", "n_air", "n_glass", "n_water")
+
+
+def housing_yaml_text(port, tolerance_mm: float) -> str:
+    """The text of ``housing.yaml`` for a nominal :class:`~bench.camera.flatport.FlatPort` and the stated tolerance
+    (mm, +-) of its lens-to-glass distance - lens entrance pupil to the inner glass surface, which a drawing gives
+    only roughly (the tilt and decentre, manufacturing errors, are not part of a datasheet and are not written)."""
+    return (f"# the camera housing's datasheet and the site's water (refractive calibration: bench.camera.refractive)\n"
+            f"lens_to_glass_mm: {port.d0 * 1e3:.6g}\nlens_to_glass_tolerance_mm: {tolerance_mm:.6g}\n"
+            f"glass_thickness_mm: {port.t * 1e3:.6g}\n"
+            f"n_air: {port.n_air:.6g}\nn_glass: {port.n_glass:.6g}\nn_water: {port.n_water:.6g}\n")
+
+
+def read_housing_yaml(path):
+    """``(port, d0_sigma_m)``: the nominal :class:`~bench.camera.flatport.FlatPort` of a ``housing.yaml`` (no tilt)
+    and the standard deviation of its lens-to-glass distance (m), the stated tolerance taken as uniform (``tol /
+    sqrt(3)``); a missing file, key or a bad value is a one-line error naming the file and the key."""
+    import yaml
+
+    from bench.camera.flatport import FlatPort
+
+    path = Path(path)
+    src = str(path)
+    if not path.is_file():
+        raise ConfigError(src, "<file>", "missing: a refractive camera model needs the housing's datasheet "
+                                         f"({', '.join(HOUSING_KEYS)})")
+    try:
+        spec = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(src, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(spec, dict):
+        raise ConfigError(src, "<top>", "expected a mapping")
+    for k in spec:
+        if k not in HOUSING_KEYS:
+            raise ConfigError(src, str(k), f"unknown key (allowed: {', '.join(HOUSING_KEYS)})")
+    v = {}
+    for k in HOUSING_KEYS:
+        x = spec.get(k)
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x):
+            raise ConfigError(src, k, f"expected a number, got {x!r}")
+        v[k] = float(x)
+    if not 1.0 <= v["lens_to_glass_mm"] <= 500.0:
+        raise ConfigError(src, "lens_to_glass_mm", f"expected 1-500 mm, got {v['lens_to_glass_mm']}")
+    if not 0.0 < v["lens_to_glass_tolerance_mm"] < v["lens_to_glass_mm"]:
+        raise ConfigError(src, "lens_to_glass_tolerance_mm", f"expected > 0 and below lens_to_glass_mm, got "
+                                                             f"{v['lens_to_glass_tolerance_mm']}")
+    if not 0.0 <= v["glass_thickness_mm"] <= 100.0:
+        raise ConfigError(src, "glass_thickness_mm", f"expected 0-100 mm, got {v['glass_thickness_mm']}")
+    for k in ("n_air", "n_glass", "n_water"):
+        if not 1.0 <= v[k] <= 2.5:
+            raise ConfigError(src, k, f"expected a refractive index in [1, 2.5], got {v[k]}")
+    port = FlatPort(d0=v["lens_to_glass_mm"] * 1e-3, t=v["glass_thickness_mm"] * 1e-3, n_air=v["n_air"],
+                    n_glass=v["n_glass"], n_water=v["n_water"], source=src)
+    return port, v["lens_to_glass_tolerance_mm"] * 1e-3 / np.sqrt(3.0)

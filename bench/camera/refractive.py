@@ -45,6 +45,9 @@ LENS_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
 FD_STEP_LENS = np.array([1e-4, 1e-4, 1e-4, 1e-4, 1e-7, 1e-7, 1e-8, 1e-8])
 FD_STEP_PORT = np.array([1e-6, 1e-6, 1e-6])
 FD_STEP_POSE = np.array([1e-7, 1e-7, 1e-7, 1e-7, 1e-7, 1e-7])
+#: the lens-to-glass distance a calibration may reach (m) and the largest port tilt (rad): bounds of the solver
+D0_RANGE_M = (1e-4, 0.5)
+TILT_MAX = 0.7
 #: names of the port parameters estimated by :func:`calibrate_refractive`, in order (m, rad, rad)
 PORT_NAMES = ("d0", "tilt_x", "tilt_y")
 
@@ -70,19 +73,58 @@ class RefractiveCamera:
         The camera inside the housing (Eq. 46, 75-76, 50), as an air calibration gives it.
     port : FlatPort
         The port in the lens frame (:class:`bench.camera.flatport.FlatPort`).
+    working_range_m : float
+        The depth (m, lens frame) at which :meth:`normalised` places a pixel when no depth is known: e.g. the
+        calibration views' median depth. A wrong value moves the coordinates by ~``c dz / z^2`` (module docstring).
+    name : str
     """
 
     lens: CameraModel
     port: FlatPort
+    working_range_m: float = 1.0
+    name: str = "refractive camera"
 
     def __post_init__(self):
         if not isinstance(self.lens, CameraModel):
             raise ValueError(f"lens: expected a CameraModel, got {type(self.lens).__name__}")
         check_port(self.port)
+        z = self.working_range_m
+        if isinstance(z, bool) or not isinstance(z, (int, float, np.integer, np.floating)) or not (
+                np.isfinite(z) and z > self.port.d0 + self.port.t):
+            raise ValueError(f"working_range_m: expected a depth beyond the port (> {self.port.d0 + self.port.t:g} "
+                             f"m), got {z!r}")
+        object.__setattr__(self, "working_range_m", float(z))
 
     @property
     def size(self) -> tuple[int, int]:
         return self.lens.size
+
+    @property
+    def width(self) -> int:
+        return self.lens.width
+
+    @property
+    def height(self) -> int:
+        return self.lens.height
+
+    @property
+    def fx(self) -> float:
+        """The paraxial focal length in water (px): the lens's times ``n_water / n_air`` - the scale between an
+        angle in water and a pixel, for thresholds given in pixels."""
+        return self.lens.fx * self.port.n_water / self.port.n_air
+
+    def normalised(self, uv, depth=None) -> np.ndarray:
+        """Pinhole coordinates ``(..., 2)`` from the lens centre of the pixels ``uv`` at ``depth`` (m, broadcast;
+        default :attr:`working_range_m`): :meth:`central_coordinates`, the central algorithms' input."""
+        return self.central_coordinates(uv, self.working_range_m if depth is None else depth)
+
+    def virtual_camera(self) -> CameraModel:
+        """The distortion-free pinhole at the lens centre with the paraxial focal lengths: ``K_v (x_n, 1)`` of
+        :meth:`normalised` coordinates are pixels of about the real pixels' scale (for estimators that work in
+        pixels, e.g. the joint bundle)."""
+        K = self.lens.K.copy()
+        K[:2, :2] *= self.port.n_water / self.port.n_air
+        return self.lens.replace(K=K, dist=np.zeros(5), model=None, name=f"{self.name} (virtual pinhole)")
 
     def project(self, p_cam) -> np.ndarray:
         """Pixels ``(..., 2)`` of lens-frame points ``p_cam (..., 3)`` (m) in water; NaN where a point cannot be
@@ -288,12 +330,10 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
         v = poses.reshape(-1, 6)
         R = Rotation.from_rotvec(v[view_of, :3]).as_matrix()
         p = np.einsum("nij,nj->ni", R, X_all) + v[view_of, 3:]
-        if port_t[0] <= 0 or np.any(np.abs(port_t[1:]) >= np.pi / 4):
-            r = np.full(n_pix, 1e6)
-        else:
-            cam = RefractiveCamera(_lens_of(lens_t, lens0), _port_of(port_t, port0))
-            r = (cam.project(p).ravel() - uv_all)
-            r = np.where(np.isfinite(r), r, 1e6)  # a point the port cannot image: a large, finite penalty
+        x_n = project_flatport(p, _port_of(port_t, port0))
+        lens = _lens_of(lens_t, lens0)
+        r = to_pixels(distort(x_n, lens.dist), lens.K).ravel() - uv_all
+        r = np.where(np.isfinite(r), r, 1e6)  # a point the port cannot image: a large, finite penalty
         extra = []
         if L_prior is not None and free_lens:
             extra.append(L_prior[1] @ (lens_t - L_prior[0]))
@@ -327,8 +367,12 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
                     J[rows, j] = dr[rows] / hj
         return J
 
-    sol = scipy.optimize.least_squares(residuals, x0, jac=jacobian, method="trf", tr_solver="exact", x_scale="jac",
-                                       xtol=1e-10, ftol=1e-10, gtol=1e-8, max_nfev=max_nfev)
+    lo, hi = np.full(x0.size, -np.inf), np.full(x0.size, np.inf)  # the port in front of the lens, tilt < 45 deg
+    port_lo, port_hi = np.array([D0_RANGE_M[0], -TILT_MAX, -TILT_MAX]), np.array([D0_RANGE_M[1], TILT_MAX, TILT_MAX])
+    lo[n_lens:n_glob], hi[n_lens:n_glob] = port_lo[port_free], port_hi[port_free]
+    x0[n_lens:n_glob] = np.clip(x0[n_lens:n_glob], lo[n_lens:n_glob] + 1e-9, hi[n_lens:n_glob] - 1e-9)
+    sol = scipy.optimize.least_squares(residuals, x0, jac=jacobian, bounds=(lo, hi), method="trf", tr_solver="exact",
+                                       x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-8, max_nfev=max_nfev)
     lens_t, port_t, poses = unpack(sol.x)
     r = sol.fun[:n_pix]
     finite = bool(np.all(np.abs(r) < 1e5))

@@ -28,6 +28,7 @@ import json
 import shutil
 import sys
 import time
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +37,8 @@ import yaml
 from bench.camera.calibrate_dataset import load_target, load_target_tolerance
 from bench.camera.calibration import calibrate_camera
 from bench.camera.corners import extract_corners_opencv, extract_corners_thesis
-from bench.camera.io import camera_yaml_text, read_camera_yaml, write_camera_yaml
+from bench.camera.flatport import FlatPort
+from bench.camera.io import camera_yaml_text, housing_yaml_text, read_camera_yaml, write_camera_yaml
 from bench.camera.model import CameraModel
 from bench.camera.presets import load_preset
 from bench.dataset import DatasetWriter, load_dataset
@@ -71,7 +73,10 @@ SCHEMA = {
               "mount_bias_deg": (list, [0.5, -0.8, 1.0]), "focal_error_pct": (float, 1.5),
               "principal_error_px": (float, 4.0)},
     "camera": {"preset": (str, "air_webcam"), "supersample": (int, 2), "imaging": (str, "realistic"),
-               "imaging_off": (list, [])},
+               "imaging_off": (list, []),
+               # the housing datasheet's tolerance (+-) on the lens-to-glass distance: housing.yaml states the true
+               # distance off by a draw within it (a drawing does not locate the lens's entrance pupil exactly)
+               "housing_tolerance_mm": (float, 3.0)},
     "encoders": {"noise_deg": (float, 0.002), "resolution_deg": (float, 0.001)},
     "lab": {"tracker_poses": (int, 100), "tracker_sigma_mm": (float, 0.05), "rig_views": (int, 10),
             "rig_distance_m": (float, 0.9), "eye_base_m": (list, [1.5, 0.7, 0.7])},
@@ -100,7 +105,11 @@ SCHEMA = {
                  "refine_distortion": (bool, True),
                  # the lab calibrations' priors also carry what the rig's stated tolerances (target.yaml) leave in
                  # the intrinsics and the mount (bench.camera.target_tolerance; Monte Carlo of this many draws)
-                 "target_tolerance": (bool, True), "tolerance_draws": (int, 48)},
+                 "target_tolerance": (bool, True), "tolerance_draws": (int, 48),
+                 # the camera model the lab calibrates and the localisation uses: central (Heikkila, as the thesis)
+                 # or refractive (the lens behind the housing's flat port, calibrated from the same rig views with
+                 # the dataset's housing.yaml: bench.camera.refractive; needs a camera in water)
+                 "camera_model": (str, "central")},
     # error sources, for the error budget: switching one off injects the truth explicitly (evaluator side), e.g.
     # kinematics=perfect gives the pipeline the true errors and mount instead of its calibration
     "sources": {"kinematics": (str, "calibrated"), "camera": (str, "calibrated"), "encoders": (str, "real"),
@@ -212,7 +221,8 @@ def validate(cfg) -> None:
         sec, k = key.split(".")
         if cfg[sec][k] < 1:
             raise ConfigError(src, key, f"must be >= 1, got {cfg[sec][k]}")
-    for key in ("lab.tracker_sigma_mm", "site.standoff_m", "locate.baseline_mm", "survey.depth_resolution_mm"):
+    for key in ("lab.tracker_sigma_mm", "site.standoff_m", "locate.baseline_mm", "survey.depth_resolution_mm",
+                "camera.housing_tolerance_mm"):
         sec, k = key.split(".")
         if cfg[sec][k] <= 0:
             raise ConfigError(src, key, f"must be > 0, got {cfg[sec][k]}")
@@ -226,6 +236,13 @@ def validate(cfg) -> None:
                                                   f"{cfg['pipeline']['refine']!r}")
     if cfg["pipeline"]["extractor"] not in ("opencv", "thesis"):
         raise ConfigError(src, "pipeline.extractor", "expected opencv or thesis")
+    if cfg["pipeline"]["camera_model"] not in ("central", "refractive"):
+        raise ConfigError(src, "pipeline.camera_model", f"expected central or refractive, got "
+                                                        f"{cfg['pipeline']['camera_model']!r}")
+    port = site_optics(cfg).port
+    if cfg["pipeline"]["camera_model"] == "refractive" and (port is None or port.n_water == port.n_air):
+        raise ConfigError(src, "pipeline.camera_model", f"refractive needs a camera behind a port in water, but "
+                                                        f"camera.preset {cfg['camera']['preset']!r} is in air")
     for key, allowed in SOURCES.items():
         if cfg["sources"][key] not in allowed:
             raise ConfigError(src, f"sources.{key}", f"expected one of {', '.join(allowed)}, got "
@@ -554,6 +571,12 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                        notes="tool tip on the valve handle, taught at the survey parking")
         w.write_tracker([f"p{i:03d}" for i in range(len(q_tr))], p_tr, q_tr_read)
         w.write_text("camera.yaml", camera_yaml_text(nominal_cam))
+        if port is not None and port.n_water != port.n_air:  # the housing's datasheet: its lens-to-glass distance
+            tol = cfg["camera"]["housing_tolerance_mm"]  # off by a draw within its tolerance (own stream: the
+            off = np.random.default_rng([cfg["seed"], 271]).uniform(-1, 1) * tol * 1e-3  # renders stay the same)
+            nominal = FlatPort(d0=port.h / port.normal[2] + off, t=port.t, n_air=port.n_air, n_glass=port.n_glass,
+                               n_water=port.n_water)
+            w.write_text("housing.yaml", housing_yaml_text(nominal, tol))
         shutil.copyfile(Path(cfg["_file"]).parent / cfg["robot"], w.path("robot.yaml"))
         # the rig's print tolerances as its maker states them (the specification, not the draws)
         tol = stated_tolerance(imaging(cfg))
@@ -657,11 +680,20 @@ def _oracle_files(cfg, ds, robot, out_dir, lab):
         corners = np.array(truth["panel_corners_world"])
         z = np.concatenate([transform_points(invert(poses[n]), corners)[:, 2] for n, v in truth["views"].items()
                             if v["role"] in ("reference", "surround", "locate")])
-        central, T_lens_c = best_central_camera(lens, port, (0.8 * float(z.min()), 1.2 * float(z.max())),
-                                                profile=imaging(cfg))
-        cam = read_camera_yaml(camera_path)
-        camera_path = write_camera_yaml(oracle / "camera.yaml", cam.replace(K=central.K, dist=central.dist,
-                                                                            name="ORACLE: true central camera"))
+        if lab.get("refractive") is not None:  # the true lens behind the true port (its decentre is in d0)
+            from bench.camera.refractive import RefractiveCamera
+
+            T_lens_c = np.eye(4)
+            true_port = FlatPort(d0=port.h / port.normal[2], t=port.t, n_air=port.n_air, n_glass=port.n_glass,
+                                 n_water=port.n_water, tilt=port.tilt)
+            camera_path = write_camera_yaml(oracle / "camera.yaml", RefractiveCamera(
+                lens, true_port, lab["refractive"].camera.working_range_m, name="ORACLE: true lens and port"))
+        else:
+            central, T_lens_c = best_central_camera(lens, port, (0.8 * float(z.min()), 1.2 * float(z.max())),
+                                                    profile=imaging(cfg))
+            cam = read_camera_yaml(camera_path)
+            camera_path = write_camera_yaml(oracle / "camera.yaml", cam.replace(K=central.K, dist=central.dist,
+                                                                                name="ORACLE: true central camera"))
         if cfg["sources"]["kinematics"] == "perfect":
             mount, notes = np.array(truth["T_link5_cam"]) @ T_lens_c, notes + " the true camera and mount"
         else:  # the mount that goes with the calibrated arm: AX = XB on the rig views' true camera poses
@@ -679,8 +711,6 @@ def _oracle_files(cfg, ds, robot, out_dir, lab):
 
 def _true_optics(truth):
     """The true lens (CameraModel), port (FlatPort or None) and the central camera equivalent to both."""
-    from bench.camera.flatport import FlatPort
-
     w, h = truth["image_size"]
     lens = CameraModel(int(w), int(h), np.array(truth["camera_K"]), np.array(truth["camera_dist"]), "true lens")
     port = truth.get("port")
@@ -786,6 +816,9 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
                              views, X_site, vis, sigma_px, sigma_enc, np.random.default_rng([cfg["seed"], 14]),
                              cfg["bound"]["ml_trials"], **priors)
         out.update({"base_pos_crb_mc_mm": ml["pos_rms_m"] * 1e3, "base_rot_crb_mc_deg": np.rad2deg(ml["rot_rms_rad"])})
+    if lab.get("refractive") is not None:  # the floors above are central cameras', which this pipeline is not:
+        floor = {**floor, "pos_m": float("nan"), "rot_rad": float("nan")}  # the refractive one's is not computed
+        floor_cal = {"pos_m": float("nan"), "rot_rad": float("nan")}
     f_pos, f_rot = (0.0 if not np.isfinite(v) else v for v in (floor["pos_m"], floor["rot_rad"]))
     out.update({"base_pos_crb_mm": crb["pos_bound_m"] * 1e3, "base_rot_crb_deg": np.rad2deg(crb["rot_bound_rad"]),
                 "base_pos_floor_mm": floor["pos_m"] * 1e3, "base_rot_floor_deg": np.rad2deg(floor["rot_rad"]),
@@ -832,8 +865,56 @@ def _score_task(cfg, ds, truth, report, robot):
 # ------------------------------------------------------------------------------------------------ pipeline
 
 
+@dataclass(frozen=True)
+class _VirtualCalibration:
+    """A refractive calibration seen as the central calibration of its virtual pinhole
+    (:meth:`~bench.camera.refractive.RefractiveCamera.virtual_camera`): ``K``, ``dist`` (zero), ``T_cam_target``,
+    and the covariance of ``fx fy cx cy`` - the lens's scaled by the port's paraxial magnification - for the lab
+    priors of the joint bundle (which sees the refractive coordinates through that pinhole)."""
+
+    K: np.ndarray
+    dist: np.ndarray
+    T_cam_target: np.ndarray
+    parameter_names: tuple
+    covariance: np.ndarray
+
+    @classmethod
+    def of(cls, r):
+        cam = r.camera.virtual_camera()
+        mag = r.camera.port.n_water / r.camera.port.n_air
+        names = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
+        C = np.zeros((8, 8))
+        idx = [r.parameter_names.index(n) for n in names[:4]]
+        S = np.diag([mag, mag, 1.0, 1.0])
+        C[:4, :4] = S @ r.covariance[np.ix_(idx, idx)] @ S
+        return cls(cam.K, cam.dist, r.T_cam_target, names, C)
+
+
+def _calibrate_refractive(ds, cal, Xs, uvs, raise_on_failure=True):
+    """The lens and the flat port from the rig views (:func:`bench.camera.refractive.calibrate_refractive`), started
+    from the central calibration ``cal`` of the same views and the housing's datasheet (``housing.yaml``); its
+    working range is the rig corners' median depth. The datasheet's lens-to-glass distance is a prior within its
+    stated tolerance: rig views at one range hardly see it (measured: seed 1's nine views leave it at +-0.3 m
+    without the prior). None (or a one-line error) when it fails."""
+    from bench.camera.io import read_housing_yaml
+    from bench.camera.refractive import RefractiveCamera, calibrate_refractive, refractive_start
+
+    housing, d0_sigma = read_housing_yaml(ds.root / "housing.yaml")
+    lens0, T0 = refractive_start(cal.camera, cal.T_cam_target, housing)
+    r = calibrate_refractive(Xs, uvs, lens0, housing, T0, d0_sigma_m=d0_sigma)
+    if not r.success:
+        if raise_on_failure:
+            raise ConfigError(ds.root, "rig views", f"refractive camera calibration failed: {r.message}")
+        return None
+    z = float(np.median(np.concatenate([transform_points(T, X)[:, 2] for T, X in zip(r.T_cam_target, Xs,
+                                                                                       strict=True)])))
+    cam = RefractiveCamera(r.camera.lens.replace(name="lens (refractive calibration)"), r.camera.port, z,
+                           name="refractive camera (lab)")
+    return replace(r, camera=cam)
+
+
 def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5, mount_nominal, S,
-                          draws) -> tuple:
+                          draws, refr=None, ds=None) -> tuple:
     """What the rig's stated tolerances leave in the lab results: the second moment (14, 14) of the deviations of
     ``fx, fy, cx, cy`` (px), ``k1, k2, p1, p2`` and the mount (right perturbation: rotation vector rad, translation
     m) over calibrations of the same detections against perturbed rigs
@@ -844,12 +925,17 @@ def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5
     def lab_vector(c):
         return np.r_[c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2], c.dist[:4]]
 
-    v0, M_inv = lab_vector(cal), invert(he.T_mount_cam)
+    v0, M_inv = lab_vector(cal if refr is None else _VirtualCalibration.of(refr)), invert(he.T_mount_cam)
 
     def solve(Xs_m):
         c = calibrate_camera(Xs_m, uvs, size, model="heikkila", k3=cal.dist[4] != 0.0)
         if not c.success:
             return None
+        if refr is not None:  # the refractive camera, started from this central fit as in the lab
+            r = _calibrate_refractive(ds, c, Xs_m, uvs, raise_on_failure=False)
+            if r is None:
+                return None
+            c = _VirtualCalibration.of(r)
         T_ct, _ = resolve_target_symmetry(T_base_l5, c.T_cam_target, mount_nominal, [S])
         h = hand_eye_axxb(T_base_l5, T_ct)
         if not h.success:
@@ -860,7 +946,7 @@ def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5
     return consider_covariance(geometry, tolerance, Xs, solve, draws)
 
 
-def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:
+def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None, distortion=True) -> dict:
     """The lab calibrations' covariances for refine 'joints' (:func:`bench.vision.joint_bundle.read_priors`'s
     names): the camera calibration's own block of ``fx fy cx cy`` (and ``k1 k2 p1 p2`` with
     ``pipeline.refine_distortion``); the mount's from the AX = XB residuals, rms^2 / n per axis (it gives no
@@ -874,7 +960,7 @@ def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:
     if tol:
         C = C + tolerance_cov
     out = {"cov_K": C[:4, :4], "cov_mount": C[8:, 8:], "cov_K_mount": C[:4, 8:] if tol else None}
-    if cfg["pipeline"]["refine_distortion"]:
+    if cfg["pipeline"]["refine_distortion"] and distortion:
         out.update(cov_dist=C[4:8, 4:8], cov_K_dist=C[:4, 4:8], cov_dist_mount=C[4:8, 8:] if tol else None)
     return out
 
@@ -911,37 +997,46 @@ def calibrate_lab(ds, robot, cfg, out):
 
         refined = calibrate_camera_refining_rig(Xs, uvs, size, model="heikkila").calibration
         cal = refined if refined.success else cal
+    refr = None
+    if cfg["pipeline"]["camera_model"] == "refractive":
+        refr = _calibrate_refractive(ds, cal, Xs, uvs)
     t_cam = time.perf_counter() - t0 - t_arm
     T_base_l5 = np.stack([link5_frame(robot, v.q, eps_hat) for v in used])
     # the rig looks the same after a half turn about the horizontal bisector of its boards: make its frame consistent
     z_mid = float(np.mean(geometry.object_points()[:, 2]))
     S = homogeneous(np.array([[0.0, 1, 0], [1, 0, 0], [0, 0, -1]]), [0.0, 0.0, 2 * z_mid])
     mount_nominal = homogeneous(rot_z(cfg["truth"]["mount_roll_deg"] * DEG), _vec(cfg, "truth.mount_mm", 3) * 1e-3)
-    T_cam_target, _ = resolve_target_symmetry(T_base_l5, cal.T_cam_target, mount_nominal, [S])
+    T_cam_target, _ = resolve_target_symmetry(T_base_l5, (cal if refr is None else refr).T_cam_target,
+                                              mount_nominal, [S])
     he = hand_eye_axxb(T_base_l5, T_cam_target)
     if not he.success:
         raise ConfigError(ds.root, "rig views", f"mount calibration failed: {he.message}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    write_camera_yaml(out / "camera.yaml", cal.camera)
+    write_camera_yaml(out / "camera.yaml", cal.camera if refr is None else refr.camera)
     # the calibrations' covariances, refine 'joints' refines intrinsics, mount (and distortion) under them
     notes = (f"camera calibration covariance (fx fy cx cy [k1 k2 p1 p2], px^2); mount: AX = XB residuals^2 / "
              f"{len(used)} views (rad^2, m^2)")
+    if refr is not None:
+        notes = (f"refractive camera: its virtual pinhole's fx fy cx cy from the lens's calibration covariance "
+                 f"(px^2); mount: AX = XB residuals^2 / {len(used)} views (rad^2, m^2)")
     tol_cov, tol_draws = None, 0
     tolerance = load_target_tolerance(ds.root / "target.yaml")
     if tolerance is not None and tolerance.any and cfg["pipeline"]["target_tolerance"]:
         tol_cov, tol_draws = _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5,
-                                                   mount_nominal, S, cfg["pipeline"]["tolerance_draws"])
+                                                   mount_nominal, S, cfg["pipeline"]["tolerance_draws"], refr, ds)
         notes += (f"; plus the rig's stated tolerances (target.yaml) through the calibration and AX = XB, "
                   f"{tol_draws} Monte Carlo draws")
-    priors = _lab_priors(cal, he, len(used), cfg, tol_cov)
+    priors = _lab_priors(cal if refr is None else _VirtualCalibration.of(refr), he, len(used), cfg, tol_cov,
+                         distortion=refr is None)
     from bench.vision.joint_bundle import priors_yaml_text
 
     (out / "calibration_priors.yaml").write_text(priors_yaml_text(notes=notes, **priors))
     write_calibrated_robot(out / "robot.yaml", ds.robot_path, robot, eps_hat, he.T_mount_cam,
                            notes=f"identified from {len(ds.tracker['q'])} tracker points; mount from {len(used)} rig "
                                  "views (AX = XB)")
-    return {"eps": eps_hat, "identification": ident, "camera": cal, "mount": he, "rig_views_used": len(used),
+    return {"eps": eps_hat, "identification": ident, "camera": cal, "refractive": refr, "mount": he,
+            "rig_views_used": len(used),
             "priors": priors, "tolerance_draws": tol_draws,
             "rig_q": np.stack([v.q for v in used]), "T_cam_target": T_cam_target,
             "timings": {"arm_calibration_s": t_arm, "camera_calibration_s": t_cam,
@@ -1014,10 +1109,21 @@ def run(cfg, out_dir, verbose=True):
                 f"base_{q}_err_{'mm' if q == 'pos' else 'deg'}")
             if b is not None and e is not None and e > 0:
                 metrics[f"base_{q}_efficiency"] = b / e
-    cam_true = np.array(truth["camera_K_effective"])
-    metrics["focal_err_pct"] = float(abs(lab["camera"].K[0, 0] / cam_true[0, 0] - 1) * 100)
-    metrics["reproj_rms_px"] = float(lab["camera"].rms_px)
-    Tm_true, Tm_hat = np.array(truth["T_link5_cam_effective"]), lab["mount"].T_mount_cam  # = the lens in air
+    refr = lab.get("refractive")
+    if refr is None:  # the central camera: against the paraxial equivalent of lens + port, its mount the
+        cam_true, K_hat = np.array(truth["camera_K_effective"]), lab["camera"].K  # port's virtual centre
+        Tm_true, rms = np.array(truth["T_link5_cam_effective"]), lab["camera"].rms_px
+    else:  # the refractive camera: the lens against the true lens, its mount at the lens centre
+        cam_true, K_hat = np.array(truth["camera_K"]), refr.camera.lens.K
+        Tm_true, rms = np.array(truth["T_link5_cam"]), refr.rms_px
+        port_true = _true_optics(truth)[1]  # its decentre absorbed into d0, as the calibration estimates it
+        metrics["port_d0_err_mm"] = float(abs(refr.camera.port.d0 - port_true.h / port_true.normal[2]) * 1e3)
+        metrics["port_d0_std_mm"] = refr.std("d0") * 1e3
+        metrics["port_tilt_err_deg"] = float(np.rad2deg(np.linalg.norm(refr.camera.port.tilt - port_true.tilt)))
+        metrics["reproj_rms_central_px"] = float(lab["camera"].rms_px)
+    metrics["focal_err_pct"] = float(abs(K_hat[0, 0] / cam_true[0, 0] - 1) * 100)
+    metrics["reproj_rms_px"] = float(rms)
+    Tm_hat = lab["mount"].T_mount_cam
     metrics["mount_pos_err_mm"] = float(np.linalg.norm(Tm_hat[:3, 3] - Tm_true[:3, 3]) * 1e3)
     metrics["mount_pos_err_lens_centre_mm"] = float(np.linalg.norm(Tm_hat[:3, 3] - np.array(truth["T_link5_cam"])
                                                                    [:3, 3]) * 1e3)

@@ -167,6 +167,8 @@ def record_in_situ(path, cfg, ds, truth, lab, res, report, details, reached, met
     T_wb2 = _T(truth["T_world_base_locate"])
     obs = details.get("observations", {})
     camera = details.get("camera")
+    if camera is not None and hasattr(camera, "virtual_camera"):  # refractive: its pinhole at the lens, for display
+        camera = camera.virtual_camera()
     K_hat = camera.K if camera is not None else lab["camera"].K
     size = (camera.width, camera.height) if camera is not None else tuple(int(v) for v in truth["image_size"])
     T_site_b2 = res.T_world_base if res.success else None

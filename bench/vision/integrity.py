@@ -78,6 +78,8 @@ RELATIVE_CHI2_REFUSE = RELATIVE_OVERDISPERSION * 22.458
 RELATIVE_CHI2_WARN = RELATIVE_OVERDISPERSION * 16.812
 #: Locate residual RMS / survey residual RMS (test 3) beyond which the solution is refused / warned.
 CHI2_RATIO_REFUSE = 10.0
+#: the smallest survey noise test 3 divides by (px): exact data's residuals are rounding errors, not noise
+NOISE_FLOOR_PX = 0.01
 CHI2_RATIO_WARN = 3.0
 #: Support (test 5).
 MIN_INLIERS = 12
@@ -443,7 +445,8 @@ def assess(kmap: KeypointMap, surround: list, view_a: ViewObservation, view_b: V
     sigma_survey = _robust_rms(np.concatenate(survey_res)) if survey_res else float("nan")
     res_loc = np.concatenate([c["residual_px"] for c in loc.values()])
     rms_loc = _robust_rms(res_loc)
-    ratio = rms_loc / sigma_survey if sigma_survey > 0 else float("nan")
+    # no detector localises better than NOISE_FLOOR_PX: below it the ratio would compare rounding errors (exact data)
+    ratio = rms_loc / max(sigma_survey, NOISE_FLOOR_PX) if np.isfinite(sigma_survey) else float("nan")
     tests.update(survey_rms_px=sigma_survey, locate_rms_px=rms_loc, chi2_ratio=ratio)
     if np.isfinite(ratio) and ratio > CHI2_RATIO_REFUSE:
         refuse.append(f"reprojection RMS {rms_loc:.2f} px at the solution, {ratio:.1f} x the survey's "

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.camera.refractive import RefractiveCamera
 from bench.dataset import load_dataset
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text
@@ -51,12 +52,69 @@ def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0, featur
     return ViewObservation(view.name, f, x_n, link5_frame(robot, q, eps) @ T_link5_cam)
 
 
-def normalised(f, camera) -> tuple:
+def normalised(f, camera, depth=None) -> tuple:
     """``(features, x_n)``: the keypoints' ideal normalised coordinates through ``camera``, without the keypoints
-    where its distortion cannot be inverted (beyond a k3 model's fold: they would be NaN rays)."""
-    x_n = camera.undistort_pixels(f.uv) if len(f) else np.empty((0, 2))
+    where its distortion cannot be inverted (beyond a k3 model's fold: they would be NaN rays). A refractive camera
+    (:class:`~bench.camera.refractive.RefractiveCamera`) gives the lens-centre pinhole coordinates of each pixel's
+    water ray at ``depth`` (m, per keypoint; default its working range)."""
+    if not len(f):
+        return f, np.empty((0, 2))
+    x_n = camera.normalised(f.uv, depth) if isinstance(camera, RefractiveCamera) else camera.undistort_pixels(f.uv)
     ok = np.all(np.isfinite(x_n), axis=1)
     return (f, x_n) if ok.all() else (f.subset(np.flatnonzero(ok)), x_n[ok])
+
+
+#: a refractive camera's solve passes at most (the first at the working range, then at the solution's depths; each
+#: shrinks the depths' effect ~100x: measured 0.015 / 1.6e-4 / 8e-7 mm after 2 / 3 / 4 passes on exact data) and the
+#: change of the base pose, as a fraction of its standard deviation, below which it stops
+REFRACTIVE_PASSES = 6
+SETTLED_FRACTION = 1e-3
+#: a keypoint within this many pixels (at the paraxial focal length) of a map point's image takes its depth
+SAME_POINT_PX = 1.5
+#: otherwise the median depth of this many nearest map points in the image
+DEPTH_NEIGHBOURS = 5
+
+
+def keypoint_depths(x_n, p_cam, focal_px) -> np.ndarray:
+    """Depths (N,) (m) for keypoints at normalised coordinates ``x_n (N, 2)`` from points ``p_cam (M, 3)`` in the
+    same camera's frame: a keypoint on a point's image (within :data:`SAME_POINT_PX`) takes that point's depth,
+    the others the median depth of the :data:`DEPTH_NEIGHBOURS` nearest points in the image (the scene's depth
+    around them). NaN when no point lies in front of the camera."""
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(p_cam, float)
+    p = p[np.all(np.isfinite(p), axis=1) & (p[:, 2] > 0)]
+    if not len(p) or not len(x_n):
+        return np.full(len(x_n), np.nan)
+    tree = cKDTree(p[:, :2] / p[:, 2:3])
+    k = min(DEPTH_NEIGHBOURS, len(p))
+    dist, idx = tree.query(x_n, k=k)
+    dist, idx = dist.reshape(len(x_n), k), idx.reshape(len(x_n), k)
+    z = np.median(p[idx, 2], axis=1)
+    same = dist[:, 0] <= SAME_POINT_PX / focal_px
+    z[same] = p[idx[same, 0], 2]
+    return z
+
+
+def _refract_again(obs, camera, kmap, res, roles) -> dict:
+    """The observations with every keypoint's coordinates recomputed at the depth the first solution gives it
+    (:func:`keypoint_depths` from the map points in each view: the survey views through their kinematics, the locate
+    views through the located base); a view without depths keeps its coordinates."""
+    from bench.geometry.transforms import invert, transform_points
+
+    X_site = transform_points(kmap.T_world_ref, kmap.p_ref)
+    out = {}
+    for r, views in roles.items():
+        for v in views:
+            o = obs[v.name]
+            T_site_cam = o.T_base_cam if r != "locate" else res.T_world_base @ o.T_base_cam
+            z = keypoint_depths(o.x_n, transform_points(invert(T_site_cam), X_site), camera.fx)
+            if not np.all(np.isfinite(z)):
+                out[v.name] = o
+                continue
+            f, x_n = normalised(o.features, camera, z)
+            out[v.name] = replace(o, features=f, x_n=x_n)
+    return out
 
 
 def _retarget_tasks(ds, robot, eps, T_site_base, q_now) -> dict:
@@ -164,7 +222,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         raise ConfigError(Path(root) / "manifest.yaml", "camera/robot", "the dataset needs camera.yaml and robot.yaml")
     from bench.camera.io import read_camera_yaml
 
-    camera = read_camera_yaml(camera_path)
+    camera = read_camera_yaml(camera_path, allow_refractive=True)
     robot, eps, T_link5_cam = load_calibrated_robot(robot_path)
     if T_link5_cam is None:
         warnings.warn(f"{robot_path}: no calibration.camera_mount; using an identity mount", stacklevel=2)
@@ -188,20 +246,49 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     obs = {v.name: observe(v, camera, robot, eps, T_link5_cam, features_fn=features_fn)
            for r in roles.values() for v in r}
     t_detect = time.perf_counter() - t0
-    kmap = build_map(obs[roles["reference"][0].name], [obs[v.name] for v in roles["surround"]], config)
-    t_map = time.perf_counter() - t0 - t_detect
+
+    def solve(obs):
+        t = time.perf_counter()
+        kmap = build_map(obs[roles["reference"][0].name], [obs[v.name] for v in roles["surround"]], config)
+        t_map = time.perf_counter() - t
+        a, refined, thesis = obs[roles["locate"][0].name], False, None  # refined: the joint bundle's estimate
+        if pnp:
+            res = locate_pnp(kmap, a, config, focal_px=camera.fx)
+        else:
+            res = locate(kmap, a, obs[roles["locate"][1].name], config, method=method, rng=seed,
+                         refine="bundle" if refine == "joints" else refine, focal_px=camera.fx,
+                         **(ransac or {}))  # focal: the baseline checks' 1 px (Eq. 123, 199)
+            if refine == "joints" and res.success:
+                thesis = res  # the thesis estimator's (bundle) result, reported beside
+                res, refined = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, pixels_camera,
+                                              sigma_enc, priors)
+        return kmap, res, refined, thesis, t_map
+
+    # the joint bundle works in pixels: a refractive camera's coordinates go to it through its virtual pinhole
+    pixels_camera = camera.virtual_camera() if isinstance(camera, RefractiveCamera) else camera
+    kmap, res, refined, thesis, t_map = solve(obs)
+    passes = 1
+    while isinstance(camera, RefractiveCamera) and res.success and passes < REFRACTIVE_PASSES:
+        # the port: each keypoint again at the depth the last solution gives it, and the solve again, until the
+        # base pose settles (each pass shrinks the depths' effect by ~ the rays' offset / range, ~1e-2)
+        obs2 = _refract_again(obs, camera, kmap, res, roles)
+        kmap2, res2, refined2, thesis2, t_map2 = solve(obs2)
+        t_map, passes = t_map + t_map2, passes + 1
+        if not res2.success:
+            res = replace(res, message=f"{res.message}; refractive pass {passes} failed: {res2.message}")
+            break
+        D = np.linalg.inv(res.T_world_base) @ res2.T_world_base
+        obs, kmap, res, refined, thesis = obs2, kmap2, res2, refined2, thesis2
+        std = (np.full(6, 1e-6) if res.covariance is None else  # no covariance: settle at 1 nm / 1 nrad
+               np.sqrt(np.clip(np.diag(np.asarray(res.covariance, float)), 0.0, None)))
+        if (np.linalg.norm(D[:3, 3]) <= SETTLED_FRACTION * np.linalg.norm(std[3:])
+                and rotation_angle(D[:3, :3]) <= SETTLED_FRACTION * np.linalg.norm(std[:3])):
+            break
+    if isinstance(camera, RefractiveCamera):
+        res = replace(res, message=f"{res.message}; refractive camera: {passes} pass(es)")
+    if details is not None and thesis is not None:
+        details["thesis_result"] = thesis
     a = obs[roles["locate"][0].name]
-    refined = False  # the joint bundle's estimate is the one returned
-    if pnp:
-        res = locate_pnp(kmap, a, config, focal_px=camera.fx)
-    else:
-        res = locate(kmap, a, obs[roles["locate"][1].name], config, method=method, rng=seed,
-                     refine="bundle" if refine == "joints" else refine, focal_px=camera.fx,
-                     **(ransac or {}))  # focal: the baseline checks' 1 px (Eq. 123, 199)
-        if refine == "joints" and res.success:
-            if details is not None:
-                details["thesis_result"] = res  # the thesis estimator's (bundle) result, reported beside
-            res, refined = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors)
     # the estimator's first-order covariance, calibrated by its measured optimism (bench.vision.integrity.KAPPA) - of
     # the estimate returned: 'joints' falls back to the thesis's 'bundle' when the joint bundle fails or is skipped;
     # 'joints' was measured with the lab priors (without them it is unmeasured)

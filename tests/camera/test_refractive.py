@@ -202,3 +202,70 @@ def test_priors_pull_the_estimate():
     prior = calibrate_refractive(Xs, noisy, lens0, port0, T0, lens_prior=(mean, np.diag([1e-6] * 4 + [1e-12] * 4)))
     np.testing.assert_allclose(prior.camera.lens.K, LENS.K, atol=1e-2)
     assert prior.std("fx") < 1.1e-3 < free.std("fx")
+
+
+# ------------------------------------------------------------------------------------------------ files
+
+
+def test_camera_yaml_round_trip_and_refusals(tmp_path):
+    from bench.camera.io import read_camera_yaml, write_camera_yaml
+    from bench.errors import ConfigError
+
+    cam = RefractiveCamera(LENS, PORT, 0.8, name="uw")
+    path = write_camera_yaml(tmp_path / "camera.yaml", cam)
+    back = read_camera_yaml(path, allow_refractive=True)
+    assert isinstance(back, RefractiveCamera) and back.name == "uw" and back.working_range_m == 0.8
+    np.testing.assert_allclose(back.lens.K, LENS.K)
+    np.testing.assert_allclose(back.lens.dist, LENS.dist)
+    assert back.port.d0 == pytest.approx(PORT.d0, abs=1e-15) and back.port.n_glass == PORT.n_glass
+    np.testing.assert_allclose(back.port.tilt, PORT.tilt, atol=1e-15)
+    p = np.array([[0.1, -0.05, 0.7], [-0.2, 0.1, 1.3]])
+    np.testing.assert_allclose(back.project(p), cam.project(p), atol=1e-9)
+    with pytest.raises(ConfigError, match="flat_port: a refractive camera .* not supported here"):
+        read_camera_yaml(path)  # where only a central camera is understood
+    text = path.read_text()
+    (tmp_path / "bad.yaml").write_text(text.replace("n_glass: 1.52", "n_glass: 0.5"))
+    with pytest.raises(ConfigError, match="flat_port.n_glass: refractive index must be >= 1"):
+        read_camera_yaml(tmp_path / "bad.yaml", allow_refractive=True)
+    (tmp_path / "bad2.yaml").write_text(text.replace("working_range_m:", "working_range:"))
+    with pytest.raises(ConfigError, match="flat_port.working_range: unknown key"):
+        read_camera_yaml(tmp_path / "bad2.yaml", allow_refractive=True)
+    (tmp_path / "bad3.yaml").write_text(text.replace("working_range_m: 0.8", "working_range_m: 0.01"))
+    with pytest.raises(ConfigError, match="flat_port.working_range_m: expected a depth beyond the port"):
+        read_camera_yaml(tmp_path / "bad3.yaml", allow_refractive=True)
+    decentred = RefractiveCamera(LENS, FlatPort(d0=0.02, t=0.01, decentre=[0.001, 0.0]))
+    with pytest.raises(ValueError, match="decentre"):
+        write_camera_yaml(tmp_path / "d.yaml", decentred)
+
+
+def test_housing_yaml(tmp_path):
+    from bench.camera.io import housing_yaml_text, read_housing_yaml
+    from bench.errors import ConfigError
+
+    path = tmp_path / "housing.yaml"
+    path.write_text(housing_yaml_text(PORT, 3.0))
+    port, sigma = read_housing_yaml(path)
+    assert port.d0 == pytest.approx(PORT.d0) and port.t == pytest.approx(PORT.t) and not port.tilt.any()
+    assert sigma == pytest.approx(3e-3 / np.sqrt(3))
+    with pytest.raises(ConfigError, match="housing.yaml: <file>: missing"):
+        read_housing_yaml(tmp_path / "nope" / "housing.yaml")
+    for old, new, match in [("n_water: 1.34", "n_water: 13.4", "n_water: expected a refractive index"),
+                            ("lens_to_glass_tolerance_mm: 3", "lens_to_glass_tolerance_mm: 0", "tolerance"),
+                            ("glass_thickness_mm: 12", "glass_thickness_mm: twelve", "glass_thickness_mm"),
+                            ("n_air: 1", "n_air: 1\nport_tilt_deg: 1", "port_tilt_deg: unknown key")]:
+        path.write_text(housing_yaml_text(PORT, 3.0).replace(old, new))
+        with pytest.raises(ConfigError, match=match):
+            read_housing_yaml(path)
+
+
+def test_keypoint_depths():
+    from bench.vision.locate_dataset import keypoint_depths
+
+    rng = np.random.default_rng(8)
+    p = np.concatenate([rng.uniform(-0.3, 0.3, (300, 2)), rng.uniform(0.5, 0.9, (300, 1))], 1)
+    x_pts = p[:, :2] / p[:, 2:]
+    z = keypoint_depths(x_pts + 1e-4, p, 700.0)  # on a point's image (0.1 px): that point's depth
+    np.testing.assert_array_equal(z, p[:, 2])
+    far = keypoint_depths(np.array([[0.02, 0.01]]) + 0.05, p, 700.0)  # between points: a neighbourhood median
+    assert 0.5 <= far[0] <= 0.9
+    assert np.isnan(keypoint_depths(np.zeros((3, 2)), -p, 700.0)).all()  # nothing in front: no depth

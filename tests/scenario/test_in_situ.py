@@ -200,6 +200,33 @@ def test_every_error_source_off_is_exact(tmp_path):
     assert m["base_pos_err_mm"] < 1e-6 and m["base_rot_err_deg"] < 1e-7 and m["valve_tool_err_mm"] < 1e-6
 
 
+def test_every_error_source_off_is_exact_behind_a_port_with_the_refractive_model(tmp_path):
+    """Behind a flat port the refractive camera model (the true lens and port, pipeline.camera_model=refractive)
+    leaves no floor: the whole chain - coordinates at each keypoint's depth, passes until the pose settles - is exact
+    on exact data, where the best central camera leaves the model floor (docs/bounds.md)."""
+    perfect = [f"sources.{k}=perfect" for k in ("features", "camera", "kinematics", "encoders")]
+    path = run_scenario_file(SCENARIO, out=tmp_path / "run", seed=3, verbose=False, quiet=True,
+                             overrides=SMOKE + perfect + ["bound.enabled=false", "outputs.rerun=false",
+                                                          "camera.preset=underwater_in_water",
+                                                          "pipeline.camera_model=refractive"])
+    m = json.loads(Path(path).read_text())["metrics"]
+    assert m["base_pos_err_mm"] < 1e-6 and m["base_rot_err_deg"] < 1e-7 and m["valve_tool_err_mm"] < 1e-6
+    locate = json.loads((tmp_path / "run" / "locate.json").read_text())
+    assert "refractive camera: " in locate["message"]
+
+
+def test_refractive_model_needs_a_port_and_a_known_value(tmp_path):
+    from bench.errors import ConfigError
+    from bench.scenario.in_situ import validate
+
+    with pytest.raises(ConfigError, match="pipeline.camera_model: refractive needs a camera behind a port"):
+        validate(load_scenario(SCENARIO, overrides=["camera.preset=air_webcam", "pipeline.camera_model=refractive"]))
+    with pytest.raises(ConfigError, match="pipeline.camera_model: expected central or refractive"):
+        validate(load_scenario(SCENARIO, overrides=["pipeline.camera_model=polynomial"]))
+    with pytest.raises(ConfigError, match="camera.housing_tolerance_mm: must be > 0"):
+        validate(load_scenario(SCENARIO, overrides=["camera.housing_tolerance_mm=0"]))
+
+
 def test_bad_value_leaves_no_output_folder(tmp_path, capsys):
     from bench.cli import main
 
