@@ -256,8 +256,10 @@ def _check_views(object_points, image_points):
 
 
 def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0: FlatPort, T_cam_target0, *,
-                         lens_prior=None, d0_sigma_m: float | None = None, fix_lens: bool = False,
-                         fix_tilt: bool = False, max_nfev: int = 200) -> RefractiveCalibration:
+                         lens_prior=None, d0_sigma_m: float | None = None, tilt_sigma_rad: float | None = None,
+                         fix_lens: bool = False,
+                         fix_tilt: bool = False, fix_port: bool = False,
+                         max_nfev: int = 200) -> RefractiveCalibration:
     """Calibrate a lens behind a flat port from views of a known target in water (see the module docstring).
 
     Parameters
@@ -279,8 +281,11 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
         A prior on :data:`LENS_NAMES` (px, unitless), e.g. from a calibration of the lens in air.
     d0_sigma_m : float, optional
         A prior on ``d0`` around ``port0.d0`` with this standard deviation (m), e.g. the housing drawing's tolerance.
-    fix_lens, fix_tilt : bool
-        Hold the lens (at ``lens0``) or the tilt (at ``port0``'s) fixed.
+    tilt_sigma_rad : float, optional
+        A prior on each tilt angle around ``port0.tilt`` (rad), e.g. how square the housing holds the lens.
+    fix_lens, fix_tilt, fix_port : bool
+        Hold the lens (at ``lens0``), the tilt or the whole port (at ``port0``'s) fixed: e.g. the port in air, where
+        a slab's distance from the lens does not matter.
     max_nfev : int
         Evaluation budget of ``least_squares``.
 
@@ -296,6 +301,8 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
         raise ValueError(f"T_cam_target0: expected ({len(Xs)}, 4, 4) finite poses, got {T0.shape}")
     if d0_sigma_m is not None and not (np.isfinite(d0_sigma_m) and d0_sigma_m > 0):
         raise ValueError(f"d0_sigma_m: expected a standard deviation > 0 m, got {d0_sigma_m!r}")
+    if tilt_sigma_rad is not None and not (np.isfinite(tilt_sigma_rad) and tilt_sigma_rad > 0):
+        raise ValueError(f"tilt_sigma_rad: expected a standard deviation > 0 rad, got {tilt_sigma_rad!r}")
     lens_theta0 = np.array([lens0.fx, lens0.fy, lens0.cx, lens0.cy, *lens0.dist[:4]])
     L_prior = None
     if lens_prior is not None:
@@ -308,7 +315,9 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
         except np.linalg.LinAlgError:
             raise ValueError("lens_prior: the covariance is not positive definite") from None
     free_lens = not fix_lens
-    port_free = np.array([True, not fix_tilt, not fix_tilt])
+    if fix_lens and fix_port:
+        raise ValueError("fix_lens, fix_port: nothing left to calibrate")
+    port_free = np.array([not fix_port, not (fix_tilt or fix_port), not (fix_tilt or fix_port)])
     d0_start = port0.h / port0.normal[2]  # the same port plane with the decentre absorbed
     port_theta0 = np.array([d0_start, *port0.tilt])
     n_lens = 8 if free_lens else 0
@@ -337,8 +346,10 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
         extra = []
         if L_prior is not None and free_lens:
             extra.append(L_prior[1] @ (lens_t - L_prior[0]))
-        if d0_sigma_m is not None:
+        if d0_sigma_m is not None and port_free[0]:
             extra.append(np.array([(port_t[0] - d0_start) / d0_sigma_m]))
+        if tilt_sigma_rad is not None and port_free[1]:
+            extra.append((port_t[1:] - port_theta0[1:]) / tilt_sigma_rad)
         return np.concatenate([r, *extra]) if extra else r
 
     n_glob = n_lens + n_port
@@ -386,7 +397,8 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
         # the pixels weigh with sigma^2 (the priors are already whitened)
         W = np.ones(J.shape[0])
         W[:n_pix] = 1.0 / max(sigma, 1e-12) ** 2
-        cov = np.linalg.pinv((J.T * W) @ J, rcond=1e-15)[:n_glob, :n_glob]
+        cov = np.linalg.pinv((J.T * W) @ J, rcond=1e-15, hermitian=True)[:n_glob, :n_glob]
+        cov = 0.5 * (cov + cov.T)
     except np.linalg.LinAlgError:
         cov = np.full((n_glob, n_glob), np.nan)
     success = sol.status > 0 and finite

@@ -79,7 +79,10 @@ SCHEMA = {
                "housing_tolerance_mm": (float, 3.0)},
     "encoders": {"noise_deg": (float, 0.002), "resolution_deg": (float, 0.001)},
     "lab": {"tracker_poses": (int, 100), "tracker_sigma_mm": (float, 0.05), "rig_views": (int, 10),
-            "rig_distance_m": (float, 0.9), "eye_base_m": (list, [1.5, 0.7, 0.7])},
+            "rig_distance_m": (float, 0.9), "eye_base_m": (list, [1.5, 0.7, 0.7]),
+            # the rig also photographed in air (before the tank is flooded) from the same poses: views rigairNN,
+            # role rig_air - the lens's own calibration, which pipeline.camera_model=refractive starts from
+            "rig_in_air": (bool, False)},
     "site": {"panel_width_m": (float, 1.2), "panel_height_m": (float, 0.8), "standoff_m": (float, 0.7),
              "panel_centre_m": (list, [1.55, 0.45, 0.85]), "base_offset_m": (float, 0.3),
              "base_rot_deg": (float, 10.0), "parking_attempts": (int, 40),
@@ -130,6 +133,8 @@ BUDGET_METRICS = ["base_pos_err_mm", "base_rot_err_deg", "valve_tool_err_mm"]
 BUDGET_FIXED = {"outputs.rerun": False, "bound.enabled": False}
 
 DEG = np.pi / 180
+#: the IK seed of the rig views after the first
+Q_HOME = np.deg2rad([28.0, 37.0, 49.0, 82.0, 29.0, 0.0])
 TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
 
 
@@ -240,9 +245,11 @@ def validate(cfg) -> None:
         raise ConfigError(src, "pipeline.camera_model", f"expected central or refractive, got "
                                                         f"{cfg['pipeline']['camera_model']!r}")
     port = site_optics(cfg).port
-    if cfg["pipeline"]["camera_model"] == "refractive" and (port is None or port.n_water == port.n_air):
-        raise ConfigError(src, "pipeline.camera_model", f"refractive needs a camera behind a port in water, but "
-                                                        f"camera.preset {cfg['camera']['preset']!r} is in air")
+    for key, on in (("pipeline.camera_model", cfg["pipeline"]["camera_model"] == "refractive"),
+                    ("lab.rig_in_air", cfg["lab"]["rig_in_air"])):
+        if on and (port is None or port.n_water == port.n_air):
+            raise ConfigError(src, key, f"needs a camera behind a port in water, but camera.preset "
+                                        f"{cfg['camera']['preset']!r} is in air")
     for key, allowed in SOURCES.items():
         if cfg["sources"][key] not in allowed:
             raise ConfigError(src, f"sources.{key}", f"expected one of {', '.join(allowed)}, got "
@@ -409,6 +416,24 @@ def _why_unreachable(robot, eps, cfg, eyes, centre, valves, mount) -> str:
             "site.parking_attempts")
 
 
+def _rig_views(robot, rig_centre, distance, n, prefix, mount_nominal, role="rig"):
+    """``(views, unreachable)``: ``n`` views of the rig from ``distance`` (m) in directions spread over +-25 deg
+    azimuth and +-12 deg elevation (rotation diversity for AX = XB), base at the world origin; the requested views the
+    arm cannot take are listed (reported, not silently dropped)."""
+    az = np.linspace(-25, 25, n) * DEG
+    el = 12 * DEG * np.sin(np.linspace(0, 2 * np.pi, n, endpoint=False))
+    views, unreachable = [], []
+    for k in range(n):
+        direction = np.array([np.cos(el[k]) * np.cos(az[k]), np.cos(el[k]) * np.sin(az[k]), np.sin(el[k])])
+        sol = _plan(robot, np.eye(4), rig_centre - distance * direction, rig_centre, mount_nominal,
+                    Q_HOME if k else None)
+        if not sol.success:
+            unreachable.append(f"{prefix}{k:02d} ({sol.message})")
+            continue
+        views.append((f"{prefix}{k:02d}", role, np.eye(4), sol.q))
+    return views, unreachable
+
+
 def _plan(robot, T_world_base, eye_w, target_w, mount, q_seed):
     from bench.sim.views import look_at_configuration
 
@@ -470,27 +495,14 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     rig_centre = transform_points(T_world_rig, rig.features["corners"]).mean(axis=0)
 
     views = []  # (name, role, T_world_base, q_true)
-    q_home = np.deg2rad([28.0, 37.0, 49.0, 82.0, 29.0, 0.0])
 
     # --- lab: rig views from several directions (rotation diversity for AX = XB), base at the world origin -----------
     n_rig = cfg["lab"]["rig_views"]
-    az = np.linspace(-25, 25, n_rig) * DEG
-    el = 12 * DEG * np.sin(np.linspace(0, 2 * np.pi, n_rig, endpoint=False))
-    q_seed = q_home
-    unreachable = []  # requested rig views the arm cannot take (reported, not silently dropped)
-    for k in range(n_rig):
-        d = cfg["lab"]["rig_distance_m"]
-        direction = np.array([np.cos(el[k]) * np.cos(az[k]), np.cos(el[k]) * np.sin(az[k]), np.sin(el[k])])
-        eye = rig_centre - d * direction
-        sol = _plan(robot, np.eye(4), eye, rig_centre, mount_nominal, q_seed if k else None)
-        if not sol.success:
-            unreachable.append(f"rig{k:02d} ({sol.message})")
-            continue
-        views.append((f"rig{k:02d}", "rig", np.eye(4), sol.q))
+    rig_views, unreachable = _rig_views(robot, rig_centre, cfg["lab"]["rig_distance_m"], n_rig, "rig", mount_nominal)
+    views += rig_views
     if unreachable and verbose:
         print(f"warning: {len(unreachable)} of {n_rig} requested rig views not reachable, not rendered (truth/"
               f"sim_checks.json: rig_views_unreachable): {'; '.join(unreachable)}", file=sys.stderr)
-        q_seed = sol.q
 
     # --- site: parking 1 (survey, task taught) and parking 2 (locate, task executed) ---------------------------------
     T_ref_look = look_at(eye_ref, centre)
@@ -526,10 +538,20 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                                                 + _why_unreachable(robot, eps, cfg, survey_eyes + locate_eyes, centre,
                                                                    valves, mount_nominal))
     views += site_views
+    if cfg["lab"]["rig_in_air"]:  # before the tank is flooded, closer by the port's magnification so that the rig
+        # covers the image as in water (rendered last: no draw moves)
+        air_views, air_unreachable = _rig_views(robot, rig_centre, cfg["lab"]["rig_distance_m"] / mag, n_rig,
+                                                "rigair", mount_nominal, role="rig_air")
+        views += air_views
+        unreachable += air_unreachable
     t_plan = time.perf_counter() - t0
 
     # --- render ----------------------------------------------------------------------------------------------------
     objects = {"rig": [place(rig, T_world_rig, "rig_lab")]}  # the lab
+    objects["rig_air"] = objects["rig"]
+    # the housing in air: the same port with air outside, no water, no lamp (the lab is lit)
+    air = optics_preset(cfg["camera"]["preset"], overrides={"port": {"n_water": port.n_air}, "water": None,
+                                                            "light": None}) if cfg["lab"]["rig_in_air"] else None
     objects.update({r: [place(panel, T_world_panel, "panel_site")] for r in ("reference", "surround", "locate")})
     scenes = {}
     images, readings = {}, {}
@@ -538,10 +560,11 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         print(f"rendering {len(views)} views ({len(views) - len(site_views)} rig, {len(site_views)} site) ...",
               file=sys.stderr)
     for n, (name, role, T_wb, q) in enumerate(views):
-        key = (role == "rig",) + tuple(np.round(T_wb, 12).ravel())
+        key = ("rig" if role == "rig" else role if role == "rig_air" else "site",) + tuple(np.round(T_wb, 12).ravel())
         if key not in scenes:
-            scenes[key] = ArmScene(robot, eps, T_wb, mount_true, true_cam, objects[role], ss, optics.chain, cache_dir,
-                                   T_link5_mount=mount_nominal, port=port, imaging=imaging(cfg))
+            chain, port_r = (air.chain, air.port) if role == "rig_air" else (optics.chain, port)
+            scenes[key] = ArmScene(robot, eps, T_wb, mount_true, true_cam, objects[role], ss, chain, cache_dir,
+                                   T_link5_mount=mount_nominal, port=port_r, imaging=imaging(cfg))
         images[name] = scenes[key].render(q, seed=cfg["seed"] * 1000 + n)
         readings[name] = enc.read(q, rng_enc)
         if verbose:
@@ -887,13 +910,56 @@ class _VirtualCalibration:
         idx = [r.parameter_names.index(n) for n in names[:4]]
         S = np.diag([mag, mag, 1.0, 1.0])
         C[:4, :4] = S @ r.covariance[np.ix_(idx, idx)] @ S
+        C = 0.5 * (C + C.T)
         return cls(cam.K, cam.dist, r.T_cam_target, names, C)
 
 
-def _calibrate_refractive(ds, cal, Xs, uvs, raise_on_failure=True):
+def _lens_from_vector(template: CameraModel, v) -> CameraModel:
+    """``template`` with ``fx fy cx cy k1 k2 p1 p2`` = ``v`` (skew and k3 kept)."""
+    K = np.array([[v[0], template.skew, v[2]], [0.0, v[1], v[3]], [0.0, 0.0, 1.0]])
+    return template.replace(K=K, dist=np.r_[v[4:8], template.dist[4]], model=None)
+
+
+def _calibrate_lens_in_air(ds, geometry, cfg):
+    """The lens from the rig views in air (role ``rig_air``, ``lab.rig_in_air``): a central fit, then the lens behind
+    the housing's glass with air outside (a slab: its distance from the lens does not matter, the port is held at the
+    datasheet's) - ``(mean (8,), covariance (8, 8))`` of :data:`bench.camera.refractive.LENS_NAMES`, the water
+    calibration's prior; None without air views."""
+    from bench.camera.io import read_housing_yaml
+    from bench.camera.refractive import LENS_NAMES, calibrate_refractive, refractive_start
+
+    views = [v for v in ds.views if v.role == "rig_air"]
+    if not views:
+        return None
+    Xs, uvs = [], []
+    for v in views:
+        img = v.image()
+        res = (extract_corners_opencv(img, geometry) if cfg["pipeline"]["extractor"] == "opencv" else
+               extract_corners_thesis(img, geometry))
+        if res.success:
+            Xs.append(res.object_points)
+            uvs.append(res.uv)
+    if len(Xs) < 3:
+        raise ConfigError(ds.root, "rig_air views", f"the rig was found in {len(Xs)} air views (need >= 3)")
+    size = (views[0].image().shape[1], views[0].image().shape[0])
+    c = calibrate_camera(Xs, uvs, size, model="heikkila")
+    if not c.success:
+        raise ConfigError(ds.root, "rig_air views", f"camera calibration in air failed: {c.message}")
+    housing, _ = read_housing_yaml(ds.root / "housing.yaml")
+    slab = replace(housing, n_water=housing.n_air)
+    lens0, T0 = refractive_start(c.camera, c.T_cam_target, slab)
+    r = calibrate_refractive(Xs, uvs, lens0, slab, T0, fix_port=True)
+    if not r.success:
+        raise ConfigError(ds.root, "rig_air views", f"lens calibration in air failed: {r.message}")
+    idx = [r.parameter_names.index(n) for n in LENS_NAMES]
+    return r.parameters[idx], r.covariance[np.ix_(idx, idx)]
+
+
+def _calibrate_refractive(ds, cal, Xs, uvs, raise_on_failure=True, air=None):
     """The lens and the flat port from the rig views (:func:`bench.camera.refractive.calibrate_refractive`), started
-    from the central calibration ``cal`` of the same views and the housing's datasheet (``housing.yaml``); its
-    working range is the rig corners' median depth. The datasheet's lens-to-glass distance is a prior within its
+    from the central calibration ``cal`` of the same views and the housing's datasheet (``housing.yaml``), the lens
+    under ``air`` (the lens calibrated in air: mean, covariance) when given; its working range is the rig corners'
+    median depth. The datasheet's lens-to-glass distance is a prior within its
     stated tolerance: rig views at one range hardly see it (measured: seed 1's nine views leave it at +-0.3 m
     without the prior). None (or a one-line error) when it fails."""
     from bench.camera.io import read_housing_yaml
@@ -901,7 +967,9 @@ def _calibrate_refractive(ds, cal, Xs, uvs, raise_on_failure=True):
 
     housing, d0_sigma = read_housing_yaml(ds.root / "housing.yaml")
     lens0, T0 = refractive_start(cal.camera, cal.T_cam_target, housing)
-    r = calibrate_refractive(Xs, uvs, lens0, housing, T0, d0_sigma_m=d0_sigma)
+    if air is not None:  # start from the air lens, the poses from the central fit
+        lens0 = _lens_from_vector(lens0, air[0])
+    r = calibrate_refractive(Xs, uvs, lens0, housing, T0, d0_sigma_m=d0_sigma, lens_prior=air)
     if not r.success:
         if raise_on_failure:
             raise ConfigError(ds.root, "rig views", f"refractive camera calibration failed: {r.message}")
@@ -914,7 +982,7 @@ def _calibrate_refractive(ds, cal, Xs, uvs, raise_on_failure=True):
 
 
 def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5, mount_nominal, S,
-                          draws, refr=None, ds=None) -> tuple:
+                          draws, refr=None, ds=None, air=None) -> tuple:
     """What the rig's stated tolerances leave in the lab results: the second moment (14, 14) of the deviations of
     ``fx, fy, cx, cy`` (px), ``k1, k2, p1, p2`` and the mount (right perturbation: rotation vector rad, translation
     m) over calibrations of the same detections against perturbed rigs
@@ -932,7 +1000,7 @@ def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5
         if not c.success:
             return None
         if refr is not None:  # the refractive camera, started from this central fit as in the lab
-            r = _calibrate_refractive(ds, c, Xs_m, uvs, raise_on_failure=False)
+            r = _calibrate_refractive(ds, c, Xs_m, uvs, raise_on_failure=False, air=air)
             if r is None:
                 return None
             c = _VirtualCalibration.of(r)
@@ -997,9 +1065,10 @@ def calibrate_lab(ds, robot, cfg, out):
 
         refined = calibrate_camera_refining_rig(Xs, uvs, size, model="heikkila").calibration
         cal = refined if refined.success else cal
-    refr = None
+    refr = air = None
     if cfg["pipeline"]["camera_model"] == "refractive":
-        refr = _calibrate_refractive(ds, cal, Xs, uvs)
+        air = _calibrate_lens_in_air(ds, geometry, cfg)
+        refr = _calibrate_refractive(ds, cal, Xs, uvs, air=air)
     t_cam = time.perf_counter() - t0 - t_arm
     T_base_l5 = np.stack([link5_frame(robot, v.q, eps_hat) for v in used])
     # the rig looks the same after a half turn about the horizontal bisector of its boards: make its frame consistent
@@ -1024,7 +1093,7 @@ def calibrate_lab(ds, robot, cfg, out):
     tolerance = load_target_tolerance(ds.root / "target.yaml")
     if tolerance is not None and tolerance.any and cfg["pipeline"]["target_tolerance"]:
         tol_cov, tol_draws = _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5,
-                                                   mount_nominal, S, cfg["pipeline"]["tolerance_draws"], refr, ds)
+                                                   mount_nominal, S, cfg["pipeline"]["tolerance_draws"], refr, ds, air)
         notes += (f"; plus the rig's stated tolerances (target.yaml) through the calibration and AX = XB, "
                   f"{tol_draws} Monte Carlo draws")
     priors = _lab_priors(cal if refr is None else _VirtualCalibration.of(refr), he, len(used), cfg, tol_cov,

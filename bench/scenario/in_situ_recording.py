@@ -193,7 +193,7 @@ def record_in_situ(path, cfg, ds, truth, lab, res, report, details, reached, met
             t = truth["views"][v.name]
             T_wb, q_true = _T(t["T_world_base"]), _T(t["q_true"])
             kp = obs[v.name].features.uv if v.name in obs else None
-            lab_view = v.role == "rig"
+            lab_view = v.role in ("rig", "rig_air")
             prefix = "world/lab/views" if lab_view else "world/views"
             T_w_cam = T_wb @ link5_frame(robot, q_true, eps_true) @ mount_true
             # cameras are static (each view is its own entity): their 2D content is never without its pinhole

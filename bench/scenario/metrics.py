@@ -192,9 +192,19 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("base_pos_efficiency", "1", "bound / achieved, position (over seeds: RMS bound / RMS error)",
                "`bound.enabled`"),
         Metric("base_rot_efficiency", "1", "bound / achieved, rotation", "`bound.enabled`"),
-        Metric("focal_err_pct", "%", "calibrated focal length vs the true (in water: paraxial) one"),
+        Metric("focal_err_pct", "%", "calibrated focal length vs the true (in water: paraxial; refractive: the "
+               "lens's) one"),
         Metric("reproj_rms_px", "px", "reprojection RMS of the lab camera calibration"),
-        Metric("mount_pos_err_mm", "mm", "calibrated camera mount vs the true (in water: virtual centre), position"),
+        Metric("reproj_rms_central_px", "px", "the same of the central calibration it starts from",
+               "`pipeline.camera_model: refractive`"),
+        Metric("port_d0_err_mm", "mm", "calibrated lens-to-glass distance vs the true one (decentre absorbed)",
+               "`pipeline.camera_model: refractive`"),
+        Metric("port_d0_std_mm", "mm", "its standard deviation from the calibration (prior included)",
+               "`pipeline.camera_model: refractive`"),
+        Metric("port_tilt_err_deg", "deg", "calibrated port tilt vs the true one", "`pipeline.camera_model: "
+               "refractive`"),
+        Metric("mount_pos_err_mm", "mm", "calibrated camera mount vs the true (in water: virtual centre; refractive: "
+               "the lens), position"),
         Metric("mount_pos_err_lens_centre_mm", "mm", "calibrated mount position vs the lens itself"),
         Metric("mount_rot_err_deg", "deg", "calibrated camera mount, rotation error"),
         Metric("arm_heldout_rms_mm", "mm", "lab-calibrated arm vs the true arm, RMS over 500 held-out poses"),
