@@ -10,6 +10,8 @@ A dataset is a folder that a real robot campaign or the simulator writes::
     tracker.csv     point, x_mm, y_mm, z_mm, q1_deg ... q6_deg   (kinematic campaigns)
     camera.yaml     nominal (or calibrated) camera: OpenCV FileStorage keys + model name
     robot.yaml      nominal DH + joint limits (``models/ta40.yaml`` format)
+    housing.yaml    (cameras in water) the housing's datasheet: lens-to-glass distance and its tolerance, glass
+                    thickness and index, the water's index (:func:`bench.camera.io.read_housing_yaml`)
     truth/          simulated datasets only; never read here (the evaluator's business)
 
 This module reads the public part (:func:`load_dataset`) and writes any part atomically (:class:`DatasetWriter`:

@@ -470,6 +470,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     # every random source draws from a stream of its own, so that switching one off (bench budget) leaves the
     # others' draws - the truth, the parking, the tracker campaign - exactly as they were: the variants are paired
     rng_enc = np.random.default_rng([cfg["seed"], 21])
+    rng_enc_air = np.random.default_rng([cfg["seed"], 23])
     site = cfg["site"]
 
     # --- site geometry: the panel faces the arm (normal -x of the world), within reach of the nominal base ----------
@@ -566,7 +567,8 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
             scenes[key] = ArmScene(robot, eps, T_wb, mount_true, true_cam, objects[role], ss, chain, cache_dir,
                                    T_link5_mount=mount_nominal, port=port_r, imaging=imaging(cfg))
         images[name] = scenes[key].render(q, seed=cfg["seed"] * 1000 + n)
-        readings[name] = enc.read(q, rng_enc)
+        # the air views read their encoders from a stream of their own: the other readings stay paired
+        readings[name] = enc.read(q, rng_enc if role != "rig_air" else rng_enc_air)
         if verbose:
             print(f"\r  {n + 1}/{len(views)}", end="", file=sys.stderr)
     if verbose:

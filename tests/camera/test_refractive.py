@@ -188,6 +188,22 @@ def test_bad_input_and_non_convergence():
         RefractiveCamera("not a camera", PORT)
 
 
+def test_lens_in_air_with_the_port_held():
+    """In air the glass is a slab whose distance does not matter: with the port held, the lens alone is calibrated,
+    exactly, from views through the slab; holding everything is refused."""
+    slab = FlatPort(d0=0.02, t=0.012, n_air=1.0, n_glass=1.52, n_water=1.0)
+    cam = RefractiveCamera(LENS, slab)
+    rng = np.random.default_rng(9)
+    Ts, Xs, _ = _views(rng, n=8)
+    uvs = [cam.project(transform_points(T, X)) for T, X in zip(Ts, Xs, strict=True)]
+    lens0, _, T0 = _perturbed_start(rng, Ts)
+    res = calibrate_refractive(Xs, uvs, lens0, slab, T0, fix_port=True)
+    assert res.success and res.parameter_names == LENS_NAMES
+    np.testing.assert_allclose(res.camera.lens.K, LENS.K, atol=1e-6)
+    with pytest.raises(ValueError, match="nothing left"):
+        calibrate_refractive(Xs, uvs, LENS, slab, Ts, fix_lens=True, fix_port=True)
+
+
 def test_priors_pull_the_estimate():
     """A tight d0 prior holds d0 where the views leave it loose; a lens prior centred on the truth holds the lens."""
     rng = np.random.default_rng(7)
@@ -202,6 +218,8 @@ def test_priors_pull_the_estimate():
     prior = calibrate_refractive(Xs, noisy, lens0, port0, T0, lens_prior=(mean, np.diag([1e-6] * 4 + [1e-12] * 4)))
     np.testing.assert_allclose(prior.camera.lens.K, LENS.K, atol=1e-2)
     assert prior.std("fx") < 1.1e-3 < free.std("fx")
+    tilted = calibrate_refractive(Xs, noisy, lens0, port0, T0, tilt_sigma_rad=1e-6)
+    assert tilted.std("tilt_x") < 1.1e-6 < free.std("tilt_x") and np.abs(tilted.camera.port.tilt).max() < 1e-5
 
 
 # ------------------------------------------------------------------------------------------------ files

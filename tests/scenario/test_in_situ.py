@@ -208,11 +208,24 @@ def test_every_error_source_off_is_exact_behind_a_port_with_the_refractive_model
     path = run_scenario_file(SCENARIO, out=tmp_path / "run", seed=3, verbose=False, quiet=True,
                              overrides=SMOKE + perfect + ["bound.enabled=false", "outputs.rerun=false",
                                                           "camera.preset=underwater_in_water",
-                                                          "pipeline.camera_model=refractive"])
+                                                          "pipeline.camera_model=refractive", "lab.rig_in_air=true"])
     m = json.loads(Path(path).read_text())["metrics"]
     assert m["base_pos_err_mm"] < 1e-6 and m["base_rot_err_deg"] < 1e-7 and m["valve_tool_err_mm"] < 1e-6
     locate = json.loads((tmp_path / "run" / "locate.json").read_text())
     assert "refractive camera: " in locate["message"]
+    # the lab's own refractive calibration ran (from the air views' lens and the water views), and its file holds
+    # the lens and the port; the dataset has the air views and the housing's datasheet
+    from bench.camera.io import read_camera_yaml, read_housing_yaml
+    from bench.camera.refractive import RefractiveCamera
+    from bench.dataset import load_dataset
+
+    lab = read_camera_yaml(tmp_path / "run" / "calibrated" / "camera.yaml", allow_refractive=True)
+    assert isinstance(lab, RefractiveCamera) and 0.3 < lab.working_range_m < 1.5
+    assert m["port_d0_err_mm"] < 5 and m["focal_err_pct"] < 3 and m["reproj_rms_px"] < 0.2
+    ds = load_dataset(tmp_path / "run" / "dataset")
+    assert sum(v.role == "rig_air" for v in ds.views) >= 3
+    port, sigma = read_housing_yaml(ds.root / "housing.yaml")
+    assert sigma == pytest.approx(3e-3 / np.sqrt(3)) and abs(port.d0 - 0.02) <= 3e-3 + 1e-4
 
 
 def test_refractive_model_needs_a_port_and_a_known_value(tmp_path):
@@ -223,6 +236,8 @@ def test_refractive_model_needs_a_port_and_a_known_value(tmp_path):
         validate(load_scenario(SCENARIO, overrides=["camera.preset=air_webcam", "pipeline.camera_model=refractive"]))
     with pytest.raises(ConfigError, match="pipeline.camera_model: expected central or refractive"):
         validate(load_scenario(SCENARIO, overrides=["pipeline.camera_model=polynomial"]))
+    with pytest.raises(ConfigError, match="lab.rig_in_air: needs a camera behind a port in water"):
+        validate(load_scenario(SCENARIO, overrides=["camera.preset=air_webcam", "lab.rig_in_air=true"]))
     with pytest.raises(ConfigError, match="camera.housing_tolerance_mm: must be > 0"):
         validate(load_scenario(SCENARIO, overrides=["camera.housing_tolerance_mm=0"]))
 
