@@ -232,7 +232,7 @@ def test_refractive_model_needs_a_port_and_a_known_value(tmp_path):
     from bench.errors import ConfigError
     from bench.scenario.in_situ import validate
 
-    with pytest.raises(ConfigError, match="pipeline.camera_model: refractive needs a camera behind a port"):
+    with pytest.raises(ConfigError, match="pipeline.camera_model: needs a camera behind a port in water"):
         validate(load_scenario(SCENARIO, overrides=["camera.preset=air_webcam", "pipeline.camera_model=refractive"]))
     with pytest.raises(ConfigError, match="pipeline.camera_model: expected central or refractive"):
         validate(load_scenario(SCENARIO, overrides=["pipeline.camera_model=polynomial"]))
