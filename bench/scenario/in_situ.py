@@ -82,7 +82,10 @@ SCHEMA = {
             "rig_distance_m": (float, 0.9), "eye_base_m": (list, [1.5, 0.7, 0.7]),
             # the rig also photographed in air (before the tank is flooded) from the same poses: views rigairNN,
             # role rig_air - the lens's own calibration, which pipeline.camera_model=refractive starts from
-            "rig_in_air": (bool, False)},
+            "rig_in_air": (bool, False),
+            # more rig views (lab.rig_views each) at these distances (m): a campaign over a range of distances, which
+            # a refractive camera model needs to see its port (rendered after the others: their draws do not move)
+            "rig_extra_distances_m": (list, [])},
     "site": {"panel_width_m": (float, 1.2), "panel_height_m": (float, 0.8), "standoff_m": (float, 0.7),
              "panel_centre_m": (list, [1.55, 0.45, 0.85]), "base_offset_m": (float, 0.3),
              "base_rot_deg": (float, 10.0), "parking_attempts": (int, 40),
@@ -234,6 +237,7 @@ def validate(cfg) -> None:
     if cfg["lab"]["tracker_sigma_mm"] > 50:
         raise ConfigError(src, "lab.tracker_sigma_mm", "implausible: the unit is mm")
     _check_ranges(cfg)
+    _numbers_list(cfg, "lab.rig_extra_distances_m")
     if cfg["pipeline"]["method"] not in ("svd", "horn", "rodrigues"):
         raise ConfigError(src, "pipeline.method", "expected svd, horn or rodrigues")
     if cfg["pipeline"]["refine"] not in ("none", "pose", "bundle", "joints"):
@@ -416,6 +420,16 @@ def _why_unreachable(robot, eps, cfg, eyes, centre, valves, mount) -> str:
             "site.parking_attempts")
 
 
+def _numbers_list(cfg, key):
+    """The list of numbers at ``key`` (``section.name``), each in (0.2, 3) m; else a one-line error naming it."""
+    sec, k = key.split(".")
+    v = cfg[sec][k]
+    if not isinstance(v, list) or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                          and np.isfinite(x) and 0.2 < x < 3.0 for x in v):
+        raise ConfigError(cfg["_file"], key, f"expected a list of distances in (0.2, 3) m, got {v!r}")
+    return [float(x) for x in v]
+
+
 def _rig_views(robot, rig_centre, distance, n, prefix, mount_nominal, role="rig"):
     """``(views, unreachable)``: ``n`` views of the rig from ``distance`` (m) in directions spread over +-25 deg
     azimuth and +-12 deg elevation (rotation diversity for AX = XB), base at the world origin; the requested views the
@@ -470,7 +484,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     # every random source draws from a stream of its own, so that switching one off (bench budget) leaves the
     # others' draws - the truth, the parking, the tracker campaign - exactly as they were: the variants are paired
     rng_enc = np.random.default_rng([cfg["seed"], 21])
-    rng_enc_air = np.random.default_rng([cfg["seed"], 23])
+    rng_enc_extra = np.random.default_rng([cfg["seed"], 23])
     site = cfg["site"]
 
     # --- site geometry: the panel faces the arm (normal -x of the world), within reach of the nominal base ----------
@@ -539,12 +553,17 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                                                 + _why_unreachable(robot, eps, cfg, survey_eyes + locate_eyes, centre,
                                                                    valves, mount_nominal))
     views += site_views
+    n_paired = len(views)  # the views every variant renders: the ones after read their own encoder stream
     if cfg["lab"]["rig_in_air"]:  # before the tank is flooded, closer by the port's magnification so that the rig
         # covers the image as in water (rendered last: no draw moves)
         air_views, air_unreachable = _rig_views(robot, rig_centre, cfg["lab"]["rig_distance_m"] / mag, n_rig,
                                                 "rigair", mount_nominal, role="rig_air")
         views += air_views
         unreachable += air_unreachable
+    for i, d in enumerate(_numbers_list(cfg, "lab.rig_extra_distances_m")):
+        extra, extra_unreachable = _rig_views(robot, rig_centre, d, n_rig, f"rig{i + 1}d", mount_nominal)
+        views += extra
+        unreachable += extra_unreachable
     t_plan = time.perf_counter() - t0
 
     # --- render ----------------------------------------------------------------------------------------------------
@@ -568,7 +587,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                                    T_link5_mount=mount_nominal, port=port_r, imaging=imaging(cfg))
         images[name] = scenes[key].render(q, seed=cfg["seed"] * 1000 + n)
         # the air views read their encoders from a stream of their own: the other readings stay paired
-        readings[name] = enc.read(q, rng_enc if role != "rig_air" else rng_enc_air)
+        readings[name] = enc.read(q, rng_enc if n < n_paired else rng_enc_extra)
         if verbose:
             print(f"\r  {n + 1}/{len(views)}", end="", file=sys.stderr)
     if verbose:
@@ -894,26 +913,46 @@ def _score_task(cfg, ds, truth, report, robot):
 class _VirtualCalibration:
     """A refractive calibration seen as the central calibration of its virtual pinhole
     (:meth:`~bench.camera.refractive.RefractiveCamera.virtual_camera`): ``K``, ``dist`` (zero), ``T_cam_target``,
-    and the covariance of ``fx fy cx cy`` - the lens's scaled by the port's paraxial magnification - for the lab
-    priors of the joint bundle (which sees the refractive coordinates through that pinhole)."""
+    and the covariance of ``fx fy cx cy k1 k2 p1 p2`` - the lens's scaled by the port's paraxial magnification - for
+    the lab priors of the joint bundle (which sees the refractive coordinates through that pinhole, and corrects them
+    with a first-order distortion of its own under that prior)."""
 
     K: np.ndarray
     dist: np.ndarray
     T_cam_target: np.ndarray
     parameter_names: tuple
     covariance: np.ndarray
+    dist_equivalent: np.ndarray  # the lens's k1 k2 p1 p2 in the pinhole's coordinates (first order): mag^2, mag^4, mag
 
     @classmethod
     def of(cls, r):
         cam = r.camera.virtual_camera()
         mag = r.camera.port.n_water / r.camera.port.n_air
         names = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
-        C = np.zeros((8, 8))
-        idx = [r.parameter_names.index(n) for n in names[:4]]
-        S = np.diag([mag, mag, 1.0, 1.0])
-        C[:4, :4] = S @ r.covariance[np.ix_(idx, idx)] @ S
+        idx = [r.parameter_names.index(n) for n in names]
+        # the lens's distortion acts on in-air coordinates, mag times the water ones paraxially: k1 r_a^2 = k1 mag^2
+        # r_w^2 etc. - the covariance of the pinhole's equivalent (first-order) distortion
+        S = np.diag([mag, mag, 1.0, 1.0, mag**2, mag**4, mag, mag])
+        C = S @ r.covariance[np.ix_(idx, idx)] @ S
         C = 0.5 * (C + C.T)
-        return cls(cam.K, cam.dist, r.T_cam_target, names, C)
+        return cls(cam.K, cam.dist, r.T_cam_target, names, C, np.diag(S)[4:] * r.camera.lens.dist[:4])
+
+
+def _rig_corners(ds, geometry, cfg, role):
+    """``(object points, pixels, views)`` of the rig's corners in the dataset's views of ``role`` where the extractor
+    (``pipeline.extractor``) finds the rig; fewer than three is a one-line error."""
+    Xs, uvs, used = [], [], []
+    for v in (v for v in ds.views if v.role == role):
+        img = v.image()
+        res = (extract_corners_opencv(img, geometry) if cfg["pipeline"]["extractor"] == "opencv" else
+               extract_corners_thesis(img, geometry))
+        if res.success:
+            Xs.append(res.object_points)
+            uvs.append(res.uv)
+            used.append(v)
+    if len(used) < 3:
+        raise ConfigError(ds.root, f"{role} views", f"the rig was found in {len(used)} views (need >= 3)")
+    return Xs, uvs, used
 
 
 def _lens_from_vector(template: CameraModel, v) -> CameraModel:
@@ -930,20 +969,10 @@ def _calibrate_lens_in_air(ds, geometry, cfg):
     from bench.camera.io import read_housing_yaml
     from bench.camera.refractive import LENS_NAMES, calibrate_refractive, refractive_start
 
-    views = [v for v in ds.views if v.role == "rig_air"]
-    if not views:
+    if not any(v.role == "rig_air" for v in ds.views):
         return None
-    Xs, uvs = [], []
-    for v in views:
-        img = v.image()
-        res = (extract_corners_opencv(img, geometry) if cfg["pipeline"]["extractor"] == "opencv" else
-               extract_corners_thesis(img, geometry))
-        if res.success:
-            Xs.append(res.object_points)
-            uvs.append(res.uv)
-    if len(Xs) < 3:
-        raise ConfigError(ds.root, "rig_air views", f"the rig was found in {len(Xs)} air views (need >= 3)")
-    size = (views[0].image().shape[1], views[0].image().shape[0])
+    Xs, uvs, used = _rig_corners(ds, geometry, cfg, "rig_air")
+    size = (used[0].image().shape[1], used[0].image().shape[0])
     c = calibrate_camera(Xs, uvs, size, model="heikkila")
     if not c.success:
         raise ConfigError(ds.root, "rig_air views", f"camera calibration in air failed: {c.message}")
@@ -992,8 +1021,8 @@ def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5
     from bench.camera.target_tolerance import consider_covariance
     from bench.geometry.quaternion import matrix_to_rotation_vector
 
-    def lab_vector(c):
-        return np.r_[c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2], c.dist[:4]]
+    def lab_vector(c):  # a refractive calibration: its lens's distortion, as its virtual pinhole sees it
+        return np.r_[c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2], getattr(c, "dist_equivalent", c.dist[:4])]
 
     v0, M_inv = lab_vector(cal if refr is None else _VirtualCalibration.of(refr)), invert(he.T_mount_cam)
 
@@ -1016,7 +1045,7 @@ def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5
     return consider_covariance(geometry, tolerance, Xs, solve, draws)
 
 
-def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None, distortion=True) -> dict:
+def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:
     """The lab calibrations' covariances for refine 'joints' (:func:`bench.vision.joint_bundle.read_priors`'s
     names): the camera calibration's own block of ``fx fy cx cy`` (and ``k1 k2 p1 p2`` with
     ``pipeline.refine_distortion``); the mount's from the AX = XB residuals, rms^2 / n per axis (it gives no
@@ -1030,7 +1059,7 @@ def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None, distortion=True) -> d
     if tol:
         C = C + tolerance_cov
     out = {"cov_K": C[:4, :4], "cov_mount": C[8:, 8:], "cov_K_mount": C[:4, 8:] if tol else None}
-    if cfg["pipeline"]["refine_distortion"] and distortion:
+    if cfg["pipeline"]["refine_distortion"]:
         out.update(cov_dist=C[4:8, 4:8], cov_K_dist=C[:4, 4:8], cov_dist_mount=C[4:8, 8:] if tol else None)
     return out
 
@@ -1046,18 +1075,7 @@ def calibrate_lab(ds, robot, cfg, out):
     eps_hat = ident.eps
     t_arm = time.perf_counter() - t0
     geometry = load_target(ds.root / "target.yaml")
-    rig_views = [v for v in ds.views if v.role == "rig"]
-    Xs, uvs, used = [], [], []
-    for v in rig_views:
-        img = v.image()
-        res = (extract_corners_opencv(img, geometry) if cfg["pipeline"]["extractor"] == "opencv" else
-               extract_corners_thesis(img, geometry))
-        if res.success:
-            Xs.append(res.object_points)
-            uvs.append(res.uv)
-            used.append(v)
-    if len(used) < 3:
-        raise ConfigError(ds.root, "rig views", f"the rig was found in {len(used)} views (need >= 3)")
+    Xs, uvs, used = _rig_corners(ds, geometry, cfg, "rig")
     size = (used[0].image().shape[1], used[0].image().shape[0])
     cal = calibrate_camera(Xs, uvs, size, model="heikkila", k3=cfg["pipeline"]["lab_k3"])
     if not cal.success:
@@ -1089,8 +1107,8 @@ def calibrate_lab(ds, robot, cfg, out):
     notes = (f"camera calibration covariance (fx fy cx cy [k1 k2 p1 p2], px^2); mount: AX = XB residuals^2 / "
              f"{len(used)} views (rad^2, m^2)")
     if refr is not None:
-        notes = (f"refractive camera: its virtual pinhole's fx fy cx cy from the lens's calibration covariance "
-                 f"(px^2); mount: AX = XB residuals^2 / {len(used)} views (rad^2, m^2)")
+        notes = (f"refractive camera: its virtual pinhole's fx fy cx cy [k1 k2 p1 p2] from the lens's calibration "
+                 f"covariance (px^2); mount: AX = XB residuals^2 / {len(used)} views (rad^2, m^2)")
     tol_cov, tol_draws = None, 0
     tolerance = load_target_tolerance(ds.root / "target.yaml")
     if tolerance is not None and tolerance.any and cfg["pipeline"]["target_tolerance"]:
@@ -1098,8 +1116,7 @@ def calibrate_lab(ds, robot, cfg, out):
                                                    mount_nominal, S, cfg["pipeline"]["tolerance_draws"], refr, ds, air)
         notes += (f"; plus the rig's stated tolerances (target.yaml) through the calibration and AX = XB, "
                   f"{tol_draws} Monte Carlo draws")
-    priors = _lab_priors(cal if refr is None else _VirtualCalibration.of(refr), he, len(used), cfg, tol_cov,
-                         distortion=refr is None)
+    priors = _lab_priors(cal if refr is None else _VirtualCalibration.of(refr), he, len(used), cfg, tol_cov)
     from bench.vision.joint_bundle import priors_yaml_text
 
     (out / "calibration_priors.yaml").write_text(priors_yaml_text(notes=notes, **priors))
