@@ -412,7 +412,8 @@ def refractive_start(central: CameraModel, T_central_target, port_nominal: FlatP
     """``(lens0, T_lens_target0)``: the start of :func:`calibrate_refractive` from a central calibration in water.
 
     The lens's focal lengths (and skew) are the central camera's over ``n_water / n_air`` (the port's paraxial
-    magnification), its principal point and distortion the central camera's; the target poses move from the central
+    magnification), its principal point and k1 k2 p1 p2 the central camera's, its k3 zero (a central fit's k3 is
+    mostly the port's high orders, and :func:`calibrate_refractive` holds k3); the target poses move from the central
     camera's centre - the paraxial virtual centre of ``port_nominal`` - to the lens centre.
     """
     port = check_port(port_nominal)
@@ -420,4 +421,5 @@ def refractive_start(central: CameraModel, T_central_target, port_nominal: FlatP
     K[:2, :2] /= port.n_water / port.n_air
     c = paraxial_centre(port)
     T = np.asarray(T_central_target, dtype=float)
-    return central.replace(K=K, name=f"{central.name} (lens)"), homogeneous(np.eye(3), c) @ T
+    dist = np.r_[central.dist[:4], 0.0]
+    return central.replace(K=K, dist=dist, model=None, name=f"{central.name} (lens)"), homogeneous(np.eye(3), c) @ T

@@ -103,6 +103,9 @@ SCHEMA = {
     "evaluation": {"distance_min_m": (float, 0.2), "distance_max_m": (float, 3.0), "distances": (int, 15),
                    "grid": (list, [64, 48])},
     "threshold": {"px": (float, 0.1), "statistic": (str, "rms")},
+    # the refractive model (bench.camera.refractive) calibrated from the same views with noise_px of pixel noise,
+    # lens free, started from the central fit and a lens-to-glass distance start_offset_mm off (a datasheet's)
+    "refractive": {"enabled": (bool, True), "noise_px": (float, 0.1), "start_offset_mm": (float, 3.0)},
     "outputs": {"plots": (bool, True)},
 }
 
@@ -193,6 +196,11 @@ def _check(cfg, port0: FlatPort):
         raise ConfigError(src, "threshold.px", f"must be > 0 px, got {th['px']}")
     if th["statistic"] not in STATISTICS:
         raise ConfigError(src, "threshold.statistic", f"expected one of {STATISTICS}, got {th['statistic']!r}")
+    r = cfg["refractive"]
+    if not 0.0 <= r["noise_px"] <= 5.0:
+        raise ConfigError(src, "refractive.noise_px", f"expected 0..5 px, got {r['noise_px']}")
+    if not abs(r["start_offset_mm"]) <= 10.0:
+        raise ConfigError(src, "refractive.start_offset_mm", f"expected within +-10 mm, got {r['start_offset_mm']}")
     cases = []
     for a in al:
         for d0 in d0s:
@@ -320,6 +328,37 @@ def fitted_frame(res, T_lens_rig, X, uv):
     return T_fit_lens, float(np.sqrt(np.mean(e**2)))
 
 
+def fit_refractive(central, port: FlatPort, X, uv, noise_px: float, start_offset_m: float, rng):
+    """The refractive model (:func:`bench.camera.refractive.calibrate_refractive`, lens and port free) of the views
+    with ``noise_px`` of Gaussian pixel noise, started from the central fit ``central`` and the port with its
+    lens-to-glass distance ``start_offset_m`` off (no tilt); returns ``(result, noisy pixels)``."""
+    from bench.camera.refractive import calibrate_refractive, refractive_start
+
+    noisy = [u + noise_px * rng.standard_normal(u.shape) for u in uv]
+    start = FlatPort(d0=port.h / port.normal[2] + start_offset_m, t=port.t, n_air=port.n_air, n_glass=port.n_glass,
+                     n_water=port.n_water)
+    lens0, T0 = refractive_start(central.camera, central.T_cam_target, start)
+    # glass and water with the index of air: no port to calibrate (its distance and tilt change nothing)
+    vanished = port.n_water == port.n_air and port.n_glass == port.n_air
+    return calibrate_refractive(X, noisy, lens0, start, T0, fix_port=vanished), noisy
+
+
+def refractive_frame(camera, T_lens_rig, X, uv) -> np.ndarray:
+    """``T_fit_lens`` (4, 4) of a fitted refractive camera: the rig corners at their true lens-frame positions, all
+    views together, by least squares on their reprojection through it (what a mount calibration would absorb)."""
+    import scipy.optimize
+    from scipy.spatial.transform import Rotation
+
+    p = np.vstack([transform_points(T, x) for T, x in zip(T_lens_rig, X, strict=True)])
+    target = np.vstack(uv)
+
+    def res(x):
+        return (camera.project(Rotation.from_rotvec(x[:3]).apply(p) + x[3:]) - target).ravel()
+
+    x = scipy.optimize.least_squares(res, np.zeros(6)).x
+    return homogeneous(Rotation.from_rotvec(x[:3]).as_matrix(), x[3:])
+
+
 def image_grid(lens: CameraModel, n) -> np.ndarray:
     """Pixels (n_u n_v, 2) on a regular grid over the whole image (pixel centres 0 .. W-1, 0 .. H-1)."""
     u = np.linspace(0.0, lens.width - 1.0, n[0])
@@ -406,7 +445,8 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     uv_grid = image_grid(lens, cfg["evaluation"]["grid"])
     near, far = _dist_key(distances[0]), _dist_key(distances[-1])
     cols = ["alignment", "lens_to_glass_mm", "distance_m", "rms_px", "max_px", "rms_mm", "max_mm",
-            "exceeds_threshold"]
+            "exceeds_threshold", "refractive_rms_px", "refractive_max_px", "central_noisy_rms_px"]
+    refr_cfg = cfg["refractive"]
     table = {c: [] for c in cols}
     ccols = ["alignment", "lens_to_glass_mm", "views", "points", "calib_rms_px", "iterations", "fx_px", "fy_px",
              "cx_px", "cy_px", "k1", "k2", "p1", "p2", "k3", "centre_offset_axial_mm", "centre_offset_lateral_mm",
@@ -425,10 +465,22 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
         if not res.success:
             raise ConfigError(src, "calibration", f"the Heikkilä fit failed for {s}: {res.message}")
         T_fit_lens, frame_rms = fitted_frame(res, T_lens_rig, X, uv)
+        refr = None
+        if refr_cfg["enabled"]:
+            refr, noisy = fit_refractive(res, port, X, uv, refr_cfg["noise_px"], refr_cfg["start_offset_mm"] * 1e-3,
+                                         np.random.default_rng([cfg["seed"], n_case, 31]))
+            if not refr.success:
+                raise ConfigError(src, "refractive", f"the refractive fit failed for {s}: {refr.message}")
+            T_refr_lens = refractive_frame(refr.camera, T_lens_rig, X, noisy)
+            res_n = fit_central_model(lens, port, T_lens_rig, X, noisy, calib["k3"])  # the same noise, central
+            if not res_n.success:
+                raise ConfigError(src, "refractive", f"the Heikkilä fit of the noisy views failed for {s}: "
+                                                     f"{res_n.message}")
+            T_n_lens, _ = fitted_frame(res_n, T_lens_rig, X, noisy)
         timings["calibration_s"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         fit = res.camera
-        rms_px, max_px, rms_mm, max_mm = [], [], [], []
+        rms_px, max_px, rms_mm, max_mm, r_rms, r_max, c_rms = [], [], [], [], [], [], []
         for z in distances:
             try:
                 p_lens = true_points(lens, port, uv_grid, z)
@@ -440,13 +492,22 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
                                                           f"image at {z:g} m")
             rms_px.append(float(np.sqrt(np.mean(e_px**2))))
             max_px.append(float(e_px.max()))
+            if refr is not None:
+                e_r = np.linalg.norm(refr.camera.project(transform_points(T_refr_lens, p_lens)) - uv_grid, axis=1)
+                r_rms.append(float(np.sqrt(np.mean(e_r**2))))
+                r_max.append(float(e_r.max()))
+                c_rms.append(float(np.sqrt(np.mean(model_errors(res_n.camera, T_n_lens, uv_grid, p_lens)[0] ** 2))))
+            else:
+                r_rms.append(float("nan"))
+                r_max.append(float("nan"))
+                c_rms.append(float("nan"))
             rms_mm.append(float(1e3 * np.sqrt(np.mean(e_m**2))))
             max_mm.append(float(1e3 * e_m.max()))
         stat = np.array(rms_px if thr["statistic"] == "rms" else max_px)
         lo, hi = ok_window(distances, stat, thr["px"])
         for i, z in enumerate(distances):
             for c, v in zip(cols, (align, d0, float(z), rms_px[i], max_px[i], rms_mm[i], max_mm[i],
-                                   int(stat[i] > thr["px"])), strict=True):
+                                   int(stat[i] > thr["px"]), r_rms[i], r_max[i], c_rms[i]), strict=True):
                 table[c].append(v)
         timings["evaluation_s"] += time.perf_counter() - t0
         T_lens_fit = invert(T_fit_lens)
@@ -477,6 +538,15 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
             f"paraxial_centre_axial_mm_{s}": row["paraxial_centre_axial_mm"],
             f"calib_coverage_{s}": row["calib_coverage"], f"frame_reproj_rms_px_{s}": frame_rms,
         })
+        if refr is not None:
+            metrics.update({
+                f"refractive_rms_px_at_calib_{s}": r_rms[i_cal], f"refractive_rms_px_at_{near}_{s}": r_rms[0],
+                f"refractive_rms_px_at_{far}_{s}": r_rms[-1],
+                f"refractive_d0_err_mm_{s}": 1e3 * abs(refr.camera.port.d0 - port.h / port.normal[2]),
+                f"refractive_calib_rms_px_{s}": refr.rms_px,
+                f"central_noisy_rms_px_at_{near}_{s}": c_rms[0], f"central_noisy_rms_px_at_{far}_{s}": c_rms[-1],
+                f"central_noisy_rms_px_at_calib_{s}": c_rms[i_cal],
+            })
     if verbose:
         print(file=sys.stderr)
     tables = {TABLE: table, CALIB_TABLE: ctable}
@@ -524,6 +594,9 @@ def plot_study(table: dict, cfg: dict, path, tilt_deg=(0.0, 0.0)) -> str:
                 ax.plot(x, np.asarray(table[f"rms_{key}"])[sel][order], "o-", ms=3, color=color,
                         label=f"d0 = {d:g} mm (RMS)")
                 ax.plot(x, np.asarray(table[f"max_{key}"])[sel][order], "--", lw=0.9, color=color)
+                if key == "px" and np.any(np.isfinite(np.asarray(table["refractive_rms_px"], float)[sel])):
+                    ax.plot(x, np.asarray(table["refractive_rms_px"], float)[sel][order], "s:", ms=3, color=color,
+                            label=f"d0 = {d:g} mm, refractive (RMS)")
         for row in range(2):
             ax = axes[row, j]
             ax.axvspan(D - dr, D + dr, color="0.85", zorder=0)
@@ -544,8 +617,11 @@ def plot_study(table: dict, cfg: dict, path, tilt_deg=(0.0, 0.0)) -> str:
         axes[1, j].set_ylabel("object-space error (mm)")
         axes[1, j].set_xlabel("working distance z (m, lens frame)")
         axes[0, j].legend(fontsize=7, loc="best")
+    refr = cfg["refractive"]
+    extra = (f"; refractive model from the same views + {refr['noise_px']:g} px noise (s:)" if refr["enabled"]
+             else "")
     fig.suptitle(f"Heikkilä model{' + k3' if cfg['calibration']['k3'] else ''} calibrated at {D:g} +- {dr:g} m "
-                 "(grey) behind a flat port: RMS (o-) and max (--) over the image", fontsize=10)
+                 f"(grey) behind a flat port: RMS (o-) and max (--) over the image{extra}", fontsize=10)
     fig.tight_layout()
     atomic_save_figure(fig, path, dpi=110)
     plt.close(fig)
@@ -569,4 +645,15 @@ def format_summary(table: dict, ctable: dict, cfg: dict, distances) -> str:
         lines.append(f"{ctable['alignment'][r]:<9}{ctable['lens_to_glass_mm'][r]:>7g}{ctable['calib_rms_px'][r]:>10.4f}"
                      f"{ctable['centre_offset_axial_mm'][r]:>11.2f}{rp[0]:>12.3f}{rp[i_cal]:>12.3f}{rp[-1]:>11.3f}"
                      f"{table['max_px'][(r + 1) * n - 1]:>11.3f}{table['rms_mm'][(r + 1) * n - 1]:>11.3f}   {ok}")
+    if cfg["refractive"]["enabled"]:
+        lines.append(f"The same views + {cfg['refractive']['noise_px']:g} px noise: image RMS error (px) of the "
+                     f"refractive model and of the Heikkilä fit at {distances[0]:g} / {distances[i_cal]:g} / "
+                     f"{distances[-1]:g} m")
+        lines.append(f"{'alignment':<9}{'d0 mm':>7}{'refractive':>36}{'Heikkila':>36}")
+        for r in range(len(ctable["alignment"])):
+            rr = np.asarray(table["refractive_rms_px"][r * n:(r + 1) * n], float)
+            cc = np.asarray(table["central_noisy_rms_px"][r * n:(r + 1) * n], float)
+            lines.append(f"{ctable['alignment'][r]:<9}{ctable['lens_to_glass_mm'][r]:>7g}"
+                         f"{rr[0]:>12.3f}{rr[i_cal]:>12.3f}{rr[-1]:>12.3f}{cc[0]:>12.3f}{cc[i_cal]:>12.3f}"
+                         f"{cc[-1]:>12.3f}")
     return "\n".join(lines)

@@ -357,6 +357,18 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("centre_rotation_deg_<case>", "deg", "fitted camera frame's rotation relative to the lens"),
         Metric("paraxial_centre_axial_mm_<case>", "mm", "the port's paraxial virtual centre along the axis"),
         Metric("calib_coverage_<case>", "1", "fraction of the image the calibration corners cover"),
+        Metric("refractive_rms_px_at_calib_<case>", "px", "the refractive model (calibrated from the same views with "
+               "refractive.noise_px of noise): image RMS error at the calibration distance", "`refractive.enabled`"),
+        Metric("refractive_rms_px_at_0p2m_<case>", "px", "the same at 0.2 m", "`refractive.enabled`"),
+        Metric("refractive_rms_px_at_3m_<case>", "px", "the same at 3 m", "`refractive.enabled`"),
+        Metric("refractive_d0_err_mm_<case>", "mm", "its lens-to-glass distance's error", "`refractive.enabled`"),
+        Metric("refractive_calib_rms_px_<case>", "px", "its calibration's reprojection RMS (noise included)",
+               "`refractive.enabled`"),
+        Metric("central_noisy_rms_px_at_0p2m_<case>", "px", "the Heikkilä fit of the same noisy views: image RMS "
+               "error at 0.2 m", "`refractive.enabled`"),
+        Metric("central_noisy_rms_px_at_3m_<case>", "px", "the same at 3 m", "`refractive.enabled`"),
+        Metric("central_noisy_rms_px_at_calib_<case>", "px", "the same at the calibration distance",
+               "`refractive.enabled`"),
         Metric("frame_reproj_rms_px_<case>", "px", "calibration corners reprojected with one camera frame for all "
                "views"),
     ),
