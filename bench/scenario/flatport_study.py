@@ -618,8 +618,8 @@ def plot_study(table: dict, cfg: dict, path, tilt_deg=(0.0, 0.0)) -> str:
         axes[1, j].set_xlabel("working distance z (m, lens frame)")
         axes[0, j].legend(fontsize=7, loc="best")
     refr = cfg["refractive"]
-    extra = (f"; refractive model from the same views + {refr['noise_px']:g} px noise (s:)" if refr["enabled"]
-             else "")
+    extra = (f"\nsquares, dotted: the refractive model calibrated from the same views + {refr['noise_px']:g} px noise"
+             if refr["enabled"] else "")
     fig.suptitle(f"Heikkilä model{' + k3' if cfg['calibration']['k3'] else ''} calibrated at {D:g} +- {dr:g} m "
                  f"(grey) behind a flat port: RMS (o-) and max (--) over the image{extra}", fontsize=10)
     fig.tight_layout()
