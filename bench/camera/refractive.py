@@ -48,6 +48,10 @@ FD_STEP_POSE = np.array([1e-7, 1e-7, 1e-7, 1e-7, 1e-7, 1e-7])
 #: the lens-to-glass distance a calibration may reach (m) and the largest port tilt (rad): bounds of the solver
 D0_RANGE_M = (1e-4, 0.5)
 TILT_MAX = 0.7
+#: solves at most to settle the pixels' sigma against the priors, and the smallest sigma they weigh with (px: exact
+#: data's residuals are rounding errors)
+PIXEL_SIGMA_ROUNDS = 4
+SIGMA_FLOOR_PX = 1e-3
 #: names of the port parameters estimated by :func:`calibrate_refractive`, in order (m, rad, rad)
 PORT_NAMES = ("d0", "tilt_x", "tilt_y")
 
@@ -257,9 +261,8 @@ def _check_views(object_points, image_points):
 
 def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0: FlatPort, T_cam_target0, *,
                          lens_prior=None, d0_sigma_m: float | None = None, tilt_sigma_rad: float | None = None,
-                         fix_lens: bool = False,
-                         fix_tilt: bool = False, fix_port: bool = False,
-                         max_nfev: int = 200) -> RefractiveCalibration:
+                         fix_lens: bool = False, fix_tilt: bool = False, fix_port: bool = False,
+                         pixel_sigma_px: float | None = None, max_nfev: int = 200) -> RefractiveCalibration:
     """Calibrate a lens behind a flat port from views of a known target in water (see the module docstring).
 
     Parameters
@@ -280,14 +283,19 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
     lens_prior : tuple (mean (8,), covariance (8, 8)), optional
         A prior on :data:`LENS_NAMES` (px, unitless), e.g. from a calibration of the lens in air.
     d0_sigma_m : float, optional
-        A prior on ``d0`` around ``port0.d0`` with this standard deviation (m), e.g. the housing drawing's tolerance.
+        A prior on ``d0`` around ``port0``'s (its plane's distance along its normal over the normal's z: a decentre
+        absorbed) with this standard deviation (m), e.g. the housing drawing's tolerance.
     tilt_sigma_rad : float, optional
         A prior on each tilt angle around ``port0.tilt`` (rad), e.g. how square the housing holds the lens.
     fix_lens, fix_tilt, fix_port : bool
         Hold the lens (at ``lens0``), the tilt or the whole port (at ``port0``'s) fixed: e.g. the port in air, where
         a slab's distance from the lens does not matter.
+    pixel_sigma_px : float, optional
+        The pixels' noise (px), which weighs them against the priors; default: estimated from the residuals (a
+        solve at 1 px, then again at the residuals' sigma until it changes by < 5 %, at most
+        :data:`PIXEL_SIGMA_ROUNDS` solves).
     max_nfev : int
-        Evaluation budget of ``least_squares``.
+        Evaluation budget of ``least_squares`` (per solve).
 
     Returns
     -------
@@ -317,6 +325,10 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
     free_lens = not fix_lens
     if fix_lens and fix_port:
         raise ValueError("fix_lens, fix_port: nothing left to calibrate")
+    if fix_lens and lens_prior is not None:
+        raise ValueError("lens_prior: given with fix_lens (a held lens takes no prior)")
+    if pixel_sigma_px is not None and not (np.isfinite(pixel_sigma_px) and pixel_sigma_px > 0):
+        raise ValueError(f"pixel_sigma_px: expected a standard deviation > 0 px, got {pixel_sigma_px!r}")
     port_free = np.array([not fix_port, not (fix_tilt or fix_port), not (fix_tilt or fix_port)])
     d0_start = port0.h / port0.normal[2]  # the same port plane with the decentre absorbed
     port_theta0 = np.array([d0_start, *port0.tilt])
@@ -342,7 +354,7 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
         x_n = project_flatport(p, _port_of(port_t, port0))
         lens = _lens_of(lens_t, lens0)
         r = to_pixels(distort(x_n, lens.dist), lens.K).ravel() - uv_all
-        r = np.where(np.isfinite(r), r, 1e6)  # a point the port cannot image: a large, finite penalty
+        r = np.where(np.isfinite(r), r, 1e6) / scale[0]  # unimageable: a large, finite penalty; whitened (sigma)
         extra = []
         if L_prior is not None and free_lens:
             extra.append(L_prior[1] @ (lens_t - L_prior[0]))
@@ -382,21 +394,36 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
     port_lo, port_hi = np.array([D0_RANGE_M[0], -TILT_MAX, -TILT_MAX]), np.array([D0_RANGE_M[1], TILT_MAX, TILT_MAX])
     lo[n_lens:n_glob], hi[n_lens:n_glob] = port_lo[port_free], port_hi[port_free]
     x0[n_lens:n_glob] = np.clip(x0[n_lens:n_glob], lo[n_lens:n_glob] + 1e-9, hi[n_lens:n_glob] - 1e-9)
-    sol = scipy.optimize.least_squares(residuals, x0, jac=jacobian, bounds=(lo, hi), method="trf", tr_solver="exact",
-                                       x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-8, max_nfev=max_nfev)
+    # the pixels weigh against the (whitened) priors with their noise: a first solve at 1 px (or the given sigma),
+    # then again at the residuals' own sigma until it settles (without priors the weight does not matter)
+    dof = max(n_pix - x0.size, 1)
+    priors = (L_prior is not None and free_lens) or (d0_sigma_m is not None and port_free[0]) or (
+        tilt_sigma_rad is not None and port_free[1])
+    scale = [pixel_sigma_px if pixel_sigma_px is not None else 1.0]
+    nfev = 0
+    for _ in range(PIXEL_SIGMA_ROUNDS if priors and pixel_sigma_px is None else 1):
+        sol = scipy.optimize.least_squares(residuals, x0, jac=jacobian, bounds=(lo, hi), method="trf",
+                                           tr_solver="exact", x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-8,
+                                           max_nfev=max_nfev)
+        nfev += sol.nfev
+        r_px = sol.fun[:n_pix] * scale[0]
+        sigma_hat = max(float(np.sqrt((r_px @ r_px) / dof)), SIGMA_FLOOR_PX)
+        if not (priors and pixel_sigma_px is None) or abs(sigma_hat / scale[0] - 1) < 0.05 or sol.status <= 0:
+            break
+        scale[0], x0 = sigma_hat, sol.x
     lens_t, port_t, poses = unpack(sol.x)
-    r = sol.fun[:n_pix]
+    r = sol.fun[:n_pix] * scale[0]
     finite = bool(np.all(np.abs(r) < 1e5))
     cam = RefractiveCamera(_lens_of(lens_t, lens0), _port_of(port_t, port0))
-    dof = max(n_pix - x0.size, 1)
     cost = 0.5 * float(r @ r)
     sigma = float(np.sqrt(2 * cost / dof))
     J = np.asarray(sol.jac)
     names = (LENS_NAMES if free_lens else ()) + tuple(n for n, f in zip(PORT_NAMES, port_free, strict=True) if f)
     try:
-        # the pixels weigh with sigma^2 (the priors are already whitened)
+        # the pixel rows (whitened by the sigma they were solved with) weigh with the residuals' sigma, the priors
+        # are whitened already
         W = np.ones(J.shape[0])
-        W[:n_pix] = 1.0 / max(sigma, 1e-12) ** 2
+        W[:n_pix] = (scale[0] / max(sigma, SIGMA_FLOOR_PX)) ** 2
         cov = np.linalg.pinv((J.T * W) @ J, rcond=1e-15, hermitian=True)[:n_glob, :n_glob]
         cov = 0.5 * (cov + cov.T)
     except np.linalg.LinAlgError:
@@ -405,7 +432,7 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
     msg = sol.message if success else (f"least_squares stopped (status {sol.status}): {sol.message}" if finite else
                                        "some rig points cannot be imaged through the fitted port")
     return RefractiveCalibration(success, msg, cam, _vector_to_poses(poses), float(np.sqrt(np.mean(np.sum(
-        r.reshape(-1, 2) ** 2, axis=1)))), sigma, names, sol.x[:n_glob].copy(), cov, int(sol.nfev), cost)
+        r.reshape(-1, 2) ** 2, axis=1)))), sigma, names, sol.x[:n_glob].copy(), cov, int(nfev), cost)
 
 
 def refractive_start(central: CameraModel, T_central_target, port_nominal: FlatPort):

@@ -237,7 +237,8 @@ def calibrate_lab(ds, robot, cfg, out):
         tol_cov, tol_draws = _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5,
                                                    mount_nominal, S, cfg["pipeline"]["tolerance_draws"], refr, ds, air)
         notes += (f"; plus the rig's stated tolerances (target.yaml) through the calibration and AX = XB, "
-                  f"{tol_draws} Monte Carlo draws")
+                  f"{tol_draws} Monte Carlo draws" + ("" if air is None else " (the lens from the air views held at "
+                                                                          "the nominal rig's)"))
     priors = _lab_priors(cal if refr is None else _VirtualCalibration.of(refr), he, len(used), cfg, tol_cov)
     from bench.vision.joint_bundle import priors_yaml_text
 

@@ -274,8 +274,9 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         obs2 = _refract_again(obs, camera, kmap, res, roles)
         kmap2, res2, refined2, thesis2, t_map2 = solve(obs2)
         t_map, passes = t_map + t_map2, passes + 1
-        if not res2.success:
+        if not res2.success:  # the last pass's result stands
             res = replace(res, message=f"{res.message}; refractive pass {passes} failed: {res2.message}")
+            passes -= 1
             break
         D = np.linalg.inv(res.T_world_base) @ res2.T_world_base
         obs, kmap, res, refined, thesis = obs2, kmap2, res2, refined2, thesis2

@@ -287,3 +287,26 @@ def test_keypoint_depths():
     far = keypoint_depths(np.array([[0.02, 0.01]]) + 0.05, p, 700.0)  # between points: a neighbourhood median
     assert 0.5 <= far[0] <= 0.9
     assert np.isnan(keypoint_depths(np.zeros((3, 2)), -p, 700.0)).all()  # nothing in front: no depth
+
+
+def test_a_prior_weighs_against_the_pixels_at_their_noise():
+    """With 0.2 px of noise, a d0 prior as strong as the data and 3 mm off: the estimate is the precision-weighted
+    mean of the data's and the prior's (to first order), and the reported standard deviation their combination - the
+    pixels weigh with their estimated noise, not as if it were 1 px."""
+    rng = np.random.default_rng(10)
+    Ts, Xs, uvs = _views(rng, n=10)
+    noisy = [u + 0.2 * rng.standard_normal(u.shape) for u in uvs]
+    free = calibrate_refractive(Xs, noisy, LENS, PORT, Ts, fix_lens=True, fix_tilt=True)
+    s_free, d_free = free.std("d0"), free.camera.port.d0
+    off = replace_d0(PORT, PORT.d0 + 3e-3)
+    held = calibrate_refractive(Xs, noisy, LENS, off, Ts, fix_lens=True, fix_tilt=True, d0_sigma_m=s_free)
+    expected = 0.5 * (d_free + off.d0)
+    assert held.camera.port.d0 == pytest.approx(expected, abs=0.15 * s_free)
+    assert held.std("d0") == pytest.approx(s_free / np.sqrt(2), rel=0.1)
+    assert held.sigma_px == pytest.approx(0.2, rel=0.1)
+
+
+def replace_d0(port, d0):
+    from dataclasses import replace
+
+    return replace(port, d0=d0)
