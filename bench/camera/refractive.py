@@ -126,9 +126,7 @@ class RefractiveCamera:
         """The distortion-free pinhole at the lens centre with the paraxial focal lengths: ``K_v (x_n, 1)`` of
         :meth:`normalised` coordinates are pixels of about the real pixels' scale (for estimators that work in
         pixels, e.g. the joint bundle)."""
-        K = self.lens.K.copy()
-        K[:2, :2] *= self.port.n_water / self.port.n_air
-        return self.lens.replace(K=K, dist=np.zeros(5), model=None, name=f"{self.name} (virtual pinhole)")
+        return self.paraxial_camera()[0].replace(dist=np.zeros(5), model=None, name=f"{self.name} (virtual pinhole)")
 
     def project(self, p_cam) -> np.ndarray:
         """Pixels ``(..., 2)`` of lens-frame points ``p_cam (..., 3)`` (m) in water; NaN where a point cannot be
@@ -230,7 +228,13 @@ def _vector_to_poses(v):
     return T
 
 
-def _lens_of(theta, template: CameraModel) -> CameraModel:
+def lens_parameters(lens: CameraModel) -> np.ndarray:
+    """The lens's :data:`LENS_NAMES` values (8,): ``fx fy cx cy`` (px), ``k1 k2 p1 p2``."""
+    return np.array([lens.fx, lens.fy, lens.cx, lens.cy, *lens.dist[:4]])
+
+
+def with_lens_parameters(template: CameraModel, theta) -> CameraModel:
+    """``template`` with :data:`LENS_NAMES` = ``theta`` (8,); its skew and k3 kept."""
     fx, fy, cx, cy, k1, k2, p1, p2 = theta
     K = np.array([[fx, template.skew, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     return template.replace(K=K, dist=np.array([k1, k2, p1, p2, template.dist[4]]), model=None)
@@ -311,7 +315,7 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
         raise ValueError(f"d0_sigma_m: expected a standard deviation > 0 m, got {d0_sigma_m!r}")
     if tilt_sigma_rad is not None and not (np.isfinite(tilt_sigma_rad) and tilt_sigma_rad > 0):
         raise ValueError(f"tilt_sigma_rad: expected a standard deviation > 0 rad, got {tilt_sigma_rad!r}")
-    lens_theta0 = np.array([lens0.fx, lens0.fy, lens0.cx, lens0.cy, *lens0.dist[:4]])
+    lens_theta0 = lens_parameters(lens0)
     L_prior = None
     if lens_prior is not None:
         mean, cov = (np.asarray(a, dtype=float) for a in lens_prior)
@@ -352,7 +356,7 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
         R = Rotation.from_rotvec(v[view_of, :3]).as_matrix()
         p = np.einsum("nij,nj->ni", R, X_all) + v[view_of, 3:]
         x_n = project_flatport(p, _port_of(port_t, port0))
-        lens = _lens_of(lens_t, lens0)
+        lens = with_lens_parameters(lens0, lens_t)
         r = to_pixels(distort(x_n, lens.dist), lens.K).ravel() - uv_all
         r = np.where(np.isfinite(r), r, 1e6) / scale[0]  # unimageable: a large, finite penalty; whitened (sigma)
         extra = []
@@ -414,7 +418,7 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
     lens_t, port_t, poses = unpack(sol.x)
     r = sol.fun[:n_pix] * scale[0]
     finite = bool(np.all(np.abs(r) < 1e5))
-    cam = RefractiveCamera(_lens_of(lens_t, lens0), _port_of(port_t, port0))
+    cam = RefractiveCamera(with_lens_parameters(lens0, lens_t), _port_of(port_t, port0))
     cost = 0.5 * float(r @ r)
     sigma = float(np.sqrt(2 * cost / dof))
     J = np.asarray(sol.jac)

@@ -836,11 +836,13 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     cam, cal = floor["camera"], lab["camera"]
     # what the lab's calibrated central camera leaves on the same noise-free features (its mount by AX = XB on the
     # true arm, so that only the camera model differs): the central fit through the port at the rig's range
-    he_true = hand_eye_axxb(np.stack([link5_frame(robot, q, eps_true) for q in lab["rig_q"]]), lab["T_cam_target"])
+    nan = {"pos_m": float("nan"), "rot_rad": float("nan")}
+    refractive = lab.get("refractive") is not None  # its floors are not a central camera's: not computed
+    he_true = None if refractive else hand_eye_axxb(np.stack([link5_frame(robot, q, eps_true) for q in lab["rig_q"]]),
+                                                    lab["T_cam_target"])
     floor_cal = model_floor(robot, eps_true, mount, lens, port, T_site_b2, views, names, X_site, p["method"], ransac,
                             thesis_refine, central=(cal.camera, invert(mount) @ he_true.T_mount_cam),
-                            profile=profile) \
-        if he_true.success else {"pos_m": float("nan"), "rot_rad": float("nan")}
+                            profile=profile) if he_true is not None and he_true.success else nan
     priors = lab["priors"]
     vis = observation_pattern(kmap, len(names), res.used[0]) if res.success and res.used is not None else None
     crb = crb_base_pose(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam.project,
@@ -856,9 +858,8 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
                              views, X_site, vis, sigma_px, sigma_enc, np.random.default_rng([cfg["seed"], 14]),
                              cfg["bound"]["ml_trials"], **priors)
         out.update({"base_pos_crb_mc_mm": ml["pos_rms_m"] * 1e3, "base_rot_crb_mc_deg": np.rad2deg(ml["rot_rms_rad"])})
-    if lab.get("refractive") is not None:  # the floors above are central cameras', which this pipeline is not:
-        floor = {**floor, "pos_m": float("nan"), "rot_rad": float("nan")}  # the refractive one's is not computed
-        floor_cal = {"pos_m": float("nan"), "rot_rad": float("nan")}
+    if refractive:  # the floor above is the best central camera's (its camera and frame serve the CRB), not this one's
+        floor = {**floor, **nan}
     f_pos, f_rot = (0.0 if not np.isfinite(v) else v for v in (floor["pos_m"], floor["rot_rad"]))
     out.update({"base_pos_crb_mm": crb["pos_bound_m"] * 1e3, "base_rot_crb_deg": np.rad2deg(crb["rot_bound_rad"]),
                 "base_pos_floor_mm": floor["pos_m"] * 1e3, "base_rot_floor_deg": np.rad2deg(floor["rot_rad"]),

@@ -18,7 +18,6 @@ from bench.camera.calibrate_dataset import load_target, load_target_tolerance
 from bench.camera.calibration import calibrate_camera
 from bench.camera.corners import extract_corners_opencv, extract_corners_thesis
 from bench.camera.io import write_camera_yaml
-from bench.camera.model import CameraModel
 from bench.errors import ConfigError
 from bench.geometry.transforms import homogeneous, invert, rot_z, transform_points
 from bench.robot.calibration_file import write_calibrated_robot
@@ -76,12 +75,6 @@ def _rig_corners(ds, geometry, cfg, role):
     return Xs, uvs, used
 
 
-def _lens_from_vector(template: CameraModel, v) -> CameraModel:
-    """``template`` with ``fx fy cx cy k1 k2 p1 p2`` = ``v`` (skew and k3 kept)."""
-    K = np.array([[v[0], template.skew, v[2]], [0.0, v[1], v[3]], [0.0, 0.0, 1.0]])
-    return template.replace(K=K, dist=np.r_[v[4:8], template.dist[4]], model=None)
-
-
 def _calibrate_lens_in_air(ds, geometry, cfg):
     """The lens from the rig views in air (role ``rig_air``, ``lab.rig_in_air``): a central fit, then the lens behind
     the housing's glass with air outside (a slab: its distance from the lens does not matter, the port is held at the
@@ -115,12 +108,12 @@ def _calibrate_refractive(ds, cal, Xs, uvs, raise_on_failure=True, air=None):
     stated tolerance: rig views at one range hardly see it (measured: seed 1's nine views leave it at +-0.3 m
     without the prior). None (or a one-line error) when it fails."""
     from bench.camera.io import read_housing_yaml
-    from bench.camera.refractive import RefractiveCamera, calibrate_refractive, refractive_start
+    from bench.camera.refractive import RefractiveCamera, calibrate_refractive, refractive_start, with_lens_parameters
 
     housing, d0_sigma = read_housing_yaml(ds.root / "housing.yaml")
     lens0, T0 = refractive_start(cal.camera, cal.T_cam_target, housing)
     if air is not None:  # start from the air lens, the poses from the central fit
-        lens0 = _lens_from_vector(lens0, air[0])
+        lens0 = with_lens_parameters(lens0, air[0])
     r = calibrate_refractive(Xs, uvs, lens0, housing, T0, d0_sigma_m=d0_sigma, lens_prior=air)
     if not r.success:
         if raise_on_failure:
