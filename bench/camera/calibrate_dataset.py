@@ -258,20 +258,24 @@ class DatasetCorners:
     detect_s: float
 
 
-def detect_dataset_corners(root, extractor: str = "thesis", camera=None, target: dict | None = None) -> DatasetCorners:
+def detect_dataset_corners(root, extractor: str = "thesis", camera=None, target: dict | None = None, *,
+                           subpixel: bool = True) -> DatasetCorners:
     """Detect the target in every view of a dataset (or plain folder of photos) with the thesis's or OpenCV's
     extractor.
 
     ``target``: a :func:`target_spec` mapping, required for a plain folder of photos (a dataset has ``target.yaml``).
     ``camera`` (thesis extractor only): a first calibration; the lines are then fitted in ideal pixels
-    (:func:`~bench.camera.corners.extract_corners_thesis`). One-line :class:`ConfigError` when the views differ in
-    size or the target is found in no view.
+    (:func:`~bench.camera.corners.extract_corners_thesis`). ``subpixel=False`` (thesis extractor only): the lines are
+    fitted to the binary edge map's pixels, as printed (§3.3.5), not to sub-pixel edge positions. One-line
+    :class:`ConfigError` when the views differ in size or the target is found in no view.
     """
     t0 = time.perf_counter()
     if extractor not in ("thesis", "opencv"):
         raise ValueError(f"extractor: expected 'thesis' or 'opencv', got {extractor!r}")
     if camera is not None and extractor != "thesis":
         raise ValueError("camera: only the thesis extractor fits lines in ideal pixels")
+    if not subpixel and extractor != "thesis":
+        raise ValueError("subpixel: only the thesis extractor has edge positions to round")
     views, geometry, _ = _views_and_target(root, target)
     size = None
     Xs, uvs, names, skipped = [], [], [], []
@@ -282,7 +286,7 @@ def detect_dataset_corners(root, extractor: str = "thesis", camera=None, target:
         elif (img.shape[1], img.shape[0]) != size:
             raise ConfigError(v.image_path, "<size>", f"{img.shape[1]}x{img.shape[0]}, other views are "
                                                       f"{size[0]}x{size[1]}")
-        res = (extract_corners_thesis(img, geometry, camera=camera) if extractor == "thesis" else
+        res = (extract_corners_thesis(img, geometry, camera=camera, subpixel=subpixel) if extractor == "thesis" else
                extract_corners_opencv(img, geometry))
         if not res.success:
             skipped.append(f"{v.name}: {res.message}")

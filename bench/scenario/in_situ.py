@@ -219,7 +219,14 @@ def validate(cfg) -> None:
     """Value checks beyond the schema (one-line ConfigError naming the key); also run by ``bench sweep`` up front."""
     src = cfg["_file"]
     imaging(cfg)
-    site_optics(cfg)
+    optics = site_optics(cfg)
+    port = optics.port
+    if port is not None and port.n_water != port.n_air:  # housing.yaml's d0 = the true one off by up to the tolerance
+        d0_mm = port.h / port.normal[2] * 1e3
+        if cfg["camera"]["housing_tolerance_mm"] >= d0_mm:
+            raise ConfigError(src, "camera.housing_tolerance_mm", f"must be below the port's lens-to-glass distance "
+                                                                  f"({d0_mm:.1f} mm), got "
+                                                                  f"{cfg['camera']['housing_tolerance_mm']}")
     for key in ("camera.supersample", "lab.tracker_poses", "lab.rig_views", "survey.directions",
                 "site.parking_attempts"):
         sec, k = key.split(".")
@@ -511,9 +518,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     n_rig = cfg["lab"]["rig_views"]
     rig_views, unreachable = _rig_views(robot, rig_centre, cfg["lab"]["rig_distance_m"], n_rig, "rig", mount_nominal)
     views += rig_views
-    if unreachable and verbose:
-        print(f"warning: {len(unreachable)} of {n_rig} requested rig views not reachable, not rendered (truth/"
-              f"sim_checks.json: rig_views_unreachable): {'; '.join(unreachable)}", file=sys.stderr)
+    n_requested = n_rig
 
     # --- site: parking 1 (survey, task taught) and parking 2 (locate, task executed) ---------------------------------
     T_ref_look = look_at(eye_ref, centre)
@@ -556,10 +561,15 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                                                 "rigair", mount_nominal, role="rig_air")
         views += air_views
         unreachable += air_unreachable
+        n_requested += n_rig
     for i, d in enumerate(_numbers_list(cfg, "lab.rig_extra_distances_m")):
         extra, extra_unreachable = _rig_views(robot, rig_centre, d, n_rig, f"rig{i + 1}d", mount_nominal)
         views += extra
         unreachable += extra_unreachable
+        n_requested += n_rig
+    if unreachable and verbose:  # the lab's rig views in water, in air and at the extra distances
+        print(f"warning: {len(unreachable)} of {n_requested} requested rig views not reachable, not rendered (truth/"
+              f"sim_checks.json: rig_views_unreachable): {'; '.join(unreachable)}", file=sys.stderr)
     t_plan = time.perf_counter() - t0
 
     # --- render ----------------------------------------------------------------------------------------------------

@@ -325,7 +325,10 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("table3_beta_mean_err_pct", "%", "Table 3: average per-view β vs the true fy",
                "`camera.preset: air_webcam`"),
         Metric("table3_theta_mean_deg", "deg", "Table 3: average per-view skew angle θ", "`camera.preset: air_webcam`"),
-        Metric("table3_chi_mean_px", "px", "Table 3: average per-view χ", "`camera.preset: air_webcam`"),
+        Metric("table3_chi_mean_px", "px", "Table 3: average per-view χ (corners by `pipeline.table3_edges`: the "
+               "edge map's pixels as printed, or sub-pixel)", "`camera.preset: air_webcam`"),
+        Metric("table3_chi_subpixel_mean_px", "px", "the same χ on the thesis extractor's corners from sub-pixel "
+               "edge positions (the bench's addition; null with the OpenCV extractor)", "`camera.preset: air_webcam`"),
         Metric("table3_<c>_std_px", "px", "Table 3: sample std of the per-view α (`alpha`) or β (`beta`) over the "
                "pictures", "`camera.preset: air_webcam`"),
         Metric("thesis_table3_<c>_std_px", "px", "the same std over the thesis's seven pictures",

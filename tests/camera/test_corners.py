@@ -172,6 +172,25 @@ def test_edge_map_subpixel_on_a_straight_edge():
     assert np.allclose(e.normal[inner], [1.0, 0.0], atol=1e-9)
 
 
+def test_edge_map_as_printed_keeps_the_pixels():
+    """subpixel=False is the binary map of Figure 24: the same step at u = 40.3 gives the pixel column 40, so a line
+    fitted to it (§3.3.5) is off by the fraction, 0.3 px."""
+    u = np.arange(100)
+    img = np.tile(30.0 + 200.0 * np.clip(u + 0.5 - 40.3, 0.0, 1.0), (60, 1))
+    e = cc.edge_map(img, sigma=1.0, subpixel=False)
+    inner = (e.uv[:, 1] > 3) & (e.uv[:, 1] < 56)
+    assert inner.sum() == 52 and np.all(e.uv[inner, 0] == 40.0)
+    line = cc.fit_line_tls(e.uv[inner])
+    assert abs(abs(line[2] / line[0]) - 40.0) < 1e-9  # u = 40: the fraction 0.3 px is lost
+
+
+def test_dataset_corners_pixel_edges_need_the_thesis_extractor(tmp_path):
+    from bench.camera.calibrate_dataset import detect_dataset_corners
+
+    with pytest.raises(ValueError, match="subpixel: only the thesis extractor"):
+        detect_dataset_corners(tmp_path, "opencv", subpixel=False)
+
+
 def test_grid_outliers_flags_a_misplaced_corner(rng):
     T = random_board_view(rng)
     uv = project(T, BOARD.object_points())

@@ -61,7 +61,10 @@ def test_webcam_smoke_accuracy_and_contract(webcam_run):
     assert t3["thesis_alpha_px"] == [977.7, 969.4, 984.0, 973.6, 975.3]
     assert t3["alpha_px"][-1] == pytest.approx(np.mean(t3["alpha_px"][:4]))
     assert all(abs(th - 90.0) < 0.1 for th in t3["theta_deg"])  # the true camera has no skew
-    assert abs(m["table3_alpha_mean_err_pct"]) < 0.5 and m["table3_chi_mean_px"] < 0.1
+    # the bench's extractor (sub-pixel edges) at its target; Table 3 as printed fits the lines to the edge map's
+    # pixels, which on an upright rig's near-vertical lines quantises each corner by up to half a pixel
+    assert abs(m["table3_alpha_mean_err_pct"]) < 0.5 and m["table3_chi_subpixel_mean_px"] < 0.1
+    assert 0.1 < m["table3_chi_mean_px"] < 0.5
     assert m["table3_alpha_std_px"] == pytest.approx(np.std(t3["alpha_px"][:4], ddof=1), abs=1e-12)
     assert m["thesis_table3_alpha_std_px"] == pytest.approx(4.64, abs=0.005)  # Table 3's seven α
     assert m["thesis_table3_beta_std_px"] == pytest.approx(6.30, abs=0.005)
@@ -141,6 +144,7 @@ def test_table3_file_malformed(tmp_path):
     ("camera.medium=water", r"camera.medium: the webcam \(air_webcam\) is calibrated in air only"),
     ("camera.preset=gopro", r"camera.preset: expected air_webcam or underwater"),
     ("pipeline.extractor=harris", r"pipeline.extractor: expected thesis or opencv"),
+    ("pipeline.table3_edges=float", r"pipeline.table3_edges: expected pixel or subpixel"),
     ("rig.distance_mm=0.7", r"rig.distance_mm: expected 300..5000 mm"),
 ])
 def test_bad_config_is_one_line_error(tmp_path, override, field):

@@ -242,6 +242,10 @@ def test_refractive_model_needs_a_port_and_a_known_value(tmp_path):
         validate(load_scenario(SCENARIO, overrides=["lab.rig_extra_distances_m=[0.6, 5]"]))
     with pytest.raises(ConfigError, match="camera.housing_tolerance_mm: must be > 0"):
         validate(load_scenario(SCENARIO, overrides=["camera.housing_tolerance_mm=0"]))
+    # a tolerance as large as the lens-to-glass distance would draw a datasheet with d0 <= 0: refused up front
+    with pytest.raises(ConfigError, match=r"camera.housing_tolerance_mm: must be below the port's lens-to-glass "
+                                          r"distance \(\d+\.\d mm\), got 500"):
+        validate(load_scenario(SCENARIO, overrides=["camera.housing_tolerance_mm=500"]))
 
 
 def test_bad_value_leaves_no_output_folder(tmp_path, capsys):

@@ -18,6 +18,8 @@ def test_configurations_switch_each_stage_off_alone():
     assert conf["ideal"] == ["camera.imaging=ideal"] and conf["all on"] == ["camera.imaging=realistic"]
     assert [k for k in conf if k.endswith(" off")] == [f"{s} off" for s in STAGES]
     assert conf["jpeg off"] == ["camera.imaging=realistic", "camera.imaging_off=[jpeg]"]
+    assert conf[ablation.SUBPIXEL] == ["camera.imaging=realistic", "pipeline.table3_edges=subpixel"]
+    assert list(conf)[-1] == ablation.SUBPIXEL
     from bench.scenario.runner import load_scenario
 
     for label, overrides in conf.items():  # every configuration is a valid scenario
