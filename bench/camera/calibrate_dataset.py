@@ -19,7 +19,10 @@ Two sources of views:
     margin_mm: 20             # white border from the fold and the bottom to the pattern (mm, >= 0; default 0)
 
 Either type may state the printed target's tolerances (optional ``tolerance`` mapping, 1-sigma values:
-:mod:`bench.camera.target_tolerance`); a calibration then also reports what they leave in its results.
+:mod:`bench.camera.target_tolerance`); a calibration then also reports what they leave in its results: the
+standard errors in ``calibration.json`` are the pixel noise's plus the consider covariance of
+:data:`TOLERANCE_DRAWS` calibrations of the same detections against targets drawn from the tolerances
+(:func:`~bench.camera.target_tolerance.calibration_with_tolerance`; ``tolerance_draws`` says how many converged).
 
 Outputs in ``out``: ``camera.yaml`` (OpenCV keys + the thesis's parameters), ``calibration.json`` (RMS, per-view
 χ (Eq. 196), parameters with standard errors, OpenCV's result on the same detections), ``per_view.csv``
@@ -44,7 +47,7 @@ from bench.camera.calibration import calibrate_camera, opencv_reference, per_vie
 from bench.camera.corners import extract_corners_opencv, extract_corners_thesis, planar_board, two_plane_rig
 from bench.camera.io import write_camera_yaml
 from bench.camera.plots import plot_residual_vectors
-from bench.camera.target_tolerance import parse_tolerance
+from bench.camera.target_tolerance import calibration_with_tolerance, parse_tolerance
 from bench.dataset import View, load_dataset
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text, write_table_csv
@@ -56,6 +59,8 @@ TARGET_KEYS = {"chessboard": ({"inner", "square_mm"}, {}),
 _TARGET_SYNONYMS = {"planar": "chessboard"}
 #: image files of a plain folder of photos
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+#: calibrations against targets drawn from target.yaml's tolerances behind the reported standard errors
+TOLERANCE_DRAWS = 48
 
 
 def parse_target(t, source):
@@ -366,6 +371,15 @@ def calibrate_dataset(root, out, model: str = "heikkila", extractor: str = "thes
     Xs, uvs, names, skipped, size = det.object_points, det.image_points, det.names, det.skipped, det.image_size
     t_detect = det.detect_s
     result = calibrate_camera(Xs, uvs, size, model=model, k3=k3)
+    tol_draws = 0
+    tol_file = ds.root / "target.yaml" if ds is not None and target is None else None
+    tolerance = load_target_tolerance(tol_file) if tol_file is not None else None
+    if result.success and tolerance is not None and tolerance.any:  # the rig's stated tolerances in the covariance
+        if verbose:
+            print(f"the target's stated tolerances ({tol_file}): {TOLERANCE_DRAWS} calibrations against drawn "
+                  "targets ...")
+        result, _, tol_draws = calibration_with_tolerance(result, det.geometry, tolerance, Xs, uvs, TOLERANCE_DRAWS,
+                                                          tol_file)
     ref = opencv_reference([X.astype(np.float32) for X in Xs], [u.astype(np.float32) for u in uvs], size, model,
                            k3=k3)
     source = str(ds.root) if ds is not None else str(Path(root))
@@ -374,7 +388,8 @@ def calibrate_dataset(root, out, model: str = "heikkila", extractor: str = "thes
               "views_skipped": skipped, "success": result.success, "message": result.message,
               "reproj_rms_px": result.rms_px, "per_view_rms_px": dict(zip(names, map(float, result.per_view_rms_px),
                                                                            strict=True)),
-              "opencv_rms_px": ref.rms_px, "timings_s": {"detect_s": t_detect, **result.timings_s}}
+              "opencv_rms_px": ref.rms_px, "tolerance_draws": tol_draws,
+              "timings_s": {"detect_s": t_detect, **result.timings_s}}
     by_name = {v.name: v for v in views}
     if result.success:
         report["K"] = result.K.tolist()

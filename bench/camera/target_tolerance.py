@@ -189,3 +189,43 @@ def consider_covariance(geometry: BoardGeometry, tol: TargetTolerance, Xs, solve
         raise ConfigError(source, "tolerance", f"only {len(d)} of {draws} calibrations against the toleranced rig "
                                                "converged: the tolerances are implausible")
     return d.T @ d / len(d), len(d)
+
+
+def calibration_with_tolerance(cal, geometry: BoardGeometry, tol: TargetTolerance, Xs, uvs, draws: int = 48,
+                               source="target.yaml") -> tuple:
+    """A camera calibration whose covariance carries the target's stated tolerances, not only the pixel noise.
+
+    The calibration's formal covariance (``sigma^2 (J^T J)^-1``) treats the target as exact; a printed rig's errors
+    bias every parameter (a paper rig's cockle moves the focal length by percents and the principal point by tens of
+    pixels, while the formal standard errors are pixels). This adds the consider covariance of the parameters
+    (:func:`consider_covariance`: the same detections calibrated again against targets drawn from ``tol``).
+
+    Parameters
+    ----------
+    cal : CalibrationResult
+        The calibration (:func:`bench.camera.calibration.calibrate_camera`) of ``Xs``, ``uvs``.
+    geometry, tol, Xs, draws, source
+        As for :func:`consider_covariance`; ``uvs`` the detections (list of ``(N_i, 2)`` px).
+
+    Returns
+    -------
+    (CalibrationResult, ndarray (p, p), int)
+        The calibration with ``covariance`` = formal + consider (its ``std`` follows), the consider covariance
+        alone, and the number of draws behind it.
+    """
+    from dataclasses import replace
+
+    from bench.camera.calibration import calibrate_camera
+
+    k3, skew = bool(cal.dist[4] != 0.0), "skew" in cal.parameter_names
+
+    def solve(Xs_m):
+        c = calibrate_camera(Xs_m, uvs, cal.image_size, model=cal.model, k3=k3, fit_skew=skew,
+                             initial=(cal.K, cal.dist, cal.T_cam_target))  # the nominal optimum is close
+        if not c.success or list(c.parameter_names) != list(cal.parameter_names):
+            return None
+        return c.parameters - cal.parameters
+
+    C, n = consider_covariance(geometry, tol, Xs, solve, draws, source)
+    cov = cal.covariance + C
+    return replace(cal, covariance=0.5 * (cov + cov.T)), C, n

@@ -70,13 +70,14 @@ import numpy as np
 import yaml
 
 from bench.camera import dlt
-from bench.camera.calibrate_dataset import detect_dataset_corners
+from bench.camera.calibrate_dataset import detect_dataset_corners, load_target_tolerance
 from bench.camera.calibration import calibrate_camera, jackknife_views, opencv_reference, per_view_pinhole
 from bench.camera.heikkila import OPENCV_NAMES, heikkila_covariance, opencv_to_heikkila
 from bench.camera.io import camera_yaml_text, thesis_blocks, write_camera_yaml
 from bench.camera.model import CameraModel, to_pixels
 from bench.camera.plots import plot_residual_vectors
 from bench.camera.presets import load_preset
+from bench.camera.target_tolerance import calibration_with_tolerance
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text
@@ -97,7 +98,8 @@ SCHEMA = {
             "margin_px": (float, 8.0)},
     "views": {"count": (int, 7), "spread": (float, 0.8), "depth_range_mm": (float, 100.0)},
     "pipeline": {"extractor": (str, "thesis"), "model": (str, "heikkila"), "refine_corners": (bool, True),
-                 "compare_extractors": (bool, True), "table3_edges": (str, "pixel")},
+                 "compare_extractors": (bool, True), "table3_edges": (str, "pixel"),
+                 "target_tolerance": (bool, True), "tolerance_draws": (int, 48)},
     "outputs": {"cache": (bool, True), "plots": (bool, True), "rerun": (bool, True)},
 }
 
@@ -178,6 +180,9 @@ def _check(cfg):
         raise ConfigError(src, "pipeline.extractor", f"expected thesis or opencv, got {p['extractor']!r}")
     if p["model"] not in ("heikkila", "radial", "pinhole"):
         raise ConfigError(src, "pipeline.model", f"expected heikkila, radial or pinhole, got {p['model']!r}")
+    if not 10 <= p["tolerance_draws"] <= 1000:
+        raise ConfigError(src, "pipeline.tolerance_draws", f"must be in 10..1000 (Monte Carlo draws), got "
+                                                           f"{p['tolerance_draws']}")
     if p["table3_edges"] not in ("pixel", "subpixel"):
         raise ConfigError(src, "pipeline.table3_edges", f"expected pixel or subpixel, got {p['table3_edges']!r}")
 
@@ -453,7 +458,11 @@ def _render_medium(cfg, medium, true_lens, rng, out_dataset, cache_dir, verbose,
         for k in range(n):
             w.add_view(f"rig{k + 1:02d}", images[k], table=run.read[k], role="rig")
         w.write_text("camera.yaml", camera_yaml_text(nominal))
-        w.write_text("target.yaml", TARGET_YAML)
+        # the rig's print tolerances as its maker states them (the specification, not the draws), as in the lab
+        from bench.sim.imaging import stated_tolerance
+
+        tol = stated_tolerance(imaging(cfg))
+        w.write_text("target.yaml", TARGET_YAML + (yaml.safe_dump({"tolerance": tol}) if tol else ""))
         w.write_text("truth/truth.yaml", yaml.safe_dump(truth, sort_keys=False))
         w.write_text("truth/sim_checks.json", json.dumps(checks, indent=2) + "\n")
     if verbose:
@@ -641,6 +650,14 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
         if not cal.success:
             raise ConfigError(ds_dir, "calibration", f"after refining the corners: {cal.message}")
     t_cal = time.perf_counter() - t1
+    # the rig's stated tolerances (target.yaml) in the calibration's covariance: a paper rig biases the parameters
+    # far beyond the pixel noise's standard errors
+    tol_draws = 0
+    tolerance = load_target_tolerance(Path(ds_dir) / "target.yaml")
+    if p["target_tolerance"] and tolerance is not None and tolerance.any:
+        step(f"the rig's stated tolerances ({p['tolerance_draws']} calibrations against drawn rigs)")
+        cal, _, tol_draws = calibration_with_tolerance(cal, det.geometry, tolerance, Xs, uvs, p["tolerance_draws"],
+                                                       Path(ds_dir) / "target.yaml")
     t1 = time.perf_counter()
     ref = opencv_reference(Xs, uvs, size, model)
     t_cv = time.perf_counter() - t1
@@ -704,6 +721,7 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
         "oracle_focal_err_pct": max(abs(oracle.K[0, 0] / f_true[0] - 1), abs(oracle.K[1, 1] / f_true[1] - 1)) * 100,
         "views_used": float(len(det.names)), "views_skipped": float(len(det.skipped)),
         "points": float(sum(len(x) for x in Xs)), "sigma_px": cal.sigma_px,
+        "tolerance_draws": float(tol_draws),
     }
 
     # --- parameters: estimate, truth, formal and jackknife standard errors, OpenCV, oracle --------------------------

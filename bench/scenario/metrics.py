@@ -320,6 +320,8 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "true lens)"),
         Metric("<medium><z>_max_abs_z", "1", "largest |estimate − reference| / standard error"),
         Metric("<medium>heikkila_n_coeffs", "count", "coefficients fitted"),
+        Metric("<medium>tolerance_draws", "count", "calibrations against rigs drawn from target.yaml's stated "
+               "tolerances behind the covariance (0: none stated, or `pipeline.target_tolerance: false`)"),
         Metric("table3_alpha_mean_err_pct", "%", "Table 3: average per-view α vs the true fx",
                "`camera.preset: air_webcam`"),
         Metric("table3_beta_mean_err_pct", "%", "Table 3: average per-view β vs the true fy",

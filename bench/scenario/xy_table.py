@@ -631,9 +631,9 @@ def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48):
     Returns ``(calibration, views used, cov_K)``: ``cov_K`` (4, 4) px^2 is the covariance of ``fx, fy, cx, cy`` -
     the calibration's own (its corner noise) plus, when ``target.yaml`` states the rig's tolerances, what they leave
     in it (the second moment of ``tolerance_draws`` calibrations of the same detections against rigs drawn from them:
-    :func:`bench.camera.target_tolerance.consider_covariance`, as the in-situ lab step does).
+    :func:`bench.camera.target_tolerance.calibration_with_tolerance`, as the in-situ lab step does).
     """
-    from bench.camera.target_tolerance import consider_covariance
+    from bench.camera.target_tolerance import calibration_with_tolerance
 
     geometry = load_target(ds.root / "target.yaml")
     Xs, uvs, size = [], [], None
@@ -651,18 +651,13 @@ def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48):
     cal = calibrate_camera(Xs, uvs, size, model=model)
     if not cal.success:
         raise ConfigError(ds.root, "calibration views", f"camera calibration failed: {cal.message}")
-    i_K = [cal.parameter_names.index(n) for n in ("fx", "fy", "cx", "cy")]
-    cov_K = np.asarray(cal.covariance, float)[np.ix_(i_K, i_K)]
     tolerance = load_target_tolerance(ds.root / "target.yaml")
+    cov = cal.covariance
     if tolerance is not None and tolerance.any and tolerance_draws > 0:
-        k0 = np.array([cal.K[0, 0], cal.K[1, 1], cal.K[0, 2], cal.K[1, 2]])
-
-        def solve(Xs_m):
-            c = calibrate_camera(Xs_m, uvs, size, model=model)
-            return np.array([c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2]]) - k0 if c.success else None
-
-        cov_K = cov_K + consider_covariance(geometry, tolerance, Xs, solve, tolerance_draws, ds.root / "target.yaml")[0]
-    return cal, len(Xs), cov_K
+        cov = calibration_with_tolerance(cal, geometry, tolerance, Xs, uvs, tolerance_draws,
+                                         ds.root / "target.yaml")[0].covariance
+    i_K = [cal.parameter_names.index(n) for n in ("fx", "fy", "cx", "cy")]
+    return cal, len(Xs), np.asarray(cov, float)[np.ix_(i_K, i_K)]
 
 
 def true_optics(truth: dict) -> tuple:

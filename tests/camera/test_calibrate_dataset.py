@@ -35,14 +35,14 @@ def _board_view(T_cam_board, size=(640, 480), ss=4):
     return np.repeat(img[..., None], 3, axis=2)
 
 
-def _dataset(root, n_views=8, target="planar"):
+def _dataset(root, n_views=8, target="planar", tolerance=""):
     rng = np.random.default_rng(71)
     with DatasetWriter(root, kind="camera_calibration") as w:
         for k in range(n_views):
             R = rot_z(rng.uniform(-0.3, 0.3)) @ rot_x(rng.uniform(-0.5, 0.5)) @ rot_y(rng.uniform(-0.5, 0.5))
             t = np.array([rng.uniform(-0.11, -0.07), rng.uniform(-0.11, -0.07), rng.uniform(0.5, 0.65)])
             w.add_view(f"rig{k:02d}", _board_view(homogeneous(R, t)))
-        w.write_text("target.yaml", f"type: {target}\ninner: [7, 7]\nsquare_mm: {SQUARE * 1e3}\n")
+        w.write_text("target.yaml", f"type: {target}\ninner: [7, 7]\nsquare_mm: {SQUARE * 1e3}\n{tolerance}")
 
 
 @pytest.mark.parametrize("extractor", ["opencv", "thesis"])
@@ -67,3 +67,19 @@ def test_bad_target_file(tmp_path):
     _dataset(tmp_path / "ds", n_views=1, target="hexagonal")
     with pytest.raises(ConfigError, match="target.yaml: type: expected"):
         calibrate_dataset(tmp_path / "ds", tmp_path / "out", verbose=False)
+
+
+def test_stated_tolerance_widens_the_standard_errors(tmp_path):
+    """A target.yaml that states the print's tolerances: the reported standard errors carry them (the same
+    detections calibrated against 48 drawn boards), and say so; without it they are the pixel noise's alone."""
+    from bench.camera.calibrate_dataset import TOLERANCE_DRAWS, calibrate_dataset
+
+    _dataset(tmp_path / "ds", n_views=5)
+    _, plain = calibrate_dataset(tmp_path / "ds", tmp_path / "out", model="pinhole", verbose=False)
+    _dataset(tmp_path / "ds_tol", n_views=5,
+             tolerance="tolerance:\n  flatness_rms_mm: 0.4\n  print_rms_mm: [0.05, 0.09]\n")
+    _, tol = calibrate_dataset(tmp_path / "ds_tol", tmp_path / "out_tol", model="pinhole", verbose=False)
+    assert plain["tolerance_draws"] == 0 and tol["tolerance_draws"] == TOLERANCE_DRAWS
+    assert tol["K"] == plain["K"]  # the estimate is the same; only its uncertainty grows
+    for k in ("fx", "fy", "cx", "cy"):
+        assert tol["standard_errors"][k] > 3 * plain["standard_errors"][k], k

@@ -53,6 +53,7 @@ def test_webcam_smoke_accuracy_and_contract(webcam_run):
     assert m["reproj_rms_px"] < 0.1 and m["reproj_rms_px"] <= m["opencv_reproj_rms_px"] + 1e-9
     assert m["focal_err_pct"] < 0.3 and m["corner_rms_px"] < 0.1
     assert m["corner_duplicate_matches"] == 0
+    assert m["tolerance_draws"] == 0  # ideal imaging: an exact rig, target.yaml states no tolerance
     # noise-free exactness: the model fitted to the exact projections recovers the true camera
     assert m["model_floor_rms_px"] < 1e-9 and m["oracle_focal_err_pct"] < 1e-9
     # Table 3 beside the thesis's: our per-view values, the average row, the printed numbers
