@@ -414,7 +414,8 @@ class Report:
         if not twin:
             self.missing.append(f"Table 3 over seeds, ideal imaging (`runs/sweep-{name}-ideal`)")
         keys = ("table3_chi_mean_px", "table3_chi_subpixel_mean_px", "table3_alpha_std_px", "table3_beta_std_px",
-                "table3_alpha_mean_err_pct", "reproj_rms_px", "focal_err_pct", "corner_rms_px")
+                "table3_alpha_mean_err_pct", "reproj_rms_px", "focal_err_pct", "corner_rms_px",
+                "heikkila_within_2std", "heikkila_within_3std")
         thesis = {"table3_chi_mean_px": 0.443, "table3_alpha_std_px": runs[0]["metrics"].get(
             "thesis_table3_alpha_std_px"), "table3_beta_std_px": runs[0]["metrics"].get("thesis_table3_beta_std_px")}
         st = {k: _stats(r["metrics"].get(k) for r in runs) for k in keys}
