@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.geometry.quaternion import matrix_to_quaternion, quaternion_to_matrix
+from bench.geometry.quaternion import matrix_to_quaternion, quaternion_to_matrix, rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, vee
 from bench.robot.kinematics import error_matrix, error_matrix_derivatives
 
@@ -113,16 +113,13 @@ def chain_from_dh(robot) -> SerialChain:
 
 
 def motion(chain: SerialChain, k: int, qk):
-    """Joint motion ``M_k(q_k)``, shape ``qk.shape + (4, 4)``: rotation by ``q_k`` rad about the axis (Rodrigues) or
+    """Joint motion ``M_k(q_k)``, shape ``qk.shape + (4, 4)``: rotation by ``q_k`` rad about the axis (exp map) or
     translation by ``q_k`` m along it."""
     qk = np.asarray(qk, dtype=float)
     a = chain.axes[k]
     if chain.joint_types[k] == "prismatic":
         return homogeneous(np.broadcast_to(np.eye(3), qk.shape + (3, 3)), qk[..., None] * a)
-    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-    s, c = np.sin(qk)[..., None, None], np.cos(qk)[..., None, None]
-    R = np.eye(3) + s * K + (1.0 - c) * (K @ K)
-    return homogeneous(R, np.zeros(qk.shape + (3,)))
+    return homogeneous(rotation_vector_to_matrix(qk[..., None] * a), np.zeros(qk.shape + (3,)))
 
 
 def _eps(chain: SerialChain, eps):
