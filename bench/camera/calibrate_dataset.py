@@ -371,15 +371,24 @@ def calibrate_dataset(root, out, model: str = "heikkila", extractor: str = "thes
     Xs, uvs, names, skipped, size = det.object_points, det.image_points, det.names, det.skipped, det.image_size
     t_detect = det.detect_s
     result = calibrate_camera(Xs, uvs, size, model=model, k3=k3)
-    tol_draws = 0
-    tol_file = ds.root / "target.yaml" if ds is not None and target is None else None
-    tolerance = load_target_tolerance(tol_file) if tol_file is not None else None
+    tol_draws, tol_warning = 0, ""
+    if target is not None:  # the target from flags or a mapping: its tolerance, if it states one
+        tol_file = "--target"
+        tolerance = parse_tolerance(target["tolerance"], tol_file) if "tolerance" in target else None
+    else:
+        tol_file = ds.root / "target.yaml" if ds is not None else None
+        tolerance = load_target_tolerance(tol_file) if tol_file is not None else None
     if result.success and tolerance is not None and tolerance.any:  # the rig's stated tolerances in the covariance
         if verbose:
             print(f"the target's stated tolerances ({tol_file}): {TOLERANCE_DRAWS} calibrations against drawn "
                   "targets ...")
-        result, _, tol_draws = calibration_with_tolerance(result, det.geometry, tolerance, Xs, uvs, TOLERANCE_DRAWS,
-                                                          tol_file)
+        try:
+            result, _, tol_draws = calibration_with_tolerance(result, det.geometry, tolerance, Xs, uvs,
+                                                              TOLERANCE_DRAWS, tol_file)
+        except ConfigError as exc:  # too few draws converged: the calibration stands, its errors say so
+            tol_warning = f"standard errors without the target's tolerances: {exc}"
+            if verbose:
+                print(f"warning: {tol_warning}")
     ref = opencv_reference([X.astype(np.float32) for X in Xs], [u.astype(np.float32) for u in uvs], size, model,
                            k3=k3)
     source = str(ds.root) if ds is not None else str(Path(root))
@@ -388,7 +397,7 @@ def calibrate_dataset(root, out, model: str = "heikkila", extractor: str = "thes
               "views_skipped": skipped, "success": result.success, "message": result.message,
               "reproj_rms_px": result.rms_px, "per_view_rms_px": dict(zip(names, map(float, result.per_view_rms_px),
                                                                            strict=True)),
-              "opencv_rms_px": ref.rms_px, "tolerance_draws": tol_draws,
+              "opencv_rms_px": ref.rms_px, "tolerance_draws": tol_draws, "tolerance_warning": tol_warning,
               "timings_s": {"detect_s": t_detect, **result.timings_s}}
     by_name = {v.name: v for v in views}
     if result.success:

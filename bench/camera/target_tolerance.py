@@ -198,7 +198,9 @@ def calibration_with_tolerance(cal, geometry: BoardGeometry, tol: TargetToleranc
     The calibration's formal covariance (``sigma^2 (J^T J)^-1``) treats the target as exact; a printed rig's errors
     bias every parameter (a paper rig's cockle moves the focal length by percents and the principal point by tens of
     pixels, while the formal standard errors are pixels). This adds the consider covariance of the parameters
-    (:func:`consider_covariance`: the same detections calibrated again against targets drawn from ``tol``).
+    (:func:`consider_covariance`: the same detections calibrated again against targets drawn from ``tol``, each as
+    the nominal calibration was, from its own linear initialisation). ValueError for a failed nominal calibration or
+    fewer than :data:`MIN_CONSIDER_DRAWS` draws.
 
     Parameters
     ----------
@@ -217,11 +219,14 @@ def calibration_with_tolerance(cal, geometry: BoardGeometry, tol: TargetToleranc
 
     from bench.camera.calibration import calibrate_camera
 
-    k3, skew = bool(cal.dist[4] != 0.0), "skew" in cal.parameter_names
+    if not cal.success:
+        raise ValueError(f"calibration_with_tolerance: the nominal calibration failed ({cal.message})")
+    if draws < MIN_CONSIDER_DRAWS:
+        raise ValueError(f"draws: expected at least {MIN_CONSIDER_DRAWS} Monte Carlo draws, got {draws}")
+    k3, skew = "k3" in cal.parameter_names, "skew" in cal.parameter_names
 
-    def solve(Xs_m):
-        c = calibrate_camera(Xs_m, uvs, cal.image_size, model=cal.model, k3=k3, fit_skew=skew,
-                             initial=(cal.K, cal.dist, cal.T_cam_target))  # the nominal optimum is close
+    def solve(Xs_m):  # each draw calibrated as the nominal one was (its own initialisation and restarts)
+        c = calibrate_camera(Xs_m, uvs, cal.image_size, model=cal.model, k3=k3, fit_skew=skew)
         if not c.success or list(c.parameter_names) != list(cal.parameter_names):
             return None
         return c.parameters - cal.parameters

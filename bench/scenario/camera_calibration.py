@@ -675,7 +675,8 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
                 step("corners for Table 3 (edge pixels, as printed)")
                 det3 = detect_dataset_corners(ds_dir, "thesis", subpixel=False)
                 t3_names, t3_X = det3.names, det3.object_points
-                per_view = per_view_pinhole(t3_X, [u.astype(np.float32).astype(float) for u in det3.image_points])
+                t3_uvs = [u.astype(np.float32).astype(float) for u in det3.image_points]  # Figure 44 draws these
+                per_view = per_view_pinhole(t3_X, t3_uvs)
     ds = load_dataset(ds_dir)
     nominal = ds.camera()
 

@@ -308,11 +308,13 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("<medium>sigma_px", "px", "noise σ estimated from the residuals"),
         Metric("<medium>jackknife_s", "s", "time of the jackknife over views"),
         Metric("<medium>err_<p>", "unit of the parameter", "estimate − truth (null in water except fx, fy)"),
-        Metric("<medium>std_<p>", "unit of the parameter", "formal standard error σ²(JᵀJ)⁻¹"),
+        Metric("<medium>std_<p>", "unit of the parameter", "standard error: the formal one, sqrt of the diagonal of "
+               "σ²(JᵀJ)⁻¹, plus the rig's stated tolerances when `<medium>tolerance_draws` > 0"),
         Metric("<medium>jk_std_<p>", "unit of the parameter", "jackknife standard error over views"),
         Metric("<medium>err_<h>", "unit of the coefficient", "Heikkilä coefficient: estimate − truth",
                "the underwater camera"),
-        Metric("<medium>std_<h>", "unit of the coefficient", "formal standard error (`heikkila_covariance`)",
+        Metric("<medium>std_<h>", "unit of the coefficient", "standard error (`heikkila_covariance` of the same "
+               "covariance: formal, plus the rig's stated tolerances when `<medium>tolerance_draws` > 0)",
                "the underwater camera"),
         Metric("<medium>jk_std_<h>", "unit of the coefficient", "jackknife standard error",
                "the underwater camera"),

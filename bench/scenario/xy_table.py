@@ -59,10 +59,12 @@ from bench.vision.features import Features
 from bench.vision.insitu import MapConfig
 from bench.vision.triangulation import required_baseline
 from bench.vision.xy_table_positioning import (
+    CORNER_EXTRACTORS,
     PositioningConfig,
     corner_features,
     estimate_positions,
     load_table_spec,
+    rig_corner_features,
     sift_features,
     table_views,
 )
@@ -119,6 +121,7 @@ SCHEMA = {
         "bias_refine": (bool, False),           # finer second pass of the search
         "bias_depth_statistic": (str, "median"),  # median (robust) | mean (the thesis's average, Eq. 197 search)
         "features": (str, "sift"),              # sift | corners (rig) | true_projection (INJECTED)
+        "corner_extractor": (str, "opencv"),    # features = corners: opencv | thesis | thesis_printed (edge pixels)
         "reference_view": (int, 11),
         "intraocular_mm": (list, [20, 30, 40, 50, 60, 70, 80, 90, 100, 110]),
         "map_min_baseline_mm": (float, 49.0),   # Eq. 199
@@ -194,7 +197,8 @@ def _check(cfg):
     choices = {"sim.poses": ("table4", "table10"), "sim.reference_object": ("panel", "rig"),
                "pipeline.camera": CAMERA_CHOICES, "pipeline.mount_bias": BIAS_CHOICES,
                "pipeline.features": FEATURE_CHOICES, "pipeline.camera_model": ("heikkila", "radial", "pinhole"),
-               "pipeline.bias_depth_statistic": ("median", "mean"), "sim.table_readout": ("steps", "exact")}
+               "pipeline.bias_depth_statistic": ("median", "mean"), "sim.table_readout": ("steps", "exact"),
+               "pipeline.corner_extractor": CORNER_EXTRACTORS}
     for key, allowed in choices.items():
         sec, k = key.split(".")
         if cfg[sec][k] not in allowed:
@@ -631,7 +635,8 @@ def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48):
     Returns ``(calibration, views used, cov_K)``: ``cov_K`` (4, 4) px^2 is the covariance of ``fx, fy, cx, cy`` -
     the calibration's own (its corner noise) plus, when ``target.yaml`` states the rig's tolerances, what they leave
     in it (the second moment of ``tolerance_draws`` calibrations of the same detections against rigs drawn from them:
-    :func:`bench.camera.target_tolerance.calibration_with_tolerance`, as the in-situ lab step does).
+    :func:`bench.camera.target_tolerance.calibration_with_tolerance`; the in-situ lab step does the same through
+    :func:`~bench.camera.target_tolerance.consider_covariance` with the mount in its solve).
     """
     from bench.camera.target_tolerance import calibration_with_tolerance
 
@@ -1029,9 +1034,9 @@ def run(cfg, out_dir, verbose=True):
         geometry = load_target(ds.root / "target.yaml")
         feats, lost = {}, []
         for v in views:
-            res = extract_corners_opencv(v.image(expected_size=camera.size), geometry)
-            if res.success:
-                feats[v.name] = corner_features(res.uv, res.ids, geometry.n_corners)
+            f, _ = rig_corner_features(v.image(expected_size=camera.size), geometry, p["corner_extractor"])
+            if f is not None:
+                feats[v.name] = f
             else:
                 lost.append(v.name)
         metrics["corner_views_lost"] = float(len(lost))

@@ -210,6 +210,27 @@ def corner_features(uv, ids, n_ids: int) -> Features:
     return Features(uv, np.zeros(n), np.full(n, 4.0), np.ones(n), desc)
 
 
+#: corner extractors for the rig as reference object: OpenCV's, the thesis's (sub-pixel edges: the bench's
+#: addition), the thesis's as printed (the binary edge map's whole pixels, section 3.3.4-3.3.5)
+CORNER_EXTRACTORS = ("opencv", "thesis", "thesis_printed")
+
+
+def rig_corner_features(image, geometry, extractor: str = "opencv"):
+    """``(Features or None, message)``: the target's corners in ``image`` by ``extractor``
+    (:data:`CORNER_EXTRACTORS`) as :func:`corner_features`; None with the extractor's message when the target is not
+    found. Section 5.4 extracted the rig's corners with "the semi automatic algorithm used in the camera calibration"
+    (the thesis's extractor)."""
+    from bench.camera.corners import extract_corners_opencv, extract_corners_thesis
+
+    if extractor not in CORNER_EXTRACTORS:
+        raise ValueError(f"extractor: expected one of {', '.join(CORNER_EXTRACTORS)}, got {extractor!r}")
+    res = (extract_corners_opencv(image, geometry) if extractor == "opencv" else
+           extract_corners_thesis(image, geometry, subpixel=extractor == "thesis"))
+    if not res.success:
+        return None, res.message
+    return corner_features(res.uv, res.ids, geometry.n_corners), ""
+
+
 # ------------------------------------------------------------------------------------------------ the experiment
 
 
@@ -628,12 +649,13 @@ def table_views(ds, role: str = "table") -> list:
 
 
 def position_dataset(root, config: PositioningConfig, camera=None, features: str = "sift", geometry=None,
-                     verbose: bool = False) -> PositioningResult:
+                     verbose: bool = False, corner_extractor: str = "opencv") -> PositioningResult:
     """The experiment on a dataset folder (public part only): views of role ``table``, ``table.csv``, ``table.yaml``.
 
     ``camera`` replaces the dataset's ``camera.yaml`` (e.g. a calibration result); ``features`` is ``"sift"`` or
-    ``"corners"`` (then ``geometry`` is the target, e.g. from ``target.yaml``, and the OpenCV corner extractor labels
-    the corners; views where the target is not found are left out, the reference must have it).
+    ``"corners"`` (then ``geometry`` is the target, e.g. from ``target.yaml``, and ``corner_extractor``
+    (:func:`rig_corner_features`) labels the corners; views where the target is not found are left out, the
+    reference must have it).
     """
     t0 = time.perf_counter()
     ds = load_dataset(root)
@@ -646,15 +668,13 @@ def position_dataset(root, config: PositioningConfig, camera=None, features: str
         if features == "sift":
             feats[v.name] = sift_features(img, "rgb")  # View.image: RGB (or grey)
         elif features == "corners":
-            from bench.camera.corners import extract_corners_opencv
-
             if geometry is None:
                 raise ValueError("features='corners' needs the target geometry")
-            res = extract_corners_opencv(img, geometry)
-            if not res.success:
-                skipped.append(f"{v.name}: {res.message}")
+            f, msg = rig_corner_features(img, geometry, corner_extractor)
+            if f is None:
+                skipped.append(f"{v.name}: {msg}")
                 continue
-            feats[v.name] = corner_features(res.uv, res.ids, geometry.n_corners)
+            feats[v.name] = f
         else:
             raise ValueError(f"features: expected 'sift' or 'corners', got {features!r}")
     if config.reference not in feats:

@@ -151,3 +151,32 @@ def test_calibration_with_tolerance_predicts_the_spread_over_perturbed_rigs():
     spread, predicted = np.sqrt(np.mean(np.square(errs), axis=0)), cal_t.std
     assert cal.parameter_names == ["fx", "fy", "cx", "cy"] and np.all(cal.std < 1e-6 * predicted)
     assert np.all(np.abs(spread / predicted - 1) < 0.35), (spread, predicted)
+
+
+def test_calibration_with_tolerance_refuses_a_failed_calibration_and_too_few_draws_and_keeps_k3():
+    from dataclasses import replace
+
+    from bench.camera.calibration import calibrate_camera
+    from bench.camera.target_tolerance import MIN_CONSIDER_DRAWS, calibration_with_tolerance
+    from bench.geometry.transforms import homogeneous, rot_x, rot_y, transform_points
+
+    g = two_plane_rig(7, 0.197, 0.02)
+    X0 = g.object_points()
+    K = np.array([[975.0, 0.0, 322.0], [0.0, 970.0, 243.0], [0.0, 0.0, 1.0]])
+    Rs = [rot_x(np.pi + 0.25 * a) @ rot_y(0.3 * b) for a, b in ((0, 0), (1, -1), (-1, 1), (1, 1))]
+    uvs = []
+    for R in Rs:
+        p = transform_points(homogeneous(R, np.array([0.0, 0.01, 0.95]) - R @ X0.mean(0)), X0)
+        uvs.append((K @ (p / p[:, 2:]).T).T[:, :2])
+    Xs = [X0] * len(Rs)
+    tol = TargetTolerance(print_rms=(0.05e-3, 0.05e-3))
+    cal = calibrate_camera(Xs, uvs, (640, 480), model="radial", k3=True)
+    assert cal.success and "k3" in cal.parameter_names
+    # k3 is among the parameters even where its estimate is exactly zero: every draw fits it too
+    cal0 = replace(cal, dist=np.r_[cal.dist[:4], 0.0])
+    _, C, n = calibration_with_tolerance(cal0, g, tol, Xs, uvs, draws=MIN_CONSIDER_DRAWS)
+    assert n == MIN_CONSIDER_DRAWS and C.shape == (len(cal.parameter_names),) * 2
+    with pytest.raises(ValueError, match="draws: expected at least 10"):
+        calibration_with_tolerance(cal, g, tol, Xs, uvs, draws=5)
+    with pytest.raises(ValueError, match="the nominal calibration failed"):
+        calibration_with_tolerance(replace(cal, success=False, message="not converged"), g, tol, Xs, uvs)
