@@ -427,3 +427,27 @@ def test_thesis_lines_in_ideal_pixels_remove_the_curvature_bias():
     assert rms(errors(ideal), 0) < rms(errors(plain), 0)
     with pytest.raises(ValueError, match="camera: its image size"):
         cc.extract_corners_thesis(img[:200], BOARD, camera=cam)
+
+
+def test_rig_corner_features_by_each_extractor():
+    """The x-y table's rig corners (section 5.4) by OpenCV, the thesis's extractor and the thesis's as printed: 72
+    labelled corners each; the printed one (whole edge pixels) errs more than the sub-pixel one, within half a pixel;
+    an unknown extractor is a ValueError, a blank image no features with the extractor's message."""
+    from bench.vision.xy_table_positioning import rig_corner_features
+
+    rng = np.random.default_rng(13)
+    geo = cc.two_plane_rig(7, 0.197, margin=0.02)
+    T = look_at([0.55, 0.6, 0.35], [0.09, 0.09, 0.11])
+    img = render_rig(geo, T, rng, 0.02)
+    gt = project(T, geo.object_points())
+    err = {}
+    for name in ("opencv", "thesis", "thesis_printed"):
+        f, msg = rig_corner_features(img, geo, name)
+        assert f is not None and msg == "" and len(f.uv) == 72, (name, msg)
+        ids = np.argmax(f.descriptors, axis=1)
+        err[name] = rms(f.uv, gt[ids])
+    assert err["thesis"] < err["thesis_printed"] < 0.5, err
+    with pytest.raises(ValueError, match="extractor: expected one of opencv, thesis, thesis_printed"):
+        rig_corner_features(img, geo, "harris")
+    f, msg = rig_corner_features(np.full_like(img, 128), geo, "thesis_printed")
+    assert f is None and msg
