@@ -199,8 +199,8 @@ def calibration_with_tolerance(cal, geometry: BoardGeometry, tol: TargetToleranc
     bias every parameter (a paper rig's cockle moves the focal length by percents and the principal point by tens of
     pixels, while the formal standard errors are pixels). This adds the consider covariance of the parameters
     (:func:`consider_covariance`: the same detections calibrated again against targets drawn from ``tol``, each as
-    the nominal calibration was, from its own linear initialisation). ValueError for a failed nominal calibration or
-    fewer than :data:`MIN_CONSIDER_DRAWS` draws.
+    the nominal calibration was, from its own linear initialisation, or from the nominal optimum where that fails).
+    ValueError for a failed nominal calibration or fewer than :data:`MIN_CONSIDER_DRAWS` draws.
 
     Parameters
     ----------
@@ -225,11 +225,15 @@ def calibration_with_tolerance(cal, geometry: BoardGeometry, tol: TargetToleranc
         raise ValueError(f"draws: expected at least {MIN_CONSIDER_DRAWS} Monte Carlo draws, got {draws}")
     k3, skew = "k3" in cal.parameter_names, "skew" in cal.parameter_names
 
-    def solve(Xs_m):  # each draw calibrated as the nominal one was (its own initialisation and restarts)
-        c = calibrate_camera(Xs_m, uvs, cal.image_size, model=cal.model, k3=k3, fit_skew=skew)
-        if not c.success or list(c.parameter_names) != list(cal.parameter_names):
-            return None
-        return c.parameters - cal.parameters
+    def solve(Xs_m):  # each draw calibrated as the nominal one was (its own initialisation and restarts); where
+        # that fails - a planar board drawn out of its plane, which the planar initialisation refuses - from the
+        # nominal optimum
+        c = None
+        for initial in (None, (cal.K, cal.dist, cal.T_cam_target)):
+            c = calibrate_camera(Xs_m, uvs, cal.image_size, model=cal.model, k3=k3, fit_skew=skew, initial=initial)
+            if c.success and list(c.parameter_names) == list(cal.parameter_names):
+                return c.parameters - cal.parameters
+        return None
 
     C, n = consider_covariance(geometry, tol, Xs, solve, draws, source)
     cov = cal.covariance + C
