@@ -43,7 +43,7 @@ import yaml
 
 from bench.camera.calibrate_dataset import load_target, load_target_tolerance
 from bench.camera.calibration import calibrate_camera
-from bench.camera.corners import extract_corners_opencv
+from bench.camera.corners import extract_corners_opencv, extract_corners_thesis
 from bench.camera.io import camera_yaml_text
 from bench.camera.model import CameraModel
 from bench.camera.presets import load_preset
@@ -122,6 +122,7 @@ SCHEMA = {
         "bias_depth_statistic": (str, "median"),  # median (robust) | mean (the thesis's average, Eq. 197 search)
         "features": (str, "sift"),              # sift | corners (rig) | true_projection (INJECTED)
         "corner_extractor": (str, "opencv"),    # features = corners: opencv | thesis | thesis_printed (edge pixels)
+        "calibration_corner_extractor": (str, "opencv"),  # the rig's corners in the calibration views, as above
         "reference_view": (int, 11),
         "intraocular_mm": (list, [20, 30, 40, 50, 60, 70, 80, 90, 100, 110]),
         "map_min_baseline_mm": (float, 49.0),   # Eq. 199
@@ -198,7 +199,8 @@ def _check(cfg):
                "pipeline.camera": CAMERA_CHOICES, "pipeline.mount_bias": BIAS_CHOICES,
                "pipeline.features": FEATURE_CHOICES, "pipeline.camera_model": ("heikkila", "radial", "pinhole"),
                "pipeline.bias_depth_statistic": ("median", "mean"), "sim.table_readout": ("steps", "exact"),
-               "pipeline.corner_extractor": CORNER_EXTRACTORS}
+               "pipeline.corner_extractor": CORNER_EXTRACTORS,
+               "pipeline.calibration_corner_extractor": CORNER_EXTRACTORS}
     for key, allowed in choices.items():
         sec, k = key.split(".")
         if cfg[sec][k] not in allowed:
@@ -629,8 +631,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
 # ------------------------------------------------------------------------------------------------ pipeline side
 
 
-def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48):
-    """Corners (OpenCV extractor, ``target.yaml``) in the ``calibration`` views -> :func:`calibrate_camera`.
+def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48, extractor: str = "opencv"):
+    """Corners (``extractor``: ``opencv | thesis | thesis_printed``, ``target.yaml``) in the ``calibration`` views ->
+    :func:`calibrate_camera`.
 
     Returns ``(calibration, views used, cov_K)``: ``cov_K`` (4, 4) px^2 is the covariance of ``fx, fy, cx, cy`` -
     the calibration's own (its corner noise) plus, when ``target.yaml`` states the rig's tolerances, what they leave
@@ -646,7 +649,8 @@ def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48):
         if v.role != "calibration":
             continue
         img = v.image()
-        res = extract_corners_opencv(img, geometry)
+        res = (extract_corners_opencv(img, geometry) if extractor == "opencv" else
+               extract_corners_thesis(img, geometry, subpixel=extractor == "thesis"))
         if res.success:
             Xs.append(res.object_points)
             uvs.append(res.uv)
@@ -1004,7 +1008,7 @@ def run(cfg, out_dir, verbose=True):
     K_true = np.array(truth["camera_K"])
     cov_K = None  # the calibration's covariance of fx, fy, cx, cy (px^2): the complete bound's intrinsics prior
     if p["camera"] == "calibrated":
-        cal, n_cal, cov_K = calibrate_from_rig_views(ds, p["camera_model"])
+        cal, n_cal, cov_K = calibrate_from_rig_views(ds, p["camera_model"], extractor=p["calibration_corner_extractor"])
         camera = cal.camera
         metrics["calibration_fx_std_px"] = float(np.sqrt(cov_K[0, 0]))
         metrics["reproj_rms_px"] = float(cal.rms_px)
