@@ -27,7 +27,7 @@ here reads the simulator.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -112,6 +112,18 @@ class FlatPort:
     def h(self) -> float:
         """Distance (m) from the camera centre to the inner glass surface along the normal."""
         return float(self.normal @ np.array([self.decentre[0], self.decentre[1], self.d0]))
+
+    @property
+    def axial_d0(self) -> float:
+        """Camera centre to the inner glass surface along the optical axis (m): ``h / n_z``, the ``d0`` of the centred
+        port with the same glass plane (a decentre absorbed)."""
+        return self.h / float(self.normal[2])
+
+    def centred(self, d0_offset: float = 0.0, keep_tilt: bool = True) -> FlatPort:
+        """The port without decentre at ``d0 = axial_d0 + d0_offset`` (m): with its tilt kept, the same glass plane;
+        with the tilt dropped, the square port a housing's datasheet describes."""
+        return replace(self, d0=self.axial_d0 + d0_offset, decentre=np.zeros(2),
+                       tilt=self.tilt if keep_tilt else np.zeros(2))
 
 
 def check_port(port) -> FlatPort:

@@ -79,8 +79,8 @@ def camera_yaml_text(camera, extra: dict | None = None) -> str:
                 "tilt_x_deg": float(np.rad2deg(camera.port.tilt[0])),
                 "tilt_y_deg": float(np.rad2deg(camera.port.tilt[1])), "working_range_m": camera.working_range_m}
         if camera.port.decentre.any():
-            raise ValueError("flat_port: a decentred port is written with its decentre absorbed into d0 (use the "
-                             "port calibration's)")
+            raise ValueError("flat_port: a decentred port is written with its decentre absorbed into d0 (use "
+                             "port.centred(), or the port calibration's)")
         camera = camera.lens.replace(name=camera.name)
     fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
     fs.write("camera_matrix", np.asarray(camera.K, dtype=np.float64))

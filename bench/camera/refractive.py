@@ -334,7 +334,7 @@ def calibrate_refractive(object_points, image_points, lens0: CameraModel, port0:
     if pixel_sigma_px is not None and not (np.isfinite(pixel_sigma_px) and pixel_sigma_px > 0):
         raise ValueError(f"pixel_sigma_px: expected a standard deviation > 0 px, got {pixel_sigma_px!r}")
     port_free = np.array([not fix_port, not (fix_tilt or fix_port), not (fix_tilt or fix_port)])
-    d0_start = port0.h / port0.normal[2]  # the same port plane with the decentre absorbed
+    d0_start = port0.axial_d0  # the same port plane with the decentre absorbed
     port_theta0 = np.array([d0_start, *port0.tilt])
     n_lens = 8 if free_lens else 0
     n_port = int(port_free.sum())

@@ -335,8 +335,7 @@ def fit_refractive(central, port: FlatPort, X, uv, noise_px: float, start_offset
     from bench.camera.refractive import calibrate_refractive, refractive_start
 
     noisy = [u + noise_px * rng.standard_normal(u.shape) for u in uv]
-    start = FlatPort(d0=port.h / port.normal[2] + start_offset_m, t=port.t, n_air=port.n_air, n_glass=port.n_glass,
-                     n_water=port.n_water)
+    start = port.centred(start_offset_m, keep_tilt=False)
     lens0, T0 = refractive_start(central.camera, central.T_cam_target, start)
     # glass and water with the index of air: no port to calibrate (its distance and tilt change nothing)
     vanished = port.n_water == port.n_air and port.n_glass == port.n_air
@@ -542,7 +541,7 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
             metrics.update({
                 f"refractive_rms_px_at_calib_{s}": r_rms[i_cal], f"refractive_rms_px_at_{near}_{s}": r_rms[0],
                 f"refractive_rms_px_at_{far}_{s}": r_rms[-1],
-                f"refractive_d0_err_mm_{s}": 1e3 * abs(refr.camera.port.d0 - port.h / port.normal[2]),
+                f"refractive_d0_err_mm_{s}": 1e3 * abs(refr.camera.port.d0 - port.axial_d0),
                 f"refractive_calib_rms_px_{s}": refr.rms_px,
                 f"central_noisy_rms_px_at_{near}_{s}": c_rms[0], f"central_noisy_rms_px_at_{far}_{s}": c_rms[-1],
                 f"central_noisy_rms_px_at_calib_{s}": c_rms[i_cal],

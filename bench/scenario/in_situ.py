@@ -222,7 +222,7 @@ def validate(cfg) -> None:
     optics = site_optics(cfg)
     port = optics.port
     if port is not None and port.n_water != port.n_air:  # housing.yaml's d0 = the true one off by up to the tolerance
-        d0_mm = port.h / port.normal[2] * 1e3
+        d0_mm = port.axial_d0 * 1e3
         if cfg["camera"]["housing_tolerance_mm"] >= d0_mm:
             raise ConfigError(src, "camera.housing_tolerance_mm", f"must be below the port's lens-to-glass distance "
                                                                   f"({d0_mm:.1f} mm), got "
@@ -624,8 +624,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         if port is not None and port.n_water != port.n_air:  # the housing's datasheet: its lens-to-glass distance
             tol = cfg["camera"]["housing_tolerance_mm"]  # off by a draw within its tolerance (own stream: the
             off = np.random.default_rng([cfg["seed"], 271]).uniform(-1, 1) * tol * 1e-3  # renders stay the same)
-            nominal = FlatPort(d0=port.h / port.normal[2] + off, t=port.t, n_air=port.n_air, n_glass=port.n_glass,
-                               n_water=port.n_water)
+            nominal = port.centred(off, keep_tilt=False)
             w.write_text("housing.yaml", housing_yaml_text(nominal, tol))
         shutil.copyfile(Path(cfg["_file"]).parent / cfg["robot"], w.path("robot.yaml"))
         # the rig's print tolerances as its maker states them (the specification, not the draws)
@@ -734,10 +733,8 @@ def _oracle_files(cfg, ds, robot, out_dir, lab):
             from bench.camera.refractive import RefractiveCamera
 
             T_lens_c = np.eye(4)
-            true_port = FlatPort(d0=port.h / port.normal[2], t=port.t, n_air=port.n_air, n_glass=port.n_glass,
-                                 n_water=port.n_water, tilt=port.tilt)
             camera_path = write_camera_yaml(oracle / "camera.yaml", RefractiveCamera(
-                lens, true_port, lab["refractive"].camera.working_range_m, name="ORACLE: true lens and port"))
+                lens, port.centred(), lab["refractive"].camera.working_range_m, name="ORACLE: true lens and port"))
         else:
             central, T_lens_c = best_central_camera(lens, port, (0.8 * float(z.min()), 1.2 * float(z.max())),
                                                     profile=imaging(cfg))
@@ -990,7 +987,7 @@ def run(cfg, out_dir, verbose=True):
         cam_true, K_hat = np.array(truth["camera_K"]), refr.camera.lens.K
         Tm_true, rms = np.array(truth["T_link5_cam"]), refr.rms_px
         port_true = _true_optics(truth)[1]  # its decentre absorbed into d0, as the calibration estimates it
-        metrics["port_d0_err_mm"] = float(abs(refr.camera.port.d0 - port_true.h / port_true.normal[2]) * 1e3)
+        metrics["port_d0_err_mm"] = float(abs(refr.camera.port.d0 - port_true.axial_d0) * 1e3)
         metrics["port_d0_std_mm"] = refr.std("d0") * 1e3
         metrics["port_tilt_err_deg"] = float(np.rad2deg(np.linalg.norm(refr.camera.port.tilt - port_true.tilt)))
         metrics["reproj_rms_central_px"] = float(lab["camera"].rms_px)

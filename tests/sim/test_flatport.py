@@ -564,3 +564,15 @@ def test_impossible_optics_are_one_line_config_errors(preset, overrides, field):
         optics_preset(preset, overrides)
     assert exc.value.field == field and "\n" not in str(exc.value)
     assert str(exc.value).startswith(f"optics preset '{preset}': {field}: ")
+
+
+def test_centred_port_keeps_the_glass_plane():
+    """A decentred, tilted port as a centred one: with its tilt, the same plane (h and normal) at d0 = h / n_z; without
+    it, the square port at that axial distance (plus an offset); a centred port's axial_d0 is its d0."""
+    port = FlatPort(d0=0.02, t=0.008, tilt=np.array([0.02, -0.015]), decentre=np.array([0.003, -0.002]))
+    same = port.centred()
+    assert np.allclose(same.normal, port.normal, atol=0, rtol=0) and abs(same.h - port.h) < 1e-15
+    assert not same.decentre.any() and same.d0 == port.axial_d0 and same.t == port.t
+    square = port.centred(1e-3, keep_tilt=False)
+    assert not square.tilt.any() and square.d0 == pytest.approx(port.axial_d0 + 1e-3, abs=1e-15)
+    assert FlatPort(d0=0.02).axial_d0 == 0.02
