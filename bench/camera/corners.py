@@ -667,6 +667,24 @@ def _detect_planes(gray_u8, geometry, accuracy=True, subpix=True):
 # ----------------------------------------------------------------------------------------------------------------------
 # public extractors
 # ----------------------------------------------------------------------------------------------------------------------
+#: the extractors by name: OpenCV's, the thesis's (sub-pixel edges: the bench's addition), the thesis's as printed
+#: (lines fitted to the binary edge map's whole pixels, section 3.3.4-3.3.5)
+EXTRACTORS = ("opencv", "thesis", "thesis_printed")
+
+
+def extract_corners(image, board_geometry, extractor: str = "thesis", camera=None) -> CornerResult:
+    """The corners of ``board_geometry`` in ``image`` by ``extractor`` (:data:`EXTRACTORS`):
+    :func:`extract_corners_opencv` or :func:`extract_corners_thesis` (``camera``: thesis extractors only). ValueError
+    for an unknown name."""
+    if extractor not in EXTRACTORS:
+        raise ValueError(f"extractor: expected one of {', '.join(EXTRACTORS)}, got {extractor!r}")
+    if extractor == "opencv":
+        if camera is not None:
+            raise ValueError("camera: only the thesis extractor fits lines in ideal pixels")
+        return extract_corners_opencv(image, board_geometry)
+    return extract_corners_thesis(image, board_geometry, camera=camera, subpixel=extractor == "thesis")
+
+
 def extract_corners_opencv(image, board=(7, 7), accuracy: bool = True, subpix: bool = True) -> CornerResult:
     """OpenCV corners: ``findChessboardCornersSB`` (fallback ``findChessboardCorners`` + ``cornerSubPix``).
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from bench.camera.calibrate_dataset import load_target, load_target_tolerance
 from bench.camera.calibration import calibrate_camera
-from bench.camera.corners import extract_corners_opencv, extract_corners_thesis
+from bench.camera.corners import extract_corners
 from bench.camera.io import write_camera_yaml
 from bench.errors import ConfigError
 from bench.geometry.transforms import homogeneous, invert, rot_z, transform_points
@@ -64,8 +64,7 @@ def _rig_corners(ds, geometry, cfg, role):
     Xs, uvs, used = [], [], []
     for v in (v for v in ds.views if v.role == role):
         img = v.image()
-        res = (extract_corners_opencv(img, geometry) if cfg["pipeline"]["extractor"] == "opencv" else
-               extract_corners_thesis(img, geometry))
+        res = extract_corners(img, geometry, cfg["pipeline"]["extractor"])
         if res.success:
             Xs.append(res.object_points)
             uvs.append(res.uv)

@@ -43,7 +43,7 @@ import yaml
 
 from bench.camera.calibrate_dataset import load_target, load_target_tolerance
 from bench.camera.calibration import calibrate_camera
-from bench.camera.corners import extract_corners_opencv, extract_corners_thesis
+from bench.camera.corners import EXTRACTORS, extract_corners
 from bench.camera.io import camera_yaml_text
 from bench.camera.model import CameraModel
 from bench.camera.presets import load_preset
@@ -59,7 +59,6 @@ from bench.vision.features import Features
 from bench.vision.insitu import MapConfig
 from bench.vision.triangulation import required_baseline
 from bench.vision.xy_table_positioning import (
-    CORNER_EXTRACTORS,
     PositioningConfig,
     corner_features,
     estimate_positions,
@@ -199,8 +198,8 @@ def _check(cfg):
                "pipeline.camera": CAMERA_CHOICES, "pipeline.mount_bias": BIAS_CHOICES,
                "pipeline.features": FEATURE_CHOICES, "pipeline.camera_model": ("heikkila", "radial", "pinhole"),
                "pipeline.bias_depth_statistic": ("median", "mean"), "sim.table_readout": ("steps", "exact"),
-               "pipeline.corner_extractor": CORNER_EXTRACTORS,
-               "pipeline.calibration_corner_extractor": CORNER_EXTRACTORS}
+               "pipeline.corner_extractor": EXTRACTORS,
+               "pipeline.calibration_corner_extractor": EXTRACTORS}
     for key, allowed in choices.items():
         sec, k = key.split(".")
         if cfg[sec][k] not in allowed:
@@ -649,8 +648,7 @@ def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48, extracto
         if v.role != "calibration":
             continue
         img = v.image()
-        res = (extract_corners_opencv(img, geometry) if extractor == "opencv" else
-               extract_corners_thesis(img, geometry, subpixel=extractor == "thesis"))
+        res = extract_corners(img, geometry, extractor)
         if res.success:
             Xs.append(res.object_points)
             uvs.append(res.uv)

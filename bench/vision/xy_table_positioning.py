@@ -210,22 +210,14 @@ def corner_features(uv, ids, n_ids: int) -> Features:
     return Features(uv, np.zeros(n), np.full(n, 4.0), np.ones(n), desc)
 
 
-#: corner extractors for the rig as reference object: OpenCV's, the thesis's (sub-pixel edges: the bench's
-#: addition), the thesis's as printed (the binary edge map's whole pixels, section 3.3.4-3.3.5)
-CORNER_EXTRACTORS = ("opencv", "thesis", "thesis_printed")
-
-
 def rig_corner_features(image, geometry, extractor: str = "opencv"):
     """``(Features or None, message)``: the target's corners in ``image`` by ``extractor``
-    (:data:`CORNER_EXTRACTORS`) as :func:`corner_features`; None with the extractor's message when the target is not
-    found. Section 5.4 extracted the rig's corners with "the semi automatic algorithm used in the camera calibration"
-    (the thesis's extractor)."""
-    from bench.camera.corners import extract_corners_opencv, extract_corners_thesis
+    (:data:`bench.camera.corners.EXTRACTORS`) as :func:`corner_features`; None with the extractor's message when the
+    target is not found. Section 5.4 extracted the rig's corners with "the semi automatic algorithm used in the camera
+    calibration" (the thesis's extractor)."""
+    from bench.camera.corners import extract_corners
 
-    if extractor not in CORNER_EXTRACTORS:
-        raise ValueError(f"extractor: expected one of {', '.join(CORNER_EXTRACTORS)}, got {extractor!r}")
-    res = (extract_corners_opencv(image, geometry) if extractor == "opencv" else
-           extract_corners_thesis(image, geometry, subpixel=extractor == "thesis"))
+    res = extract_corners(image, geometry, extractor)
     if not res.success:
         return None, res.message
     return corner_features(res.uv, res.ids, geometry.n_corners), ""

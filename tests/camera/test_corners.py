@@ -449,5 +449,7 @@ def test_rig_corner_features_by_each_extractor():
     assert err["thesis"] < err["thesis_printed"] < 0.5, err
     with pytest.raises(ValueError, match="extractor: expected one of opencv, thesis, thesis_printed"):
         rig_corner_features(img, geo, "harris")
+    with pytest.raises(ValueError, match="camera: only the thesis extractor"):
+        cc.extract_corners(img, geo, "opencv", camera=object())
     f, msg = rig_corner_features(np.full_like(img, 128), geo, "thesis_printed")
     assert f is None and msg
