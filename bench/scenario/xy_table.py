@@ -97,7 +97,7 @@ SCHEMA = {
         "supersample": (int, 2),
         "imaging": (str, "realistic"),          # realistic | ideal (bench.sim.imaging)
         "imaging_off": (list, []),              # stages of the realistic profile switched off (ablation)
-        "reference_object": (str, "panel"),     # panel (procedural manifold panel) | rig (calibration rig)
+        "reference_object": (str, "panel"),     # panel (manifold panel) | robot (desk robot in a lab) | rig
         "textures": (dict, {}),                  # panel face -> image file (bench.scenario.scene_textures)
         "reference_distance_mm": (float, 700.0),
         "panel_size_m": (list, [0.8, 0.6]),
@@ -194,7 +194,7 @@ def _rig_errors(cfg, profile, salt):
 def _check(cfg):
     src, s, p = cfg["_file"], cfg["sim"], cfg["pipeline"]
     imaging(cfg)
-    choices = {"sim.poses": ("table4", "table10"), "sim.reference_object": ("panel", "rig"),
+    choices = {"sim.poses": ("table4", "table10"), "sim.reference_object": ("panel", "robot", "rig"),
                "pipeline.camera": CAMERA_CHOICES, "pipeline.mount_bias": BIAS_CHOICES,
                "pipeline.features": FEATURE_CHOICES, "pipeline.camera_model": ("heikkila", "radial", "pinhole"),
                "pipeline.bias_depth_statistic": ("median", "mean"), "sim.table_readout": ("steps", "exact"),
@@ -224,6 +224,9 @@ def _check(cfg):
         raise ConfigError(src, "sim.reference_distance_mm", "implausible: the unit is mm")
     if p["features"] == "corners" and s["reference_object"] != "rig":
         raise ConfigError(src, "pipeline.features", "corners need the rig as reference object (sim.reference_object)")
+    if p["features"] == "true_projection" and s["reference_object"] == "robot":
+        raise ConfigError(src, "pipeline.features", "true_projection needs a reference object whose points are known "
+                                                    "and unoccluded (sim.reference_object: panel or rig)")
     d = p["intraocular_mm"]
     if not d or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in d):
         raise ConfigError(src, "pipeline.intraocular_mm", f"expected positive distances (mm), got {d!r}")
@@ -454,9 +457,15 @@ def _calibration_poses(n, distance_m, rng):
 
 def reference_object(cfg, rng):
     """The reference object as :func:`render` draws it, from ``rng`` in the state render has it there: the textured
-    manifold panel (``sim.reference_object: panel``, a seeded draw) or the rig with its printing errors."""
+    manifold panel (``sim.reference_object: panel``, a seeded draw), the desk robot in its lab (``robot``: relief,
+    specular metal, a lamp; :mod:`bench.sim.scenes.desk_robot`) or the rig with its printing errors."""
+    from bench.sim.scenes.desk_robot import desk_robot
     from bench.sim.scenes.panel import manifold_panel
     from bench.sim.scenes.rig import calibration_rig
+
+    if cfg["sim"]["reference_object"] == "robot":
+        with naming_the_key(cfg, "sim.textures"):
+            return desk_robot(rng, name="ref", texture_overrides=texture_paths(cfg, "sim.textures"))
 
     if cfg["sim"]["reference_object"] == "panel":
         w, h = _vec(cfg, "sim.panel_size_m", 2)
