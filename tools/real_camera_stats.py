@@ -197,6 +197,61 @@ def measure_noise(views, pattern) -> dict:
            {f"level_{k}_dn": float(np.median(v)) for k, v in means.items() if v}
 
 
+def measure_sift_precision(views, pattern, K, dist, ratio: float = 0.8, inlier_px: float = 1.5) -> dict:
+    """SIFT's localisation noise on the board, from the photos themselves (px, per keypoint and image axis).
+
+    The board is a plane: between two views its SIFT keypoints (inside the board's outline, found from the detected
+    corners) are related by a homography once the lens distortion is removed (``K``, ``dist``: OpenCV's order).
+    Every pair of views is matched (mutual nearest neighbours under Lowe's ratio), a homography fitted by RANSAC
+    (``inlier_px``) and refitted to its inliers; the robust standard deviation (1.4826 MAD) of all pairs' transfer
+    residuals, divided by sqrt(2) (both keypoints are noisy), is the keypoint noise. The board's own unflatness
+    (a few tenths of a millimetre) is in it, for the real photos and their simulation alike, so the figure is for
+    comparing the two, not a detector's noise in isolation."""
+    from bench.vision.features import detect_sift
+
+    K, dist = np.asarray(K, float), np.asarray(dist, float)
+    cols, rows = pattern
+    feats = []
+    for _, _, grey, c in views:
+        H = _board_homography(c, pattern)
+        quad = _to_image(H, [[-0.8, -0.8], [cols - 0.2, -0.8], [cols - 0.2, rows - 0.2], [-0.8, rows - 0.2]])
+        mask = np.zeros(grey.shape, np.uint8)
+        cv2.fillConvexPoly(mask, np.round(quad).astype(np.int32), 255)
+        f = detect_sift(grey, mask=mask)
+        x = cv2.undistortPoints(f.uv.reshape(-1, 1, 2).astype(np.float64), K, dist, P=K).reshape(-1, 2)
+        feats.append((f, x))
+    bf = cv2.BFMatcher(cv2.NORM_L2)
+
+    def one_way(d1, d2):
+        return {m[0].queryIdx: m[0].trainIdx for m in bf.knnMatch(d1, d2, k=2)
+                if len(m) == 2 and m[0].distance < ratio * m[1].distance}
+
+    residuals, pairs = [], 0
+    for i in range(len(feats)):
+        for j in range(i + 1, len(feats)):
+            (fi, xi), (fj, xj) = feats[i], feats[j]
+            if len(fi) < 2 or len(fj) < 2:
+                continue
+            ab, ba = one_way(fi.descriptors, fj.descriptors), one_way(fj.descriptors, fi.descriptors)
+            m = [(a, b) for a, b in ab.items() if ba.get(b) == a]
+            if len(m) < 12:
+                continue
+            a, b = xi[[p[0] for p in m]], xj[[p[1] for p in m]]
+            H, inl = cv2.findHomography(a, b, cv2.RANSAC, inlier_px)
+            if H is None or inl.sum() < 12:
+                continue
+            inl = inl.ravel().astype(bool)
+            H, _ = cv2.findHomography(a[inl], b[inl], 0)
+            residuals.append(_to_image(H, a[inl]) - b[inl])
+            pairs += 1
+    if not residuals:
+        return {"sift_plane_px": float("nan"), "sift_plane_pairs": 0, "sift_plane_matches": 0}
+    r = np.concatenate(residuals)
+    mad = 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)
+    return {"sift_plane_px": float(np.mean(mad) / np.sqrt(2)), "sift_plane_pairs": pairs,
+            "sift_plane_matches": int(len(r))}
+
+
 def _erf_fit(x, y):
     """Fit ``a + b erf((x - x0) / (sqrt(2) sigma))``; returns sigma (px) or None."""
     from scipy.optimize import least_squares
@@ -552,6 +607,7 @@ def measure(data_dir, pattern=(7, 7), square_mm: float = 25.0) -> dict:
         out["jpeg_quality"] = sorted({int(a) for a, _ in q if a is not None})
         out["jpeg_quality_exact_ijg"] = all(e for _, e in q)
     out.update(measure_noise(views, pattern))
+    out.update(measure_sift_precision(views, pattern, res.K, res.dist))
     out.update(measure_blur(views, pattern))
     out.update(measure_vignetting(views, pattern))
     out.update(measure_chromatic(views, pattern))

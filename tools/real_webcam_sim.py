@@ -12,8 +12,9 @@ simulator renders the board at those 19 poses with the bench's chain (MuJoCo, su
 sensor of the ``air_webcam`` preset) under ``--imaging`` (the printed board's line offsets, scale and bow drawn from
 the seed as for the rig), detects and calibrates the renders with the same code as the real photos, and prints the
 residual statistics of both (:func:`real_camera_stats.residual_statistics`: RMS, per-view spread, neighbour
-correlation along board rows and columns) with the simulated/real ratios. Issue 12's acceptance: RMS within +-30 %
-of the real photos', the residuals' row correlation comparable.
+correlation along board rows and columns; and SIFT's localisation noise on the board plane,
+:func:`real_camera_stats.measure_sift_precision`) with the simulated/real ratios. Issue 12's acceptance: RMS within
++-30 % of the real photos', the residuals' row correlation comparable.
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ sys.path.insert(0, str(ROOT / "tools"))
 import real_camera_stats as rcs  # noqa: E402
 
 PATTERN = (7, 7)
-STATS = ("rms_px", "per_view_rms_cv", "row_corr_lag1", "row_corr_lag2", "col_corr_lag1", "col_corr_lag2")
+STATS = ("rms_px", "per_view_rms_cv", "row_corr_lag1", "row_corr_lag2", "col_corr_lag1", "col_corr_lag2",
+         "sift_plane_px")
 
 
 def real_calibration(data_dir=rcs.DEFAULT_DATA):
@@ -86,7 +88,7 @@ def simulate(res, seed: int, square_m: float, supersample: int, imaging: str = "
     table = lab_table_model(None)
     run = table.run(np.zeros((1, 3)))
     qpos = {name: vals[0] for name, vals in run.qpos.items()}
-    uvs, found, scene, T_world_cam = [], 0, None, None
+    uvs, found, scene, T_world_cam, views = [], 0, None, None, []
     try:
         for k, T_cb in enumerate(board_poses(res, square_m)):
             if scene is None or profile.on("handling"):  # a hand-held board flexes anew in every photo
@@ -111,6 +113,7 @@ def simulate(res, seed: int, square_m: float, supersample: int, imaging: str = "
             if ok:
                 found += 1
                 uvs.append(c.reshape(-1, 2).astype(float))
+                views.append((None, None, grey, uvs[-1]))
     finally:
         if scene is not None:
             scene.close()
@@ -124,6 +127,7 @@ def simulate(res, seed: int, square_m: float, supersample: int, imaging: str = "
     if not sim.success:
         raise SystemExit(f"seed {seed}: calibration of the renders failed: {sim.message}")
     out = rcs.residual_statistics(sim.residuals_px, PATTERN)
+    out.update(rcs.measure_sift_precision(views, PATTERN, sim.K, sim.dist))
     out["views"] = found
     out["fx_px"] = float(sim.K[0, 0])
     return out
@@ -152,8 +156,9 @@ def main(argv=None) -> int:
         raise SystemExit(str(e).replace("--imaging_off", "--off")) from None
     if any(s < 0 for s in args.seeds):
         raise SystemExit(f"--seeds: expected non-negative integers, got {args.seeds}")
-    res, _ = real_calibration()
+    res, real_views = real_calibration()
     real = rcs.residual_statistics(res.residuals_px, PATTERN)
+    real.update(rcs.measure_sift_precision(real_views, PATTERN, res.K, res.dist))
     sims = {}
     for seed in args.seeds:
         sims[seed] = simulate(res, seed, args.square_mm * 1e-3, args.supersample, args.imaging, args.off,

@@ -65,3 +65,17 @@ def test_xy_table_reference_object_textures():
     assert texture_paths(cfg, "sim.textures") == {"backplate": PHOTOS[1]}
     with pytest.raises(ConfigError, match="sim.textures.backplate"):
         load_scenario(XY, overrides=["sim.textures.backplate=missing.png"])
+
+
+def test_xy_table_desk_robot_textures_and_its_limits():
+    from bench.scenario.xy_table import reference_object, validate
+
+    cfg = load_scenario(XY, overrides=["sim.reference_object=robot", f"sim.textures.wall={PHOTOS[0]}"])
+    plain = load_scenario(XY, overrides=["sim.reference_object=robot"])
+    a, b = reference_object(cfg, np.random.default_rng(1)), reference_object(plain, np.random.default_rng(1))
+    assert [k for k in a.files if a.files[k] != b.files[k]] == ["ref_wall.png"]
+    bad = load_scenario(XY, overrides=["sim.reference_object=robot", f"sim.textures.backplate={PHOTOS[0]}"])
+    with pytest.raises(ConfigError, match=r"sim.textures.backplate.*wall"):
+        reference_object(bad, np.random.default_rng(1))
+    with pytest.raises(ConfigError, match="pipeline.features.*panel or rig"):
+        validate(load_scenario(XY, overrides=["sim.reference_object=robot", "pipeline.features=true_projection"]))

@@ -1,6 +1,7 @@
 """Scenes: panel, calibration rig, x-y table - compile, render headless, ground truth vs rendered images."""
 
 import os
+from dataclasses import replace
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -13,6 +14,8 @@ from bench.errors import ConfigError  # noqa: E402
 from bench.geometry.transforms import homogeneous, rot_x, rot_z  # noqa: E402
 from bench.sim.scenes import textures as tx  # noqa: E402
 from bench.sim.scenes.base import SceneObject, box_mesh_xml, compose, look_at_camera_xml, place, save_scene  # noqa: E402
+from bench.sim.scenes.desk_robot import FACES as DESK_FACES  # noqa: E402
+from bench.sim.scenes.desk_robot import desk_robot  # noqa: E402
 from bench.sim.scenes.panel import manifold_panel  # noqa: E402
 from bench.sim.scenes.rig import SQUARE_M, calibration_rig, planar_board  # noqa: E402
 from bench.sim.scenes.xy_table import (  # noqa: E402
@@ -376,6 +379,37 @@ def test_lab_table_with_panel_reference_compiles():
     img = _render(m, d, "cam")
     n = len(cv2.SIFT_create(**SIFT_ARGS).detect(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY), None))
     assert n >= 300, n
+
+
+# --------------------------------------------------------------------------------------------------- desk robot
+def test_desk_robot_seeded_with_known_faces():
+    a, b = desk_robot(np.random.default_rng(3)), desk_robot(np.random.default_rng(3))
+    other = desk_robot(np.random.default_rng(4))
+    assert a.worldbody_xml == b.worldbody_xml and a.files == b.files
+    assert other.worldbody_xml != a.worldbody_xml  # the posture varies by seed
+    assert set(a.features["faces"]) == set(DESK_FACES) and all(f"ref_{f}.png" in a.files for f in DESK_FACES)
+    with pytest.raises(ConfigError, match="nosuchface"):
+        desk_robot(np.random.default_rng(3), texture_overrides={"nosuchface": "x.png"})
+
+
+def test_desk_robot_on_the_lab_table_has_relief_keypoints_and_highlights():
+    """The x-y table sees the desk robot 0.7 m ahead: many SIFT keypoints, depths from the arm to the wall (relief),
+    and the ceiling lamp's specular highlights on the metal (the same scene with a lamp of no specular is darker
+    there, and only there: the matte wall does not change)."""
+    robot = desk_robot(np.random.default_rng(2))
+    cam = '<camera name="cam" xyaxes="1 0 0 0 -1 0" fovy="27.6"/>'
+    m, d = _model([xy_table(lab_table_model(), cam, reference=robot)])
+    img, depth = _render(m, d, "cam"), _render(m, d, "cam", depth=True)
+    n = len(cv2.SIFT_create(**SIFT_ARGS).detect(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY), None))
+    assert n >= 300, n
+    near, far = np.percentile(depth, [2, 98])
+    assert near < 0.75 and far > 1.1, (near, far)  # the arm at 0.7-0.9 m, the wall 1.15 m away
+    dull = replace(robot, worldbody_xml=robot.worldbody_xml.replace('specular="0.7 0.7 0.7"', 'specular="0 0 0"'))
+    assert dull.worldbody_xml != robot.worldbody_xml
+    m2, d2 = _model([xy_table(lab_table_model(), cam, reference=dull)])
+    diff = img.astype(float).sum(-1) - _render(m2, d2, "cam").astype(float).sum(-1)
+    assert diff.min() > -1e-9 and np.percentile(diff, 99.5) > 30  # highlights: bright, on a small part of the view
+    assert np.mean(diff > 30) < 0.2
 
 
 def test_planar_board_with_print_errors_matches_the_rig_board():

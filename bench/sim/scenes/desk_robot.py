@@ -45,15 +45,16 @@ PX_PER_M = 2800.0
 WALL_Z_M = -0.45
 BENCH_Y_M = -0.30
 LAMP_M = (0.25, 0.95, 0.45)
-#: materials (MuJoCo ``specular``, ``shininess``): brushed aluminium, glossy black plastic, painted steel, matte
-ALUMINIUM = (0.8, 0.6)
-PLASTIC = (0.6, 0.85)
+#: materials (MuJoCo ``specular``, ``shininess``): brushed aluminium (rough: a broad lobe), glossy black plastic,
+#: painted steel, matte
+ALUMINIUM = (0.8, 0.1)
+PLASTIC = (0.6, 0.3)
 PAINT = (0.3, 0.4)
 MATTE = (0.03, 0.05)
 FACES = ("wall", "bench", "base", "upper_arm", "forearm", "shoulder", "elbow", "wrist", "toolbox")
 
 
-def brushed_metal(rng: np.random.Generator, shape, color=(175, 178, 182), screws=6, sticker: str | None = None):
+def brushed_metal(rng: np.random.Generator, shape, color=(128, 130, 134), screws=6, sticker: str | None = None):
     """Brushed aluminium: streaks along the image rows, scratches, countersunk screws, an optional sticker (BGR)."""
     h, w = tx._check_shape(shape)
     streak = rng.normal(0.0, 1.0, (h, w)).astype(np.float32)
@@ -290,7 +291,7 @@ def desk_robot(rng: np.random.Generator, name: str = "ref", texture_overrides=No
     box("toolbox", (0.11, 0.06, 0.08), (0.21, BENCH_Y_M + 0.06, -0.02), toolbox, PAINT)
     lamp = np.array(LAMP_M)
     lights = (f'<light name="{name}_lamp" pos="{fmt(lamp)}" dir="{fmt(-lamp / np.linalg.norm(lamp))}" '
-              'directional="false" diffuse="0.3 0.3 0.3" specular="0.7 0.7 0.7" castshadow="false"/>\n')
+              'directional="false" diffuse="0.15 0.15 0.15" specular="0.7 0.7 0.7" castshadow="false"/>\n')
     half_w, top = 0.5 * wall_w, BENCH_Y_M + wall_h
     corners = np.array([[-half_w, top, WALL_Z_M], [half_w, top, WALL_Z_M], [half_w, BENCH_Y_M, WALL_Z_M],
                         [-half_w, BENCH_Y_M, WALL_Z_M]])
