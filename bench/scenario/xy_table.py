@@ -224,9 +224,6 @@ def _check(cfg):
         raise ConfigError(src, "sim.reference_distance_mm", "implausible: the unit is mm")
     if p["features"] == "corners" and s["reference_object"] != "rig":
         raise ConfigError(src, "pipeline.features", "corners need the rig as reference object (sim.reference_object)")
-    if p["features"] == "true_projection" and s["reference_object"] == "robot":
-        raise ConfigError(src, "pipeline.features", "true_projection needs a reference object whose points are known "
-                                                    "and unoccluded (sim.reference_object: panel or rig)")
     d = p["intraocular_mm"]
     if not d or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in d):
         raise ConfigError(src, "pipeline.intraocular_mm", f"expected positive distances (mm), got {d!r}")
@@ -690,18 +687,33 @@ def true_optics(truth: dict) -> tuple:
     return lens, port
 
 
-def true_projection_features(truth: dict, names, n_points: int, rng, profile=None) -> dict:
+def true_projection_features(truth: dict, names, n_points: int, rng, profile=None, reference=None) -> dict:
     """EVALUATOR-SIDE TRUTH INJECTION: exact projections of known points on the reference object as features, through
     the true optics (lens, port, and a realistic imaging ``profile``'s static warp, as the renders have it).
 
     Rig: its 72 corners (ids as descriptors). Panel: ``n_points`` points drawn on the backplate plane (panel z = 0,
-    inside its outline) with random unit descriptors (occlusion by the valves is ignored). Points outside an image
-    or behind the camera are left out of that view. Removes detection noise and false matches.
+    inside its outline) with random unit descriptors (occlusion by the valves is ignored). Desk robot (``reference``,
+    the replayed :class:`~bench.sim.scenes.base.SceneObject`): the surfaces that ``n_points`` rays of the reference
+    view's camera first meet, each kept in a view only where nothing occludes it
+    (:class:`~bench.scenario.scene_points.SceneRays`). Points outside an image or behind the camera are left out of
+    that view. Removes detection noise and false matches.
     """
     T_tr = np.array(truth["T_table_reference"])
     lens, port = true_optics(truth)
     project = true_projector(lens, port, profile)
-    if truth["reference_corners"] is not None:
+    T_tc = {n: np.array(truth["T_table_cam"][n]) for n in names}
+    rays = None
+    if truth["reference_object"] == "robot":
+        from bench.scenario.scene_points import SceneRays
+
+        if reference is None:
+            raise ValueError("true_projection on the desk robot needs its replayed scene object")
+        rays = SceneRays(reference, T_tr)
+        ref = min(names, key=lambda n: np.linalg.norm(T_tc[n][:3, 3]))  # the table's centre view
+        p_table = rays.surface_points(T_tc[ref], lens, port, n_points, rng)
+        desc = rng.normal(size=(len(p_table), 128)).astype(np.float32)
+        desc /= np.linalg.norm(desc, axis=1, keepdims=True)
+    elif truth["reference_corners"] is not None:
         p_obj = np.array(truth["reference_corners"])
         ids = np.arange(len(p_obj))
         desc = corner_features(np.zeros((len(ids), 2)), ids, len(ids)).descriptors
@@ -711,11 +723,14 @@ def true_projection_features(truth: dict, names, n_points: int, rng, profile=Non
                       np.zeros(n_points)]
         desc = rng.normal(size=(n_points, 128)).astype(np.float32)
         desc /= np.linalg.norm(desc, axis=1, keepdims=True)
-    p_table = transform_points(T_tr, p_obj)
+    if rays is None:
+        p_table = transform_points(T_tr, p_obj)
     out = {}
     for n in names:
-        p_cam = transform_points(invert(np.array(truth["T_table_cam"][n])), p_table)
+        p_cam = transform_points(invert(T_tc[n]), p_table)
         front = p_cam[:, 2] > 0.05
+        if rays is not None:
+            front &= rays.visible(p_table, T_tc[n][:3, 3])
         uv = np.full((len(p_cam), 2), np.nan)
         uv[front] = project(p_cam[front])
         ok = front & np.all(np.isfinite(uv), axis=1) & lens.in_image(np.nan_to_num(uv, nan=-1e9))
@@ -1037,8 +1052,13 @@ def run(cfg, out_dir, verbose=True):
     names = [v.name for v in views]
     if p["features"] == "true_projection":
         injected.append("features")
+        reference = replay_reference_object(cfg, truth) if s["reference_object"] == "robot" else None
+        if s["reference_object"] == "robot" and reference is None:
+            raise ConfigError(ds.root, "truth/truth.yaml", "pipeline.features=true_projection: the desk robot could "
+                                                           "not be replayed from the seed (a dataset rendered by "
+                                                           "another version or seed)")
         feats = true_projection_features(truth, names, s["true_projection_points"],
-                                         np.random.default_rng((cfg["seed"], 7)), imaging(cfg))
+                                         np.random.default_rng((cfg["seed"], 7)), imaging(cfg), reference)
     elif p["features"] == "sift":
         feats = {v.name: sift_features(v.image(expected_size=camera.size), "rgb") for v in views}
     else:

@@ -1,7 +1,7 @@
 """The rerun recording of an ``xy_table`` run, in the table frame (OpenCV axes: x right, y down, z forward).
 
 Entities: ``world/reference/<body>/<part>`` the reference object as the simulator drew it - the textured manifold
-panel or the two-plane rig, its meshes read back from the MuJoCo model
+panel, the desk robot in its lab corner or the two-plane rig, its meshes read back from the MuJoCo model
 (:class:`~bench.scenario.scene_meshes.SceneMeshes`) at its true pose ``T_table_reference``; the panel's texture is a
 seeded draw, redrawn by :func:`bench.scenario.xy_table.replay_reference_object` (checked against the dataset's true
 camera matrix; when the replay is out of step, the outline or corners of ``truth.yaml`` are drawn as
@@ -33,6 +33,8 @@ def _outline(truth):
     T = np.array(truth["T_table_reference"])
     if truth.get("reference_corners") is not None:
         return None, transform_points(T, np.array(truth["reference_corners"]))
+    if truth.get("panel_size_m") is None:  # the desk robot: nothing but its meshes outlines it
+        return None, None
     w, h = truth["panel_size_m"]
     c = np.array([[-w / 2, -h / 2, 0], [w / 2, -h / 2, 0], [w / 2, h / 2, 0], [-w / 2, h / 2, 0], [-w / 2, -h / 2, 0]])
     return transform_points(T, c), None
@@ -61,7 +63,7 @@ def record_xy_table(path, cfg, ds, truth, result, camera, summary, metrics):
             outline, corners = _outline(truth)
             if outline is not None:
                 rec.lines("world/reference/outline", [outline], color=(200, 200, 200), static=True)
-            else:
+            elif corners is not None:
                 rec.points("world/reference/outline", corners, radius=0.003, static=True)
         views = [v for v in ds.views if v.name in T_true]
         for v in views:  # static: a view's image is never without its pinhole
