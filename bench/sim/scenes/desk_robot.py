@@ -8,8 +8,8 @@ web camera" (Figure 45). What such an object does to SIFT that a flat, matte pan
   and slide along the contour as the camera moves;
 * **specular highlights**: brushed aluminium links and glossy servo housings under the lab's ceiling lamp reflect it
   where the surface normal bisects lamp and camera; a highlight's edge moves over the surface with the viewpoint;
-* **depth spread**: the lab behind it (a wall with notices 0.55 m behind the arm, the bench top under it) puts
-  keypoints from 0.55 to 1.3 m range into the same view.
+* **depth spread**: the lab behind it (a wall with notices 0.45 m behind the arm's centre, the bench top under it)
+  puts keypoints from 0.7 to 1.15 m range into the same view (at the thesis's 700 mm).
 
 None of these is an image-noise model: they are geometry, materials and light, rendered by MuJoCo like everything
 else, so their effect on the keypoints is whatever SIFT makes of them (measured in docs/realistic_imaging.md).
@@ -257,7 +257,7 @@ def desk_robot(rng: np.random.Generator, name: str = "ref", texture_overrides=No
     box("bench", (0.8, bench_d / 2, 0.015), (0.0, BENCH_Y_M - 0.015, WALL_Z_M + bench_d / 2),
         _bench(rng, tex(1.6, bench_d), PX_PER_M), PAINT, euler=(-np.pi / 2, 0.0, 0.0))
     # the arm: base on the mat, waist axis at x = 0, z = -0.12, turned by a waist angle; the posture varies by a few
-    # degrees per seed. A link is a box along its local y; its textured face (local +z) looks towards ``face``.
+    # degrees per seed. A link is a box along its local y; its textured face (local +z) looks ``towards``.
     zc = -0.12
     base_img = tx.painted_metal(rng, tex(0.26, 0.06), color=(150, 70, 30), wear=0.1, rust=0.0, growth=0.0)
     tx.stencil_text(base_img, "MA 2000", (int(0.08 * base_img.shape[1]), int(0.7 * base_img.shape[0])),
