@@ -83,7 +83,12 @@ def consistency(dataset, cfg, reference="p11", min_views=4) -> dict:
     from bench.vision.features import detect_sift
 
     root = Path(dataset)
+    if cfg.get("kind") != "xy_table":
+        raise BenchError(f"{cfg['_file']}: an xy_table scenario is needed, got kind {cfg.get('kind')!r}")
     truth = yaml.safe_load((root / "truth" / "truth.yaml").read_text())
+    missing = [k for k in ("T_table_cam", "camera_K", "camera_size", "optics") if k not in (truth or {})]
+    if missing:
+        raise BenchError(f"{root / 'truth' / 'truth.yaml'}: not an x-y table dataset's truth (no {missing[0]})")
     lens, port = true_optics(truth)
     project = true_projector(lens, port, imaging(cfg))
     T_tc = {n: np.array(T, float) for n, T in truth["T_table_cam"].items()}
