@@ -67,8 +67,8 @@ def test_xy_table_reference_object_textures():
         load_scenario(XY, overrides=["sim.textures.backplate=missing.png"])
 
 
-def test_xy_table_desk_robot_textures_and_its_limits():
-    from bench.scenario.xy_table import reference_object, validate
+def test_xy_table_desk_robot_textures():
+    from bench.scenario.xy_table import reference_object
 
     cfg = load_scenario(XY, overrides=["sim.reference_object=robot", f"sim.textures.wall={PHOTOS[0]}"])
     plain = load_scenario(XY, overrides=["sim.reference_object=robot"])
@@ -77,5 +77,3 @@ def test_xy_table_desk_robot_textures_and_its_limits():
     bad = load_scenario(XY, overrides=["sim.reference_object=robot", f"sim.textures.backplate={PHOTOS[0]}"])
     with pytest.raises(ConfigError, match=r"sim.textures.backplate.*wall"):
         reference_object(bad, np.random.default_rng(1))
-    with pytest.raises(ConfigError, match="pipeline.features.*panel or rig"):
-        validate(load_scenario(XY, overrides=["sim.reference_object=robot", "pipeline.features=true_projection"]))
