@@ -246,7 +246,7 @@ def pair_observations(kmap, views: list, matches: dict, features: dict, pair) ->
 def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, point, uv, X, cov_K=None,
                 reading_sigma=None, cov_dist=None, offset_sigma=None, R0_prior_deg: float = R0_PRIOR_DEG,
                 sigma_px: float = 0.5,
-                iterations: int = 20, rounds: int = 2, gate: float | None = 3.5) -> PairBundleResult:
+                iterations: int = 50, rounds: int = 2, gate: float | None = 3.5) -> PairBundleResult:
     """Camera ``a``'s position relative to the reference by maximum likelihood (module docstring).
 
     Parameters
@@ -282,7 +282,10 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
     R0_prior_deg : float
         Standard deviation (deg, per axis) of the prior on ``R0``'s correction.
     sigma_px, iterations, rounds, gate
-        As :func:`bench.vision.bundle.solve` (the starting residuals are gated too).
+        As :func:`bench.vision.bundle.solve` (the starting residuals are gated too). ``iterations`` is a budget per
+        round, not a tolerance: on the desk robot's scene (depths 0.7-1.15 m) the backtracking Gauss-Newton steps of
+        a round took up to 49 in all (seed 3 of ``xy_table_webcam``), and at 20 every pair of that seed was refused
+        as not converged.
     """
     readings, in_pair = np.asarray(readings, float), np.asarray(in_pair, bool)
     nan3 = np.full(3, np.nan)
