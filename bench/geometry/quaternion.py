@@ -199,6 +199,23 @@ def rotation_vector_to_matrix(phi):
     return quaternion_to_matrix(rotation_vector_to_quaternion(phi))
 
 
+def axis_angle_to_matrix(axis, angle):
+    """Rotations by ``angle`` (rad, any shape) about one fixed ``axis`` (3,; normalised here): ``(..., 3, 3)``.
+
+    Rodrigues' formula ``I + sin(angle) [a]x + (1 - cos(angle)) [a]x^2``, the exponential map for a known unit axis
+    (a revolute joint's motion): the same rotation as :func:`rotation_vector_to_matrix` of ``angle * axis`` to
+    rounding, without a norm and a quaternion per angle (the forward kinematics call it 10^4-10^5 times a run).
+    """
+    a = np.asarray(axis, dtype=float)
+    n = np.linalg.norm(a) if a.shape == (3,) else np.nan
+    if not (np.isfinite(n) and n > 0):
+        raise ValueError(f"axis: expected a non-zero finite 3-vector, got {axis!r}")
+    K = skew(a / n)
+    angle = np.asarray(angle, dtype=float)
+    s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
+    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
+
+
 def matrix_to_rotation_vector(R):
     """``log(R)`` as a rotation vector (rad, angle in [0, pi]) via Shepperd's quaternion; exact near 0 and pi."""
     return quaternion_to_rotation_vector(matrix_to_quaternion(R))

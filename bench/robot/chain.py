@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.geometry.quaternion import matrix_to_quaternion, quaternion_to_matrix, rotation_vector_to_matrix
+from bench.geometry.quaternion import axis_angle_to_matrix, matrix_to_quaternion, quaternion_to_matrix
 from bench.geometry.transforms import homogeneous, vee
 from bench.robot.kinematics import error_matrix, error_matrix_derivatives
 
@@ -119,7 +119,7 @@ def motion(chain: SerialChain, k: int, qk):
     a = chain.axes[k]
     if chain.joint_types[k] == "prismatic":
         return homogeneous(np.broadcast_to(np.eye(3), qk.shape + (3, 3)), qk[..., None] * a)
-    return homogeneous(rotation_vector_to_matrix(qk[..., None] * a), np.zeros(qk.shape + (3,)))
+    return homogeneous(axis_angle_to_matrix(a, qk), np.zeros(qk.shape + (3,)))
 
 
 def _eps(chain: SerialChain, eps):

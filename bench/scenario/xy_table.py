@@ -6,8 +6,8 @@ Simulation (``render``, also ``bench sim render``) writes one dataset, as the la
   in section 5.2.1 / 5.3);
 * ``table`` views - the camera on the x-y table's rotary stage at the poses of Table 4 (web camera on the rotation
   axis, a reference object 700 mm ahead: ``sim.reference_object`` the desk robot in its lab corner that stands in for
-  the thesis's MA 2000, :mod:`bench.sim.scenes.desk_robot`, or the manifold panel) or Table 10 (underwater camera 100 mm off the axis, the rig 500 mm
-  ahead), with the table's *readings* in ``table.csv``;
+  the thesis's MA 2000, :mod:`bench.sim.scenes.desk_robot`, or the manifold panel) or Table 10 (underwater camera
+  100 mm off the axis, the rig 500 mm ahead), with the table's *readings* in ``table.csv``;
 * ``camera.yaml`` (the nominal camera), ``table.yaml`` (the table's nominal geometry), ``target.yaml`` (the rig);
 * ``truth/``: the table's positioning errors, the camera's true intrinsics and its true orientation/centre on the
   support (the bias ``R0`` of Eq. 197 and a centre offset), every true camera pose, the reference object's pose.

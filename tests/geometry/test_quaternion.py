@@ -201,3 +201,24 @@ def test_check_quaternion_errors():
         check_quaternion([2.0, 0, 0, 0], unit=True)
     with pytest.raises(ValueError, match="R:"):
         matrix_to_quaternion(np.eye(4))
+
+
+def test_axis_angle_to_matrix_is_the_exponential_map_of_one_axis():
+    """A revolute joint's rotation (Rodrigues for a fixed axis) equals the exponential map of ``angle * axis`` and
+    SciPy's rotation, over angles of any shape; the axis is normalised; a zero or non-finite axis is refused."""
+    from scipy.spatial.transform import Rotation
+
+    from bench.geometry.quaternion import axis_angle_to_matrix, rotation_vector_to_matrix
+
+    rng = np.random.default_rng(5)
+    axis = rng.normal(size=3)
+    angle = rng.uniform(-4, 4, (7, 5))
+    R = axis_angle_to_matrix(axis, angle)
+    phi = angle[..., None] * axis / np.linalg.norm(axis)
+    assert R.shape == (7, 5, 3, 3)
+    assert np.max(np.abs(R - rotation_vector_to_matrix(phi))) < 1e-14
+    assert np.max(np.abs(R.reshape(-1, 3, 3) - Rotation.from_rotvec(phi.reshape(-1, 3)).as_matrix())) < 1e-14
+    assert np.array_equal(axis_angle_to_matrix([0, 0, 1], 0.0), np.eye(3))
+    for bad in ([0, 0, 0], [np.nan, 0, 1], [1, 0]):
+        with pytest.raises(ValueError, match="axis"):
+            axis_angle_to_matrix(bad, 0.1)
