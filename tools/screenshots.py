@@ -32,7 +32,7 @@ KINDS = {
     "xy_table": ("scenarios/xy_table_webcam.yaml", 3,
                  ["sim.supersample=1", "sim.calibration_views=4", "outputs.plots=false", "bound.mc_trials=1",
                   "sim.positions=[1, 2, 4, 5, 6, 11, 12, 14, 15, 16, 17, 20, 21]",
-                  "pipeline.intraocular_mm=[20, 100]"]),
+                  "pipeline.intraocular_mm=[20, 100]", "pipeline.bundle_intraocular_mm=[100]"]),
     "camera_calibration": ("scenarios/camera_calibration_webcam.yaml", 3,
                            ["views.count=4", "camera.supersample=2", "pipeline.compare_extractors=false"]),
 }
