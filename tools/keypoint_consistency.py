@@ -3,13 +3,14 @@
     .venv/bin/python tools/keypoint_consistency.py SCENARIO DATASET [DATASET ...] [--set KEY=VALUE ...]
                                                    [--reference p11] [--min-views 4] [--json OUT.json]
 
-EVALUATOR SIDE (it reads ``truth/``). Each DATASET is a ``bench sim render`` of an ``xy_table`` scenario (SCENARIO
-with the same ``--set``, for the imaging profile's static warp). SIFT keypoints of the reference view are matched
-(Lowe's ratio 0.75, mutual) in every other table view; a reference keypoint matched in at least ``--min-views``
-views (the reference included) is a track. Each track is triangulated through the **true** camera poses and optics
-(the linear midpoint of the views' rays, then the reprojection residual through the true lens, port and prism in
-every view), so what is left is the keypoints' own error: detection noise, and for a scene with relief and gloss the
-keypoints that are not points of any surface (occluding contours, highlights) and move with the viewpoint.
+EVALUATOR SIDE (it reads ``truth/``). Each DATASET is a ``bench sim render`` of an ``xy_table`` scenario (SCENARIO with
+the same ``--set``, for the imaging profile's static warp). SIFT keypoints of the reference view are matched in every
+other table view (Lowe's ratio 0.75, cross-checked: :func:`bench.vision.features.match_descriptors`); a reference
+keypoint matched in at least ``--min-views`` views (the reference included) is a track. Each track is triangulated
+through the **true** camera poses and optics (the linear midpoint of the views' rays, then the reprojection residual
+through the true lens, port and prism in every view), so what is left is the keypoints' own error: detection noise, and
+for a scene with relief and gloss the keypoints that are not points of any surface (occluding contours, highlights) and
+move with the viewpoint.
 
 A track's worst observation is dropped while it is beyond 3 px (a false match or a keypoint that slid far: what
 RANSAC must reject; counted as ``gross``). Printed per dataset and pooled: tracks, observations, the robust per-axis
@@ -32,23 +33,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.errors import BenchError  # noqa: E402
-
-
-def _matches(fa, fb, ratio=0.75) -> dict:
-    """``{index in a: index in b}`` of mutual nearest neighbours that pass Lowe's ratio test both ways."""
-    if len(fa) < 2 or len(fb) < 2:
-        return {}
-    bf = cv2.BFMatcher(cv2.NORM_L2)
-
-    def one_way(d1, d2):
-        out = {}
-        for m in bf.knnMatch(d1, d2, k=2):
-            if len(m) == 2 and m[0].distance < ratio * m[1].distance:
-                out[m[0].queryIdx] = m[0].trainIdx
-        return out
-
-    ab, ba = one_way(fa.descriptors, fb.descriptors), one_way(fb.descriptors, fa.descriptors)
-    return {i: j for i, j in ab.items() if ba.get(j) == i}
 
 
 def _triangulate(rays_o, rays_d) -> np.ndarray:
@@ -80,7 +64,7 @@ def consistency(dataset, cfg, reference="p11", min_views=4) -> dict:
     """The residuals of ``dataset``'s SIFT tracks through the true geometry (see the module docstring)."""
     from bench.scenario.bounds import true_projector
     from bench.scenario.xy_table import imaging, true_optics
-    from bench.vision.features import detect_sift
+    from bench.vision.features import detect_sift, match_descriptors
 
     root = Path(dataset)
     if cfg.get("kind") != "xy_table":
@@ -98,7 +82,8 @@ def consistency(dataset, cfg, reference="p11", min_views=4) -> dict:
     tracks = {i: {reference: feats[reference].uv[i]} for i in range(len(feats[reference]))}
     for n in T_tc:
         if n != reference:
-            for i, j in _matches(feats[reference], feats[n]).items():
+            m = match_descriptors(feats[reference], feats[n], 0.75, mutual=True)
+            for i, j in zip(m.i1, m.i2, strict=True):
                 tracks[i][n] = feats[n].uv[j]
     res, gross = [], 0
     for obs in tracks.values():

@@ -201,13 +201,13 @@ def measure_sift_precision(views, pattern, K, dist, ratio: float = 0.8, inlier_p
     """SIFT's localisation noise on the board, from the photos themselves (px, per keypoint and image axis).
 
     The board is a plane: between two views its SIFT keypoints (inside the board's outline, found from the detected
-    corners) are related by a homography once the lens distortion is removed (``K``, ``dist``: OpenCV's order).
-    Every pair of views is matched (mutual nearest neighbours under Lowe's ratio), a homography fitted by RANSAC
-    (``inlier_px``) and refitted to its inliers; the robust standard deviation (1.4826 MAD) of all pairs' transfer
-    residuals, divided by sqrt(2) (both keypoints are noisy), is the keypoint noise. The board's own unflatness
-    (a few tenths of a millimetre) is in it, for the real photos and their simulation alike, so the figure is for
-    comparing the two, not a detector's noise in isolation."""
-    from bench.vision.features import detect_sift
+    corners) are related by a homography once the lens distortion is removed (``K``, ``dist``: OpenCV's order). Every
+    pair of views is matched (:func:`bench.vision.features.match_descriptors`: Lowe's ratio, cross-checked), a
+    homography fitted by RANSAC (``inlier_px``) and refitted to its inliers; the robust standard deviation (1.4826 MAD)
+    of all pairs' transfer residuals, divided by sqrt(2) (both keypoints are noisy), is the keypoint noise. The board's
+    own unflatness (a few tenths of a millimetre) is in it, for the real photos and their simulation alike, so the
+    figure is for comparing the two, not a detector's noise in isolation."""
+    from bench.vision.features import detect_sift, match_descriptors
 
     K, dist = np.asarray(K, float), np.asarray(dist, float)
     cols, rows = pattern
@@ -220,23 +220,14 @@ def measure_sift_precision(views, pattern, K, dist, ratio: float = 0.8, inlier_p
         f = detect_sift(grey, mask=mask)
         x = cv2.undistortPoints(f.uv.reshape(-1, 1, 2).astype(np.float64), K, dist, P=K).reshape(-1, 2)
         feats.append((f, x))
-    bf = cv2.BFMatcher(cv2.NORM_L2)
-
-    def one_way(d1, d2):
-        return {m[0].queryIdx: m[0].trainIdx for m in bf.knnMatch(d1, d2, k=2)
-                if len(m) == 2 and m[0].distance < ratio * m[1].distance}
-
     residuals, pairs = [], 0
     for i in range(len(feats)):
         for j in range(i + 1, len(feats)):
             (fi, xi), (fj, xj) = feats[i], feats[j]
-            if len(fi) < 2 or len(fj) < 2:
-                continue
-            ab, ba = one_way(fi.descriptors, fj.descriptors), one_way(fj.descriptors, fi.descriptors)
-            m = [(a, b) for a, b in ab.items() if ba.get(b) == a]
+            m = match_descriptors(fi, fj, ratio, mutual=True)
             if len(m) < 12:
                 continue
-            a, b = xi[[p[0] for p in m]], xj[[p[1] for p in m]]
+            a, b = xi[m.i1], xj[m.i2]
             H, inl = cv2.findHomography(a, b, cv2.RANSAC, inlier_px)
             if H is None or inl.sum() < 12:
                 continue

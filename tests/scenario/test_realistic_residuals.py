@@ -54,10 +54,10 @@ def test_realistic_residual_statistics_resemble_the_real_photos(real):
     assert abs(sim["row_corr_lag1"] - real["row_corr_lag1"]) < 0.2, sim["row_corr_lag1"]
     assert abs(sim["col_corr_lag1"] - real["col_corr_lag1"]) < 0.2, sim["col_corr_lag1"]
     assert real["per_view_rms_cv"] / 2 < sim["per_view_rms_cv"] < real["per_view_rms_cv"] * 2, sim["per_view_rms_cv"]
-    # SIFT's localisation noise on the board plane (real 0.226 px; seeds 1-3 at supersample 3: 0.16-0.19 px) within
+    # SIFT's localisation noise on the board plane (real 0.232 px; seeds 1-3 at supersample 3: 0.186-0.190 px) within
     # 0.5-1.5x: what the x-y table and the in-situ localisation rest on errs like the real webcam's keypoints
     real_sift = rws.rcs.measure_sift_precision(rws.real_calibration()[1], rws.PATTERN, res.K, res.dist)
-    assert real_sift["sift_plane_px"] == pytest.approx(0.226, abs=0.01) and real_sift["sift_plane_matches"] >= 100
+    assert real_sift["sift_plane_px"] == pytest.approx(0.232, abs=0.01) and real_sift["sift_plane_matches"] >= 100
     assert 0.5 * real_sift["sift_plane_px"] < sim["sift_plane_px"] < 1.5 * real_sift["sift_plane_px"], sim
 
 
