@@ -305,10 +305,12 @@ class MultiViewModel:
         p_cam = np.matmul(X, np.swapaxes(T_cam_world[:, :3, :3], 1, 2)) + T_cam_world[:, None, :3, 3]  # (V, M, 3)
         return self.project(p_cam)
 
-    def _perturbations(self, values):
+    def _perturbations(self, values, only=None):
         """``(block index, coordinate, values + e, values - e, step)`` for every block coordinate (all views at once
-        for a per-view block)."""
+        for a per-view block); of the blocks named in ``only`` when given."""
         for i, b in enumerate(self.blocks):
+            if only is not None and b.name not in only:
+                continue
             for c in range(b.size):
                 e = np.zeros_like(values[i])
                 e[..., c] = b.step
@@ -316,13 +318,16 @@ class MultiViewModel:
                 plus[i], minus[i] = values[i] + e, values[i] - e
                 yield i, c, plus, minus, b.step
 
-    def jacobian_blocks(self, *args) -> tuple:
+    def jacobian_blocks(self, *args, only=None, points: bool = True) -> tuple:
         """``jacobian_blocks(*values, X)`` -> ``(J_par (V, M, 2, n_params), J_pts (V, M, 2, 3))``: d pixels / d
-        parameters and d pixels of point m / d point m, by central differences in blocks (class docstring)."""
+        parameters and d pixels of point m / d point m, by central differences in blocks (class docstring).
+
+        ``only``: the names of the blocks to differentiate (the other columns stay zero); ``points=False``: ``J_pts``
+        is None (a caller that has those columns already)."""
         *values, X = args
         V, M = self.n_views, len(X)
         J = np.zeros((V, M, 2, self.n_params))
-        for i, c, plus, minus, h in self._perturbations(values):
+        for i, c, plus, minus, h in self._perturbations(values, only):
             d = (self.pixels(*plus, X) - self.pixels(*minus, X)) / (2 * h)
             b = self.blocks[i]
             if b.per_view:  # rows of view v depend on the parameters of view v only
@@ -330,6 +335,8 @@ class MultiViewModel:
                     J[v, :, :, self.offsets[i] + v * b.size + c] = d[v]
             else:
                 J[..., self.offsets[i] + c] = d
+        if not points:
+            return J, None
         Jp = np.zeros((V, M, 2, 3))
         for c in range(3):  # rows of point m depend on X_m only
             dX = np.zeros_like(X)

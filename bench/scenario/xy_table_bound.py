@@ -346,8 +346,8 @@ def position_bound(kin: TableKinematics, prior_info, reference: str, pair, map_v
     shared : (views, J, Jp), optional
         :meth:`~bench.scenario.bounds.MultiViewModel.jacobian_blocks` of a model of ``views`` without a displaced
         pair (and the same ``unknowns``): the rows of the table errors and the points do not depend on the pair, so
-        the experiment computes them once (:func:`experiment_bounds`) and only the pair's rows are differentiated
-        here.
+        the experiment computes them once (:func:`experiment_bounds`) and only the pair's displacement is
+        differentiated here (undisplaced at the linearisation point, the pair's other columns are the shared ones).
     unknowns : Unknowns, optional
         The intrinsics' and the camera rotation's uncertainty (the complete bound); default: both exact.
 
@@ -370,7 +370,10 @@ def position_bound(kin: TableKinematics, prior_info, reference: str, pair, map_v
         loc = _PairModel(kin, [a, b], [True, True], T0[a][:3, 3], X, project, size, np.stack([seen[a], seen[b]]),
                          **unknowns.model_kwargs())
         J = J_all[idx]
-        J[-2:] = loc.jacobian_blocks(*loc.values0, X)[0]
+        # at the linearisation point the pair is not displaced (xi = 0), so its rows by every other block are the
+        # shared model's: only the displacement's columns are new
+        xi = slice(loc.column("xi", 0), loc.column("xi", 0) + 6)
+        J[-2:, ..., xi] = loc.jacobian_blocks(*loc.values0, X, only=("xi",), points=False)[0][..., xi]
         jac = (J, Jp_all[idx])
     ia = len(views) - 2
     Ra0 = T0[a][:3, :3]

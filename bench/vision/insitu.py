@@ -134,14 +134,15 @@ class KeypointMap:
         return len(self.p_ref)
 
 
-def _matches(f1: Features, f2: Features, cfg: MapConfig) -> Matches:
+def view_matches(f1: Features, f2: Features, cfg: MapConfig) -> Matches:
+    """The matches this module uses between two feature sets: ratio test and orientation filter of ``cfg``."""
     return match_features(f1, f2, cfg.ratio, cfg.orientation_tol_deg).matches
 
 
 def reference_matches(reference: ViewObservation, views: list, config: MapConfig | None = None) -> list:
     """Ratio-test and orientation-filtered matches of the reference keypoints in each view (as :func:`build_map`)."""
     cfg = config or MapConfig()
-    return [_matches(reference.features, v.features, cfg) for v in views]
+    return [view_matches(reference.features, v.features, cfg) for v in views]
 
 
 def build_map(reference: ViewObservation, surrounding: list, config: MapConfig | None = None,
@@ -169,12 +170,13 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
         raise ValueError("surrounding: at least one surrounding view is needed to triangulate")
     n = len(reference.features)
     T_world_ref = np.asarray(reference.T_base_cam, dtype=float)
-    est = [[] for _ in range(n)]  # per reference keypoint: (p on the reference ray, p on the other ray)
     stats = {"reference_keypoints": n, "matches": 0, "after_gap_filter": 0}
     if matches is not None and len(matches) != len(surrounding):
         raise ValueError(f"matches: {len(matches)} match sets for {len(surrounding)} surrounding views")
+    # every estimate of a reference keypoint: (its index, p on the reference ray, p on the other ray, view, keypoint)
+    ests = [(np.empty(0, int), np.empty((0, 3)), np.empty((0, 3)), np.empty(0, int), np.empty((0, 2)))]
     for k, view in enumerate(surrounding):
-        m = _matches(reference.features, view.features, cfg) if matches is None else matches[k]
+        m = view_matches(reference.features, view.features, cfg) if matches is None else matches[k]
         stats["matches"] += len(m)
         if len(m) == 0:
             continue
@@ -182,31 +184,42 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
         tri = triangulate_midpoint([np.eye(4), T_ref_j], [reference.x_n[m.i1], view.x_n[m.i2]])
         ok = tri.valid & (tri.gap <= cfg.gap_max_m)
         stats["after_gap_filter"] += int(ok.sum())
-        for i, p1, p2, x in zip(m.i1[ok], tri.ray_points[0][ok], tri.ray_points[1][ok], view.x_n[m.i2[ok]],
-                                strict=True):
-            est[i].append((p1, p2, k, x))  # Eq. 163 (on the reference ray) and Eq. 164 (on ray j)
-
-    keep, P, Pstar, nv, spread, observations = [], [], [], [], [], []
-    for i, e in enumerate(est):
-        if len(e) < cfg.min_views:
-            continue
-        p = np.array([a[0] for a in e])
-        ps = np.array([a[1] for a in e])
-        d = np.linalg.norm(p[:, None] - p[None], axis=-1)
-        np.fill_diagonal(d, np.inf)
-        good = d.min(axis=1) <= cfg.neighbour_m if len(p) > 1 else np.ones(1, bool)  # neighbour filter d_n
-        if good.sum() < cfg.min_views:
-            continue
-        mean, mean_star = p[good].mean(axis=0), ps[good].mean(axis=0)  # Eq. 162, Eq. 164
-        if np.linalg.norm(mean - mean_star) > cfg.cross_check_m:
-            continue
-        keep.append(i)
-        observations.append((np.array([a[2] for a, g in zip(e, good, strict=True) if g], dtype=int),
-                             np.array([a[3] for a, g in zip(e, good, strict=True) if g]).reshape(-1, 2)))
-        P.append(mean)
-        Pstar.append(mean_star)
-        nv.append(int(good.sum()))
-        spread.append(float(np.sqrt(np.mean(np.sum((p[good] - mean) ** 2, axis=1)))))
+        # Eq. 163 (on the reference ray) and Eq. 164 (on ray j)
+        ests.append((m.i1[ok], tri.ray_points[0][ok], tri.ray_points[1][ok], np.full(int(ok.sum()), k),
+                     view.x_n[m.i2[ok]]))
+    i_all, p_all, ps_all, k_all, x_all = (np.concatenate(a) for a in zip(*ests, strict=True))
+    # grouped by keypoint, each group's estimates in view order; groups padded to (G, L) slots
+    order = np.argsort(i_all, kind="stable")
+    i_all, p_all, ps_all, k_all, x_all = i_all[order], p_all[order], ps_all[order], k_all[order], x_all[order]
+    keys, first, count = np.unique(i_all, return_index=True, return_counts=True)
+    group = np.repeat(np.arange(len(keys)), count)
+    slot = np.arange(len(i_all)) - first[group]
+    L = int(count.max()) if len(count) else 0
+    P = np.zeros((len(keys), L, 3))
+    Ps = np.zeros((len(keys), L, 3))
+    filled = np.zeros((len(keys), L), bool)
+    P[group, slot], Ps[group, slot], filled[group, slot] = p_all, ps_all, True
+    d = np.linalg.norm(P[:, :, None] - P[:, None], axis=-1)
+    d[~(filled[:, :, None] & filled[:, None])] = np.inf
+    d[:, np.arange(L), np.arange(L)] = np.inf
+    nearest = d.min(axis=2) if L else np.zeros((0, 0))
+    good = filled & ((nearest <= cfg.neighbour_m) | (count[:, None] == 1))  # neighbour filter d_n
+    n_good = good.sum(axis=1)
+    mean, mean_star = np.zeros((len(keys), 3)), np.zeros((len(keys), 3))
+    for j in range(L):  # slot by slot, in view order: the same sums as each group's own mean
+        mean += np.where(good[:, j, None], P[:, j], 0.0)
+        mean_star += np.where(good[:, j, None], Ps[:, j], 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean, mean_star = mean / n_good[:, None], mean_star / n_good[:, None]  # Eq. 162, Eq. 164
+    kept = (count >= cfg.min_views) & (n_good >= cfg.min_views)
+    kept[kept] = np.linalg.norm(mean[kept] - mean_star[kept], axis=1) <= cfg.cross_check_m
+    spread_sq = np.where(good, np.sum((P - mean[:, None]) ** 2, axis=2), 0.0).sum(axis=1)
+    keep = keys[kept].tolist()
+    P, Pstar, nv = list(mean[kept]), list(mean_star[kept]), n_good[kept].tolist()
+    spread = np.sqrt(spread_sq[kept] / np.maximum(n_good[kept], 1)).tolist()
+    observations = [(k_all[first[g]:first[g] + count[g]][good[g, :count[g]]],
+                     x_all[first[g]:first[g] + count[g]][good[g, :count[g]]].reshape(-1, 2))
+                    for g in np.flatnonzero(kept)]
     stats["map_points"] = len(keep)
     # survey geometry for the baseline check (Eq. 199): the widest reference-to-view baseline and the map's depth
     stats["survey_baseline_m"] = float(max(np.linalg.norm((invert(T_world_ref) @ np.asarray(v.T_base_cam, float))
@@ -305,7 +318,7 @@ def _base_covariance(cov_ref_a, T_world_ref, T_ref_a, T_base_a):
 def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, config: MapConfig | None = None,
            method: str = "svd", d_r: float = 0.020, iterations: int = 100, adaptive: bool = False,
            r_lim: float | None = 0.1, rng=None, max_condition: float = 1e6, refine: bool = True,
-           focal_px: float = 1000.0) -> LocateResult:
+           focal_px: float = 1000.0, matches: tuple | None = None) -> LocateResult:
     """Base pose from two new views (Eq. 165-166 + section 3.8 + link 5).
 
     Parameters
@@ -327,6 +340,10 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
     focal_px : float
         Focal length (px) of the camera: converts the 1 px disparity error of the baseline checks (Eq. 123, 199;
         see :data:`BASELINE_FAIL_RATIO`) to normalized units.
+    matches : (Matches, Matches), optional
+        The map -> a and a -> b matches, as :func:`match_features` gives them with ``config``'s ratio and
+        orientation tolerance; computed here when omitted. Lets a caller that locates many pairs against the same
+        maps (the x-y table experiments) match each combination once.
 
     Returns
     -------
@@ -340,8 +357,10 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
     timings = {}
     if len(kmap) < 3:
         return _failure(f"the map has {len(kmap)} points; at least 3 are needed")
-    m_a = _matches(kmap.features, view_a.features, cfg)  # map <-> a
-    m_ab = _matches(view_a.features, view_b.features, cfg)  # a <-> b
+    if matches is None:
+        matches = (view_matches(kmap.features, view_a.features, cfg),
+                   view_matches(view_a.features, view_b.features, cfg))
+    m_a, m_ab = matches  # map <-> a, a <-> b
     timings["match_s"] = time.perf_counter() - t0
     b_of_a = np.full(len(view_a.features), -1)
     b_of_a[m_ab.i1] = m_ab.i2
@@ -677,7 +696,7 @@ def locate_pnp(kmap: KeypointMap, view_a: ViewObservation, config: MapConfig | N
     """
     cfg = config or MapConfig()
     t0 = time.perf_counter()
-    m = _matches(kmap.features, view_a.features, cfg)
+    m = view_matches(kmap.features, view_a.features, cfg)
     if len(m) < 4:
         return _failure(f"only {len(m)} map matches (PnP needs >= 4)", len(m))
     obj = kmap.p_ref[m.i1].astype(np.float64)

@@ -65,7 +65,7 @@ from bench.geometry.transforms import homogeneous, rot_y, transform_points
 from bench.vision.absolute_orientation import absolute_orientation
 from bench.vision.features import Features, detect_sift
 from bench.vision.handeye import mount_rotation, search_mount_rotation
-from bench.vision.insitu import MapConfig, ViewObservation, build_map, locate, reference_matches
+from bench.vision.insitu import MapConfig, ViewObservation, build_map, locate, reference_matches, view_matches
 from bench.vision.ransac import ransac_absolute_orientation
 
 #: the four methods of Tables 5-8 (11-14): name -> (rotation estimator, error-ratio elimination)
@@ -567,7 +567,7 @@ def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, 
     ref_matches = dict(zip(others, reference_matches(ref, [obs[n] for n in others], cfg.map), strict=True))
     timings["match_reference_s"] = time.perf_counter() - t1
     pairs = intraocular_pairs(names, read, cfg.reference, cfg.intraocular_mm, cfg.pair_tolerance_m)
-    maps = {}
+    maps, matched = {}, {}
     combos = []
     t_map = t_locate = t_align = t_bundle = 0.0
     k = 0
@@ -592,9 +592,15 @@ def estimate_positions(features: dict, readings: dict, camera, spec: TableSpec, 
                 combos += [Combination(d_mm * 1e-3, a, b, m, False, msg, np.full(3, np.nan), n_map, 0, 0, 0)
                            for m in methods_at(d_mm)]
                 continue
-            # the 1p <-> 2p correspondences (Eq. 165-166) come from locate(); the alignment is redone per method
+            # the 1p <-> 2p correspondences (Eq. 165-166) come from locate(); the alignment is redone per method.
+            # A map and a view, or two views, recur across pairs: each combination is matched once
+            for key, f1, f2 in (((used, a), kmap.features, obs[a].features),
+                                ((a, b), obs[a].features, obs[b].features)):
+                if key not in matched:
+                    matched[key] = view_matches(f1, f2, cfg.map)
             loc = locate(kmap, obs[a], obs[b], cfg.map, method="svd", d_r=cfg.d_r_m, iterations=cfg.ransac_iterations,
-                         r_lim=None, rng=np.random.default_rng((cfg.seed, k)), refine=False)
+                         r_lim=None, rng=np.random.default_rng((cfg.seed, k)), refine=False,
+                         matches=(matched[used, a], matched[a, b]))
             t4 = time.perf_counter()
             t_locate += t4 - t3
             if loc.p1 is None or len(loc.p1) < 3:

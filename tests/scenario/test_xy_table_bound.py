@@ -82,6 +82,18 @@ def test_block_jacobian_and_shared_rows(scene):
     shared = experiment_bounds(result, kin, config, X, seen, cam.project, cam.size, 0.2)[(20.0, *PAIR)]
     assert np.allclose(shared["cov_pos"], own["cov_pos"], rtol=1e-8, atol=0)
     assert own["observations"] == len(views) * len(X)
+    # the complete bound (intrinsics, distortion with the thin prism, R0, the camera centre): the shared rows hold
+    # every block but the pair's displacement
+    unknowns = Unknowns(K=cam.K, cov_K=np.diag([4.0, 4.0, 9.0, 9.0]), R0_free=True,
+                        cov_dist=np.diag([0.3, 0.3, 0.03, 0.03, 1e-3, 1e-3, 1e-3, 1e-3]) ** 2,
+                        offset_sigma=np.full(3, 1e-3))
+    own = position_bound(kin, prior, "p04", PAIR, MAP, X, seen, cam.project, cam.size, 0.2, unknowns=unknowns)
+    shared = experiment_bounds(result, kin, config, X, seen, cam.project, cam.size, 0.2,
+                               unknowns=unknowns)[(20.0, *PAIR)]
+    assert own["cov_pos"].trace() > 1.02 * position_bound(kin, prior, "p04", PAIR, MAP, X, seen, cam.project,
+                                                          cam.size, 0.2)["cov_pos"].trace()
+    for key in ("cov_pos", "cov_rot"):
+        assert np.allclose(shared[key], own[key], rtol=1e-8, atol=0)
 
 
 def test_bound_equals_the_ml_estimator_spread(scene):

@@ -101,6 +101,48 @@ def test_noisy_outliers_base_within_its_covariance(ta40):
     assert rotation_angle(pnp.T_world_base[:3, :3] @ T_true[:3, :3].T) < 4 * np.linalg.norm(std_pnp[:3])
 
 
+def _map_by_keypoint(reference, surrounding, cfg):
+    """Section 3.9's filters written keypoint by keypoint (the reference for the batched :func:`build_map`):
+    ``{reference index: (1p (Eq. 162), 1p* (Eq. 164), contributing views)}``."""
+    from bench.vision.features import match_features
+    from bench.vision.triangulation import triangulate_midpoint
+
+    est = {}
+    for k, view in enumerate(surrounding):
+        m = match_features(reference.features, view.features, cfg.ratio, cfg.orientation_tol_deg).matches
+        T = invert(reference.T_base_cam) @ view.T_base_cam
+        tri = triangulate_midpoint([np.eye(4), T], [reference.x_n[m.i1], view.x_n[m.i2]])
+        for j in np.flatnonzero(tri.valid & (tri.gap <= cfg.gap_max_m)):
+            est.setdefault(int(m.i1[j]), []).append((tri.ray_points[0][j], tri.ray_points[1][j], k))
+    out = {}
+    for i, e in est.items():
+        p = np.array([a[0] for a in e])
+        d = np.linalg.norm(p[:, None] - p[None], axis=-1) + np.diag(np.full(len(p), np.inf))
+        good = d.min(axis=1) <= cfg.neighbour_m if len(p) > 1 else np.ones(1, bool)
+        if len(e) < cfg.min_views or good.sum() < cfg.min_views:
+            continue
+        mean, mean_star = p[good].mean(axis=0), np.array([a[1] for a in e])[good].mean(axis=0)
+        if np.linalg.norm(mean - mean_star) <= cfg.cross_check_m:
+            out[i] = (mean, mean_star, np.array([a[2] for a in e])[good])
+    return out
+
+
+@pytest.mark.parametrize("min_views", [1, 2, 3])
+def test_map_equals_its_definition_keypoint_by_keypoint(ta40, min_views):
+    """The batched map keeps the same keypoints as section 3.9's filters applied one keypoint at a time (gap,
+    neighbour d_n, views, cross-check; noise and 20 % false positions make each of them drop some), with the same
+    1p and 1p* to the last bit and the same contributing views."""
+    rng = np.random.default_rng(44)
+    views, _, _, _ = _campaign(ta40, rng, random_errors(rng), sigma=0.5 / 1000, outliers=0.2)
+    cfg = MapConfig(min_views=min_views, neighbour_m=0.004, cross_check_m=0.001)
+    kmap = build_map(views[0], views[1:], cfg)
+    ref = _map_by_keypoint(views[0], views[1:], cfg)
+    assert sorted(ref) == kmap.ref_index.tolist() and 50 < len(ref) < kmap.stats["after_gap_filter"]
+    for j, i in enumerate(kmap.ref_index):
+        assert np.array_equal(kmap.p_ref[j], ref[i][0]) and np.array_equal(kmap.p_ref_star[j], ref[i][1])
+        assert np.array_equal(kmap.observations[j][0], ref[i][2]) and kmap.n_views[j] == len(ref[i][2])
+
+
 def test_failures_are_results(ta40):
     rng = np.random.default_rng(43)
     views, loc, _, _ = _campaign(ta40, rng, None)
