@@ -324,7 +324,8 @@ class Unknowns:
 
 
 def position_bound(kin: TableKinematics, prior_info, reference: str, pair, map_views, X, seen: dict, project, size,
-                   sigma_px: float, shared=None, unknowns: Unknowns | None = None) -> dict:
+                   sigma_px: float, shared=None, unknowns: Unknowns | None = None, g_jacobians: dict | None = None
+                   ) -> dict:
     """Cramér-Rao bound of one estimate (module docstring): camera ``pair[0]``'s position relative to the reference.
 
     Parameters
@@ -350,6 +351,9 @@ def position_bound(kin: TableKinematics, prior_info, reference: str, pair, map_v
         differentiated here (undisplaced at the linearisation point, the pair's other columns are the shared ones).
     unknowns : Unknowns, optional
         The intrinsics' and the camera rotation's uncertainty (the complete bound); default: both exact.
+    g_jacobians : dict, optional
+        ``{a: G}``, the derivative of the estimated quantities by the parameters per camera ``a``, filled and
+        re-used across the pairs of one experiment (the same reference, views and unknowns).
 
     Returns
     -------
@@ -382,8 +386,14 @@ def position_bound(kin: TableKinematics, prior_info, reference: str, pair, map_v
         T = model.camera_poses(*values)
         return np.r_[T[ia, :3, 3] - T[0, :3, 3], matrix_to_rotation_vector(T[ia, :3, :3] @ Ra0.T)]
 
+    # G depends on the pair through camera a only (its pose and the pivot; undisplaced, b and the map do not enter)
+    G = g_jacobians.get(a) if g_jacobians is not None else None
+    if G is None:
+        G = function_jacobian(model, g)
+        if g_jacobians is not None:
+            g_jacobians[a] = G
     priors = {"table": prior_info} if kin.params else {}
-    res = crb(model, sigma_px, {**priors, **unknowns.priors()}, function_jacobian(model, g), jac)
+    res = crb(model, sigma_px, {**priors, **unknowns.priors()}, G, jac)
     cov = res["cov_g"]
     return {"cov_pos": cov[:3, :3], "cov_rot": cov[3:, 3:], "observations": res["observations"],
             "points": res["points"]}
@@ -400,7 +410,7 @@ def experiment_bounds(result, kin: TableKinematics, config: PositioningConfig, X
     base = _PairModel(kin, names, np.zeros(len(names), bool), np.zeros(3), X, project, size,
                       np.stack([seen[n] for n in names]), **unknowns.model_kwargs())
     shared = (names, *base.jacobian_blocks(*base.values0, X))
-    out = {}
+    out, g_jacobians = {}, {}
     n_all = sum(len(p) for p in result.pairs.values())
     for d_mm, plist in result.pairs.items():
         for a, b in plist:
@@ -408,7 +418,7 @@ def experiment_bounds(result, kin: TableKinematics, config: PositioningConfig, X
                                   config.map_exclude)
             if used:
                 out[(d_mm, a, b)] = position_bound(kin, prior, config.reference, (a, b), used, X, seen, project,
-                                                   size, sigma_px, shared, unknowns)
+                                                   size, sigma_px, shared, unknowns, g_jacobians)
             if verbose:
                 print(f"\r  bound: {len(out)}/{n_all} estimates", end="", file=sys.stderr)
     if verbose:

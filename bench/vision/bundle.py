@@ -123,8 +123,8 @@ def _cost(problem, theta, X, keep, prior_info, mean) -> float:
 
 
 def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10, rounds: int = 3,
-          gate: float | None = 3.5, dof_offset: int = 0, gate_groups=None, groups_in_rounds: bool = True
-          ) -> BundleSolution:
+          gate: float | None = 3.5, dof_offset: int = 0, gate_groups=None, groups_in_rounds: bool = True,
+          step_tol: float | None = None) -> BundleSolution:
     """Maximum-likelihood ``theta`` and points (module docstring).
 
     Parameters
@@ -158,6 +158,11 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
         Gate by group after the rounds too (with parameters that can absorb a group's misfit, e.g. each view's
         reading); False: by group at the start only, then one gate for all (a view whose misfit the model cannot
         absorb loses its worst observations).
+    step_tol : float, optional
+        End a round once a step (taken) is shorter than ``step_tol`` standard deviations of the estimate (its length
+        in the metric of the covariance ``s^2 S^-1``). None: iterate until the cost's decrease is at rounding level.
+        Gauss-Newton converges only linearly along weakly observed directions (a camera rotation against the
+        principal point), so that takes several steps more for changes far below the noise.
     """
     theta, mean, X = np.array(theta0, float), np.asarray(mean, float), np.array(X, float)
     point = np.asarray(problem.point, int)
@@ -203,7 +208,9 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
                 converged = True
                 break  # no descent along the step: at the minimum to numerical precision
             theta, X = theta + t * dc, X + t * dX
-            if np.abs(t * dc).max() < 1e-12:
+            # the step's length in standard deviations of the estimate: dc^T S dc = -g.dc in pixel units
+            short = step_tol is not None and -t * t * float(g @ dc) < (step_tol * s_px) ** 2
+            if np.abs(t * dc).max() < 1e-12 or short:
                 converged = True
                 break
         e = np.linalg.norm(problem.residuals(theta, X), axis=1)

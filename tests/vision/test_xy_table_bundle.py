@@ -135,6 +135,26 @@ def test_covariance_agrees_with_monte_carlo():
     assert np.all(np.abs(rms / std - 1) < 0.25), (rms, std)
 
 
+def test_step_tolerance_stops_within_a_fraction_of_a_sigma(monkeypatch):
+    """The rounds end once a step is shorter than STEP_TOL standard deviations: against iterating to rounding
+    level (0.3 px noise, intrinsics and distortion under priors, a start 2 mm off), the position moves by less than
+    2 STEP_TOL standard deviations (Mahalanobis) and no more iterations are taken."""
+    import bench.vision.xy_table_bundle as xb
+
+    rng = np.random.default_rng(11)
+    read, T, X, view, point, in_pair, uv = _setup(rng, n=80)
+    T_a0 = T[4].copy()
+    T_a0[:3, 3] += (2e-3, -1e-3, 2e-3)
+    args = (read, in_pair, T_a0, R0_SEARCHED, np.zeros(3), CAMERA.K, DIST, view, point,
+            uv + rng.normal(0, 0.3, uv.shape), X + rng.normal(0, 2e-3, X.shape))
+    short, tol = pair_bundle(*args, cov_K=COV_K, cov_dist=COV_DIST[:4, :4]), xb.STEP_TOL
+    monkeypatch.setattr(xb, "STEP_TOL", None)
+    full = pair_bundle(*args, cov_K=COV_K, cov_dist=COV_DIST[:4, :4])
+    assert short.success and full.success and short.iterations <= full.iterations
+    d = short.p_table - full.p_table
+    assert 0 < float(d @ np.linalg.solve(full.cov_p, d)) ** 0.5 < 2 * tol, (short.iterations, full.iterations)
+
+
 def test_an_estimate_off_its_optimum_is_refused():
     """Out of iterations far from the optimum (one Gauss-Newton step from a start 3 mm off, 0.3 px noise): no
     position and no covariance are offered."""
