@@ -136,6 +136,9 @@ def _surface(root, cfg, truth, tracks, T_tc, lens, port, project, reference, min
 
     if port is not None:
         raise BenchError(f"{root}: --surface casts the rays of a camera in air; this one is behind a flat port")
+    if truth.get("reference_object") != cfg["sim"]["reference_object"]:  # else another scene is replayed
+        raise BenchError(f"{root}: rendered with sim.reference_object={truth.get('reference_object')}, the scenario "
+                         f"has {cfg['sim']['reference_object']} (pass the render's --set)")
     obj = replay_reference_object({**cfg, "seed": _dataset_seed(root)}, truth)
     if obj is None:
         raise BenchError(f"{root}: the scene replayed from its seed is not the rendered one (another version?)")
