@@ -237,21 +237,24 @@ def surface_pairs(tracks, T_tc, lens, project, rays, reference, min_views=4) -> 
                    "explained_median": float(np.median([d[1] for d in drift])) if drift else float("nan")}
 
 
-def correlation_table(pairs) -> list:
-    """Per camera-distance bin (:data:`CORRELATION_EDGES_M`): pairs, the correlation of the two residuals per image
-    axis, and the null's."""
-    out = []
+def _bins(pairs):
+    """``(from_mm, to_mm, rows)`` of the pairs in each camera-distance bin (:data:`CORRELATION_EDGES_M`) with >= 10."""
     edges = [*CORRELATION_EDGES_M, np.inf]
     for lo, hi in zip(edges[:-1], edges[1:], strict=True):
         sel = (pairs[:, 0] >= lo) & (pairs[:, 0] < hi)
-        if sel.sum() < 10:
-            continue
-        q = pairs[sel]
-        corr = [float(np.corrcoef(q[:, 1 + k], q[:, 3 + k])[0, 1]) for k in (0, 1)]
-        null = [float(np.corrcoef(q[:, 5 + k], q[:, 7 + k])[0, 1]) for k in (0, 1)]
-        out.append({"from_mm": lo * 1e3, "to_mm": hi * 1e3, "pairs": int(sel.sum()), "corr_x": corr[0],
-                    "corr_y": corr[1], "null_x": null[0], "null_y": null[1]})
-    return out
+        if sel.sum() >= 10:
+            yield lo * 1e3, hi * 1e3, pairs[sel]
+
+
+def _corr(q, i, j) -> list:
+    """Per image axis, the correlation of columns ``i, i + 1`` with ``j, j + 1``."""
+    return [float(np.corrcoef(q[:, i + k], q[:, j + k])[0, 1]) for k in (0, 1)]
+
+
+def correlation_table(pairs) -> list:
+    """Per camera-distance bin: pairs, the correlation of the two residuals per image axis, and the null's."""
+    return [dict(zip(("from_mm", "to_mm", "pairs", "corr_x", "corr_y", "null_x", "null_y"),
+                     (lo, hi, len(q), *_corr(q, 1, 3), *_corr(q, 5, 7)), strict=True)) for lo, hi, q in _bins(pairs)]
 
 
 def surface_table(pairs) -> list:
@@ -259,17 +262,11 @@ def surface_table(pairs) -> list:
     (px), and the null for independent errors after the track's mean is removed (``-1 / (n - 1)`` for a track of n
     views, averaged over the bin's pairs)."""
     out = []
-    edges = [*CORRELATION_EDGES_M, np.inf]
-    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
-        sel = (pairs[:, 0] >= lo) & (pairs[:, 0] < hi)
-        if sel.sum() < 10:
-            continue
-        q = pairs[sel]
-        corr = [float(np.corrcoef(q[:, 1 + k], q[:, 3 + k])[0, 1]) for k in (0, 1)]
+    for lo, hi, q in _bins(pairs):
         sig = 1.4826 * np.median(np.abs(np.r_[q[:, 1:3], q[:, 3:5]]), axis=0)
-        out.append({"from_mm": lo * 1e3, "to_mm": hi * 1e3, "pairs": int(sel.sum()), "corr_x": corr[0],
-                    "corr_y": corr[1], "null": float(np.mean(q[:, 5])), "sigma_x_px": float(sig[0]),
-                    "sigma_y_px": float(sig[1])})
+        out.append(dict(zip(("from_mm", "to_mm", "pairs", "corr_x", "corr_y", "null", "sigma_x_px", "sigma_y_px"),
+                            (lo, hi, len(q), *_corr(q, 1, 3), float(np.mean(q[:, 5])), *map(float, sig)),
+                            strict=True)))
     return out
 
 
