@@ -146,6 +146,8 @@ def _surface(root, cfg, truth, tracks, T_tc, lens, port, project, reference, min
     return surface_pairs(tracks, T_tc, lens, project, rays, reference, min_views)
 
 
+#: a track is typical when every error of it is within this many robust sigmas (pooled) of the track's mean
+TYPICAL_SIGMAS = 4.0
 #: camera-centre distances (m) that bin the correlation of a track's residuals between two of its views
 CORRELATION_EDGES_M = (0.0, 0.02, 0.04, 0.07, 0.1, 0.15, 0.25)
 
@@ -185,16 +187,17 @@ def _unproject(uv, lens, project, iterations=6):
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def surface_pairs(tracks, T_tc, lens, project, rays, reference, min_views=4) -> np.ndarray:
+def surface_pairs(tracks, T_tc, lens, project, rays, reference, min_views=4) -> tuple:
     """The keypoints' own errors, without a triangulation to hide part of them: each observation's ray (through the
     true optics and pose) is cast onto the scene's true surfaces (:class:`bench.scenario.scene_points.SceneRays`) and
     the surface point is projected into the reference view; a track's error in view k is that pixel minus the
     track's mean over its views (the worst dropped while beyond 3 px: a ray that missed the keypoint's surface).
     Returns ``(pairs, drift)``: per pair of views of a track ``(distance of the two camera centres (m), e_a (2), e_b
-    (2), -1 / (n - 1))``, the last the correlation independent errors would have after the mean of the track's ``n``
-    views is removed; and the errors' linear drift with the camera along the table's travel (per track of >= 6
-    views, ``e ~ slope (x - mean x)``, ``x`` the camera centre's along the travel): the robust spread over the tracks
-    of the slope per image axis (px per m) and the median fraction of a track's error variance it explains."""
+    (2), -1 / (n - 1), the track's largest error (px))``, the fourth the correlation independent errors would have
+    after the mean of the track's ``n`` views is removed; and the errors' linear drift with the camera along the
+    table's travel (per track of >= 6 views, ``e ~ slope (x - mean x)``, ``x`` the camera centre's along the travel):
+    the robust spread over the tracks of the slope per image axis (px per m) and the median fraction of a track's
+    error variance it explains."""
     from bench.scenario.scene_points import NEAR_M
 
     T_ref_inv = np.linalg.inv(T_tc[reference])
@@ -225,12 +228,13 @@ def surface_pairs(tracks, T_tc, lens, project, rays, reference, min_views=4) -> 
         e = (u - u[keep].mean(axis=0))[keep]
         c = np.array([T_tc[n][:3, 3] for n, k in zip(names, keep, strict=True) if k])
         a, b = np.triu_indices(len(e), 1)
-        rows.append(np.c_[np.linalg.norm(c[a] - c[b], axis=1), e[a], e[b], np.full(len(a), -1.0 / (len(e) - 1))])
+        rows.append(np.c_[np.linalg.norm(c[a] - c[b], axis=1), e[a], e[b], np.full(len(a), -1.0 / (len(e) - 1)),
+                          np.full(len(a), np.abs(e).max())])
         if len(e) >= 6:  # the drift: e linear in the camera's x along the travel, slope (2,) px per m
             cx = c[:, 0] - c[:, 0].mean()
             slope = cx @ e / max(cx @ cx, 1e-12)
             drift.append((slope, 1.0 - np.sum((e - np.outer(cx, slope)) ** 2) / max(np.sum(e**2), 1e-30)))
-    pairs = np.concatenate(rows) if rows else np.empty((0, 6))
+    pairs = np.concatenate(rows) if rows else np.empty((0, 7))
     slopes = np.array([d[0] for d in drift]).reshape(-1, 2)
     return pairs, {"tracks": len(drift),
                    "slope_x_px_per_m_robust_std": [float(v) for v in 1.4826 * np.median(np.abs(slopes), axis=0)],
@@ -293,7 +297,12 @@ def main(argv=None) -> int:
     corr = correlation_table(np.concatenate([_track_pairs(o["kept"], *o["geometry"], o["sigma"],
                                                           np.random.default_rng(0)) for o in out]))
     surface = [o.pop("surface") for o in out]
-    surface_corr = surface_table(np.concatenate([sp[0] for sp in surface])) if a.surface else []
+    surface_corr, typical_corr = [], []
+    if a.surface:
+        sp = np.concatenate([sp[0] for sp in surface])
+        sigma = 1.4826 * np.median(np.abs(sp[:, 1:5]))
+        surface_corr = surface_table(sp)
+        typical_corr = surface_table(sp[sp[:, 6] <= TYPICAL_SIGMAS * sigma])
     for o, sp in zip(out, surface, strict=True):
         if sp is not None:
             o["drift"] = sp[1]
@@ -303,7 +312,7 @@ def main(argv=None) -> int:
     summary = {"robust_sigma_px": [float(v) for v in mad], "rms_px": float(np.sqrt(np.mean(norm**2))),
                "beyond_1px": float(np.mean(norm > 1.0)), "observations": int(len(pooled)),
                "gross": gross / (gross + len(pooled)), "correlation": corr,
-               "surface_correlation": surface_corr}
+               "surface_correlation": surface_corr, "surface_correlation_typical": typical_corr}
     for o in out:
         for k in ("kept", "geometry", "sigma"):
             o.pop(k, None)
@@ -321,16 +330,20 @@ def main(argv=None) -> int:
     if a.surface:
         print("the keypoints' own errors (rays cast onto the true surfaces, seen in the reference view, minus the "
               "track's mean), correlated between two views (null: -1 / (views - 1)):")
-        for c in surface_corr:
-            print(f"  {c['from_mm']:5.0f}-{c['to_mm']:5.0f} mm: {c['pairs']:6d} pairs, x {c['corr_x']:+.2f}, "
-                  f"y {c['corr_y']:+.2f} (null {c['null']:+.2f}); sigma {c['sigma_x_px']:.3f} / "
-                  f"{c['sigma_y_px']:.3f} px")
+        for title, table in (("every track (within 3 px)", surface_corr),
+                             (f"typical tracks (every error within {TYPICAL_SIGMAS:g} robust sigma)", typical_corr)):
+            print(f"  {title}:")
+            for c in table:
+                print(f"    {c['from_mm']:5.0f}-{c['to_mm']:5.0f} mm: {c['pairs']:6d} pairs, x {c['corr_x']:+.2f}, "
+                      f"y {c['corr_y']:+.2f} (null {c['null']:+.2f}); sigma {c['sigma_x_px']:.3f} / "
+                      f"{c['sigma_y_px']:.3f} px")
         for o in out:
             d = o["drift"]
             print(f"  {o['dataset']}: drift with the camera's x over {d['tracks']} tracks: slope spread "
                   f"{d['slope_x_px_per_m_robust_std'][0]:.2f} / {d['slope_x_px_per_m_robust_std'][1]:.2f} px per m "
                   f"(image x / y), explaining {100 * d['explained_median']:.0f} % of a track's error variance "
                   f"(median)")
+
     if a.json:
         Path(a.json).write_text(json.dumps({"datasets": out, "pooled": summary}, indent=2) + "\n")
     return 0
