@@ -130,7 +130,7 @@ def consistency(dataset, cfg, reference="p11", min_views=4, surface=False) -> di
             if surface else None}
 
 
-def _surface(root, cfg, truth, tracks, T_tc, lens, port, project, reference, min_views) -> np.ndarray:
+def _surface(root, cfg, truth, tracks, T_tc, lens, port, project, reference, min_views) -> tuple:
     from bench.scenario.scene_points import SceneRays
     from bench.scenario.xy_table import replay_reference_object
 
@@ -198,24 +198,16 @@ def surface_pairs(tracks, T_tc, lens, project, rays, reference, min_views=4) -> 
     table's travel (per track of >= 6 views, ``e ~ slope (x - mean x)``, ``x`` the camera centre's along the travel):
     the robust spread over the tracks of the slope per image axis (px per m) and the median fraction of a track's
     error variance it explains."""
-    from bench.scenario.scene_points import NEAR_M
-
     T_ref_inv = np.linalg.inv(T_tc[reference])
     rows, drift = [], []
     for obs in tracks.values():
         names = [n for n in obs if n in T_tc]
         if len(names) < min_views:
             continue
-        uv = np.array([obs[n] for n in names])
-        d_cam = _unproject(uv, lens, project)
-        u = []
-        for n, d in zip(names, d_cam, strict=True):
-            R, c = T_tc[n][:3, :3], T_tc[n][:3, 3]
-            dw = R @ d
-            hit = rays._cast(c + NEAR_M * dw, dw)
-            X = c + (NEAR_M + hit) * dw if np.isfinite(hit) else np.full(3, np.nan)
-            u.append(project((T_ref_inv[:3, :3] @ X + T_ref_inv[:3, 3])[None])[0])
-        u = np.array(u)
+        d_cam = _unproject(np.array([obs[n] for n in names]), lens, project)
+        T = np.array([T_tc[n] for n in names])
+        X = rays.first_hits(T[:, :3, 3], np.einsum("vij,vj->vi", T[:, :3, :3], d_cam))  # NaN: the ray left the scene
+        u = project(X @ T_ref_inv[:3, :3].T + T_ref_inv[:3, 3])
         keep = np.all(np.isfinite(u), axis=1)
         while keep.sum() >= min_views:
             e = u - u[keep].mean(axis=0)

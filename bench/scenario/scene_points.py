@@ -7,6 +7,7 @@ MuJoCo model of a :class:`~bench.sim.scenes.base.SceneObject` at its pose and ca
 
 * :meth:`SceneRays.surface_points` - the first surface hit by the rays of ``n`` pixels drawn uniformly over a camera's
   image (the true lens's rays, through its flat port if it has one): points that camera sees;
+* :meth:`SceneRays.first_hits` - where given rays (origins, unit directions) first meet a surface;
 * :meth:`SceneRays.visible` - whether a camera centre sees each point, i.e. nothing lies between them (occlusion by
   the arm, the toolbox, the arm's own links).
 
@@ -58,12 +59,18 @@ class SceneRays:
             origins, dirs, _ = trace_rays(dirs, port)
             dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
         R, t = T_frame_cam[:3, :3], T_frame_cam[:3, 3]
-        out = []
-        for o, d in zip(origins @ R.T + t, dirs @ R.T, strict=True):
+        hits = self.first_hits(origins @ R.T + t, dirs @ R.T)
+        return hits[np.all(np.isfinite(hits), axis=1)]
+
+    def first_hits(self, origins, directions) -> np.ndarray:
+        """``(N, 3)`` points (frame) where the rays from ``origins (N, 3)`` along the unit ``directions (N, 3)`` first
+        meet a surface beyond :data:`NEAR_M`; NaN rows for rays that leave the scene."""
+        out = np.full((len(origins), 3), np.nan)
+        for i, (o, d) in enumerate(zip(np.asarray(origins, float), np.asarray(directions, float), strict=True)):
             s = self._cast(o + NEAR_M * d, d)
             if np.isfinite(s):
-                out.append(o + (NEAR_M + s) * d)
-        return np.array(out).reshape(-1, 3)
+                out[i] = o + (NEAR_M + s) * d
+        return out
 
     def visible(self, points, centre) -> np.ndarray:
         """``(N,)`` bool: nothing lies between ``centre`` (3,) and each of ``points (N, 3)`` (frame)."""

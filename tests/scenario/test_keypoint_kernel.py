@@ -26,9 +26,9 @@ NAMES = [f"p{k:02d}" for k in range(1, 22)]
 class _Plane:
     """Ray casting onto the plane z = PLANE_Z (the interface of bench.scenario.scene_points.SceneRays)."""
 
-    def _cast(self, origin, direction):
-        s = (PLANE_Z - origin[2]) / direction[2]
-        return s if s > 0 else np.inf
+    def first_hits(self, origins, directions):
+        s = (PLANE_Z - origins[:, 2]) / directions[:, 2]
+        return np.where((s > 0)[:, None], origins + s[:, None] * directions, np.nan)
 
 
 def _campaign(rng, errors, n_tracks=300, sigma=0.08):
