@@ -214,22 +214,19 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
     kept = (count >= cfg.min_views) & (n_good >= cfg.min_views)
     kept[kept] = np.linalg.norm(mean[kept] - mean_star[kept], axis=1) <= cfg.cross_check_m
     spread_sq = np.where(good, np.sum((P - mean[:, None]) ** 2, axis=2), 0.0).sum(axis=1)
-    keep = keys[kept].tolist()
-    P, Pstar, nv = list(mean[kept]), list(mean_star[kept]), n_good[kept].tolist()
-    spread = np.sqrt(spread_sq[kept] / np.maximum(n_good[kept], 1)).tolist()
+    idx = keys[kept].astype(int)
+    spread = np.sqrt(spread_sq[kept] / np.maximum(n_good[kept], 1))
     observations = [(k_all[first[g]:first[g] + count[g]][good[g, :count[g]]],
                      x_all[first[g]:first[g] + count[g]][good[g, :count[g]]].reshape(-1, 2))
                     for g in np.flatnonzero(kept)]
-    stats["map_points"] = len(keep)
+    stats["map_points"] = len(idx)
     # survey geometry for the baseline check (Eq. 199): the widest reference-to-view baseline and the map's depth
     stats["survey_baseline_m"] = float(max(np.linalg.norm((invert(T_world_ref) @ np.asarray(v.T_base_cam, float))
                                                           [:3, 3]) for v in surrounding))
-    stats["median_depth_m"] = float(np.median(np.array(P)[:, 2])) if P else float("nan")
-    idx = np.array(keep, dtype=int)
+    stats["median_depth_m"] = float(np.median(mean[kept, 2])) if len(idx) else float("nan")
     T_ref_views = np.array([invert(T_world_ref) @ np.asarray(v.T_base_cam, float) for v in surrounding])
-    return KeypointMap(np.array(P).reshape(-1, 3), np.array(Pstar).reshape(-1, 3), reference.features.subset(idx),
-                       np.array(nv, dtype=int), np.array(spread), T_world_ref, stats, reference.x_n[idx],
-                       T_ref_views, observations, idx)
+    return KeypointMap(mean[kept], mean_star[kept], reference.features.subset(idx), n_good[kept].astype(int), spread,
+                       T_world_ref, stats, reference.x_n[idx], T_ref_views, observations, idx)
 
 
 @dataclass
