@@ -111,9 +111,30 @@ def run_id(scenario_text: str, overrides: dict, seed: int) -> str:
     return h.hexdigest()[:16]
 
 
+def code_version() -> str:
+    """The code a run used: ``git describe --always --dirty`` of the checkout ``bench`` is imported from (a commit,
+    ``-dirty`` with uncommitted changes), or ``bench <version>`` outside a git checkout."""
+    import subprocess
+
+    import bench
+
+    root = Path(bench.__file__).resolve().parents[1]
+    try:
+        # GIT_OPTIONAL_LOCKS=0: --dirty refreshes the index without writing it, so concurrent workers never meet
+        # each other's index.lock
+        out = subprocess.run(["git", "-C", str(root), "describe", "--always", "--dirty", "--abbrev=12"],
+                             capture_output=True, text=True, timeout=20, env={**os.environ, "GIT_OPTIONAL_LOCKS": "0"})
+    except (OSError, subprocess.TimeoutExpired):
+        out = None
+    if out is not None and out.returncode == 0 and out.stdout.strip():
+        return out.stdout.strip()
+    return f"bench {bench.__version__}"
+
+
 def versions() -> dict:
-    """Versions of the interpreter and the libraries a result depends on."""
-    out = {"python": platform.python_version()}
+    """Versions of the interpreter, the libraries a result depends on, and the code (``bench``, see
+    :func:`code_version`)."""
+    out = {"python": platform.python_version(), "bench": code_version()}
     for mod in ("numpy", "scipy", "cv2", "mujoco", "pinocchio"):
         try:
             out[mod] = __import__(mod).__version__
@@ -153,6 +174,17 @@ class SweepStore:
 
     def finished(self) -> set:
         return {r[0] for r in self.db.execute("SELECT run_id FROM runs WHERE status = 'done'")}
+
+    def code_versions(self) -> dict:
+        """``{code version: finished runs}`` (rows written before versions named the code count as ``unknown``)."""
+        counts = {}
+        for (text,) in self.db.execute("SELECT versions FROM runs WHERE status = 'done'"):
+            try:
+                code = (json.loads(text or "{}") or {}).get("bench") or "unknown"
+            except (json.JSONDecodeError, AttributeError):
+                code = "unknown"
+            counts[code] = counts.get(code, 0) + 1
+        return counts
 
     def add(self, rid: str, overrides: dict, seed: int, row: dict) -> None:
         with self.db:
@@ -371,6 +403,7 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
         rid = run_id(text, full, seed)
         if rid not in finished:
             todo.append((rid, str(scenario.resolve()), full, seed, str((out / "runs" / rid).resolve())))
+    _warn_mixed_code(store.code_versions())
     bar = _Progress(len(all_tasks), len(all_tasks) - len(todo)) if progress else None
     stream = _local_backend(todo, workers or os.cpu_count()) if backend == "local" else _ray_backend(todo, started)
     for task, row in stream:
@@ -384,6 +417,17 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
     summary["errors"] = [f"{r['params']} seed {r['seed']}: {r['message']}" for r in errors]
     record_output_entries(out, exclude=before)
     return summary
+
+
+def _warn_mixed_code(finished: dict, stream=None) -> None:
+    """A resumed sweep whose finished runs were made by other code than the runs it will add: say so (one line on
+    stderr; the finished runs are kept, since the user may want them - ``--force`` starts afresh)."""
+    now = code_version()
+    other = {v: n for v, n in finished.items() if v != now}
+    if other:
+        made = ", ".join(f"{n} by {v}" for v, n in sorted(other.items()))
+        print(f"bench sweep: warning: resuming over finished runs made by other code ({made}); this code is {now}. "
+              "Their rows are kept; --force re-runs everything", file=stream or sys.stderr)
 
 
 def summarise(rows: list, keys: list, out: Path, scenario: str = "") -> dict:

@@ -154,3 +154,36 @@ def test_summary_efficiency_bound_on_plots_and_recording(tmp_path):
     assert [v[0] for v in e["/metrics/pos_err_mm"]["Scalars:scalars"]] == pytest.approx([4.0, 1.6])
     assert [v[0] for v in e["/metrics/pos_bound_mm"]["Scalars:scalars"]] == pytest.approx([1.0, 1.0])
     assert (tmp_path / "sweep_pos_err_mm.png").is_file()
+
+
+def test_rows_name_the_code_and_a_resume_over_other_code_says_so(tmp_path, capsys):
+    """Every row's versions name the code (`git describe --dirty` of the checkout bench runs from), so a figure can
+    be traced to the commit that made it; resuming a sweep whose finished runs another version of the code made
+    keeps them but prints one warning naming how many and which version."""
+    import shutil
+
+    from bench.scenario.sweep import code_version
+
+    git = shutil.which("git")
+    expected = subprocess.run([git, "-C", str(ROOT), "rev-parse", "--short=12", "HEAD"], capture_output=True,
+                              text=True).stdout.strip() if git else ""
+    now = code_version()
+    if expected:
+        assert now.startswith(expected) or expected in now, now
+    out = tmp_path / "sw"
+    run_sweep(SCENARIO, [], [0], out, workers=1, progress=False, fixed=SMALL)
+    con = sqlite3.connect(out / "sweep.sqlite")
+    (text,) = con.execute("SELECT versions FROM runs").fetchone()
+    assert json.loads(text)["bench"] == now
+    capsys.readouterr()
+    run_sweep(SCENARIO, [], [0, 1], out, workers=1, progress=False, fixed=SMALL)  # same code: no warning
+    assert "other code" not in capsys.readouterr().err
+    con.execute("UPDATE runs SET versions = ? WHERE seed = 0", (json.dumps({"bench": "0123456789ab"}),))
+    con.commit()
+    con.close()
+    run_sweep(SCENARIO, [], [0, 1, 2], out, workers=1, progress=False, fixed=SMALL)
+    err = capsys.readouterr().err
+    assert "1 by 0123456789ab" in err and now in err and len(err.strip().splitlines()) == 1
+    con = sqlite3.connect(out / "sweep.sqlite")
+    assert con.execute("SELECT COUNT(*) FROM runs WHERE status = 'done'").fetchone()[0] == 3  # kept, not re-run
+    con.close()
