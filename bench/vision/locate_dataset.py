@@ -161,10 +161,47 @@ def encoder_sigma_rad(root) -> float:
     return sigma
 
 
-def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None):
+def _guided_used(kmap, view_a, view_b, used, T_ref_a, T_ref_b, K, dist) -> tuple:
+    """``used`` (map indices, their keypoints in views a and b) grown by guided matching
+    (:mod:`bench.vision.guided`) in both locate views, at the poses ``T_ref_a``, ``T_ref_b`` through the camera
+    ``K``, ``dist`` (as the joint bundle refined them). Per view, the verified matches set the search: the radius is
+    :data:`~bench.vision.guided.RADIUS_FACTOR` x the 90th percentile of their distances from their projections (the
+    map points' own errors), and a guided match's descriptor distance may reach the 95th percentile of theirs.
+    Returns ``((indices, x_a, x_b), radii)``: the map points found in both views added to ``used`` (the verified ones
+    keep their keypoints), and the two radii (px). A point found in one view only is not added: measured on six
+    envelope runs, such points lowered the protection radius but doubled the error on two."""
+    from bench.camera.model import distort, to_pixels
+    from bench.vision.guided import RADIUS_FACTOR, RATIO, project, search_by_projection
+
+    idx = np.asarray(used[0], int)
+    found, radii = [], []
+    for view, x_used, T in ((view_a, used[1], T_ref_a), (view_b, used[2], T_ref_b)):
+        where = {tuple(x): i for i, x in enumerate(np.asarray(view.x_n))}
+        iv = np.array([where[tuple(x)] for x in np.asarray(x_used)], int)
+        d_ver = np.linalg.norm(kmap.features.descriptors[idx].astype(float)
+                               - view.features.descriptors[iv].astype(float), axis=1)
+        uv_proj = to_pixels(distort(project(kmap.p_ref, T), dist), K)
+        off = np.linalg.norm(uv_proj[idx] - view.features.uv[iv], axis=1)
+        r = max(RADIUS_FACTOR * float(np.nanquantile(off, 0.9)), 1.0)
+        i_m, i_v = search_by_projection(uv_proj, view.features.uv, kmap.features.descriptors,
+                                        view.features.descriptors, r, RATIO, float(np.quantile(d_ver, 0.95)))
+        found.append(dict(zip(i_m.tolist(), i_v.tolist(), strict=True)))
+        radii.append(r)
+    verified = {int(i): k for k, i in enumerate(idx)}
+    both = sorted(set(verified) | (set(found[0]) & set(found[1])))
+    x_a = np.array([used[1][verified[i]] if i in verified else view_a.x_n[found[0][i]] for i in both]).reshape(-1, 2)
+    x_b = np.array([used[2][verified[i]] if i in verified else view_b.x_n[found[1][i]] for i in both]).reshape(-1, 2)
+    return (np.array(both, int), x_a, x_b), radii
+
+
+def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None,
+                   guided: bool = False):
     """The thesis estimator's pose refined by :func:`~bench.vision.joint_bundle.joint_bundle` (joints under the
-    encoder prior); on failure the thesis estimate is kept and the message says why. Returns ``(result, refined)``:
-    ``refined`` False when the thesis's estimate (and covariance) is what comes back."""
+    encoder prior); on failure the thesis estimate is kept and the message says why. With ``guided`` the map is
+    then searched again in both locate views at the refined poses and camera (:mod:`bench.vision.guided`) and the
+    joint bundle re-run on the grown set. Returns ``(result, refined)``: ``refined`` False when the
+    thesis's estimate (and covariance) is what comes back; the result's ``used`` is what the returned estimate
+    used."""
     from bench.camera.model import distort, to_pixels
     from bench.geometry.transforms import invert, transform_points
     from bench.vision.joint_bundle import joint_bundle, observations_of
@@ -172,34 +209,58 @@ def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma
     if res.used is None or len(res.used[0]) < 3:
         return replace(res, message=res.message + "; joint bundle skipped (fewer than 3 points)"), False
     t0 = time.perf_counter()
-    names = [roles["reference"][0].name, *(v.name for v in roles["surround"]), *(v.name for v in roles["locate"])]
+    n_sur = len(roles["surround"])
     views = [v for r in ("reference", "surround", "locate") for v in roles[r]]
     q_read = np.array([v.q for v in views], dtype=float)
     is_loc = np.array([v.role == "locate" for v in views])
-    view, point, x, idx = observations_of(kmap, res.used, len(roles["surround"]))
-    X = transform_points(kmap.T_world_ref, kmap.p_ref[idx])
-    sigma0 = 0.1  # px, a start: re-estimated from the residuals
-    uv = to_pixels(distort(x, camera.dist), camera.K)  # the keypoints as detected (x: their undistorted form)
+
+    def bundle(used, T_start):
+        view, point, x, idx = observations_of(kmap, used, n_sur)
+        X = transform_points(kmap.T_world_ref, kmap.p_ref[idx])
+        uv = to_pixels(distort(x, camera.dist), camera.K)  # the keypoints as detected (x: their undistorted form)
+        return joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, T_start, view, point, uv, X, sigma_enc,
+                            0.1, camera.K, camera.dist, **(priors or {}))  # 0.1 px: a start, re-estimated
+
     try:
-        jb = joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, res.T_world_base, view, point, uv, X, sigma_enc,
-                          sigma0, camera.K, camera.dist, **(priors or {}))
+        jb = bundle(res.used, res.T_world_base)
     except (ValueError, np.linalg.LinAlgError) as exc:
         return replace(res, message=f"{res.message}; joint bundle skipped ({exc})"), False
-    res.timings_s["joint_bundle_s"] = time.perf_counter() - t0
     if not jb.success:
         return replace(res, message=f"{res.message}; joint bundle skipped ({jb.message})"), False
     if jb.sigma_px < 1e-6:  # exact data (an evaluator's oracle): nothing to weigh, the thesis estimate is exact too
         return replace(res, message=f"{res.message}; joint bundle: residuals {jb.sigma_px:.2g} px, estimate "
                                     f"kept"), False
-    T_base_a = obs[names[len(roles['surround']) + 1]].T_base_cam
+    used, note = res.used, ""
+    if guided:
+        mount = T_link5_cam if jb.T_link5_cam is None else jb.T_link5_cam
+        T_ref_site = invert(kmap.T_world_ref) @ jb.T_site_base
+        a, b = (obs[v.name] for v in roles["locate"][:2])
+        T_ref = [T_ref_site @ link5_frame(robot, jb.q[n_sur + 1 + i], eps) @ mount for i in (0, 1)]
+        K = camera.K if jb.K is None else jb.K
+        dist = camera.dist if jb.dist is None else jb.dist
+        grown, radii = _guided_used(kmap, a, b, res.used, T_ref[0], T_ref[1], K, dist)
+        note = (f"; guided matching (radius {radii[0]:.1f} / {radii[1]:.1f} px): {len(grown[0])} map points in both "
+                f"locate views (verified {len(res.used[0])})")
+        if len(grown[0]) > len(res.used[0]):
+            try:
+                jb2 = bundle(grown, jb.T_site_base)
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                jb2, note = None, f"{note}, bundle skipped ({exc})"
+            if jb2 is not None and not jb2.success:
+                note = f"{note}, bundle skipped ({jb2.message})"
+            elif jb2 is not None:
+                jb, used = jb2, grown
+    res.timings_s["joint_bundle_s"] = time.perf_counter() - t0
+    T_base_a = obs[roles["locate"][0].name].T_base_cam
     T_ref_a = invert(kmap.T_world_ref) @ jb.T_site_base @ T_base_a
-    return replace(res, message=f"{res.message}; {jb.message[4:]}", T_world_base=jb.T_site_base, T_ref_cam=T_ref_a,
-                   covariance=jb.covariance), True
+    return replace(res, message=f"{res.message}; {jb.message[4:]}{note}", T_world_base=jb.T_site_base,
+                   T_ref_cam=T_ref_a, covariance=jb.covariance, used=used), True
 
 
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
                    seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine="bundle",
-                   ransac: dict | None = None, details: dict | None = None, features_fn=None, priors_path=None):
+                   ransac: dict | None = None, details: dict | None = None, features_fn=None, priors_path=None,
+                   guided: bool = False):
     """Build the map from the survey views and locate the base from the two ``locate`` views.
 
     ``camera_path`` / ``robot_path`` replace the dataset's own files (e.g. the results of an earlier calibration);
@@ -261,7 +322,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
             if refine == "joints" and res.success:
                 thesis = res  # the thesis estimator's (bundle) result, reported beside
                 res, refined = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, pixels_camera,
-                                              sigma_enc, priors)
+                                              sigma_enc, priors, guided)
         return kmap, res, refined, thesis, t_map
 
     # the joint bundle works in pixels: a refractive camera's coordinates go to it through its virtual pinhole

@@ -98,6 +98,25 @@ def test_protection_levels_need_no_truth(rendered, tmp_path):
         assert a[k] == b[k], k
 
 
+def test_guided_matching_grows_the_verified_set_and_stays_inside_its_radius(rendered):
+    """pipeline.guided: the map searched again in both locate views at the joint bundle's poses. The verified
+    matches stay (same keypoints), points are added, the message says how many and at what radius, and on this clean
+    dataset the estimate is not refused and lies inside its protection radius."""
+    tmp, camera, robot = rendered
+    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
+    T_true = np.linalg.inv(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
+    kw = dict(verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3)
+    plain, _ = locate_dataset(tmp / "ds", None, **kw)
+    res, rep = locate_dataset(tmp / "ds", None, guided=True, **kw)
+    assert plain.success and res.success and "guided matching (radius" in res.message
+    before = dict(zip(plain.used[0].tolist(), plain.used[1].tolist(), strict=True))
+    after = dict(zip(res.used[0].tolist(), res.used[1].tolist(), strict=True))
+    assert len(after) > len(before) and all(after[i] == x for i, x in before.items())
+    assert rep["integrity"] != "refused", rep["integrity_reasons"]
+    err_mm = np.linalg.norm(res.T_world_base[:3, 3] - T_true[:3, 3]) * 1e3
+    assert err_mm <= rep["protection_radius_mm"]
+
+
 def test_every_fault_damages_its_copy(rendered, tmp_path):
     tmp, camera, robot = rendered
     src = tmp / "ds"
