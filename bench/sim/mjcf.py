@@ -118,7 +118,7 @@ def robot_object(robot: Robot, eps=None, T_link5_mount=None, camera=None, name: 
         mount ``T_link5_cam`` (OpenCV optical frame in the link-5 frame of Eq. 188).
     """
     if robot.n != 6:
-        raise ValueError(f"robot: the MJCF generator builds a 6-joint arm, got {robot.n} joints")
+        raise ValueError(f"robot: the MuJoCo model builds a 6-joint arm, got {robot.n} joints")
     E = _check_eps(robot, eps)
     meshes = link_meshes(robot)
     files = {f"{name}_{k}.stl": stl_bytes(m) for k, m in meshes.items()}

@@ -59,9 +59,11 @@ class SceneObject:
     features: dict = field(default_factory=dict)
 
     def to_xml(self) -> str:
-        """The object alone as MJCF text (built into an empty spec): a fingerprint for tests and debugging."""
+        """The object alone as MJCF text (built into an empty spec), for reading: MuJoCo writes 6 significant digits
+        (:func:`scene_key` of a compiled scene is the exact fingerprint)."""
         spec = mujoco.MjSpec()
         spec.compiler.degree = False
+        spec.assets = _read_files([self])
         self.build(spec, spec.worldbody)
         return spec.to_xml()
 
