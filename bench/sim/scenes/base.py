@@ -58,15 +58,6 @@ class SceneObject:
     files: dict = field(default_factory=dict)
     features: dict = field(default_factory=dict)
 
-    def to_xml(self) -> str:
-        """The object alone as MJCF text (built into an empty spec), for reading: MuJoCo writes 6 significant digits
-        (:func:`scene_key` of a compiled scene is the exact fingerprint)."""
-        spec = mujoco.MjSpec()
-        spec.compiler.degree = False
-        spec.assets = _read_files([self])
-        self.build(spec, spec.worldbody)
-        return spec.to_xml()
-
 
 def pose(T) -> dict:
     """``pos`` and ``quat`` keyword arguments of a 4x4 rigid transform (MuJoCo quaternions are scalar first)."""
@@ -106,13 +97,11 @@ def add_geom(parent, name: str | None, kind: str, material: str, size=(), euler=
     return geom
 
 
-def add_texture_material(spec, name: str, file_name: str, specular=0.05, shininess=0.05, rgba=None) -> str:
+def add_texture_material(spec, name: str, file_name: str, specular=0.05, shininess=0.05) -> str:
     """A 2D texture ``name`` from the asset file ``file_name`` and a material ``name`` using it; returns ``name``."""
     spec.add_texture(name=name, type=mujoco.mjtTexture.mjTEXTURE_2D, file=file_name)
     mat = spec.add_material(name=name, specular=specular, shininess=shininess)
     mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = name
-    if rgba is not None:
-        mat.rgba = rgba
     return name
 
 
