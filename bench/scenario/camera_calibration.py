@@ -258,20 +258,19 @@ class TableRigScene:
     def __init__(self, camera: CameraModel, optics, table_model, rig, supersample: int, cache_dir=None,
                  z_min: float = 0.3, imaging=None):
         from bench.scenario.xy_table import OpticsCamera
-        from bench.sim.camera import mujoco_camera_xml
-        from bench.sim.scenes.base import SceneObject, compose
+        from bench.sim.camera import add_opencv_camera
+        from bench.sim.scenes.base import compose, place
         from bench.sim.scenes.xy_table import xy_table
 
-        def make_xml(spec):
-            cam_xml = mujoco_camera_xml(self.CAMERA, spec.K, spec.width, spec.height, np.eye(4))
-            table = xy_table(table_model, cam_xml)
+        def make_scene(spec):
+            table = xy_table(table_model, lambda body: add_opencv_camera(body, self.CAMERA, spec.K, spec.width,
+                                                                         spec.height, np.eye(4)))
             self.T_world_table = table.features["T_world_table"]
-            rig_body = SceneObject(f"{rig.name}_mocap", f'<body name="{rig.name}_mocap" mocap="true">\n'
-                                   f"{rig.worldbody_xml}</body>\n", rig.asset_xml, dict(rig.files), rig.features)
+            rig_body = place(rig, np.eye(4), f"{rig.name}_mocap", mocap=True)
             return compose([table, rig_body], offscreen=(spec.width, spec.height), center=self.T_world_table[:3, 3],
                            extent=3.0)
 
-        self.optics_camera = OpticsCamera(make_xml, camera, optics, supersample, cache_dir, self.CAMERA, z_min,
+        self.optics_camera = OpticsCamera(make_scene, camera, optics, supersample, cache_dir, self.CAMERA, z_min,
                                           imaging)
         self.model, self.data = self.optics_camera.model, self.optics_camera.data
         self.render_s = self.optics_camera.render_s

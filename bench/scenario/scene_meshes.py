@@ -123,8 +123,7 @@ class SceneMeshes:
 
         if max_texture_px < 8:
             raise ValueError(f"max_texture_px: expected >= 8 px, got {max_texture_px}")
-        xml, assets = compose(list(objects), offscreen=(64, 64))
-        self.model = mujoco.MjModel.from_xml_string(xml, assets=assets)
+        self.model = compose(list(objects), offscreen=(64, 64)).compile()
         self.data = mujoco.MjData(self.model)
         self.parts = self._parts(max_texture_px, sections)
 

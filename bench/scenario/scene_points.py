@@ -33,8 +33,7 @@ class SceneRays:
 
         from bench.sim.scenes.base import compose, place
 
-        xml, assets = compose([place(obj, T_frame_object)])
-        self.model = mujoco.MjModel.from_xml_string(xml, assets=assets)
+        self.model = compose([place(obj, T_frame_object)]).compile()
         self.data = mujoco.MjData(self.model)
         mujoco.mj_forward(self.model, self.data)
         self._geomid = np.zeros(1, np.int32)

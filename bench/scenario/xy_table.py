@@ -311,12 +311,12 @@ class OpticsCamera:
 
     The same stages as :class:`bench.sim.campaign.ArmScene` (which renders the arm's link-5 camera): supersampled
     pinhole render -> lens stage (in air) or lens + flat port -> medium and sensor chain -> 8-bit RGB.
-    ``make_xml(spec)`` returns ``(xml, assets)`` of a composed scene holding the MuJoCo camera ``name`` made by
-    :func:`~bench.sim.camera.mujoco_camera_xml` for the render ``spec`` (its K and size); :meth:`render` takes a
+    ``make_scene(spec)`` returns the ``MjSpec`` of a composed scene holding the MuJoCo camera ``name`` made by
+    :func:`~bench.sim.camera.add_opencv_camera` for the render ``spec`` (its K and size); :meth:`render` takes a
     function that sets the state of ``MjData`` and a key that determines that state.
     """
 
-    def __init__(self, make_xml, lens: CameraModel, optics, supersample: int, cache_dir=None, name="cam",
+    def __init__(self, make_scene, lens: CameraModel, optics, supersample: int, cache_dir=None, name="cam",
                  z_min: float = 0.3, imaging=None):
         import mujoco
 
@@ -324,6 +324,7 @@ class OpticsCamera:
         from bench.sim.flatport import FlatPortStage
         from bench.sim.imaging import ImagingChain
         from bench.sim.medium import cos_beam
+        from bench.sim.scenes.base import scene_key
 
         self.lens, self.optics, self.name = lens, optics, name
         if optics.port is None:
@@ -335,16 +336,12 @@ class OpticsCamera:
         u, v = np.meshgrid(np.arange(lens.width, dtype=float), np.arange(lens.height, dtype=float))
         self._rays = lens.unproject(np.stack([u, v], -1), normalize=False)
         self._cos = cos_beam(self._rays)
-        xml, assets = make_xml(self.spec)
-        self.model = mujoco.MjModel.from_xml_string(xml, assets=assets)
+        scene = make_scene(self.spec)
+        self.model = scene.compile()
         self.data = mujoco.MjData(self.model)
         from bench.sim.campaign import IMAGE_CHAIN_VERSION
 
-        h = hashlib.sha256(f"image chain {IMAGE_CHAIN_VERSION}".encode())  # a changed chain renders afresh
-        h.update(xml.encode())
-        for k in sorted(assets):
-            h.update(k.encode())
-            h.update(hashlib.sha256(assets[k]).digest())
+        h = scene_key(self.model, hashlib.sha256(f"image chain {IMAGE_CHAIN_VERSION}".encode()))  # a new chain: afresh
         h.update(np.ascontiguousarray(lens.K).tobytes())
         h.update(np.ascontiguousarray(lens.dist).tobytes())
         h.update(repr((lens.width, lens.height, supersample, optics.chain, optics.port)).encode())
@@ -489,7 +486,7 @@ def replay_reference_object(cfg, truth: dict):
 
 def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     """Simulate the campaign and write the dataset (with ``truth/``); returns the simulator's figures."""
-    from bench.sim.camera import mujoco_camera_xml
+    from bench.sim.camera import add_opencv_camera
     from bench.sim.scenes.base import compose, place
     from bench.sim.scenes.rig import calibration_rig
     from bench.sim.scenes.xy_table import DEFAULT_T_WORLD_TABLE, reference_pose, xy_table
@@ -520,8 +517,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     T_table_ref[[0, 2], 3] += aim[[0, 2]] - centre[[0, 2]]
     z_min = 0.5 * min(dist_m, s["calibration_distance_mm"] * 1e-3)
 
-    def table_xml(spec):
-        cam = mujoco_camera_xml("xy_cam", spec.K, spec.width, spec.height, T_mount_cam)
+    def table_scene(spec):
+        def cam(body):
+            add_opencv_camera(body, "xy_cam", spec.K, spec.width, spec.height, T_mount_cam)
         obj = xy_table(tm, cam, reference=ref_obj, T_table_reference=T_table_ref)
         return compose([obj], offscreen=(spec.width, spec.height), center=(0.0, dist_m / 2, 0.4), extent=2.0)
 
@@ -533,14 +531,15 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     cal_poses = _calibration_poses(s["calibration_views"], s["calibration_distance_mm"] * 1e-3, rng)
     T_world_cal = [DEFAULT_T_WORLD_TABLE @ homogeneous(np.eye(3), c_table) @ T for T in cal_poses]
 
-    def cal_xml(spec):
-        cam = mujoco_camera_xml("xy_cam", spec.K, spec.width, spec.height, np.eye(4))
-        extra = f'<body name="calcam" mocap="true">\n{cam}\n</body>\n'
+    def cal_scene(spec):
+        def extra(scene):
+            body = scene.worldbody.add_body(name="calcam", mocap=True)
+            add_opencv_camera(body, "xy_cam", spec.K, spec.width, spec.height, np.eye(4))
         return compose([place(rig, T_world_rig)], extra, offscreen=(spec.width, spec.height),
                        center=T_world_rig[:3, 3], extent=2.0)
 
-    scene = OpticsCamera(table_xml, lens, optics, s["supersample"], cache_dir, "xy_cam", z_min, profile)
-    cal_scene = OpticsCamera(cal_xml, lens, optics, s["supersample"], cache_dir, "xy_cam", z_min, profile)
+    scene = OpticsCamera(table_scene, lens, optics, s["supersample"], cache_dir, "xy_cam", z_min, profile)
+    cal_scene = OpticsCamera(cal_scene, lens, optics, s["supersample"], cache_dir, "xy_cam", z_min, profile)
     jadr = [scene.model.joint(n).qposadr[0] for n in tm.joint_names]
     images = {}
     n_total = len(numbers) + len(cal_poses)

@@ -3,7 +3,8 @@
 MuJoCo renders a pinhole camera whose frame looks along its −z axis with y up; the bench (and OpenCV) use an optical
 frame with x right, y down, z forward and pixel (0, 0) at the centre of the top-left pixel. The two frames differ by
 the fixed rotation :data:`R_MJCAM_CV` (x kept, y and z flipped). With the intrinsics given as
-``resolution="W H" sensorsize="W H" focal="fx fy" principal="px py"`` (one length unit per pixel) MuJoCo 4 projects a
+``resolution = (W, H)``, ``sensor_size = (W, H)``, ``focal_length = (fx, fy)``, ``principal_length = (px, py)``
+(one length unit per pixel; MJCF ``resolution``, ``sensorsize``, ``focal``, ``principal``) MuJoCo 4 projects a
 point ``(x, y, z)`` of the OpenCV frame to
 
     u = W/2 − px + fx x/z − 1/2,     v = H/2 − py + fy y/z − 1/2
@@ -33,7 +34,7 @@ R_MJCAM_CV = np.diag([1.0, -1.0, -1.0])
 
 
 def mujoco_camera_attributes(K, width: int, height: int) -> dict:
-    """MJCF ``<camera>`` intrinsic attributes that render the OpenCV pinhole ``K`` at ``width x height`` px.
+    """``mujoco.MjsCamera`` intrinsic fields that render the OpenCV pinhole ``K`` at ``width x height`` px.
 
     Parameters
     ----------
@@ -45,8 +46,8 @@ def mujoco_camera_attributes(K, width: int, height: int) -> dict:
     Returns
     -------
     dict
-        ``{"resolution": "W H", "sensorsize": "W H", "focal": "fx fy", "principal": "px py"}`` (sensor lengths in
-        pixels), with ``px = W/2 − 1/2 − cx`` and ``py = H/2 − 1/2 − cy``.
+        ``{"resolution": [W, H], "sensor_size": [W, H], "focal_length": [fx, fy], "principal_length": [px, py]}``
+        (sensor lengths in pixels), with ``px = W/2 − 1/2 − cx`` and ``py = H/2 − 1/2 − cy``.
     """
     K = np.asarray(K, dtype=float)
     if K.shape != (3, 3) or not np.all(np.isfinite(K)):
@@ -62,17 +63,16 @@ def mujoco_camera_attributes(K, width: int, height: int) -> dict:
             or width <= 0 or height <= 0:
         raise ValueError(f"image size: expected positive integers, got {width} x {height}")
     w, h = int(width), int(height)
-    px = w / 2 - 0.5 - K[0, 2]
-    py = h / 2 - 0.5 - K[1, 2]
-    return {"resolution": f"{w} {h}", "sensorsize": f"{w} {h}", "focal": f"{K[0, 0]:.17g} {K[1, 1]:.17g}",
-            "principal": f"{px:.17g} {py:.17g}"}
+    return {"resolution": [w, h], "sensor_size": [float(w), float(h)], "focal_length": [K[0, 0], K[1, 1]],
+            "principal_length": [w / 2 - 0.5 - K[0, 2], h / 2 - 0.5 - K[1, 2]]}
 
 
-def mujoco_camera_xml(name: str, K, width: int, height: int, T_parent_cam) -> str:
-    """A ``<camera>`` element reproducing the OpenCV camera ``K`` (no skew) at ``T_parent_cam`` (OpenCV frame).
+def add_opencv_camera(parent, name: str, K, width: int, height: int, T_parent_cam):
+    """Add to the ``mujoco.MjsBody`` ``parent`` a camera reproducing the OpenCV camera ``K`` (no skew).
 
     Parameters
     ----------
+    parent : mujoco.MjsBody
     name : str
     K : array_like (3, 3)
         Intrinsics (px) with ``K[0, 1] == 0``.
@@ -80,6 +80,10 @@ def mujoco_camera_xml(name: str, K, width: int, height: int, T_parent_cam) -> st
         Image size (px).
     T_parent_cam : array_like (4, 4)
         The optical frame (x right, y down, z forward) in the parent body's frame (m).
+
+    Returns
+    -------
+    mujoco.MjsCamera
     """
     from bench.geometry.quaternion import matrix_to_quaternion
     from bench.geometry.transforms import check_transform
@@ -88,11 +92,8 @@ def mujoco_camera_xml(name: str, K, width: int, height: int, T_parent_cam) -> st
     T = check_transform(T_parent_cam, "T_parent_cam")
     if T.shape != (4, 4):
         raise ValueError(f"T_parent_cam: expected one (4, 4) transform, got shape {T.shape}")
-    R_parent_mj = T[:3, :3] @ R_MJCAM_CV
-    pos = " ".join(f"{v:.17g}" for v in T[:3, 3])
-    quat = " ".join(f"{v:.17g}" for v in matrix_to_quaternion(R_parent_mj))
-    return f'<camera name="{name}" pos="{pos}" quat="{quat}" ' + " ".join(f'{k}="{v}"' for k, v in attrs.items()) \
-        + "/>"
+    return parent.add_camera(name=name, pos=T[:3, 3].copy(), quat=matrix_to_quaternion(T[:3, :3] @ R_MJCAM_CV),
+                             **attrs)
 
 
 def _camera_id(model, name: str) -> int:

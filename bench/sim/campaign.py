@@ -6,8 +6,8 @@ the lens stage (:class:`~bench.sim.distortion.DistortionStage`, camera in air) o
 (:class:`~bench.sim.flatport.FlatPortStage`, ray-traced through the housing's glass into water), then the medium and
 sensor chain (:func:`~bench.sim.medium.apply_medium`: lamp, attenuation and backscatter on the in-water path,
 forward scatter, shot and read noise, 8 bit, optional JPEG). Finished images are cached on disk
-by a content hash of everything that determines them (model XML and assets, joint angles, camera, optics, noise seed),
-so a sweep never renders the same view twice.
+by a content hash of everything that determines them (the compiled model, exactly; joint angles, camera, optics,
+noise seed), so a sweep never renders the same view twice.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from bench.sim.imaging import apparent_depth_m, finish_image
 from bench.sim.medium import MediumChain, cos_beam, path_length_m
 from bench.sim.mjcf import robot_object
 from bench.sim.render import SceneRenderer
-from bench.sim.scenes.base import compose, place
+from bench.sim.scenes.base import compose, place, scene_key
 
 #: Version of the image chain's algorithms, part of every render's cache key: bump it when a change of the code
 #: (not of a parameter, which the key already holds) changes the images. 2: sensor noise drawn per row band from
@@ -74,17 +74,13 @@ class ArmScene:
         self._path_per_z = path_length_m(np.ones(self._rays.shape[:2]), self._rays)
         arm = robot_object(robot, eps, T_link5_mount, (self.spec.K, self.spec.width, self.spec.height, T_link5_cam))
         self.objects = [place(arm, T_world_base, "ta40")] + list(objects)
-        xml, assets = compose(self.objects, offscreen=(self.spec.width, self.spec.height), center=(1.0, 0.0, 0.5),
-                              extent=4.0)
-        self.model = mujoco.MjModel.from_xml_string(xml, assets=assets)
+        scene = compose(self.objects, offscreen=(self.spec.width, self.spec.height), center=(1.0, 0.0, 0.5),
+                        extent=4.0)
+        self.model = scene.compile()
         self.data = mujoco.MjData(self.model)
         self.qadr = [self.model.jnt_qposadr[self.model.joint(f"joint{k}").id] for k in range(1, robot.n + 1)]
         self.chain = chain or MediumChain()
-        h = hashlib.sha256(f"image chain {IMAGE_CHAIN_VERSION}".encode())
-        h.update(xml.encode())
-        for k in sorted(assets):
-            h.update(k.encode())
-            h.update(hashlib.sha256(assets[k]).digest())
+        h = scene_key(self.model, hashlib.sha256(f"image chain {IMAGE_CHAIN_VERSION}".encode()))
         h.update(np.ascontiguousarray(camera.K).tobytes())
         h.update(np.ascontiguousarray(camera.dist).tobytes())
         h.update(repr((camera.width, camera.height, supersample, self.chain, port)).encode())

@@ -28,10 +28,9 @@ def kinematics_check(robot: Robot, eps, q) -> dict:
     import mujoco
 
     from bench.judge.pinocchio_model import pinocchio_frames
-    from bench.sim.mjcf import robot_mjcf
+    from bench.sim.mjcf import robot_spec
 
-    xml, assets = robot_mjcf(robot, eps)
-    m = mujoco.MjModel.from_xml_string(xml, assets=assets)
+    m = robot_spec(robot, eps).compile()
     d = mujoco.MjData(m)
     q = np.atleast_2d(q)
     F, P = link_frames(robot, q, eps), pinocchio_frames(robot, q, eps)
@@ -51,10 +50,10 @@ def marker_check(camera: CameraModel, supersample: int = 3, radius_m: float = 0.
     """Render a 5 x 5 grid of markers (corners included) through the lens stage; centroid vs projection (px)."""
     import mujoco
 
-    from bench.sim.camera import mujoco_camera_xml
+    from bench.sim.camera import add_opencv_camera
     from bench.sim.distortion import DistortionStage
     from bench.sim.render import SceneRenderer
-    from bench.sim.scenes.base import SceneObject, compose
+    from bench.sim.scenes.base import SceneObject, add_geom, compose
 
     stage = DistortionStage(camera, supersample)
     spec = stage.render_spec()
@@ -63,12 +62,16 @@ def marker_check(camera: CameraModel, supersample: int = 3, radius_m: float = 0.
     uv = np.array([[u, v] for u in np.linspace(0.04 * w, 0.96 * w, 5) for v in np.linspace(0.05 * h, 0.95 * h, 5)])
     depth = np.linspace(0.7, 1.1, len(uv))
     p_world = transform_points(T_world_cam, camera.unproject(uv, normalize=False) * depth[:, None])
-    body = "".join(f'<geom type="sphere" size="{radius_m}" pos="{p[0]:.17g} {p[1]:.17g} {p[2]:.17g}" '
-                   f'material="glow" contype="0" conaffinity="0"/>\n' for p in p_world)
-    obj = SceneObject("markers", body, '<material name="glow" rgba="1 1 1 1" emission="1"/>\n')
-    cam_xml = mujoco_camera_xml("probe", spec.K, spec.width, spec.height, T_world_cam)
-    xml, assets = compose([obj], cam_xml, offscreen=(spec.width, spec.height))
-    m = mujoco.MjModel.from_xml_string(xml, assets=assets)
+
+    def markers(scene, parent):
+        scene.add_material(name="glow", rgba=[1, 1, 1, 1], emission=1)
+        for p in p_world:
+            add_geom(parent, None, "sphere", "glow", [radius_m], pos=p, contype=0, conaffinity=0)
+
+    def probe(scene):
+        add_opencv_camera(scene.worldbody, "probe", spec.K, spec.width, spec.height, T_world_cam)
+
+    m = compose([SceneObject("markers", markers)], probe, offscreen=(spec.width, spec.height)).compile()
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
     with SceneRenderer(m, "probe", spec.width, spec.height) as r:

@@ -1,4 +1,5 @@
-"""MJCF of the TA-40 generated from ``models/ta40.yaml`` and a vector of generalized errors (exact SE(3) form).
+"""MuJoCo model (``mujoco.MjSpec``) of the TA-40 from ``models/ta40.yaml`` and a vector of generalized errors
+(exact SE(3) form).
 
 Body chain (the perturbed geometry lives in the body placements, Eq. 10 regrouped)::
 
@@ -16,21 +17,23 @@ Visual meshes come from :mod:`bench.sim.meshes` (in-memory STL assets); bodies c
 actuators so the model steps; visuals do not collide.
 
 Composition (the interface with the scenes): :func:`robot_object` returns the arm as a
-:class:`~bench.sim.scenes.base.SceneObject` (``worldbody_xml`` fragment, ``asset_xml`` fragment, in-memory ``files``),
-the same type every scene generator returns; :func:`scene_mjcf` places it at ``T_world_base`` with
-:func:`~bench.sim.scenes.base.place` and pastes any further scene objects next to it with
-:func:`~bench.sim.scenes.base.compose`. :func:`camera_mount_with_bias` makes the true mount from the nominal one.
+:class:`~bench.sim.scenes.base.SceneObject` (a ``build(spec, parent)`` function and in-memory STL ``files``), the
+same type every scene generator returns; :func:`scene_spec` places it at ``T_world_base`` with
+:func:`~bench.sim.scenes.base.place` among further scene objects with :func:`~bench.sim.scenes.base.compose`;
+:func:`robot_spec` is the scene-free model (actuators, ``home`` keyframe; ``spec.to_xml()`` is the committed
+``models/ta40/ta40.xml``). :func:`camera_mount_with_bias` makes the true mount from the nominal one.
 """
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 
 from bench.geometry.transforms import homogeneous, rot_x, rot_y, rot_z
 from bench.robot.model import Robot
-from bench.sim.camera import mujoco_camera_xml
+from bench.sim.camera import add_opencv_camera, mujoco_camera_attributes
 from bench.sim.meshes import camera_housing_mesh, link_meshes, stl_bytes
-from bench.sim.scenes.base import SceneObject, compose, fmt, place, pose_attrs
+from bench.sim.scenes.base import SceneObject, compose, place, pose
 
 #: The nominal camera mount on link 5 (Eq. 188 frame): the optical axis along the joint-6 axis (the approach
 #: direction), 120 mm to the side and 300 mm ahead of the wrist centre (clear of the jaws), rolled 180 deg so that
@@ -94,8 +97,9 @@ def _check_eps(robot: Robot, eps):
     return eps.reshape(robot.n + 1, 6)
 
 
-def _site(name, T, size=0.01, rgba="0.9 0.2 0.2 0.6"):
-    return f'<site name="{name}" {pose_attrs(T)} size="{size}" rgba="{rgba}" group="3"/>\n'
+def _site(body, name, T, size=0.01, rgba=(0.9, 0.2, 0.2, 0.6)):
+    site = body.add_site(name=name, rgba=rgba, group=3, **pose(T))
+    site.size[0] = size
 
 
 def robot_object(robot: Robot, eps=None, T_link5_mount=None, camera=None, name: str = "ta40") -> SceneObject:
@@ -114,64 +118,63 @@ def robot_object(robot: Robot, eps=None, T_link5_mount=None, camera=None, name: 
         mount ``T_link5_cam`` (OpenCV optical frame in the link-5 frame of Eq. 188).
     """
     if robot.n != 6:
-        raise ValueError(f"robot: the MJCF generator builds a 6-joint arm, got {robot.n} joints")
+        raise ValueError(f"robot: the MuJoCo model builds a 6-joint arm, got {robot.n} joints")
     E = _check_eps(robot, eps)
     meshes = link_meshes(robot)
     files = {f"{name}_{k}.stl": stl_bytes(m) for k, m in meshes.items()}
     files[f"{name}_camera.stl"] = stl_bytes(camera_housing_mesh())
-    asset = ['<material name="ta40_yellow" rgba="0.95 0.7 0.1 1" specular="0.3" shininess="0.3"/>\n',
-             '<material name="ta40_steel" rgba="0.55 0.57 0.6 1" specular="0.6" shininess="0.6"/>\n']
-    asset += [f'<mesh name="{name}_{k}" file="{name}_{k}.stl"/>\n' for k in meshes]
-    asset.append(f'<mesh name="{name}_camera" file="{name}_camera.stl"/>\n')
+    Tm = np.eye(4) if T_link5_mount is None else np.asarray(T_link5_mount, float)
+    if camera is not None:
+        mujoco_camera_attributes(*camera[:3])  # bad intrinsics are refused now, not when built
 
-    def geom(k, mat="ta40_yellow"):
-        return (f'<geom type="mesh" mesh="{name}_{k}" material="{mat}" contype="0" conaffinity="0" group="1" '
-                f'mass="0"/>\n')
+    def build(spec, parent):
+        spec.add_material(name="ta40_yellow", rgba=[0.95, 0.7, 0.1, 1], specular=0.3, shininess=0.3)
+        spec.add_material(name="ta40_steel", rgba=[0.55, 0.57, 0.6, 1], specular=0.6, shininess=0.6)
+        for k in [*meshes, "camera"]:
+            spec.add_mesh(name=f"{name}_{k}", file=f"{name}_{k}.stl")
 
-    def inertial(k):
-        return f'<inertial pos="0 0 0" mass="{_MASS[k]}" diaginertia="{fmt([_MASS[k] * 0.02] * 3)}"/>\n'
+        def body(parent, body_name, k, T=None):
+            return parent.add_body(name=body_name, mass=_MASS[k], inertia=[_MASS[k] * 0.02] * 3, ipos=[0, 0, 0],
+                                   explicitinertial=True, **({} if T is None else pose(T)))
 
-    body = [f'<body name="{name}_base">\n', inertial(0), geom("base", "ta40_steel"),
-            _site("frame0", error_transform(E[0]))]
-    closing = []
-    T_parent = error_transform(E[0])  # placement of link1 in the base body (before the joint offset)
-    for k in range(1, robot.n + 1):
-        S_k = dh_static(robot, k)
-        place = T_parent @ homogeneous(rot_z(robot.theta_offset[k - 1]), np.zeros(3))
-        lo, hi = robot.q_min[k - 1], robot.q_max[k - 1]  # rad (compiler angle="radian")
-        body.append(f'<body name="link{k}" {pose_attrs(place)}>\n')
-        body.append(inertial(k))
-        body.append(f'<joint name="joint{k}" type="hinge" axis="0 0 1" range="{lo:.17g} {hi:.17g}" damping="200" '
-                    f'armature="1"/>\n')
-        body.append(geom(f"link{k}", "ta40_steel" if k in (5, 6) else "ta40_yellow"))
-        F_k = S_k @ error_transform(E[k])
-        body.append(_site(f"frame{k}", F_k))
-        if k == 5:
-            body.append(_site("link5", S_k, 0.015, "0.2 0.9 0.2 0.6"))  # Eq. 188: before E5
-            Tm = np.eye(4) if T_link5_mount is None else np.asarray(T_link5_mount, float)
-            body.append(_site("camera_mount", S_k @ Tm, 0.012, "0.2 0.2 0.9 0.6"))
-            if camera is not None:
-                K, width, height, T_link5_cam = camera
-                T_body_cam = S_k @ np.asarray(T_link5_cam, float)
-                body.append(mujoco_camera_xml("link5_camera", K, width, height, T_body_cam) + "\n")
-                body.append(f'<geom type="mesh" mesh="{name}_camera" material="ta40_steel" {pose_attrs(T_body_cam)} '
-                            f'contype="0" conaffinity="0" group="1" mass="0"/>\n')
-        if k == robot.n:
-            body.append(_site("ee", F_k @ homogeneous(np.eye(3), robot.p_ee), 0.015, "0.9 0.9 0.2 0.8"))
-        closing.append("</body>\n")
-        T_parent = F_k
-    body += closing[::-1]
-    body.append("</body>\n")
+        def geom(b, k, mat="ta40_yellow", **kw):
+            b.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"{name}_{k}", material=mat, contype=0,
+                       conaffinity=0, group=1, mass=0, **kw)
+
+        b = body(parent, f"{name}_base", 0)
+        geom(b, "base", "ta40_steel")
+        _site(b, "frame0", error_transform(E[0]))
+        T_parent = error_transform(E[0])  # placement of link1 in the base body (before the joint offset)
+        for k in range(1, robot.n + 1):
+            S_k = dh_static(robot, k)
+            b = body(b, f"link{k}", k, T_parent @ homogeneous(rot_z(robot.theta_offset[k - 1]), np.zeros(3)))
+            b.add_joint(name=f"joint{k}", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1], damping=200, armature=1,
+                        range=[robot.q_min[k - 1], robot.q_max[k - 1]])  # rad (compiler angle radian)
+            geom(b, f"link{k}", "ta40_steel" if k in (5, 6) else "ta40_yellow")
+            F_k = S_k @ error_transform(E[k])
+            _site(b, f"frame{k}", F_k)
+            if k == 5:
+                _site(b, "link5", S_k, 0.015, (0.2, 0.9, 0.2, 0.6))  # Eq. 188: before E5
+                _site(b, "camera_mount", S_k @ Tm, 0.012, (0.2, 0.2, 0.9, 0.6))
+                if camera is not None:
+                    K, width, height, T_link5_cam = camera
+                    T_body_cam = S_k @ np.asarray(T_link5_cam, float)
+                    add_opencv_camera(b, "link5_camera", K, width, height, T_body_cam)
+                    geom(b, "camera", "ta40_steel", **pose(T_body_cam))
+            if k == robot.n:
+                _site(b, "ee", F_k @ homogeneous(np.eye(3), robot.p_ee), 0.015, (0.9, 0.9, 0.2, 0.8))
+            T_parent = F_k
+
     features = {"joint_names": [f"joint{k}" for k in range(1, robot.n + 1)], "eps": E.ravel().copy()}
-    return SceneObject(name=name, worldbody_xml="".join(body), asset_xml="".join(asset), files=files,
-                       features=features)
+    return SceneObject(name=name, build=build, files=files, features=features)
 
 
-def actuators_xml(robot: Robot) -> str:
-    """Position actuators for joint1..joint6 (so the standalone model holds a pose under gravity)."""
-    rows = [f'<position name="act{k}" joint="joint{k}" kp="{_KP[k - 1]}" kv="{0.2 * _KP[k - 1]:.6g}" '
-            f'ctrlrange="{robot.q_min[k - 1]:.17g} {robot.q_max[k - 1]:.17g}"/>\n' for k in range(1, robot.n + 1)]
-    return "<actuator>\n" + "".join(rows) + "</actuator>\n"
+def add_actuators(spec, robot: Robot) -> None:
+    """Position actuators ``act1`` .. ``act6`` on joint1..joint6 (so the model holds a pose under gravity)."""
+    for k in range(1, robot.n + 1):
+        act = spec.add_actuator(name=f"act{k}", target=f"joint{k}", trntype=mujoco.mjtTrn.mjTRN_JOINT,
+                                ctrlrange=[robot.q_min[k - 1], robot.q_max[k - 1]])
+        act.set_to_position(kp=_KP[k - 1], kv=_KP[k - 1] / 5)
 
 
 def home_configuration(robot: Robot) -> np.ndarray:
@@ -180,26 +183,33 @@ def home_configuration(robot: Robot) -> np.ndarray:
     return np.clip(q, robot.q_min, robot.q_max)
 
 
-def robot_mjcf(robot: Robot, eps=None, T_link5_mount=None, camera=None, model_name: str = "ta40",
-               mesh_dir: str | None = None) -> tuple:
-    """The scene-free robot model: ``(xml, assets)`` for ``mujoco.MjModel.from_xml_string(xml, assets=assets)``.
+def robot_spec(robot: Robot, eps=None, T_link5_mount=None, camera=None, model_name: str = "ta40",
+               mesh_dir: str | None = None) -> mujoco.MjSpec:
+    """The scene-free robot model as an ``MjSpec`` (``spec.compile()`` gives the ``MjModel``).
 
-    Base at the world origin; position actuators; a ``home`` keyframe. ``mesh_dir`` makes the mesh files relative
-    to a folder (for the committed ``models/ta40/ta40.xml``) instead of in-memory assets.
+    Base at the world origin; position actuators; a ``home`` keyframe. The STL meshes are in-memory assets
+    (``spec.assets``), or, with ``mesh_dir``, files relative to that folder (for the committed
+    ``models/ta40/ta40.xml``; ``spec.assets`` then still holds them for compiling in memory).
     """
     obj = robot_object(robot, eps, T_link5_mount, camera)
+    spec = mujoco.MjSpec()
+    spec.modelname = model_name
+    spec.compiler.degree = False
+    if mesh_dir:
+        spec.meshdir = mesh_dir
+    spec.option.timestep = 0.002
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.assets = dict(obj.files)
+    obj.build(spec, spec.worldbody)
+    add_actuators(spec, robot)
     q = home_configuration(robot)
-    compiler = f'<compiler angle="radian" meshdir="{mesh_dir}"/>' if mesh_dir else '<compiler angle="radian"/>'
-    xml = (f'<mujoco model="{model_name}">\n{compiler}\n<option timestep="0.002" integrator="implicitfast"/>\n'
-           f'<asset>\n{obj.asset_xml}</asset>\n<worldbody>\n{obj.worldbody_xml}</worldbody>\n'
-           f'{actuators_xml(robot)}<keyframe>\n<key name="home" qpos="{fmt(q)}" ctrl="{fmt(q)}"/>\n</keyframe>\n'
-           "</mujoco>\n")
-    return xml, dict(obj.files)
+    spec.add_key(name="home", qpos=q, ctrl=q)
+    return spec
 
 
-def scene_mjcf(robot: Robot, eps=None, T_world_base=None, objects=(), T_link5_mount=None, camera=None,
-               offscreen=(1280, 960), center=(1.0, 0.0, 0.5), extent=4.0, actuators: bool = False) -> tuple:
-    """The arm placed at ``T_world_base`` among scene objects: ``(xml, assets)`` for ``MjModel.from_xml_string``.
+def scene_spec(robot: Robot, eps=None, T_world_base=None, objects=(), T_link5_mount=None, camera=None,
+               offscreen=(1280, 960), center=(1.0, 0.0, 0.5), extent=4.0, actuators: bool = False) -> mujoco.MjSpec:
+    """The arm placed at ``T_world_base`` (body ``ta40``) among scene objects, as an ``MjSpec``.
 
     Parameters
     ----------
@@ -208,8 +218,8 @@ def scene_mjcf(robot: Robot, eps=None, T_world_base=None, objects=(), T_link5_mo
     T_world_base : array_like (4, 4), optional
         The robot base frame O0 in the world (m); identity if omitted.
     objects : iterable of SceneObject
-        Further scene objects, already placed in the world (``bench.sim.scenes.base.place``): each brings a
-        ``<worldbody>`` fragment, ``<asset>`` entries and its asset files; names must be unique and prefixed.
+        Further scene objects, already placed in the world (``bench.sim.scenes.base.place``); names must be
+        unique.
     offscreen, center, extent
         Passed to :func:`bench.sim.scenes.base.compose` (framebuffer size; free/overview camera framing).
     actuators : bool
@@ -217,8 +227,7 @@ def scene_mjcf(robot: Robot, eps=None, T_world_base=None, objects=(), T_link5_mo
     """
     T = np.eye(4) if T_world_base is None else T_world_base
     arm = place(robot_object(robot, eps, T_link5_mount, camera), T, "ta40")
-    xml, assets = compose([arm, *objects], offscreen=offscreen, center=center, extent=extent)
+    spec = compose([arm, *objects], offscreen=offscreen, center=center, extent=extent)
     if actuators:
-        end = xml.rindex("</mujoco>")
-        xml = xml[:end] + actuators_xml(robot) + xml[end:]
-    return xml, assets
+        add_actuators(spec, robot)
+    return spec

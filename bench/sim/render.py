@@ -170,7 +170,7 @@ class Renderer:
     Parameters
     ----------
     model : mujoco.MjModel
-        A compiled scene (e.g. :func:`bench.sim.mjcf.scene_mjcf`). Its offscreen buffer is enlarged if it is smaller
+        A compiled scene (e.g. of :func:`bench.sim.mjcf.scene_spec`). Its offscreen buffer is enlarged if it is smaller
         than the supersampled frame.
     camera : str
         Camera name (default the arm's ``link5_camera``).

@@ -295,16 +295,18 @@ def test_render_cache_key_follows_the_image_chain_version(monkeypatch):
 
     lens, optics = load_preset("air_webcam"), optics_preset("air_webcam")
 
-    def make_xml(spec):
-        from bench.sim.camera import mujoco_camera_xml
+    def make_scene(spec):
+        from bench.sim.camera import add_opencv_camera
 
-        cam = mujoco_camera_xml("c", spec.K, spec.width, spec.height, np.eye(4))
-        return compose([], f'<body name="b" mocap="true">\n{cam}\n</body>\n', offscreen=(spec.width, spec.height))
+        def extra(scene):
+            add_opencv_camera(scene.worldbody.add_body(name="b", mocap=True), "c", spec.K, spec.width, spec.height,
+                              np.eye(4))
+        return compose([], extra, offscreen=(spec.width, spec.height))
 
-    key = xy_table.OpticsCamera(make_xml, lens, optics, 1, None, "c")._key
-    assert xy_table.OpticsCamera(make_xml, lens, optics, 1, None, "c")._key == key
+    key = xy_table.OpticsCamera(make_scene, lens, optics, 1, None, "c")._key
+    assert xy_table.OpticsCamera(make_scene, lens, optics, 1, None, "c")._key == key
     monkeypatch.setattr(campaign, "IMAGE_CHAIN_VERSION", campaign.IMAGE_CHAIN_VERSION + 1)
-    assert xy_table.OpticsCamera(make_xml, lens, optics, 1, None, "c")._key != key
+    assert xy_table.OpticsCamera(make_scene, lens, optics, 1, None, "c")._key != key
 
 
 def test_intrinsics_prior_takes_the_rig_tolerances(webcam, tmp_path):

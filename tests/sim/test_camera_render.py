@@ -14,9 +14,9 @@ from bench.geometry.transforms import homogeneous, invert, rot_x, rot_z, transfo
 from bench.robot.model import random_errors  # noqa: E402
 from bench.robot.orientation import link5_frame  # noqa: E402
 from bench.sim.camera import mujoco_camera_attributes, opencv_intrinsics  # noqa: E402
-from bench.sim.mjcf import NOMINAL_T_LINK5_CAM, camera_mount_with_bias, home_configuration, scene_mjcf  # noqa: E402
+from bench.sim.mjcf import NOMINAL_T_LINK5_CAM, camera_mount_with_bias, home_configuration, scene_spec  # noqa: E402
 from bench.sim.render import Renderer, check_gl  # noqa: E402
-from bench.sim.scenes.base import SceneObject  # noqa: E402
+from bench.sim.scenes.base import SceneObject, add_geom  # noqa: E402
 from bench.vision.handeye import mount_rotation  # noqa: E402
 
 W, H = 640, 480
@@ -43,14 +43,17 @@ class MarkerScene:
         x_n = np.c_[(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(uv))]
         self.p_world = transform_points(self.T_world_cam, x_n * self.z[:, None])
         # a disc parallel to the image plane projects to a circle centred on the projection of its centre
-        quat = " ".join(f"{c:.17g}" for c in matrix_to_quaternion(self.T_world_cam[:3, :3]))
+        quat = matrix_to_quaternion(self.T_world_cam[:3, :3])
         radius = MARKER_RADIUS_PX * self.z / K[0, 0]
-        body = "".join(f'<geom type="cylinder" size="{r:.17g} 0.0002" pos="{p[0]:.17g} {p[1]:.17g} {p[2]:.17g}" '
-                       f'quat="{quat}" material="marker_glow" contype="0" conaffinity="0"/>\n'
-                       for p, r in zip(self.p_world, radius, strict=True))
-        markers = SceneObject("marker", body, '<material name="marker_glow" rgba="1 1 1 1" emission="1"/>\n')
-        xml, assets = scene_mjcf(robot, self.eps, T_WORLD_BASE, [markers], camera=(K, W, H, self.T_link5_cam))
-        self.model = mujoco.MjModel.from_xml_string(xml, assets=assets)
+
+        def build(spec, parent):
+            spec.add_material(name="marker_glow", rgba=[1, 1, 1, 1], emission=1)
+            for p, r in zip(self.p_world, radius, strict=True):
+                add_geom(parent, None, "cylinder", "marker_glow", [r, 0.0002], pos=p, quat=quat, contype=0,
+                         conaffinity=0)
+
+        markers = SceneObject("marker", build)
+        self.model = scene_spec(robot, self.eps, T_WORLD_BASE, [markers], camera=(K, W, H, self.T_link5_cam)).compile()
 
     def analytic_uv(self):
         """The OpenCV pinhole projection of the marker centres (px)."""
@@ -168,8 +171,8 @@ def test_mount_bias_is_eq197_in_the_nominal_optical_frame():
 
 def test_camera_attributes_convention():
     a = mujoco_camera_attributes(K, W, H)
-    assert a["resolution"] == "640 480" and a["sensorsize"] == "640 480" and a["focal"] == "612 588"
-    assert np.allclose([float(x) for x in a["principal"].split()], [W / 2 - 0.5 - 301.3, H / 2 - 0.5 - 252.6])
+    assert a["resolution"] == [640, 480] and a["sensor_size"] == [640, 480] and a["focal_length"] == [612, 588]
+    assert np.allclose(a["principal_length"], [W / 2 - 0.5 - 301.3, H / 2 - 0.5 - 252.6])
     m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><camera name="c" fovy="45"/></worldbody></mujoco>')
     Kf = opencv_intrinsics(m, "c", W, H)  # a fovy camera: square pixels, centred principal point
     assert np.allclose(Kf, [[240 / np.tan(np.pi / 8), 0, 319.5], [0, 240 / np.tan(np.pi / 8), 239.5], [0, 0, 1]])

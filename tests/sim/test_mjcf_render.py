@@ -14,9 +14,9 @@ from bench.judge.pinocchio_model import pinocchio_frames  # noqa: E402
 from bench.robot.kinematics import link_frames  # noqa: E402
 from bench.robot.model import random_errors  # noqa: E402
 from bench.robot.orientation import link5_frame  # noqa: E402
-from bench.sim.camera import camera_pose_cv, mujoco_camera_xml  # noqa: E402
+from bench.sim.camera import add_opencv_camera, camera_pose_cv  # noqa: E402
 from bench.sim.checks import kinematics_check, marker_check  # noqa: E402
-from bench.sim.mjcf import robot_mjcf  # noqa: E402
+from bench.sim.mjcf import robot_spec  # noqa: E402
 
 T_LINK5_CAM = homogeneous(rot_x(0.01) @ rot_y(-0.02), [0.1, 0.02, 0.2])
 
@@ -31,8 +31,7 @@ def test_mujoco_sites_equal_fk_and_pinocchio(ta40, perturbed):
     rng = np.random.default_rng(81)
     eps = random_errors(rng) if perturbed else None
     cam = load_preset("air_webcam")
-    xml, assets = robot_mjcf(ta40, eps, np.eye(4), (cam.K, cam.width, cam.height, T_LINK5_CAM))
-    m = mujoco.MjModel.from_xml_string(xml, assets=assets)
+    m = robot_spec(ta40, eps, np.eye(4), (cam.K, cam.width, cam.height, T_LINK5_CAM)).compile()
     d = mujoco.MjData(m)
     Q = ta40.random_configurations(rng, 200)
     F, P = link_frames(ta40, Q, eps), pinocchio_frames(ta40, Q, eps)
@@ -51,8 +50,7 @@ def test_mujoco_sites_equal_fk_and_pinocchio(ta40, perturbed):
 
 
 def test_model_compiles_and_steps_without_warnings(ta40):
-    xml, assets = robot_mjcf(ta40, random_errors(np.random.default_rng(82)))
-    m = mujoco.MjModel.from_xml_string(xml, assets=assets)
+    m = robot_spec(ta40, random_errors(np.random.default_rng(82))).compile()
     d = mujoco.MjData(m)
     mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
     for _ in range(500):
@@ -77,10 +75,12 @@ def test_kinematics_check_reports_exact_agreement(ta40):
 def test_skew_and_bad_intrinsics_are_refused(ta40):
     K = np.array([[700.0, 1.0, 320.0], [0.0, 700.0, 240.0], [0.0, 0.0, 1.0]])
     with pytest.raises(ValueError, match="skew"):
-        mujoco_camera_xml("c", K, 640, 480, np.eye(4))
+        add_opencv_camera(mujoco.MjSpec().worldbody, "c", K, 640, 480, np.eye(4))
     with pytest.raises(ValueError, match="fx, fy > 0"):
-        mujoco_camera_xml("c", np.diag([-1.0, 1.0, 1.0]), 640, 480, np.eye(4))
+        add_opencv_camera(mujoco.MjSpec().worldbody, "c", np.diag([-1.0, 1.0, 1.0]), 640, 480, np.eye(4))
+    with pytest.raises(ValueError, match="skew"):
+        robot_spec(ta40, camera=(K, 640, 480, np.eye(4)))
     with pytest.raises(ValueError, match="eps"):
-        robot_mjcf(ta40, np.zeros(41))
+        robot_spec(ta40, np.zeros(41))
     with pytest.raises(ValueError, match="eps"):
-        robot_mjcf(ta40, np.full(42, np.nan))
+        robot_spec(ta40, np.full(42, np.nan))

@@ -13,7 +13,17 @@ import pytest  # noqa: E402
 from bench.errors import ConfigError  # noqa: E402
 from bench.geometry.transforms import homogeneous, rot_x, rot_z  # noqa: E402
 from bench.sim.scenes import textures as tx  # noqa: E402
-from bench.sim.scenes.base import SceneObject, box_mesh_xml, compose, look_at_camera_xml, place, save_scene  # noqa: E402
+from bench.sim.scenes.base import (  # noqa: E402
+    SceneObject,
+    add_geom,
+    add_look_at_camera,
+    add_texture_material,
+    box_mesh,
+    compose,
+    place,
+    save_scene,
+    scene_key,
+)
 from bench.sim.scenes.desk_robot import FACES as DESK_FACES  # noqa: E402
 from bench.sim.scenes.desk_robot import desk_robot  # noqa: E402
 from bench.sim.scenes.panel import manifold_panel  # noqa: E402
@@ -39,12 +49,26 @@ W, H = 640, 480
 SIFT_ARGS = dict(contrastThreshold=0.03, edgeThreshold=10)
 
 
-def _model(objects, extra=""):
-    xml, assets = compose(objects, extra)
-    m = mujoco.MjModel.from_xml_string(xml, assets=assets)
+def _model(objects, extra=None):
+    m = compose(objects, extra).compile()
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
     return m, d
+
+
+def _look(name, eye, target, fovy=45.0, up=(0.0, 0.0, 1.0)):
+    """``compose``'s ``extra``: a look-at camera in the world."""
+    return lambda spec: add_look_at_camera(spec.worldbody, name, eye, target, fovy, up)
+
+
+def _key(obj) -> str:
+    """The exact fingerprint of an object: its compiled standalone scene (MJB)."""
+    return scene_key(compose([obj]).compile()).hexdigest()
+
+
+#: a camera in the x-y table's mount looking along the mount's z with image y down (the OpenCV optical frame)
+def _table_cam(body):
+    add_look_at_camera(body, "cam", [0, 0, 0], [0, 0, 1], 27.6, up=(0, -1, 0))
 
 
 def _render(m, d, camera, depth=False):
@@ -90,19 +114,38 @@ def test_textures_seeded():
 
 
 def test_box_mesh_uv_orientation():
-    """The image's top-left lands on the face's (-x, +y) corner (the convention of box_mesh_xml)."""
+    """The image's top-left lands on the face's (-x, +y) corner (the convention of box_mesh)."""
     img = np.zeros((64, 64, 3), np.uint8)
     img[:32, :32] = (0, 0, 255)  # top-left red (BGR)
     img[32:, 32:] = (255, 0, 0)  # bottom-right blue
-    obj = SceneObject("q", '<geom name="q" type="mesh" mesh="q" material="q"/>\n',
-                      box_mesh_xml("q", (0.1, 0.1, 0.001)) + '<texture name="q" type="2d" file="q.png"/>'
-                      '<material name="q" texture="q" specular="0"/>', {"q.png": tx.encode_png(img)})
-    m, d = _model([obj], look_at_camera_xml("c", [0, 0, 0.5], [0, 0, 0], 45.0, up=(0, 1, 0)))
+    def build(spec, parent):
+        spec.add_mesh(**box_mesh("q", (0.1, 0.1, 0.001)))
+        add_texture_material(spec, "q", "q.png", specular=0.0, shininess=0.5)
+        add_geom(parent, "q", "mesh", "q", meshname="q")
+
+    obj = SceneObject("q", build, {"q.png": tx.encode_png(img)})
+    m, d = _model([obj], _look("c", [0, 0, 0.5], [0, 0, 0], up=(0, 1, 0)))
     px = _render(m, d, "c").astype(int)
     K, T = _pinhole(m, d, "c")
     (u_tl, v_tl), (u_br, v_br) = _project(K, T, [[-0.05, 0.05, 0.001], [0.05, -0.05, 0.001]])[0].round().astype(int)
     assert px[v_tl, u_tl, 0] > 150 and px[v_tl, u_tl, 2] < 60  # red (RGB render)
     assert px[v_br, u_br, 2] > 150 and px[v_br, u_br, 0] < 60  # blue
+
+
+def test_bad_scene_input_is_refused_in_one_line(tmp_path):
+    def sphere(spec, parent):
+        add_geom(parent, "g", "sphere", "", [0.1])
+
+    cases = [(ValueError, "lid: box half sizes must be positive", lambda: box_mesh("lid", (0.1, 0.0, 0.1))),
+             (ValueError, "scene object names must be unique", lambda: compose([SceneObject("a", sphere)] * 2)),
+             (ValueError, "repeated name 'g' in geom",  # MuJoCo's API refuses a name used twice
+              lambda: compose([SceneObject("a", sphere), SceneObject("b", sphere)])),
+             (ConfigError, "a: x.png: asset file not found",
+              lambda: compose([SceneObject("a", sphere, {"x.png": tmp_path / "x.png"})]))]
+    for exc, message, call in cases:
+        with pytest.raises(exc, match=message) as info:
+            call()
+        assert "\n" not in str(info.value)
 
 
 # --------------------------------------------------------------------------------------------------------- panel
@@ -115,7 +158,7 @@ def panel():
 def panel_view(panel):
     """The panel upright in the world (face normal -> world -y), a camera 1 m in front; colour and depth."""
     T_world_panel = homogeneous(rot_x(np.pi / 2), [0.0, 0.0, 0.6])
-    cam = look_at_camera_xml("view", [0.03, -1.0, 0.62], [0.0, 0.0, 0.6], 45.0)
+    cam = _look("view", [0.03, -1.0, 0.62], [0.0, 0.0, 0.6])
     m, d = _model([place(panel, T_world_panel)], cam)
     return m, d, T_world_panel, _render(m, d, "view"), _render(m, d, "view", depth=True)
 
@@ -123,9 +166,9 @@ def panel_view(panel):
 def test_panel_seeded(panel):
     again = manifold_panel(np.random.default_rng(11))
     other = manifold_panel(np.random.default_rng(12))
-    assert again.worldbody_xml == panel.worldbody_xml and again.files == panel.files
+    assert _key(again) == _key(panel) and again.files == panel.files
     assert other.files["panel_backplate.png"] != panel.files["panel_backplate.png"]
-    assert other.worldbody_xml != panel.worldbody_xml
+    assert _key(replace(other, files=panel.files)) != _key(panel)  # the layout differs, not only the textures
 
 
 def test_panel_features(panel):
@@ -192,8 +235,7 @@ def test_panel_texture_override(tmp_path):
 
 
 def test_save_scene_loads_from_path(tmp_path, panel):
-    xml, assets = compose([panel])
-    path = save_scene(xml, assets, tmp_path / "scene")
+    path = save_scene(compose([panel]), tmp_path / "scene")
     m = mujoco.MjModel.from_xml_path(str(path))
     assert m.ntex == len(panel.files)
 
@@ -238,7 +280,7 @@ def test_rig_corners_project_onto_detections():
     rig = calibration_rig()
     T_wr = homogeneous(rot_z(np.deg2rad(-135.0)), [0.0, 0.0, 0.3])  # concave side towards world -y
     centre = _to_world(T_wr, [0.1, 0.1, 0.12])
-    m, d = _model([place(rig, T_wr)], look_at_camera_xml("view", centre + [0.06, -0.55, 0.1], centre, 45.0))
+    m, d = _model([place(rig, T_wr)], _look("view", centre + [0.06, -0.55, 0.1], centre))
     gray = cv2.cvtColor(_render(m, d, "view"), cv2.COLOR_RGB2GRAY)
     K, T_wc = _pinhole(m, d, "view")
     uv, _ = _project(K, T_wc, _to_world(T_wr, rig.features["corners"]))
@@ -255,7 +297,7 @@ def test_planar_board_oblique_view():
     board = planar_board(7, 9, 0.025, name="pb")
     T_wb = homogeneous(rot_x(-np.pi / 2) @ rot_z(0.2), [0.0, 0.0, 0.4])  # board z (into board) -> world +y
     centre = _to_world(T_wb, [0.1125, 0.0875, 0.0])
-    m, d = _model([place(board, T_wb)], look_at_camera_xml("view", centre + [0.25, -0.45, 0.12], centre, 45.0))
+    m, d = _model([place(board, T_wb)], _look("view", centre + [0.25, -0.45, 0.12], centre))
     gray = cv2.cvtColor(_render(m, d, "view"), cv2.COLOR_RGB2GRAY)
     K, T_wc = _pinhole(m, d, "view")
     uv, _ = _project(K, T_wc, _to_world(T_wb, board.features["corners"]))
@@ -346,7 +388,8 @@ def test_table_mjcf_matches_model_and_sees_the_rig():
     tm = underwater_table_model(random_table_errors(np.random.default_rng(8)))
     fovy = float(np.rad2deg(2 * np.arctan(240 / 510.06)))  # Table 9's f = 510 px at 480 rows
     rig = calibration_rig()
-    obj = xy_table(tm, f'<camera name="cam" xyaxes="1 0 0 0 -1 0" fovy="{fovy!r}"/>', reference=rig)
+    obj = xy_table(tm, lambda b: add_look_at_camera(b, "cam", [0, 0, 0], [0, 0, 1], fovy, up=(0, -1, 0)),
+                   reference=rig)
     m, d = _model([obj])
     run = tm.run(table10_commands())
     T_wt, T_tr = obj.features["T_world_table"], obj.features["T_table_reference"]
@@ -373,7 +416,7 @@ def test_table_mjcf_matches_model_and_sees_the_rig():
 
 def test_lab_table_with_panel_reference_compiles():
     panel = manifold_panel(np.random.default_rng(2), 0.6, 0.45, name="ref")
-    obj = xy_table(lab_table_model(), '<camera name="cam" xyaxes="1 0 0 0 -1 0" fovy="27.6"/>', reference=panel)
+    obj = xy_table(lab_table_model(), _table_cam, reference=panel)
     assert np.allclose(obj.features["T_table_reference"][:3, 3], [0, 0, 0.7])
     m, d = _model([obj])
     img = _render(m, d, "cam")
@@ -385,8 +428,8 @@ def test_lab_table_with_panel_reference_compiles():
 def test_desk_robot_seeded_with_known_faces():
     a, b = desk_robot(np.random.default_rng(3)), desk_robot(np.random.default_rng(3))
     other = desk_robot(np.random.default_rng(4))
-    assert a.worldbody_xml == b.worldbody_xml and a.files == b.files
-    assert other.worldbody_xml != a.worldbody_xml  # the posture varies by seed
+    assert _key(a) == _key(b) and a.files == b.files
+    assert _key(replace(other, files=a.files)) != _key(a)  # the posture varies by seed, not only the textures
     assert set(a.features["faces"]) == set(DESK_FACES) and all(f"ref_{f}.png" in a.files for f in DESK_FACES)
     with pytest.raises(ConfigError, match="nosuchface"):
         desk_robot(np.random.default_rng(3), texture_overrides={"nosuchface": "x.png"})
@@ -397,16 +440,18 @@ def test_desk_robot_on_the_lab_table_has_relief_keypoints_and_highlights():
     and the ceiling lamp's specular highlights on the metal (the same scene with a lamp of no specular is darker
     there, and only there: the matte wall does not change)."""
     robot = desk_robot(np.random.default_rng(2))
-    cam = '<camera name="cam" xyaxes="1 0 0 0 -1 0" fovy="27.6"/>'
-    m, d = _model([xy_table(lab_table_model(), cam, reference=robot)])
+    m, d = _model([xy_table(lab_table_model(), _table_cam, reference=robot)])
     img, depth = _render(m, d, "cam"), _render(m, d, "cam", depth=True)
     n = len(cv2.SIFT_create(**SIFT_ARGS).detect(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY), None))
     assert n >= 300, n
     near, far = np.percentile(depth, [2, 98])
     assert near < 0.75 and far > 1.1, (near, far)  # the arm at 0.7-0.9 m, the wall 1.15 m away
-    dull = replace(robot, worldbody_xml=robot.worldbody_xml.replace('specular="0.7 0.7 0.7"', 'specular="0 0 0"'))
-    assert dull.worldbody_xml != robot.worldbody_xml
-    m2, d2 = _model([xy_table(lab_table_model(), cam, reference=dull)])
+    dull = compose([xy_table(lab_table_model(), _table_cam, reference=robot)])
+    assert np.allclose(dull.light("ref_lamp").specular, 0.7)  # the lamp as desk_robot makes it
+    dull.light("ref_lamp").specular = [0.0] * 3
+    m2 = dull.compile()
+    d2 = mujoco.MjData(m2)
+    mujoco.mj_forward(m2, d2)
     diff = img.astype(float).sum(-1) - _render(m2, d2, "cam").astype(float).sum(-1)
     assert diff.min() > -1e-9 and np.percentile(diff, 99.5) > 30  # highlights: bright, on a small part of the view
     assert np.mean(diff > 30) < 0.2
@@ -442,7 +487,7 @@ def test_cockled_board_renders_where_its_corners_are():
                                                           "dz_m": e["dz_m"]["a"]})
     T_wb = homogeneous(rot_x(-np.pi / 2) @ rot_z(0.2), [0.0, 0.0, 0.4])
     centre = _to_world(T_wb, [0.0875, 0.0875, 0.0])
-    m, d = _model([place(board, T_wb)], look_at_camera_xml("view", centre + [0.25, -0.35, 0.12], centre, 45.0))
+    m, d = _model([place(board, T_wb)], _look("view", centre + [0.25, -0.35, 0.12], centre))
     gray = cv2.cvtColor(_render(m, d, "view"), cv2.COLOR_RGB2GRAY)
     K, T_wc = _pinhole(m, d, "view")
     uv, _ = _project(K, T_wc, _to_world(T_wb, board.features["corners"]))

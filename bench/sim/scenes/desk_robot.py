@@ -31,12 +31,12 @@ from bench.geometry.transforms import homogeneous
 from bench.sim.scenes import textures as tx
 from bench.sim.scenes.base import (
     SceneObject,
-    box_mesh_xml,
-    disc_mesh_xml,
-    fmt,
+    add_geom,
+    add_texture_material,
+    box_mesh,
+    disc_mesh,
     frame_from_axis,
-    pose_attrs,
-    texture_material_xml,
+    pose,
 )
 
 #: texture density (px per metre of surface): ~2x what the webcam resolves at 0.7 m (975 px / 0.7 m)
@@ -197,7 +197,7 @@ def desk_robot(rng: np.random.Generator, name: str = "ref", texture_overrides=No
     rng : numpy.random.Generator
         Every random choice (the arm's posture within a few degrees, textures) is drawn from it.
     name : str
-        Object name, prefix of every MJCF name.
+        Object name, prefix of every MuJoCo name.
     texture_overrides : dict[str, path] or None
         Replace a face's texture by any image file (resized to the face's texture size); keys: :data:`FACES`.
 
@@ -209,42 +209,36 @@ def desk_robot(rng: np.random.Generator, name: str = "ref", texture_overrides=No
     unknown = sorted(set(overrides) - set(FACES))
     if unknown:
         raise ConfigError("texture_overrides", unknown[0], f"unknown face; known faces: {', '.join(FACES)}")
-    assets, bodies, files = [], [], {}
+    materials, meshes, geoms, files = [], [], [], {}
 
-    def material(face, img, spec):
+    def textured(face, mesh, img, spec, **kw):
+        """A geom ``<name>_<face>`` of ``mesh`` (``spec.add_mesh`` arguments) carrying ``img``."""
         if face in overrides:
             user = tx.load_image_file(overrides[face], f"texture_overrides.{face}")
             img = cv2.resize(user, (img.shape[1], img.shape[0]), interpolation=cv2.INTER_AREA)
         files[f"{name}_{face}.png"] = tx.encode_png(img)
-        assets.append(texture_material_xml(f"{name}_{face}", f"{name}_{face}.png", specular=spec[0],
-                                           shininess=spec[1]))
-        return f"{name}_{face}"
+        meshes.append(mesh)
+        materials.append((f"{name}_{face}", f"{name}_{face}.png", spec))
+        geoms.append(dict(name=f"{name}_{face}", kind="mesh", meshname=mesh["name"], material=f"{name}_{face}",
+                          contype=0, conaffinity=0, **kw))
 
     def box(face, half, pos, img, spec, euler=(0.0, 0.0, 0.0)):
         """A box whose +z face (turned by ``euler``, rad, xyz) carries ``img``."""
-        assets.append(box_mesh_xml(f"{name}_{face}_mesh", half))
-        mat = material(face, img, spec)
-        bodies.append(f'<geom name="{name}_{face}" type="mesh" mesh="{name}_{face}_mesh" material="{mat}" '
-                      f'pos="{fmt(pos)}" euler="{fmt(euler)}" contype="0" conaffinity="0"/>\n')
+        textured(face, box_mesh(f"{name}_{face}_mesh", half), img, spec, pos=pos, euler=euler)
 
     def can(face, radius, half_len, pos, text, R):
         """A servo housing: a cylinder along ``R``'s z whose +z cap carries its label."""
-        assets.append(disc_mesh_xml(f"{name}_{face}_mesh", radius, half_len))
         px = int(2 * radius * PX_PER_M)
-        mat = material(face, _housing(rng, (px, px), text), PLASTIC)
-        bodies.append(f'<geom name="{name}_{face}" type="mesh" mesh="{name}_{face}_mesh" material="{mat}" '
-                      f'{pose_attrs(homogeneous(R, pos))} contype="0" conaffinity="0"/>\n')
+        textured(face, disc_mesh(f"{name}_{face}_mesh", radius, half_len), _housing(rng, (px, px), text), PLASTIC,
+                 **pose(homogeneous(R, pos)))
 
     def link(face, half, pos, axis, towards, img):
         """An aluminium link: a box along ``axis`` (its local y) whose textured face looks ``towards``."""
         y = np.asarray(axis, float) / np.linalg.norm(axis)
         z = np.asarray(towards, float) - np.dot(towards, y) * y
         z /= np.linalg.norm(z)
-        assets.append(box_mesh_xml(f"{name}_{face}_mesh", half))
-        mat = material(face, img, ALUMINIUM)
-        bodies.append(f'<geom name="{name}_{face}" type="mesh" mesh="{name}_{face}_mesh" material="{mat}" '
-                      f'{pose_attrs(homogeneous(np.column_stack([np.cross(y, z), y, z]), pos))} contype="0" '
-                      f'conaffinity="0"/>\n')
+        textured(face, box_mesh(f"{name}_{face}_mesh", half), img, ALUMINIUM,
+                 **pose(homogeneous(np.column_stack([np.cross(y, z), y, z]), pos)))
 
     def tex(w_m, h_m):
         return int(round(h_m * PX_PER_M)), int(round(w_m * PX_PER_M))
@@ -290,10 +284,18 @@ def desk_robot(rng: np.random.Generator, name: str = "ref", texture_overrides=No
                     0.3 * toolbox.shape[0], color=tx.WHITE)
     box("toolbox", (0.11, 0.06, 0.08), (0.21, BENCH_Y_M + 0.06, -0.02), toolbox, PAINT)
     lamp = np.array(LAMP_M)
-    lights = (f'<light name="{name}_lamp" pos="{fmt(lamp)}" dir="{fmt(-lamp / np.linalg.norm(lamp))}" '
-              'directional="false" diffuse="0.15 0.15 0.15" specular="0.7 0.7 0.7" castshadow="false"/>\n')
     half_w, top = 0.5 * wall_w, BENCH_Y_M + wall_h
     corners = np.array([[-half_w, top, WALL_Z_M], [half_w, top, WALL_Z_M], [half_w, BENCH_Y_M, WALL_Z_M],
                         [-half_w, BENCH_Y_M, WALL_Z_M]])
-    return SceneObject(name, lights + "".join(bodies), "".join(assets), files,
-                       {"corners": corners, "faces": list(FACES), "lamp": lamp})
+
+    def build(spec, parent):
+        for mat, file_name, (specular, shininess) in materials:
+            add_texture_material(spec, mat, file_name, specular, shininess)
+        for m in meshes:
+            spec.add_mesh(**m)
+        parent.add_light(name=f"{name}_lamp", pos=lamp, dir=-lamp / np.linalg.norm(lamp), diffuse=[0.15] * 3,
+                         specular=[0.7] * 3, castshadow=False)
+        for g in geoms:
+            add_geom(parent, **g)
+
+    return SceneObject(name, build, files, {"corners": corners, "faces": list(FACES), "lamp": lamp})

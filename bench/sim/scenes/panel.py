@@ -25,6 +25,8 @@ panel), base (stem foot on the face), handle_dir (unit direction of the bar/leve
 
 from __future__ import annotations
 
+from functools import partial
+
 import cv2
 import numpy as np
 
@@ -32,14 +34,14 @@ from bench.errors import ConfigError
 from bench.sim.scenes import textures as tx
 from bench.sim.scenes.base import (
     SceneObject,
-    box_mesh_xml,
-    color_material_xml,
-    disc_mesh_xml,
-    fmt,
+    add_color_material,
+    add_geom,
+    add_texture_material,
+    box_mesh,
+    disc_mesh,
     frame_from_axis,
-    frustum_mesh_xml,
-    pose_attrs,
-    texture_material_xml,
+    frustum_mesh,
+    pose,
 )
 
 PX_PER_M_BACKPLATE = 1700.0  # backplate texture density (~3x a 640 px view of the whole panel at 1 m)
@@ -58,18 +60,20 @@ VALVE_TYPES = ("t_bar", "wheel", "paddle")
 
 
 class _Builder:
-    """Accumulates assets, files and bodies of one object (names prefixed with the object name)."""
+    """Accumulates materials (``f(spec)``), meshes (``spec.add_mesh`` arguments), files and bodies (``f(parent)``)
+    of one object (names prefixed with the object name)."""
 
     def __init__(self, name, overrides):
         self.name = name
-        self.assets, self.bodies, self.files, self.faces = [], [], {}, []
+        self.assets, self.meshes, self.bodies, self.files, self.faces = [], [], [], {}, []
         self.overrides = dict(overrides or {})
 
     def n(self, suffix):
         return f"{self.name}_{suffix}"
 
     def color(self, suffix, rgba, specular=0.3):
-        self.assets.append(color_material_xml(self.n(suffix), rgba, specular=specular, shininess=0.3))
+        self.assets.append(partial(add_color_material, name=self.n(suffix), rgba=rgba, specular=specular,
+                                   shininess=0.3))
         return self.n(suffix)
 
     def textured_face(self, face, img):
@@ -80,8 +84,30 @@ class _Builder:
             img = cv2.resize(user, (img.shape[1], img.shape[0]), interpolation=cv2.INTER_AREA)
         fname = f"{self.n(face)}.png"
         self.files[fname] = tx.encode_png(img)
-        self.assets.append(texture_material_xml(self.n(face), fname))
+        self.assets.append(partial(add_texture_material, name=self.n(face), file_name=fname))
         return self.n(face)
+
+    def build(self, spec, parent):
+        """Add the object: its materials and meshes to ``spec``, its body ``name`` into ``parent``."""
+        for add in self.assets:
+            add(spec)
+        for m in self.meshes:
+            spec.add_mesh(**m)
+        body = parent.add_body(name=self.name)
+        for add in self.bodies:
+            add(body)
+
+    def geom(self, name, kind, material, size=(), **kw):
+        """Register a geom ``name`` of the object body (``kind`` and fields as :func:`add_geom`)."""
+        self.bodies.append(partial(add_geom, name=name, kind=kind, material=material, size=size, **kw))
+
+    def body(self, name, T, geoms):
+        """Register a body ``name`` at ``T`` holding ``geoms`` (keyword dicts of :func:`add_geom`)."""
+        def build(parent):
+            body = parent.add_body(name=name, **pose(T))
+            for g in geoms:
+                add_geom(body, **g)
+        self.bodies.append(build)
 
 
 def manifold_panel(rng: np.random.Generator, width_m=1.2, height_m=0.8, texture_overrides=None,
@@ -97,12 +123,12 @@ def manifold_panel(rng: np.random.Generator, width_m=1.2, height_m=0.8, texture_
     texture_overrides : dict[str, path] or None
         Replace a face's texture by any image file (resized to the face's texture size). Keys: ``features["faces"]``.
     name : str
-        Object name, prefix of every MJCF name.
+        Object name, prefix of every MuJoCo name.
 
     Returns
     -------
     SceneObject
-        Fragment in the panel frame (see the module docstring) and its features.
+        Built in the panel frame (a body ``name``; see the module docstring), with its features.
     """
     w, h = float(width_m), float(height_m)
     if not (np.isfinite(w) and np.isfinite(h)) or w < 0.5 or h < 0.35 or w > 10 or h > 10:
@@ -167,9 +193,8 @@ def manifold_panel(rng: np.random.Generator, width_m=1.2, height_m=0.8, texture_
     # header pipes along the rows (behind the components)
     for r in range(nrow):
         y = inner_h / 2 - (r + 0.45) * sh - 0.06 * sh
-        b.bodies.append(f'<geom name="{b.n(f"pipe_{r}")}" type="capsule" size="{0.018 * scale:.17g}" '
-                        f'fromto="{fmt([-inner_w / 2, y, 0.02 * scale, inner_w / 2, y, 0.02 * scale])}" '
-                        f'material="{mat_pipe}"/>\n')
+        b.geom(b.n(f"pipe_{r}"), "capsule", mat_pipe, [0.018 * scale],
+               fromto=[-inner_w / 2, y, 0.02 * scale, inner_w / 2, y, 0.02 * scale])
 
     for (r, c, cx, cy), kind in zip(slots, kinds, strict=True):
         counters[kind] += 1
@@ -183,8 +208,8 @@ def manifold_panel(rng: np.random.Generator, width_m=1.2, height_m=0.8, texture_
             colour = list(HANDLE_COLOURS)[int(rng.integers(0, len(HANDLE_COLOURS)))]
             base = np.array([cx, cy + 0.02 * scale, 0.0])
             T = frame_from_axis(axis, base, roll)
-            xml, hub_z = _valve_xml(b, f"valve_{k}", vtype, scale, handle_mats[colour], mat_body, mat_steel)
-            b.bodies.append(f'<body name="{b.n(f"valve_{k}")}" {pose_attrs(T)}>\n{xml}</body>\n')
+            geoms, hub_z = _valve(b, f"valve_{k}", vtype, scale, handle_mats[colour], mat_body, mat_steel)
+            b.body(b.n(f"valve_{k}"), T, geoms)
             centre = base + hub_z * axis
             features["valves"][f"valve_{k}"] = {"type": vtype, "centre": centre, "axis": axis, "base": base,
                                                 "handle_dir": T[:3, 0].copy(), "colour": colour}
@@ -193,10 +218,9 @@ def manifold_panel(rng: np.random.Generator, width_m=1.2, height_m=0.8, texture_
                                                                                   "VENT", "CHOKE"]))], (128, 320))
             mat = b.textured_face(f"tag_valve_{k}", tag)
             tw_m, th_m = 0.1 * scale, 0.04 * scale
-            b.assets.append(box_mesh_xml(b.n(f"tag_valve_{k}"), (tw_m / 2, th_m / 2, 0.002)))
+            b.meshes.append(box_mesh(b.n(f"tag_valve_{k}"), (tw_m / 2, th_m / 2, 0.002)))
             ty = cy - 0.42 * sh * 0.9 + th_m / 2
-            b.bodies.append(f'<geom name="{b.n(f"tag_valve_{k}")}" type="mesh" mesh="{b.n(f"tag_valve_{k}")}" '
-                            f'material="{mat}" pos="{fmt([cx, ty, 0.002])}"/>\n')
+            b.geom(b.n(f"tag_valve_{k}"), "mesh", mat, meshname=b.n(f"tag_valve_{k}"), pos=[cx, ty, 0.002])
         elif kind == "receptacle":
             T = frame_from_axis((0, 0, 1), (cx, cy, 0.0), 0.0)
             flange = tx.painted_metal(rng, (256, 256), color=(40, 100, 210), wear=0.3, rust=0.2, growth=0.15,
@@ -205,14 +229,14 @@ def manifold_panel(rng: np.random.Generator, width_m=1.2, height_m=0.8, texture_
             tx.stencil_text(flange, f"TT-{k}", (14, 40), 30, tx.BLACK)
             tx.stencil_text(flange, "CL4", (170, 240), 24, tx.BLACK)
             mat = b.textured_face(f"receptacle_{k}_flange", flange)
-            xml, front_z = _receptacle_xml(b, f"receptacle_{k}", scale, mat, mat_bucket, mat_dark, mat_steel)
-            b.bodies.append(f'<body name="{b.n(f"receptacle_{k}")}" {pose_attrs(T)}>\n{xml}</body>\n')
+            geoms, front_z = _receptacle(b, f"receptacle_{k}", scale, mat, mat_bucket, mat_dark, mat_steel)
+            b.body(b.n(f"receptacle_{k}"), T, geoms)
             features["receptacles"][f"receptacle_{k}"] = {"centre": np.array([cx, cy, front_z]),
                                                           "axis": np.array([0.0, 0.0, 1.0])}
         elif kind == "docking":
             T = frame_from_axis((0, 0, 1), (cx, cy, 0.0), 0.0)
-            xml, front_z = _docking_xml(b, f"docking_{k}", scale, mat_dock, mat_dark, mat_steel)
-            b.bodies.append(f'<body name="{b.n(f"docking_{k}")}" {pose_attrs(T)}>\n{xml}</body>\n')
+            geoms, front_z = _docking(b, f"docking_{k}", scale, mat_dock, mat_dark, mat_steel)
+            b.body(b.n(f"docking_{k}"), T, geoms)
             features["docking_buckets"][f"docking_{k}"] = {"centre": np.array([cx, cy, front_z]),
                                                            "axis": np.array([0.0, 0.0, 1.0])}
             cv2.putText(plate, "DOCK", to_px(cx - 0.05 * scale, cy - 0.11 * scale), cv2.FONT_HERSHEY_DUPLEX,
@@ -221,8 +245,8 @@ def manifold_panel(rng: np.random.Generator, width_m=1.2, height_m=0.8, texture_
             dial = tx.dial_face(rng, 384)
             mat = b.textured_face(f"gauge_{k}", dial)
             T = frame_from_axis((0, 0, 1), (cx, cy, 0.0), 0.0)
-            xml, front_z = _gauge_xml(b, f"gauge_{k}", scale, mat, mat_steel)
-            b.bodies.append(f'<body name="{b.n(f"gauge_{k}")}" {pose_attrs(T)}>\n{xml}</body>\n')
+            geoms, front_z = _gauge(b, f"gauge_{k}", scale, mat, mat_steel)
+            b.body(b.n(f"gauge_{k}"), T, geoms)
             features["gauges"][f"gauge_{k}"] = {"centre": np.array([cx, cy, front_z]),
                                                 "axis": np.array([0.0, 0.0, 1.0])}
         # slot outline and number stencilled on the plate
@@ -232,9 +256,9 @@ def manifold_panel(rng: np.random.Generator, width_m=1.2, height_m=0.8, texture_
         tx.stencil_text(plate, f"{r + 1}{'ABCD'[c]}", (x0 + 8, y0 + 40), 30, tx.WHITE)
 
     mat_plate = b.textured_face("backplate", plate)
-    b.assets.append(box_mesh_xml(b.n("backplate"), (w / 2, h / 2, pt / 2)))
-    b.bodies.insert(0, f'<geom name="{b.n("backplate")}" type="mesh" mesh="{b.n("backplate")}" '
-                       f'material="{mat_plate}" pos="0 0 {-pt / 2:.17g}"/>\n')
+    b.meshes.append(box_mesh(b.n("backplate"), (w / 2, h / 2, pt / 2)))
+    b.geom(b.n("backplate"), "mesh", mat_plate, meshname=b.n("backplate"), pos=[0, 0, -pt / 2])
+    b.bodies.insert(0, b.bodies.pop())
 
     # --- frame beams (front face at z = fd - pt) ---
     zc = (fd - pt) / 2 - pt / 2  # beams span z in [-pt, fd - pt]
@@ -249,17 +273,16 @@ def manifold_panel(rng: np.random.Generator, width_m=1.2, height_m=0.8, texture_
         if face == "frame_bottom":
             img[:, : shape[1] // 3] = tx.hazard_stripes((shape[0], shape[1] // 3), stripe_px=shape[0] // 2)
         mat = b.textured_face(face, img)
-        b.assets.append(box_mesh_xml(b.n(face), (hx, hy, hz)))
-        b.bodies.append(f'<geom name="{b.n(face)}" type="mesh" mesh="{b.n(face)}" material="{mat}" '
-                        f'pos="{fmt([bx, by, zc])}"/>\n')
+        b.meshes.append(box_mesh(b.n(face), (hx, hy, hz)))
+        b.geom(b.n(face), "mesh", mat, meshname=b.n(face), pos=[bx, by, zc])
     # title plate on the top beam
     title = tx.label_plate(rng, [f"MANIFOLD {stencils[0]}", f"SN {int(rng.integers(1000, 9999))}-"
                                  f"{'XYZW'[rng.integers(0, 4)]}  {int(rng.integers(1998, 2024))}"], (160, 800))
     mat = b.textured_face("title_plate", title)
     tpw, tph = min(0.4 * w, 0.4), 0.8 * fw
-    b.assets.append(box_mesh_xml(b.n("title_plate"), (tpw / 2, tph / 2, 0.002)))
-    b.bodies.append(f'<geom name="{b.n("title_plate")}" type="mesh" mesh="{b.n("title_plate")}" material="{mat}" '
-                    f'pos="{fmt([-w / 2 + fw + tpw / 2 + 0.05, h / 2 - fw / 2, fd - pt + 0.002])}"/>\n')
+    b.meshes.append(box_mesh(b.n("title_plate"), (tpw / 2, tph / 2, 0.002)))
+    b.geom(b.n("title_plate"), "mesh", mat, meshname=b.n("title_plate"),
+           pos=[-w / 2 + fw + tpw / 2 + 0.05, h / 2 - fw / 2, fd - pt + 0.002])
 
     unknown = sorted(set(overrides) - set(b.faces))
     if unknown:
@@ -272,8 +295,7 @@ def manifold_panel(rng: np.random.Generator, width_m=1.2, height_m=0.8, texture_
         "faces": list(b.faces),
         "size_m": (w, h),
     })
-    body = f'<body name="{name}">\n{"".join(b.bodies)}</body>\n'
-    return SceneObject(name=name, worldbody_xml=body, asset_xml="".join(b.assets), files=b.files, features=features)
+    return SceneObject(name=name, build=b.build, files=b.files, features=features)
 
 
 def _bolt_circle(img, rng):
@@ -287,88 +309,79 @@ def _bolt_circle(img, rng):
         cv2.circle(img, p, n // 28, (30, 30, 30), 1, cv2.LINE_AA)
 
 
-def _valve_xml(b, vname, vtype, s, mat_handle, mat_body, mat_steel):
-    """Valve in its local frame (z = stem axis, origin at the stem foot); returns (xml, hub height)."""
+def _valve(b, vname, vtype, s, mat_handle, mat_body, mat_steel):
+    """Valve in its local frame (z = stem axis, origin at the stem foot); returns (geoms, hub height)."""
     n = lambda suffix: b.n(f"{vname}_{suffix}")  # noqa: E731
     hub = 0.13 * s
-    g = [f'<geom name="{n("flange")}" type="cylinder" size="{0.045 * s:.17g} {0.01 * s:.17g}" '
-         f'pos="0 0 {0.01 * s:.17g}" material="{mat_body}"/>\n',
-         f'<geom name="{n("bonnet")}" type="cylinder" size="{0.026 * s:.17g} {0.025 * s:.17g}" '
-         f'pos="0 0 {0.045 * s:.17g}" material="{mat_body}"/>\n',
-         f'<geom name="{n("stem")}" type="cylinder" fromto="0 0 {0.07 * s:.17g} 0 0 {hub:.17g}" '
-         f'size="{0.01 * s:.17g}" material="{mat_steel}"/>\n']
+    g = [dict(name=n("flange"), kind="cylinder", size=[0.045 * s, 0.01 * s], pos=[0, 0, 0.01 * s], material=mat_body),
+         dict(name=n("bonnet"), kind="cylinder", size=[0.026 * s, 0.025 * s], pos=[0, 0, 0.045 * s],
+              material=mat_body),
+         dict(name=n("stem"), kind="cylinder", fromto=[0, 0, 0.07 * s, 0, 0, hub], size=[0.01 * s],
+              material=mat_steel)]
     if vtype == "t_bar":
         L = 0.09 * s
-        g.append(f'<geom name="{n("bar")}" type="capsule" fromto="{fmt([-L, 0, hub, L, 0, hub])}" '
-                 f'size="{0.012 * s:.17g}" material="{mat_handle}"/>\n')
-        g += [f'<geom name="{n(f"knob{i}")}" type="sphere" size="{0.018 * s:.17g}" pos="{fmt([sx * L, 0, hub])}" '
-              f'material="{mat_body}"/>\n' for i, sx in enumerate((-1, 1))]
+        g.append(dict(name=n("bar"), kind="capsule", fromto=[-L, 0, hub, L, 0, hub], size=[0.012 * s],
+                      material=mat_handle))
+        g += [dict(name=n(f"knob{i}"), kind="sphere", size=[0.018 * s], pos=[sx * L, 0, hub], material=mat_body)
+              for i, sx in enumerate((-1, 1))]
     elif vtype == "wheel":
         R, m = 0.075 * s, 20
         a = 2 * np.pi * np.arange(m + 1) / m
         for i in range(m):
             p0 = [R * np.cos(a[i]), R * np.sin(a[i]), hub]
             p1 = [R * np.cos(a[i + 1]), R * np.sin(a[i + 1]), hub]
-            g.append(f'<geom name="{n(f"rim{i}")}" type="capsule" fromto="{fmt(p0 + p1)}" size="{0.009 * s:.17g}" '
-                     f'material="{mat_handle}"/>\n')
+            g.append(dict(name=n(f"rim{i}"), kind="capsule", fromto=p0 + p1, size=[0.009 * s], material=mat_handle))
         for i in range(4):
             t = np.pi / 4 + i * np.pi / 2
-            g.append(f'<geom name="{n(f"spoke{i}")}" type="capsule" '
-                     f'fromto="{fmt([0, 0, hub, R * np.cos(t), R * np.sin(t), hub])}" size="{0.006 * s:.17g}" '
-                     f'material="{mat_steel}"/>\n')
-        g.append(f'<geom name="{n("hub")}" type="cylinder" size="{0.018 * s:.17g} {0.012 * s:.17g}" '
-                 f'pos="0 0 {hub:.17g}" material="{mat_body}"/>\n')
+            g.append(dict(name=n(f"spoke{i}"), kind="capsule", fromto=[0, 0, hub, R * np.cos(t), R * np.sin(t), hub],
+                          size=[0.006 * s], material=mat_steel))
+        g.append(dict(name=n("hub"), kind="cylinder", size=[0.018 * s, 0.012 * s], pos=[0, 0, hub],
+                      material=mat_body))
     else:  # paddle lever
-        g.append(f'<geom name="{n("hub")}" type="cylinder" size="{0.022 * s:.17g} {0.012 * s:.17g}" '
-                 f'pos="0 0 {hub:.17g}" material="{mat_body}"/>\n')
-        g.append(f'<geom name="{n("paddle")}" type="box" size="{fmt([0.08 * s, 0.02 * s, 0.007 * s])}" '
-                 f'pos="{fmt([0.07 * s, 0, hub])}" material="{mat_handle}"/>\n')
-        g.append(f'<geom name="{n("grip")}" type="box" size="{fmt([0.02 * s, 0.021 * s, 0.008 * s])}" '
-                 f'pos="{fmt([0.13 * s, 0, hub])}" material="{mat_body}"/>\n')
-    return "".join(g), hub
+        g.append(dict(name=n("hub"), kind="cylinder", size=[0.022 * s, 0.012 * s], pos=[0, 0, hub],
+                      material=mat_body))
+        g.append(dict(name=n("paddle"), kind="box", size=[0.08 * s, 0.02 * s, 0.007 * s], pos=[0.07 * s, 0, hub],
+                      material=mat_handle))
+        g.append(dict(name=n("grip"), kind="box", size=[0.02 * s, 0.021 * s, 0.008 * s], pos=[0.13 * s, 0, hub],
+                      material=mat_body))
+    return g, hub
 
 
-def _receptacle_xml(b, rname, s, mat_flange, mat_bucket, mat_dark, mat_steel):
-    """Class-4 torque-tool bucket on a square flange; returns (xml, front-face height)."""
+def _receptacle(b, rname, s, mat_flange, mat_bucket, mat_dark, mat_steel):
+    """Class-4 torque-tool bucket on a square flange; returns (geoms, front-face height)."""
     n = lambda suffix: b.n(f"{rname}_{suffix}")  # noqa: E731
-    b.assets.append(box_mesh_xml(n("flange"), (0.1 * s, 0.1 * s, 0.0075 * s)))
+    b.meshes.append(box_mesh(n("flange"), (0.1 * s, 0.1 * s, 0.0075 * s)))
     r_out, half = 0.07 * s, 0.055 * s
     z0 = 0.015 * s
     front = z0 + 2 * half
-    g = [f'<geom name="{n("flange")}" type="mesh" mesh="{n("flange")}" material="{mat_flange}" '
-         f'pos="0 0 {0.0075 * s:.17g}"/>\n',
-         f'<geom name="{n("bucket")}" type="cylinder" size="{r_out:.17g} {half:.17g}" pos="0 0 {z0 + half:.17g}" '
-         f'material="{mat_bucket}"/>\n',
-         f'<geom name="{n("bore")}" type="cylinder" size="{0.052 * s:.17g} {0.0005:.17g}" '
-         f'pos="0 0 {front + 0.0005:.17g}" material="{mat_dark}"/>\n',
-         f'<geom name="{n("drive")}" type="box" size="{fmt([0.014 * s, 0.014 * s, 0.001])}" '
-         f'pos="0 0 {front + 0.0015:.17g}" material="{mat_steel}"/>\n']
-    for i, sx in enumerate((-1, 1)):
-        g.append(f'<geom name="{n(f"slot{i}")}" type="box" size="{fmt([0.01 * s, 0.006 * s, 0.0008])}" '
-                 f'pos="{fmt([sx * 0.06 * s, 0, front + 0.0008])}" material="{mat_dark}"/>\n')
-    return "".join(g), front
+    g = [dict(name=n("flange"), kind="mesh", meshname=n("flange"), material=mat_flange, pos=[0, 0, 0.0075 * s]),
+         dict(name=n("bucket"), kind="cylinder", size=[r_out, half], pos=[0, 0, z0 + half], material=mat_bucket),
+         dict(name=n("bore"), kind="cylinder", size=[0.052 * s, 0.0005], pos=[0, 0, front + 0.0005],
+              material=mat_dark),
+         dict(name=n("drive"), kind="box", size=[0.014 * s, 0.014 * s, 0.001], pos=[0, 0, front + 0.0015],
+              material=mat_steel)]
+    g += [dict(name=n(f"slot{i}"), kind="box", size=[0.01 * s, 0.006 * s, 0.0008],
+               pos=[sx * 0.06 * s, 0, front + 0.0008], material=mat_dark) for i, sx in enumerate((-1, 1))]
+    return g, front
 
 
-def _docking_xml(b, dname, s, mat_dock, mat_dark, mat_steel):
-    """Docking funnel (frustum) with a dark opening and a centre pin; returns (xml, front-face height)."""
+def _docking(b, dname, s, mat_dock, mat_dark, mat_steel):
+    """Docking funnel (frustum) with a dark opening and a centre pin; returns (geoms, front-face height)."""
     n = lambda suffix: b.n(f"{dname}_{suffix}")  # noqa: E731
     length = 0.11 * s
-    b.assets.append(frustum_mesh_xml(n("funnel"), 0.1 * s, 0.05 * s, length))
-    g = [f'<geom name="{n("funnel")}" type="mesh" mesh="{n("funnel")}" material="{mat_dock}"/>\n',
-         f'<geom name="{n("opening")}" type="cylinder" size="{0.085 * s:.17g} 0.0005" '
-         f'pos="0 0 {length + 0.0005:.17g}" material="{mat_dark}"/>\n',
-         f'<geom name="{n("pin")}" type="cylinder" size="{0.015 * s:.17g} 0.001" pos="0 0 {length + 0.002:.17g}" '
-         f'material="{mat_steel}"/>\n']
-    return "".join(g), length
+    b.meshes.append(frustum_mesh(n("funnel"), 0.1 * s, 0.05 * s, length))
+    g = [dict(name=n("funnel"), kind="mesh", meshname=n("funnel"), material=mat_dock),
+         dict(name=n("opening"), kind="cylinder", size=[0.085 * s, 0.0005], pos=[0, 0, length + 0.0005],
+              material=mat_dark),
+         dict(name=n("pin"), kind="cylinder", size=[0.015 * s, 0.001], pos=[0, 0, length + 0.002], material=mat_steel)]
+    return g, length
 
 
-def _gauge_xml(b, gname, s, mat_dial, mat_steel):
-    """Gauge: steel bezel with the textured dial disc in front; returns (xml, dial-face height)."""
+def _gauge(b, gname, s, mat_dial, mat_steel):
+    """Gauge: steel bezel with the textured dial disc in front; returns (geoms, dial-face height)."""
     n = lambda suffix: b.n(f"{gname}_{suffix}")  # noqa: E731
-    b.assets.append(disc_mesh_xml(n("dial"), 0.058 * s, 0.001))
+    b.meshes.append(disc_mesh(n("dial"), 0.058 * s, 0.001))
     front = 0.04 * s + 0.002
-    g = [f'<geom name="{n("bezel")}" type="cylinder" size="{0.066 * s:.17g} {0.02 * s:.17g}" '
-         f'pos="0 0 {0.02 * s:.17g}" material="{mat_steel}"/>\n',
-         f'<geom name="{n("dial")}" type="mesh" mesh="{n("dial")}" material="{mat_dial}" '
-         f'pos="0 0 {front - 0.001:.17g}"/>\n']
-    return "".join(g), front
+    g = [dict(name=n("bezel"), kind="cylinder", size=[0.066 * s, 0.02 * s], pos=[0, 0, 0.02 * s], material=mat_steel),
+         dict(name=n("dial"), kind="mesh", meshname=n("dial"), material=mat_dial, pos=[0, 0, front - 0.001])]
+    return g, front

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.geometry.transforms import homogeneous, rot_z
-from bench.sim.scenes.base import SceneObject, _mesh_xml, color_material_xml, fmt, pose_attrs
+from bench.sim.scenes.base import SceneObject, add_color_material, add_geom, mesh, pose
 
 BOARD_SQUARES = 7
 BOARD_PATTERN_M = 0.197  # section 5.2
@@ -56,7 +56,8 @@ def board_corners(rows=BOARD_SQUARES, cols=BOARD_SQUARES, square_m=SQUARE_M):
 
 def _board_geoms(prefix, rows, cols, s, margin, thickness, mat_black, mat_white, mat_back, lines=None,
                  bow_m: float = 0.0, dz_m=None):
-    """Geoms (and their mesh assets) of one board in its board frame (face z = 0 towards -z): ``(geoms, assets)``.
+    """Geoms (and their meshes) of one board in its board frame (face z = 0 towards -z): ``(geoms, meshes)``, lists
+    of :func:`~bench.sim.scenes.base.add_geom` and ``spec.add_mesh`` keyword arguments.
 
     ``lines = (xs, ys)``: the printed column and row line positions (m, ``cols + 1`` and ``rows + 1``; default the
     even grid ``k s``); square (i, j) spans ``xs[j]..xs[j+1]`` x ``ys[i]..ys[i+1]``, so the squares still tile the
@@ -71,30 +72,30 @@ def _board_geoms(prefix, rows, cols, s, margin, thickness, mat_black, mat_white,
     xs, ys = (np.arange(cols + 1) * s, np.arange(rows + 1) * s) if lines is None else lines
     W, H = cols * s, rows * s
     flat = bow_m == 0.0 and (dz_m is None or not np.any(dz_m))
-    g, assets = [], []
+    g, meshes = [], []
     if flat:
         for i in range(rows):
             for j in range(cols):
                 mat = mat_black if (i + j) % 2 == 0 else mat_white
                 hx, hy = (xs[j + 1] - xs[j]) / 2, (ys[i + 1] - ys[i]) / 2
                 xc, yc = (xs[j + 1] + xs[j]) / 2, (ys[i + 1] + ys[i]) / 2
-                g.append(f'<geom name="{prefix}_sq_{i}_{j}" type="box" size="{fmt([hx, hy, d])}" '
-                         f'pos="{fmt([xc, yc, d])}" material="{mat}"/>\n')
+                g.append(dict(name=f"{prefix}_sq_{i}_{j}", kind="box", size=[hx, hy, d], pos=[xc, yc, d],
+                              material=mat))
         strips = {"top": ((W / 2, -margin / 2), (W / 2 + margin, margin / 2)),
                   "bottom": ((W / 2, H + margin / 2), (W / 2 + margin, margin / 2)),
                   "left": ((-margin / 2, H / 2), (margin / 2, H / 2)),
                   "right": ((W + margin / 2, H / 2), (margin / 2, H / 2))}
         for k, ((cx, cy), (hx, hy)) in strips.items():
-            g.append(f'<geom name="{prefix}_border_{k}" type="box" size="{fmt([hx, hy, d])}" '
-                     f'pos="{fmt([cx, cy, d])}" material="{mat_white}"/>\n')
+            g.append(dict(name=f"{prefix}_border_{k}", kind="box", size=[hx, hy, d], pos=[cx, cy, d],
+                          material=mat_white))
         depth = 0.0
     else:
         Z = bow_z(np.asarray(xs, float)[None, :], W, bow_m) + (0.0 if dz_m is None else np.asarray(dz_m, float))
         P = np.stack(np.broadcast_arrays(np.asarray(xs, float)[None, :], np.asarray(ys, float)[:, None], Z), -1)
 
         def sheet(name, quad, mat):
-            assets.append(sheet_mesh_xml(f"{name}_mesh", quad, SQUARE_DEPTH_M))
-            g.append(f'<geom name="{name}" type="mesh" mesh="{name}_mesh" material="{mat}"/>\n')
+            meshes.append(sheet_mesh(f"{name}_mesh", quad, SQUARE_DEPTH_M))
+            g.append(dict(name=name, kind="mesh", meshname=f"{name}_mesh", material=mat))
 
         for i in range(rows):
             for j in range(cols):
@@ -115,23 +116,23 @@ def _board_geoms(prefix, rows, cols, s, margin, thickness, mat_black, mat_white,
             sheet(f"{prefix}_border_{k}", c if ox * oy > 0 else c[::-1], mat_white)
         depth = float(np.max(np.abs(Z)))
     back = (thickness - SQUARE_DEPTH_M) / 2 + depth
-    g.append(f'<geom name="{prefix}_backing" type="box" size="{fmt([W / 2 + margin, H / 2 + margin, back])}" '
-             f'pos="{fmt([W / 2, H / 2, SQUARE_DEPTH_M + depth + back])}" material="{mat_back}"/>\n')
-    return "".join(g), "".join(assets)
+    g.append(dict(name=f"{prefix}_backing", kind="box", size=[W / 2 + margin, H / 2 + margin, back],
+                  pos=[W / 2, H / 2, SQUARE_DEPTH_M + depth + back], material=mat_back))
+    return g, meshes
 
 
-def sheet_mesh_xml(name: str, quad, depth_m: float) -> str:
+def sheet_mesh(name: str, quad, depth_m: float) -> dict:
     """A closed mesh of a piece of sheet: the printed face is the quadrilateral ``quad`` ((4, 3) m, board frame,
     ordered so that ``(q1 - q0) x (q2 - q0)`` points along +z, into the board; split along its 0-2 diagonal), the
     back face the same moved ``depth_m`` along +z. Every face's normal points out of the piece. Vertices are
-    absolute: MuJoCo places the mesh where they say."""
+    absolute: MuJoCo places the mesh where they say. Returns ``spec.add_mesh`` keyword arguments."""
     q = np.asarray(quad, float)
     b = q + [0.0, 0.0, depth_m]
     verts = np.vstack([q, b])
     faces = [(0, 2, 1), (0, 3, 2), (4, 5, 6), (4, 6, 7)]
     for a, c in ((0, 1), (1, 2), (2, 3), (3, 0)):
         faces += [(a, c, c + 4), (a, c + 4, a + 4)]
-    return _mesh_xml(name, verts, None, faces)
+    return mesh(name, verts, faces)
 
 
 def bow_z(x, width_m: float, bow_m: float):
@@ -141,15 +142,26 @@ def bow_z(x, width_m: float, bow_m: float):
     return bow_m * (1 - u ** 2)
 
 
-def _materials(name):
-    return (color_material_xml(f"{name}_black", (0.03, 0.03, 0.03, 1), specular=0.0, shininess=0.0)
-            + color_material_xml(f"{name}_white", (0.92, 0.92, 0.92, 1), specular=0.0, shininess=0.0)
-            + color_material_xml(f"{name}_back", (0.45, 0.35, 0.25, 1), specular=0.1, shininess=0.1))
+def _builder(name, boards):
+    """``build(spec, parent)`` of a target: its materials and meshes, a body ``name`` holding one body per
+    ``(body name or None, pose or None, geoms, meshes)`` of ``boards`` (None: the geoms go in the body itself)."""
+    def build(spec, parent):
+        add_color_material(spec, f"{name}_black", (0.03, 0.03, 0.03, 1), specular=0.0, shininess=0.0)
+        add_color_material(spec, f"{name}_white", (0.92, 0.92, 0.92, 1), specular=0.0, shininess=0.0)
+        add_color_material(spec, f"{name}_back", (0.45, 0.35, 0.25, 1), specular=0.1, shininess=0.1)
+        root = parent.add_body(name=name)
+        for body_name, T, geoms, meshes in boards:
+            for m in meshes:
+                spec.add_mesh(**m)
+            body = root if body_name is None else root.add_body(name=body_name, **pose(T))
+            for g in geoms:
+                add_geom(body, **g)
+    return build
 
 
 def planar_board(rows=BOARD_SQUARES, cols=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M, thickness_m=0.01,
                  name: str = "board", errors: dict | None = None) -> SceneObject:
-    """A planar chessboard of ``rows x cols`` squares (m), fragment in its board frame (module docstring).
+    """A planar chessboard of ``rows x cols`` squares (m), built in its board frame (module docstring).
 
     ``errors`` (optional): the printed board's geometry errors as for one board of :func:`calibration_rig`
     (:func:`bench.sim.imaging.target_geometry`): ``line_offsets_m`` ``(xs, ys)`` (offsets of the ``cols + 1``
@@ -179,8 +191,7 @@ def planar_board(rows=BOARD_SQUARES, cols=BOARD_SQUARES, square_m=SQUARE_M, marg
     W, H = cols * square_m, rows * square_m
     features = {"corners": corners, "pattern_size": (cols - 1, rows - 1),
                 "square_m": float(square_m), "outline": np.array([[0, 0, 0], [W, 0, 0], [W, H, 0], [0, H, 0.0]])}
-    return SceneObject(name=name, worldbody_xml=f'<body name="{name}">\n{geoms}</body>\n',
-                       asset_xml=_materials(name) + meshes, files={}, features=features)
+    return SceneObject(name=name, build=_builder(name, [(None, None, geoms, meshes)]), features=features)
 
 
 def _check_dz(dz, rows, cols):
@@ -226,7 +237,7 @@ def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M,
     margin_m, thickness_m : float
         White border around each pattern, board thickness (m).
     name : str
-        Object name (prefix of the MJCF names).
+        Object name (prefix of the MuJoCo names).
     errors : dict, optional
         The printed and assembled rig's geometry errors (:func:`bench.sim.imaging.target_geometry`):
         ``line_offsets_m`` ``{"a": (xs, ys), "b": (xs, ys)}`` (offsets of the ``squares + 1`` column and row lines,
@@ -247,7 +258,7 @@ def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M,
     if e.get("fold_error_rad", 0.0):
         T_b = homogeneous(rot_z(e["fold_error_rad"]), np.zeros(3)) @ T_b  # about the fold (the rig's z axis)
     scale = float(e.get("scale", 1.0))
-    body, meshes = [f'<body name="{name}">\n'], []
+    boards = []
     corners = {}
     n = squares + 1
     for key, T in (("a", T_a), ("b", T_b)):
@@ -259,17 +270,14 @@ def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M,
         dz = _check_dz(e.get("dz_m", {}).get(key), squares, squares)
         geoms, m = _board_geoms(f"{name}_{key}", squares, squares, square_m, margin_m, thickness_m, f"{name}_black",
                                 f"{name}_white", f"{name}_back", lines, bow, dz)
-        meshes.append(m)
-        body.append(f'<body name="{name}_board_{key}" {pose_attrs(T)}>\n{geoms}</body>\n')
+        boards.append((f"{name}_board_{key}", T, geoms, m))
         if errors:
             local = _printed_corners(xs, ys, squares * square_m, bow, dz)
         else:
             local = board_corners(squares, squares, square_m)
         corners[key] = local @ T[:3, :3].T + T[:3, 3]
-    body.append("</body>\n")
     ca, cb = corners["a"], corners["b"]
     features = {"corners": np.vstack([ca, cb]), "corners_board_a": ca, "corners_board_b": cb,
                 "T_rig_board_a": T_a, "T_rig_board_b": T_b, "pattern_size": (squares - 1, squares - 1),
                 "square_m": float(square_m)}
-    return SceneObject(name=name, worldbody_xml="".join(body), asset_xml=_materials(name) + "".join(meshes), files={},
-                       features=features)
+    return SceneObject(name=name, build=_builder(name, boards), features=features)

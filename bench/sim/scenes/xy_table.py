@@ -41,11 +41,12 @@ import csv
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import mujoco
 import numpy as np
 
 from bench.errors import ConfigError
 from bench.geometry.transforms import check_transform, homogeneous, rot_x, rot_y, rot_z
-from bench.sim.scenes.base import SceneObject, color_material_xml, fmt, pose_attrs
+from bench.sim.scenes.base import SceneObject, add_color_material, add_geom, place, pose
 
 TRAVEL_M = 0.200  # section 5.2: 200 mm movement range (centred: +-100 mm)
 RESOLUTION_M = 1e-4  # section 5.2: 0.1 mm
@@ -105,7 +106,7 @@ class TableRun:
     ``commanded`` (N, 3) as given ``[x, z, rot]``; ``read`` (N, 3) what the table reports (quantised);
     ``true`` (N, 3) the true joint values (x, z along the true travel axes, rot); ``wobble`` (N, 2) the axis
     tilts ``(a, b)`` (rad); ``T_table_mount`` (N, 4, 4) true; ``T_table_mount_nominal`` (N, 4, 4) from ``read``
-    with no errors (what the pipeline may compute); ``qpos`` {joint name: (N,)} for the MJCF of :func:`xy_table`.
+    with no errors (what the pipeline may compute); ``qpos`` {joint name: (N,)} for the model of :func:`xy_table`.
     """
 
     commanded: np.ndarray
@@ -133,7 +134,7 @@ class TableModel:
     post_height_m : float
         Camera centre above the rotary platform (the wobble pivot), m.
     name : str
-        Prefix of the MJCF joint names (``<name>_x``, ``<name>_z``, ``<name>_rot`` ...).
+        Prefix of the MuJoCo joint names (``<name>_x``, ``<name>_z``, ``<name>_rot`` ...).
     """
 
     def __init__(self, errors: TableErrors | None = None, camera_offset_m=(0.0, 0.0, 0.0), travel_m=TRAVEL_M,
@@ -153,7 +154,7 @@ class TableModel:
 
     @property
     def joint_names(self):
-        """MJCF joint names in qpos order of :func:`xy_table`."""
+        """MuJoCo joint names in qpos order of :func:`xy_table`."""
         return [f"{self.name}_{k}" for k in ("x", "z", "wobble_x", "wobble_z", "rot")]
 
     def check_commands(self, commands, source="x-y table") -> np.ndarray:
@@ -293,7 +294,7 @@ def table10_commands() -> np.ndarray:
                                             source=str(TABLE10_CSV))
 
 
-# --------------------------------------------------------------------------------------------------------- MJCF
+# ------------------------------------------------------------------------------------------------------ MjSpec
 def reference_pose(reference: SceneObject, distance_m: float, lateral_m: float = 0.0) -> np.ndarray:
     """Default ``T_table_reference``: the reference object faces the camera ``distance_m`` ahead (table z).
 
@@ -313,19 +314,19 @@ def reference_pose(reference: SceneObject, distance_m: float, lateral_m: float =
     return homogeneous(np.diag([1.0, -1.0, -1.0]), [lateral_m, 0.0, distance_m])
 
 
-def xy_table(model: TableModel, camera_xml: str = "", reference: SceneObject | None = None,
+def xy_table(model: TableModel, camera=None, reference: SceneObject | None = None,
              reference_distance_m: float | None = None, T_table_reference=None,
              T_world_table=DEFAULT_T_WORLD_TABLE) -> SceneObject:
-    """MJCF of the x-y table carrying the camera mount, with an optional reference object in front.
+    """The x-y table carrying the camera mount, with an optional reference object in front.
 
     Parameters
     ----------
     model : TableModel
         Gives the joint names, the camera offset and the *true* geometry (the z slide axis is tilted by the
         orthogonality error; wobble hinges are driven by ``TableRun.qpos``).
-    camera_xml : str
-        MJCF placed inside the body ``<name>_camera_mount`` (the nominal OpenCV optical frame: x right, y down,
-        z forward); a MuJoCo camera there needs ``xyaxes="1 0 0 0 -1 0"`` (it looks along its -z, y up).
+    camera : callable or None
+        ``camera(body)`` adds a camera into the body ``<name>_camera_mount`` (the nominal OpenCV optical frame:
+        x right, y down, z forward), e.g. with :func:`bench.sim.camera.add_opencv_camera`.
     reference : SceneObject or None
         E.g. :func:`~bench.sim.scenes.panel.manifold_panel` (lab) or :func:`~bench.sim.scenes.rig.calibration_rig`.
     reference_distance_m : float or None
@@ -352,60 +353,53 @@ def xy_table(model: TableModel, camera_xml: str = "", reference: SceneObject | N
     half = model.travel_m / 2
     z_axis = [np.sin(e.orthogonality_rad), 0.0, np.cos(e.orthogonality_rad)]
     o = model.camera_offset_m
-    assets = (color_material_xml(f"{n}_grey", (0.55, 0.57, 0.6, 1), specular=0.4)
-              + color_material_xml(f"{n}_dark", (0.12, 0.12, 0.13, 1), specular=0.2)
-              + color_material_xml(f"{n}_delrin", (0.9, 0.9, 0.88, 1), specular=0.1))
-    inertial = '<inertial pos="0 0 0" mass="0.05" diaginertia="1e-5 1e-5 1e-5"/>'
-    # geometry: y is down in the table frame; the platform top is at y = h
-    support = ""
-    if np.linalg.norm(o) > 0:  # the delrin support bar carrying the off-axis camera (section 5.4, Figure 54)
-        span = max(0.12, abs(o[0]) + 0.03)
-        support = (f'<geom name="{n}_support" type="box" size="{fmt([span, 0.01, 0.03])}" '
-                   f'pos="{fmt([0, o[1] + 0.05, o[2]])}" material="{n}_delrin"/>\n'
-                   f'<geom name="{n}_post" type="cylinder" fromto="{fmt([0, h, 0, 0, o[1] + 0.06, 0])}" size="0.015" '
-                   f'material="{n}_grey"/>\n')
-    else:
-        support = (f'<geom name="{n}_post" type="cylinder" fromto="{fmt([0, h, 0, 0, 0.05, 0])}" size="0.012" '
-                   f'material="{n}_grey"/>\n')
-    mount = (f'<body name="{n}_camera_mount" pos="{fmt(o)}">\n'
-             f'<geom name="{n}_camera_housing" type="box" size="0.03 0.025 0.04" pos="0 0 -0.05" '
-             f'material="{n}_dark"/>\n{camera_xml}</body>\n')
-    chain = f"""<geom name="{n}_base" type="box" size="{fmt([half + 0.08, 0.015, half + 0.08])}"
- pos="{fmt([0, h + 0.075, 0])}" material="{n}_grey"/>
-<body name="{n}_x_carriage">
-<joint name="{n}_x" type="slide" axis="1 0 0" range="{fmt([-half - 0.01, half + 0.01])}"/>
-<geom name="{n}_x_plate" type="box" size="{fmt([0.1, 0.012, half + 0.05])}" pos="{fmt([0, h + 0.048, 0])}"
- material="{n}_dark"/>
-<body name="{n}_z_carriage">
-<joint name="{n}_z" type="slide" axis="{fmt(z_axis)}" range="{fmt([-half - 0.01, half + 0.01])}"/>
-<geom name="{n}_z_plate" type="box" size="{fmt([0.1, 0.012, 0.1])}" pos="{fmt([0, h + 0.024, 0])}" material="{n}_grey"/>
-<body name="{n}_wobble_x" pos="{fmt([0, h, 0])}">
-{inertial}
-<joint name="{n}_wobble_x" type="hinge" axis="1 0 0"/>
-<body name="{n}_wobble_z">
-{inertial}
-<joint name="{n}_wobble_z" type="hinge" axis="0 0 1"/>
-<body name="{n}_rotary" pos="{fmt([0, -h, 0])}">
-<joint name="{n}_rot" type="hinge" axis="0 1 0"/>
-<geom name="{n}_platform" type="cylinder" fromto="{fmt([0, h + 0.012, 0, 0, h, 0])}" size="0.09" material="{n}_dark"/>
-{support}{mount}</body>
-</body>
-</body>
-</body>
-</body>
-"""
+    grey, dark, delrin = f"{n}_grey", f"{n}_dark", f"{n}_delrin"
+    inertial = {"mass": 0.05, "inertia": [1e-5] * 3, "ipos": [0, 0, 0], "explicitinertial": True}
     T_tr = None
-    ref_xml, ref_assets, files, ref_features = "", "", {}, None
     if reference is not None:
         if reference_distance_m is None:
             reference_distance_m = LAB_REFERENCE_DISTANCE_M if np.linalg.norm(o) == 0 else \
                 UNDERWATER_REFERENCE_DISTANCE_M
         T_tr = reference_pose(reference, reference_distance_m, float(o[0])) if T_table_reference is None else \
             check_transform(T_table_reference, "T_table_reference")
-        ref_xml = f'<body name="{reference.name}_pose" {pose_attrs(T_tr)}>\n{reference.worldbody_xml}</body>\n'
-        ref_assets, files, ref_features = reference.asset_xml, dict(reference.files), reference.features
-    xml = f'<body name="{n}" {pose_attrs(T_wt)}>\n{chain}{ref_xml}</body>\n'
-    features = {"T_world_table": T_wt, "T_table_reference": T_tr, "reference": ref_features,
+        placed = place(reference, T_tr, f"{reference.name}_pose")
+
+    def build(spec, parent):
+        add_color_material(spec, grey, (0.55, 0.57, 0.6, 1), specular=0.4)
+        add_color_material(spec, dark, (0.12, 0.12, 0.13, 1), specular=0.2)
+        add_color_material(spec, delrin, (0.9, 0.9, 0.88, 1), specular=0.1)
+        table = parent.add_body(name=n, **pose(T_wt))  # geometry: y is down in the table frame, platform top at h
+        add_geom(table, f"{n}_base", "box", grey, [half + 0.08, 0.015, half + 0.08], pos=[0, h + 0.075, 0])
+        body = table.add_body(name=f"{n}_x_carriage")
+        body.add_joint(name=f"{n}_x", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1, 0, 0],
+                       range=[-half - 0.01, half + 0.01])
+        add_geom(body, f"{n}_x_plate", "box", dark, [0.1, 0.012, half + 0.05], pos=[0, h + 0.048, 0])
+        body = body.add_body(name=f"{n}_z_carriage")
+        body.add_joint(name=f"{n}_z", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=z_axis, range=[-half - 0.01, half + 0.01])
+        add_geom(body, f"{n}_z_plate", "box", grey, [0.1, 0.012, 0.1], pos=[0, h + 0.024, 0])
+        body = body.add_body(name=f"{n}_wobble_x", pos=[0, h, 0], **inertial)
+        body.add_joint(name=f"{n}_wobble_x", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[1, 0, 0])
+        body = body.add_body(name=f"{n}_wobble_z", **inertial)
+        body.add_joint(name=f"{n}_wobble_z", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1])
+        body = body.add_body(name=f"{n}_rotary", pos=[0, -h, 0])
+        body.add_joint(name=f"{n}_rot", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 1, 0])
+        add_geom(body, f"{n}_platform", "cylinder", dark, [0.09], fromto=[0, h + 0.012, 0, 0, h, 0])
+        if np.linalg.norm(o) > 0:  # the delrin support bar carrying the off-axis camera (section 5.4, Figure 54)
+            add_geom(body, f"{n}_support", "box", delrin, [max(0.12, abs(o[0]) + 0.03), 0.01, 0.03],
+                     pos=[0, o[1] + 0.05, o[2]])
+            add_geom(body, f"{n}_post", "cylinder", grey, [0.015], fromto=[0, h, 0, 0, o[1] + 0.06, 0])
+        else:
+            add_geom(body, f"{n}_post", "cylinder", grey, [0.012], fromto=[0, h, 0, 0, 0.05, 0])
+        mount = body.add_body(name=f"{n}_camera_mount", pos=o)
+        add_geom(mount, f"{n}_camera_housing", "box", dark, [0.03, 0.025, 0.04], pos=[0, 0, -0.05])
+        if camera is not None:
+            camera(mount)
+        if reference is not None:
+            placed.build(spec, table)
+
+    features = {"T_world_table": T_wt, "T_table_reference": T_tr,
+                "reference": None if reference is None else reference.features,
                 "joint_names": model.joint_names, "mount_body": f"{n}_camera_mount",
                 "camera_offset_m": model.camera_offset_m.copy()}
-    return SceneObject(name=n, worldbody_xml=xml, asset_xml=assets + ref_assets, files=files, features=features)
+    return SceneObject(name=n, build=build, files={} if reference is None else dict(reference.files),
+                       features=features)
