@@ -163,9 +163,9 @@ def _g(x) -> str:
 
 
 def choices_text(choices) -> str:
-    """``a or b`` / ``one of a, b, c``."""
+    """``a`` / ``a or b`` / ``one of a, b, c``."""
     words = [str(c) for c in choices]
-    return " or ".join(words) if len(words) == 2 else "one of " + ", ".join(words)
+    return words[0] if len(words) == 1 else " or ".join(words) if len(words) == 2 else "one of " + ", ".join(words)
 
 
 def bounds_text(meta, unit: str = "") -> str:
@@ -201,6 +201,8 @@ def message(err: dict, model, data) -> tuple[str, str]:
     loc, kind, value = err["loc"], err["type"], err.get("input")
     first = next((i for i, p in enumerate(loc) if isinstance(p, int)), len(loc))
     key_loc, items = list(loc[:first]), list(loc[first:])
+    if any(isinstance(p, str) for p in items):  # a list of mappings: the path names the item (views[2].name)
+        key_loc, items = ["".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc).lstrip(".")], []
     ann, meta = resolve(model, loc)
     error = (err.get("ctx") or {}).get("error")
     if isinstance(error, KeyProblem):
@@ -214,6 +216,11 @@ def message(err: dict, model, data) -> tuple[str, str]:
         problem = "unknown key" + (f" (did you mean '{prefix}{close[0]}'?)" if close
                                    else f" (allowed: {', '.join(names)})")
     elif kind == "missing":
+        while isinstance(ann, type) and issubclass(ann, BaseModel):  # a section left out: its first required key
+            name = next((n for n, f in ann.model_fields.items() if f.is_required()), None)
+            if name is None:
+                break
+            key, ann = f"{key}.{name}", _annotated(ann.model_fields[name].annotation)[0]
         problem = "missing"
     elif kind in _TYPES:
         problem = f"expected {_TYPES[kind]}, got {type(value).__name__} {value!r}"
@@ -225,8 +232,8 @@ def message(err: dict, model, data) -> tuple[str, str]:
         text = bounds_text(meta or [type("B", (), err["ctx"])], unit_of(key))
         problem = (f"expected {text}, got {_g(value)}" if ".." in text
                    else f"must be {'in ' if text.startswith(('(', '[')) else ''}{text}, got {_g(value)}")
-    elif kind in ("too_short", "too_long"):
-        problem = f"expected {_length_text(meta)}, got {value!r}"
+    elif kind in ("too_short", "too_long", "string_too_short"):
+        problem = f"expected {'a non-empty string' if isinstance(value, str) else _length_text(meta)}, got {value!r}"
     elif error is not None:
         problem = str(error)
     else:
