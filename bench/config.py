@@ -196,22 +196,27 @@ _TYPES = {"float_type": "float", "int_type": "int", "bool_type": "bool", "string
           "dict_type": "a mapping", "model_type": "a mapping", "number_type": "a number"}
 
 
+def _path(loc) -> str:
+    """``('views', 2, 'name')`` -> ``views[2].name``."""
+    return "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc).lstrip(".")
+
+
 def message(err: dict, model, data) -> tuple[str, str]:
     """``(dotted key, one-line problem)`` of one pydantic error (an item of ``ValidationError.errors()``)."""
     loc, kind, value = err["loc"], err["type"], err.get("input")
+    error = (err.get("ctx") or {}).get("error")
+    if isinstance(error, KeyProblem):
+        loc = (*loc, *error.key.split("."))
     first = next((i for i, p in enumerate(loc) if isinstance(p, int)), len(loc))
     key_loc, items = list(loc[:first]), list(loc[first:])
     if any(isinstance(p, str) for p in items):  # a list of mappings: the path names the item (views[2].name)
-        key_loc, items = ["".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc).lstrip(".")], []
+        key_loc, items = [_path(loc)], []
     ann, meta = resolve(model, loc)
-    error = (err.get("ctx") or {}).get("error")
-    if isinstance(error, KeyProblem):
-        key_loc, items = key_loc + error.key.split("."), []
     key = ".".join(str(p) for p in key_loc) or "<top>"
     if kind == "extra_forbidden":
         parent, _ = resolve(model, loc[:-1])
         names = list(parent.model_fields) if isinstance(parent, type) and issubclass(parent, BaseModel) else []
-        prefix = "".join(f"{p}." for p in loc[:-1])
+        prefix = _path(loc[:-1]) + "." if loc[:-1] else ""
         close = difflib.get_close_matches(str(loc[-1]), names, n=1)
         problem = "unknown key" + (f" (did you mean '{prefix}{close[0]}'?)" if close
                                    else f" (allowed: {', '.join(names)})")
@@ -350,6 +355,13 @@ def load_yaml(path) -> dict:
     if not isinstance(data, dict):
         raise ConfigError(path, "<file>", "expected a mapping at the top level")
     return data
+
+
+class MmDeg(Section):
+    """``units: {length: mm, angle: deg}`` of a file whose keys carry their units (the only units written)."""
+
+    length: Literal["mm"] = "mm"
+    angle: Literal["deg"] = "deg"
 
 
 class ScenarioBase(Section):

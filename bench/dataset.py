@@ -38,7 +38,7 @@ import numpy as np
 import yaml
 from pydantic import Field, field_validator, model_validator
 
-from bench.config import KeyProblem, Section, parse, section
+from bench.config import KeyProblem, MmDeg, Section, parse, section
 from bench.errors import ConfigError
 from bench.fileio import (
     check_output_dir,
@@ -66,11 +66,6 @@ _HEADER_FORMATS = ("PNG", "JPEG", "TIFF", "BMP", "WEBP")
 _PILLOW_LIMIT = threading.Lock()
 
 
-class _Units(Section):
-    length: Literal["mm"] = "mm"
-    angle: Literal["deg"] = "deg"
-
-
 class _ViewEntry(Section):
     name: Annotated[str, Field(min_length=1)]
     image: str | None = None
@@ -90,7 +85,7 @@ class Manifest(Section):
 
     format: Literal[FORMAT]
     kind: Literal[KINDS]
-    units: _Units = section(_Units)
+    units: MmDeg = section(MmDeg)
     name: str | None = None
     notes: str = ""
     created_by: str = ""
