@@ -114,12 +114,16 @@ Distinct = AfterValidator(distinct)
 # ------------------------------------------------------------------------------------------------ parsing
 
 
-def parse(model: type[Section], data, source) -> dict:
-    """``data`` validated by ``model``, as nested dicts with the defaults filled in; else a one-line ConfigError."""
+def parse(model: type[Section], data, source, at: str = "") -> dict:
+    """``data`` validated by ``model``, as nested dicts with the defaults filled in; else a one-line ConfigError
+    (``at``: the dotted key of ``data`` inside its file, prefixed to the error's key)."""
     try:
         return model.model_validate(data).model_dump()
     except ValidationError as exc:
-        raise config_error(exc, model, data, source) from None
+        err = config_error(exc, model, data, source)
+        if at:
+            err = ConfigError(source, at if err.field == "<top>" else f"{at}.{err.field}", err.problem)
+        raise err from None
 
 
 def _annotated(ann):

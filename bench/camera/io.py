@@ -27,13 +27,16 @@ which are ignored). Note that OpenCV's own functions ignore ``K[0, 1]`` (they ha
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import cv2
 import numpy as np
+from pydantic import Field, model_validator
 
 from bench.camera.dlt import thesis_parameters
 from bench.camera.heikkila import heikkila_of
 from bench.camera.model import CameraModel
+from bench.config import KeyProblem, PositiveFloat, Section, at_least, at_most, parse
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text
 
@@ -297,7 +300,26 @@ def _refractive(src, node, lens):
 
 #: ``housing.yaml``: the underwater housing's datasheet and the site's water, what a refractive calibration starts
 #: from and holds fixed (lens_to_glass_mm is the design value, a start: the calibration estimates it)
-HOUSING_KEYS = ("lens_to_glass_mm", "lens_to_glass_tolerance_mm", "glass_thickness_mm", "n_air", "n_glass", "n_water")
+_INDEX_PROBLEM = "expected a refractive index in [1, 2.5], got {v}"
+_INDEX = Annotated[float, at_least(1, _INDEX_PROBLEM), at_most(2.5, _INDEX_PROBLEM)]
+
+
+class HousingFile(Section):
+    """``housing.yaml`` (every key required)."""
+
+    lens_to_glass_mm: Annotated[float, Field(ge=1, le=500)]
+    lens_to_glass_tolerance_mm: PositiveFloat
+    glass_thickness_mm: Annotated[float, Field(ge=0, le=100)]
+    n_air: _INDEX
+    n_glass: _INDEX
+    n_water: _INDEX
+
+    @model_validator(mode="after")
+    def _tolerance(self):
+        if not self.lens_to_glass_tolerance_mm < self.lens_to_glass_mm:
+            raise KeyProblem("lens_to_glass_tolerance_mm", f"expected below lens_to_glass_mm, got "
+                                                           f"{self.lens_to_glass_tolerance_mm}")
+        return self
 
 
 def housing_yaml_text(port, tolerance_mm: float) -> str:
@@ -322,32 +344,12 @@ def read_housing_yaml(path):
     src = str(path)
     if not path.is_file():
         raise ConfigError(src, "<file>", "missing: a refractive camera model needs the housing's datasheet "
-                                         f"({', '.join(HOUSING_KEYS)})")
+                                         f"({', '.join(HousingFile.model_fields)})")
     try:
         spec = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise ConfigError(src, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(spec, dict):
-        raise ConfigError(src, "<top>", "expected a mapping")
-    for k in spec:
-        if k not in HOUSING_KEYS:
-            raise ConfigError(src, str(k), f"unknown key (allowed: {', '.join(HOUSING_KEYS)})")
-    v = {}
-    for k in HOUSING_KEYS:
-        x = spec.get(k)
-        if isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x):
-            raise ConfigError(src, k, f"expected a number, got {x!r}")
-        v[k] = float(x)
-    if not 1.0 <= v["lens_to_glass_mm"] <= 500.0:
-        raise ConfigError(src, "lens_to_glass_mm", f"expected 1-500 mm, got {v['lens_to_glass_mm']}")
-    if not 0.0 < v["lens_to_glass_tolerance_mm"] < v["lens_to_glass_mm"]:
-        raise ConfigError(src, "lens_to_glass_tolerance_mm", f"expected > 0 and below lens_to_glass_mm, got "
-                                                             f"{v['lens_to_glass_tolerance_mm']}")
-    if not 0.0 <= v["glass_thickness_mm"] <= 100.0:
-        raise ConfigError(src, "glass_thickness_mm", f"expected 0-100 mm, got {v['glass_thickness_mm']}")
-    for k in ("n_air", "n_glass", "n_water"):
-        if not 1.0 <= v[k] <= 2.5:
-            raise ConfigError(src, k, f"expected a refractive index in [1, 2.5], got {v[k]}")
+    v = parse(HousingFile, spec, src)
     port = FlatPort(d0=v["lens_to_glass_mm"] * 1e-3, t=v["glass_thickness_mm"] * 1e-3, n_air=v["n_air"],
                     n_glass=v["n_glass"], n_water=v["n_water"], source=src)
     return port, v["lens_to_glass_tolerance_mm"] * 1e-3 / np.sqrt(3.0)
