@@ -82,8 +82,11 @@ def about(text: str):
 
 
 def _plausible(limit, problem, op):
+    ok = {"<=": lambda v: v <= limit, "<": lambda v: v < limit, ">=": lambda v: v >= limit, ">": lambda v: v > limit}
+    test = ok[op]
+
     def check(v):
-        if (v > limit) if op == "<=" else (v < limit):
+        if not test(v):
             raise ValueError(problem.format(v=v))
         return v
 
@@ -91,14 +94,16 @@ def _plausible(limit, problem, op):
     return AfterValidator(check)
 
 
-def at_most(limit: float, problem: str):
-    """Plausibility check: a value above ``limit`` is refused with ``problem`` (``{v}`` is the value)."""
-    return _plausible(limit, problem, "<=")
+def at_most(limit: float, problem: str, strict: bool = False):
+    """Plausibility check: a value above ``limit`` (``strict``: or at it) is refused with ``problem`` (``{v}`` is the
+    value)."""
+    return _plausible(limit, problem, "<" if strict else "<=")
 
 
-def at_least(limit: float, problem: str):
-    """Plausibility check: a value below ``limit`` is refused with ``problem`` (``{v}`` is the value)."""
-    return _plausible(limit, problem, ">=")
+def at_least(limit: float, problem: str, strict: bool = False):
+    """Plausibility check: a value below ``limit`` (``strict``: or at it) is refused with ``problem`` (``{v}`` is the
+    value)."""
+    return _plausible(limit, problem, ">" if strict else ">=")
 
 
 def distinct(values: list) -> list:
@@ -257,8 +262,10 @@ def message(err: dict, model, data) -> tuple[str, str]:
 
 
 def config_error(exc: ValidationError, model, data, source) -> ConfigError:
-    """The first error of ``exc`` as a one-line :class:`ConfigError` naming ``source`` and the dotted key."""
-    key, problem = message(exc.errors(include_url=False)[0], model, data)
+    """The first error of ``exc`` as a one-line :class:`ConfigError` naming ``source`` and the dotted key (an unknown
+    key first: a misspelt key is also a missing one, and the unknown one says which)."""
+    errors = exc.errors(include_url=False)
+    key, problem = message(next((e for e in errors if e["type"] == "extra_forbidden"), errors[0]), model, data)
     return ConfigError(source, key, problem)
 
 
