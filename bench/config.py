@@ -120,8 +120,29 @@ Distinct = AfterValidator(distinct)
 
 
 def parse(model: type[Section], data, source, at: str = "") -> dict:
-    """``data`` validated by ``model``, as nested dicts with the defaults filled in; else a one-line ConfigError
-    (``at``: the dotted key of ``data`` inside its file, prefixed to the error's key)."""
+    """Check a parsed file (or a part of one) against its model.
+
+    Parameters
+    ----------
+    model : type of Section
+        The file's model.
+    data : object
+        The parsed YAML (normally a mapping).
+    source : str or Path
+        The file, named by the error.
+    at : str
+        The dotted key of ``data`` inside its file when ``data`` is a part of it, prefixed to the error's key.
+
+    Returns
+    -------
+    dict
+        ``data`` validated, as nested dicts (lists, numbers, strings) with every default filled in.
+
+    Raises
+    ------
+    ConfigError
+        The first problem, one line: ``<source>: <dotted.key>: <problem>`` (an unknown key before any other).
+    """
     try:
         return model.model_validate(data).model_dump()
     except ValidationError as exc:
@@ -211,7 +232,25 @@ def _path(loc) -> str:
 
 
 def message(err: dict, model, data) -> tuple[str, str]:
-    """``(dotted key, one-line problem)`` of one pydantic error (an item of ``ValidationError.errors()``)."""
+    """The dotted key and the one-line problem of one pydantic error.
+
+    Parameters
+    ----------
+    err : dict
+        An item of ``ValidationError.errors()`` (``type``, ``loc``, ``msg``, ``input``, ``ctx``).
+    model : type of BaseModel
+        The model validated, to find the constraints, choices and known keys at ``loc``.
+    data : object
+        The data validated, to quote the whole list when an item of it is at fault.
+
+    Returns
+    -------
+    key : str
+        ``section.key``; ``views[2].name`` inside a list of mappings; a list of values is named by its key and the
+        item by the problem (``(item 2 of [...])``), so the key is what ``--set`` takes.
+    problem : str
+        The message in the user's words and units, e.g. ``must be > 0 mm, got -1``.
+    """
     loc, kind, value = err["loc"], err["type"], err.get("input")
     error = (err.get("ctx") or {}).get("error")
     if isinstance(error, KeyProblem):
