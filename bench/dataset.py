@@ -32,10 +32,13 @@ import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
 import yaml
+from pydantic import Field, field_validator, model_validator
 
+from bench.config import KeyProblem, MmDeg, Section, parse, section
 from bench.errors import ConfigError
 from bench.fileio import (
     check_output_dir,
@@ -53,7 +56,6 @@ POSED_ROLES = ("reference", "surround", "locate", "task")
 JOINT_COLUMNS = tuple(f"q{i}_deg" for i in range(1, 7))
 TABLE_COLUMNS = ("x_mm", "z_mm", "rot_deg")
 TRACKER_COLUMNS = ("x_mm", "y_mm", "z_mm")
-_MANIFEST_KEYS = {"format", "kind", "units", "name", "notes", "views", "camera", "robot", "created_by"}
 #: Largest image decoded (pixels): 100 Mpx, beyond any camera the bench or a subsea system uses, so a forged or
 #: corrupt header (e.g. 20000 x 20000) is refused from its first bytes instead of allocating gigabytes.
 MAX_IMAGE_PIXELS = 100_000_000
@@ -62,7 +64,43 @@ MAX_IMAGE_BYTES = 512 * 2**20
 #: Formats whose header Pillow reads here (told by the file's signature, not its name); OpenCV decodes them all.
 _HEADER_FORMATS = ("PNG", "JPEG", "TIFF", "BMP", "WEBP")
 _PILLOW_LIMIT = threading.Lock()
-_VIEW_KEYS = {"name", "image", "role", "notes"}
+
+
+class _ViewEntry(Section):
+    name: Annotated[str, Field(min_length=1)]
+    image: str | None = None
+    role: str = ""
+    notes: str = ""
+
+    @field_validator("image", mode="before")
+    @classmethod
+    def _file_name(cls, v):
+        if v is not None and (not isinstance(v, str) or not v):
+            raise ValueError(f"expected a file name, got {v!r}")
+        return v
+
+
+class Manifest(Section):
+    """``manifest.yaml``: the format, the kind of campaign, units, the views (see the module docstring)."""
+
+    format: Literal[FORMAT]
+    kind: Literal[KINDS]
+    units: MmDeg = section(MmDeg)
+    name: str | None = None
+    notes: str = ""
+    created_by: str = ""
+    camera: str | None = None
+    robot: str | None = None
+    views: list[_ViewEntry] | None = None
+
+    @model_validator(mode="after")
+    def _distinct_names(self):
+        seen = set()
+        for i, v in enumerate(self.views or []):
+            if v.name in seen:
+                raise KeyProblem(f"views[{i}].name", f"duplicate view {v.name!r}")
+            seen.add(v.name)
+        return self
 
 
 def _open_header(path: Path, formats=_HEADER_FORMATS):
@@ -359,22 +397,8 @@ def load_dataset(root) -> Dataset:
         man = yaml.safe_load(mpath.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(mpath, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(man, dict):
-        raise ConfigError(mpath, "<top>", "expected a mapping")
-    unknown = set(man) - _MANIFEST_KEYS
-    if unknown:
-        raise ConfigError(mpath, sorted(unknown)[0], f"unknown key (allowed: {', '.join(sorted(_MANIFEST_KEYS))})")
-    if man.get("format") != FORMAT:
-        raise ConfigError(mpath, "format", f"expected {FORMAT!r}, got {man.get('format')!r}")
-    kind = man.get("kind")
-    if kind not in KINDS:
-        raise ConfigError(mpath, "kind", f"expected one of {KINDS}, got {kind!r}")
-    units = man.get("units", {"length": "mm", "angle": "deg"})
-    if units != {"length": "mm", "angle": "deg"}:
-        raise ConfigError(mpath, "units", f"must be {{length: mm, angle: deg}}, got {units!r}")
-    views_raw = man.get("views") or []
-    if not isinstance(views_raw, list):
-        raise ConfigError(mpath, "views", "expected a list")
+    man = parse(Manifest, man, mpath)
+    kind = man["kind"]
 
     joints = _read_csv(root / "joints.csv", "view", JOINT_COLUMNS) if (root / "joints.csv").is_file() else {}
     if joints:
@@ -382,30 +406,16 @@ def load_dataset(root) -> Dataset:
     table = _read_csv(root / "table.csv", "view", TABLE_COLUMNS) if (root / "table.csv").is_file() else {}
 
     views, seen = [], set()
-    for i, v in enumerate(views_raw):
-        where = f"views[{i}]"
-        if not isinstance(v, dict):
-            raise ConfigError(mpath, where, "expected a mapping")
-        bad = set(v) - _VIEW_KEYS
-        if bad:
-            raise ConfigError(mpath, f"{where}.{sorted(bad)[0]}", "unknown key")
-        name = v.get("name")
-        if not isinstance(name, str) or not name:
-            raise ConfigError(mpath, f"{where}.name", "missing")
-        if name in seen:
-            raise ConfigError(mpath, f"{where}.name", f"duplicate view {name!r}")
+    for i, v in enumerate(man["views"] or []):
+        name, image = v["name"], v["image"]
         seen.add(name)
-        image = v.get("image")
-        if image is not None and (not isinstance(image, str) or not image):
-            raise ConfigError(mpath, f"{where}.image", f"expected a file name, got {image!r}")
         q = np.deg2rad(joints[name]) if name in joints else None
         t = table.get(name)
         if t is not None:
             t = np.array([t[0] * 1e-3, t[1] * 1e-3, np.deg2rad(t[2])])
         if image is None and q is None and t is None:
-            raise ConfigError(mpath, f"{where}.image", "missing (a view needs an image or readings)")
-        views.append(View(name, None if image is None else root / image, str(v.get("role", "")),
-                          str(v.get("notes", "")), q, t))
+            raise ConfigError(mpath, f"views[{i}].image", "missing (a view needs an image or readings)")
+        views.append(View(name, None if image is None else root / image, v["role"], v["notes"], q, t))
     if kind == "in_situ":
         unposed = [v for v in views if v.role in POSED_ROLES and v.q is None]
         if unposed:
@@ -424,7 +434,7 @@ def load_dataset(root) -> Dataset:
         tracker = {"point": list(rows), "p": arr[:, :3] * 1e-3, "q": np.deg2rad(arr[:, 3:])}
 
     def _opt_path(key):
-        value = man.get(key)
+        value = man[key]
         if value is None:
             return None
         p = root / str(value)
@@ -432,8 +442,8 @@ def load_dataset(root) -> Dataset:
             raise ConfigError(mpath, key, f"file {value!r} not found in the dataset")
         return p
 
-    return Dataset(root, str(man.get("name", root.name)), kind, tuple(views), _opt_path("camera"),
-                   _opt_path("robot"), tracker, str(man.get("notes", "")))
+    return Dataset(root, man["name"] or root.name, kind, tuple(views), _opt_path("camera"), _opt_path("robot"),
+                   tracker, man["notes"])
 
 
 # ------------------------------------------------------------------------------------------------ writing

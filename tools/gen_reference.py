@@ -1,10 +1,11 @@
 """``make docs``: write ``docs/reference.md``, every scenario key and every ``result.json`` metric, from the code.
 
-For each scenario kind (``bench.scenario.runner.KINDS``): the keys of its ``SCHEMA`` with type and default, the unit
-that the key's name carries, the meaning from the comments of the kind's files in ``scenarios/`` (the only place the
-repository documents most keys), and what the kind's ``validate()`` refuses, found by asking it (a negative number,
-an unknown word, an empty list); then the metrics ``bench.scenario.metrics.METRICS`` declares. Nothing is typed by
-hand, so ``tests/test_docs.py`` can check that the committed file equals this script's output.
+For each scenario kind (``bench.scenario.runner.KINDS``): the keys of its pydantic model (``Scenario`` of the kind's
+module) with type, default and declared constraints (ranges, lengths, choices), the unit that the key's name carries,
+the meaning (the field's ``description``, else the comments of the kind's files in ``scenarios/``), and what loading
+refuses, found by asking it (a negative number, an unknown word, an empty list through the model and the kind's
+``validate()``); then the metrics ``bench.scenario.metrics.METRICS`` declares. Nothing is typed by hand, so
+``tests/test_docs.py`` can check that the committed file equals this script's output.
 
 Usage: ``python tools/gen_reference.py [--out docs/reference.md] [--check]``.
 """
@@ -22,31 +23,23 @@ sys.path.insert(0, str(ROOT))
 
 import yaml  # noqa: E402
 
+from bench.config import constraint_text, default_of, leaves, type_text, unit_of  # noqa: E402
 from bench.errors import BenchError  # noqa: E402
 from bench.fileio import atomic_write_text  # noqa: E402
 from bench.scenario.metrics import METRICS, PLACEHOLDERS  # noqa: E402
-from bench.scenario.runner import KINDS, kind_module  # noqa: E402
-from bench.scenario.schema import _REQUIRED, validate  # noqa: E402
+from bench.scenario.runner import KINDS, check_scenario, kind_module  # noqa: E402
 
-# unit carried by a key's name (longest suffix first)
-UNITS = (("_per_mm2", "1/mm²"), ("_per_mm4", "1/mm⁴"), ("_per_mm", "1/mm"), ("_mm", "mm"), ("_deg", "deg"),
-         ("_rad", "rad"), ("_px", "px"), ("_pct", "%"), ("_m", "m"), ("_s", "s"))
-PROBES = {int: -1, float: -1.0, str: "no-such-value", list: []}
+#: the probe value per type name (what loading says to it goes into the reference)
+PROBES = {"int": -1, "float": -1.0, "str": "no-such-value", "list": []}
 _KEY = re.compile(r"^(\s*)([A-Za-z0-9_]+):(.*)$")
 
 
-def unit_of(key: str) -> str:
-    leaf = key.rsplit(".", 1)[-1]
-    return next((u for s, u in UNITS if leaf.endswith(s)), "")
-
-
-def leaves(schema: dict, prefix: str = ""):
-    """``(dotted key, type, default)`` of every leaf, in the schema's order."""
-    for key, spec in schema.items():
-        if isinstance(spec, dict):
-            yield from leaves(spec, f"{prefix}{key}.")
-        else:
-            yield f"{prefix}{key}", spec[0], spec[1]
+def probe_of(field):
+    """The probe for a field's type (``None``: not probed, e.g. a bool)."""
+    text = type_text(field.annotation).removesuffix(" or null")
+    kind = "list" if text.startswith("list") else "str" if text.startswith(("one of", "str")) or " or " in text \
+        else text
+    return copy.deepcopy(PROBES.get(kind))
 
 
 def yaml_comments(path: Path) -> dict:
@@ -85,33 +78,32 @@ def yaml_comments(path: Path) -> dict:
     return out
 
 
-def refusals(module, cfg: dict, keys) -> dict:
-    """``{key: (probe, message)}``: what the kind's ``validate()`` says to a value no key accepts."""
+def refusals(raw: dict, source: Path, keys) -> dict:
+    """``{key: (probe, message)}``: what loading (the model, then the kind's ``validate()``) says to a probe value at
+    each key of a valid scenario ``raw``."""
     out = {}
-    if not hasattr(module, "validate"):
-        return out
-    for key, kind, _ in keys:
-        if kind not in PROBES:
+    for key, field in keys:
+        value = probe_of(field)
+        if value is None:
             continue
-        probe = copy.deepcopy(cfg)
+        probe = copy.deepcopy(raw)
         node = probe
         *path, leaf = key.split(".")
         for part in path:
-            node = node[part]
-        node[leaf] = PROBES[kind]
+            node = node.setdefault(part, {})
+        node[leaf] = value
         try:
-            module.validate(probe)
+            check_scenario(probe, source)
         except BenchError as exc:
-            field = getattr(exc, "field", "")
-            if key in str(field):
-                out[key] = (PROBES[kind], getattr(exc, "problem", str(exc)))
-        except Exception as exc:  # noqa: BLE001 - a validate() that crashes is reported, not hidden
-            out[key] = (PROBES[kind], f"validate() raised {type(exc).__name__} (not a one-line error)")
+            if key == getattr(exc, "field", ""):
+                out[key] = (value, getattr(exc, "problem", str(exc)))
+        except Exception as exc:  # noqa: BLE001 - a check that crashes is reported, not hidden
+            out[key] = (value, f"loading raised {type(exc).__name__} (not a one-line error)")
     return out
 
 
 def _cell(v) -> str:
-    if v is _REQUIRED:
+    if v is ...:
         return "*required*"
     text = yaml.safe_dump(v, default_flow_style=True, width=1000).strip()
     text = text.removesuffix("...").strip()
@@ -130,31 +122,29 @@ def kind_section(kind: str) -> list[str]:
     for p in files:
         for k, v in yaml_comments(p).items():
             comments.setdefault(k, (v, p.name))
-    keys = list(leaves(module.SCHEMA))
-    refused = {}
-    if files:
-        raw = yaml.safe_load(files[0].read_text())
-        cfg = validate(raw, module.SCHEMA, str(files[0].relative_to(ROOT)))
-        cfg["_file"] = str(files[0].relative_to(ROOT))
-        refused = refusals(module, cfg, keys)
+    keys = list(leaves(module.Scenario))
+    refused = refusals(yaml.safe_load(files[0].read_text()), files[0], keys) if files else {}
     doc = (module.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ").replace("``", "`")
     lines = [f"## `{kind}`", "", f"`bench/scenario/{KINDS[kind]}.py`: {_esc(doc)}", ""]
     lines.append("Scenario files: " + (", ".join(f"`scenarios/{p.name}`" for p in files) or "none") + ".")
-    lines += ["", "### Keys", "", "| key | type | default | unit | meaning (from the scenario files' comments) | "
-              "`validate()` refuses |", "|---|---|---|---|---|---|"]
+    lines += ["", "### Keys", "", "| key | type | default | unit | constraints | meaning (the model's description, "
+              "else the scenario files' comments) | refused (probe: message) |", "|---|---|---|---|---|---|---|"]
     sections = set()
-    for key, typ, default in keys:
+    for key, field in keys:
         section = key.rsplit(".", 1)[0] if "." in key else ""
         if section and section not in sections:
             sections.add(section)
-            if section in comments:
-                text, src = comments[section]
-                lines.append(f"| `{section}.*` | section | | | {_esc(text)} ({src}) | |")
-        meaning = comments.get(key)
-        meaning = f"{_esc(meaning[0])} ({meaning[1]})" if meaning else ""
+            doc = " ".join((module.Scenario.model_fields[section.split(".")[0]].annotation.__doc__ or "").split())
+            text, src = comments.get(section, (doc, ""))
+            if text:
+                lines.append(f"| `{section}.*` | section | | | | {_esc(text)}{f' ({src})' if src else ''} | |")
+        meaning = (field.description, "") if field.description else comments.get(key)
+        meaning = f"{_esc(meaning[0])}{f' ({meaning[1]})' if meaning[1] else ''}" if meaning else ""
         ref = refused.get(key)
         ref = f"`{ref[0]!r}`: {_esc(ref[1])}" if ref else ""
-        lines.append(f"| `{key}` | {typ.__name__} | {_esc(_cell(default))} | {unit_of(key)} | {meaning} | {ref} |")
+        unit = unit_of(key)
+        lines.append(f"| `{key}` | {_esc(type_text(field.annotation))} | {_esc(_cell(default_of(field)))} | {unit} | "
+                     f"{_esc(constraint_text(field, unit))} | {meaning} | {ref} |")
     lines += ["", "### Metrics", "", "| metric | unit | meaning | written when |", "|---|---|---|---|"]
     used = set()
     for m in METRICS[kind]:
@@ -167,10 +157,10 @@ def kind_section(kind: str) -> list[str]:
 
 def render() -> str:
     lines = ["# Reference: scenario keys and `result.json` metrics", "",
-             "*Generated by `make docs` (`tools/gen_reference.py`) from each kind's `SCHEMA` and `validate()`, the "
-             "comments of `scenarios/*.yaml` and `bench/scenario/metrics.py`; do not edit. `tests/test_docs.py` "
-             "checks that this file is current, and the kinds' smoke tests that a run writes exactly the metrics "
-             "declared here.*", "",
+             "*Generated by `make docs` (`tools/gen_reference.py`) from each kind's pydantic model (`Scenario`) and "
+             "`validate()`, the comments of `scenarios/*.yaml` and `bench/scenario/metrics.py`; do not edit. "
+             "`tests/test_docs.py` checks that this file is current, and the kinds' smoke tests that a run writes "
+             "exactly the metrics declared here.*", "",
              "Set a key with `bench run FILE --set KEY=VALUE` (or `bench sweep ... --param KEY=v1,v2`); an unknown or "
              "mistyped key is a one-line error. Units inside the code are SI; a key or metric carries its unit in "
              "its name. `result.json` holds `scenario`, `seed`, `metrics` (below; non-finite values are `null`), "

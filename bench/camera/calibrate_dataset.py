@@ -39,23 +39,52 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import yaml
+from pydantic import BeforeValidator
 
 from bench.camera.calibration import calibrate_camera, opencv_reference, per_view_pinhole
 from bench.camera.corners import extract_corners_opencv, extract_corners_thesis, planar_board, two_plane_rig
 from bench.camera.io import write_camera_yaml
 from bench.camera.plots import plot_residual_vectors
 from bench.camera.target_tolerance import calibration_with_tolerance, parse_tolerance
+from bench.config import NonNegFloat, PositiveFloat, Section, at_least, parse
 from bench.dataset import View, load_dataset
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text, write_table_csv
 from bench.geometry.transforms import homogeneous, rot_z
 
-#: target types and their keys: (required, optional with default)
-TARGET_KEYS = {"chessboard": ({"inner", "square_mm"}, {}),
-               "two_plane_rig": ({"size_mm"}, {"squares": 7, "margin_mm": 0.0})}
+
+def _inner(v):
+    if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, int) and not isinstance(x, bool) and x >= 2
+                                                        for x in v)):
+        raise ValueError(f"expected [inner corners per row, rows], both >= 2, got {v!r}")
+    return v
+
+
+class Chessboard(Section):
+    """``target.yaml`` of a flat chessboard (``type: chessboard``; ``planar`` is read as a synonym)."""
+
+    type: str
+    inner: Annotated[list[int], BeforeValidator(_inner)]
+    square_mm: PositiveFloat
+    tolerance: dict | None = None  # bench.camera.target_tolerance.Tolerance
+
+
+class TwoPlaneRig(Section):
+    """``target.yaml`` of the thesis's rig (``type: two_plane_rig``, section 5.2): two perpendicular boards."""
+
+    type: str
+    squares: Annotated[int, at_least(3, "expected an integer >= 3 (squares per side), got {v}")] = 7
+    size_mm: PositiveFloat
+    margin_mm: NonNegFloat = 0.0
+    tolerance: dict | None = None
+
+
+#: target types and their models
+TARGETS = {"chessboard": Chessboard, "two_plane_rig": TwoPlaneRig}
 _TARGET_SYNONYMS = {"planar": "chessboard"}
 #: image files of a plain folder of photos
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -64,42 +93,25 @@ TOLERANCE_DRAWS = 48
 
 
 def parse_target(t, source):
-    """The target geometry (SI) from a ``target.yaml`` mapping (module docstring); one-line ConfigError naming
-    ``source`` and the key for anything else."""
+    """The target geometry (SI) from a ``target.yaml`` mapping (:data:`TARGETS`, module docstring); one-line
+    ConfigError naming ``source`` and the key for anything else."""
     if not isinstance(t, dict):
         raise ConfigError(source, "<top>", f"expected a mapping (type: chessboard|two_plane_rig, ...), got {t!r}")
     kind = _TARGET_SYNONYMS.get(t.get("type"), t.get("type"))
-    if kind not in TARGET_KEYS:
+    if kind not in TARGETS:
         raise ConfigError(source, "type", f"expected 'chessboard' or 'two_plane_rig', got {t.get('type')!r}")
-    required, optional = TARGET_KEYS[kind]
-    if "tolerance" in t:
-        parse_tolerance(t["tolerance"], source)
-    for key in sorted(set(t) - {"type", "tolerance"} - required - set(optional)):
-        other = [k for k, (r, o) in TARGET_KEYS.items() if key in r or key in o]
-        hint = f" (a key of type {other[0]})" if other else ""
-        raise ConfigError(source, key, f"unknown key for type {kind}{hint}; allowed: "
-                                       f"{', '.join(sorted(required | set(optional) | {'tolerance'}))}")
-    for key in sorted(required - set(t)):
-        raise ConfigError(source, key, f"missing (type {kind} needs {', '.join(sorted(required))})")
-    t = {**optional, **t}
-
-    def length(key, positive=True):
-        v = t[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0 or (
-                positive and v == 0):
-            raise ConfigError(source, key, f"expected a length in mm {'> 0' if positive else '>= 0'}, got {v!r}")
-        return float(v)
-
+    try:
+        v = parse(TARGETS[kind], t, source)
+    except ConfigError as exc:
+        other = [k for k, m in TARGETS.items() if k != kind and exc.field in m.model_fields]
+        if exc.problem.startswith("unknown key") and other:
+            raise ConfigError(source, exc.field, f"unknown key for type {kind} (a key of type {other[0]})") from None
+        raise
+    if v["tolerance"] is not None:
+        parse_tolerance(v["tolerance"], source)
     if kind == "two_plane_rig":
-        squares = t["squares"]
-        if isinstance(squares, bool) or not isinstance(squares, int) or squares < 3:
-            raise ConfigError(source, "squares", f"expected an integer >= 3 (squares per side), got {squares!r}")
-        return two_plane_rig(squares, length("size_mm") * 1e-3, length("margin_mm", positive=False) * 1e-3)
-    inner = t["inner"]
-    if not (isinstance(inner, list) and len(inner) == 2 and
-            all(isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in inner)):
-        raise ConfigError(source, "inner", f"expected [inner corners per row, rows], both >= 2, got {inner!r}")
-    return planar_board(tuple(inner), length("square_mm") * 1e-3)
+        return two_plane_rig(v["squares"], v["size_mm"] * 1e-3, v["margin_mm"] * 1e-3)
+    return planar_board(tuple(v["inner"]), v["square_mm"] * 1e-3)
 
 
 def load_target_tolerance(path):
@@ -127,10 +139,12 @@ def target_spec(target: str, inner: str | None = None, square_mm: float | None =
     """The ``target.yaml`` mapping from command-line flags (``--target chessboard --inner 9x6 --square-mm 25``, or
     ``--target two_plane_rig --size-mm 197 [--squares 7] [--margin-mm 20]``), checked by :func:`parse_target`."""
     kind = _TARGET_SYNONYMS.get(str(target).replace("-", "_"), str(target).replace("-", "_"))
-    if kind not in TARGET_KEYS:
+    if kind not in TARGETS:
         raise ConfigError("--target", kind, "expected chessboard or two_plane_rig")
     flags = {"inner": inner, "square_mm": square_mm, "squares": squares, "size_mm": size_mm, "margin_mm": margin_mm}
-    required, optional = TARGET_KEYS[kind]
+    fields = {k: f for k, f in TARGETS[kind].model_fields.items() if k not in ("type", "tolerance")}
+    required, optional = {k for k, f in fields.items() if f.is_required()}, {k for k, f in fields.items()
+                                                                             if not f.is_required()}
 
     def flag(key):
         return "--" + key.replace("_", "-")

@@ -27,29 +27,26 @@ which are ignored). Note that OpenCV's own functions ignore ``K[0, 1]`` (they ha
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated, Any
 
 import cv2
 import numpy as np
+from pydantic import Field, PlainValidator, model_validator
+from pydantic_core import PydanticCustomError
 
 from bench.camera.dlt import thesis_parameters
 from bench.camera.heikkila import heikkila_of
 from bench.camera.model import CameraModel
+from bench.config import KeyProblem, PositiveFloat, Section, at_least, at_most, parse
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text
 
-_KEYS = {"camera_matrix", "dist_coeffs", "image_width", "image_height", "model", "name", "pixel_pitch_mm",
-         "intrinsics_eq50", "heikkila_eq75", "extra", "flat_port"}
-_PORT_KEYS = ("lens_to_glass_mm", "glass_thickness_mm", "n_air", "n_glass", "n_water", "tilt_x_deg", "tilt_y_deg",
-              "working_range_m")
 #: keys that OpenCV's calibration sample writes beside the camera; accepted and ignored
 _OPENCV_SAMPLE_KEYS = {"distortion_coefficients", "calibration_time", "nr_of_frames", "nrOfFrames", "board_width",
                        "board_height", "board_Width", "board_Height", "square_size", "square_Size", "flags",
                        "calibrate_FixAspectRatio", "fisheye_model", "avg_reprojection_error",
                        "per_view_reprojection_errors", "extrinsic_parameters", "image_points", "grid_points",
                        "aspectRatio", "fix_aspect_ratio", "image_size"}
-_EQ50_KEYS = ("alpha_px", "beta_px", "theta_deg", "u0_px", "v0_px")
-_HEIKKILA_KEYS = ("s_u", "f_px", "f_mm", "u0_px", "v0_px", "k1_per_mm2", "k2_per_mm4", "T1_per_mm", "T2_per_mm",
-                  "pixels_per_mm")
 #: relative tolerance between the derived blocks and the matrices on reading
 _CONSISTENCY_RTOL = 1e-9
 
@@ -109,7 +106,7 @@ def camera_yaml_text(camera, extra: dict | None = None) -> str:
         fs.endWriteStruct()
     if port is not None:
         fs.startWriteStruct("flat_port", cv2.FILE_NODE_MAP)
-        for key in _PORT_KEYS:
+        for key in _FlatPortBlock.model_fields:
             fs.write(key, float(port[key]))
         fs.endWriteStruct()
     return fs.releaseAndGetString()
@@ -120,58 +117,124 @@ def write_camera_yaml(path, camera, extra: dict | None = None) -> Path:
     return atomic_write_text(path, camera_yaml_text(camera, extra))  # a plain file's permissions (umask)
 
 
-def _numbers(src, key, node) -> np.ndarray:
-    """A matrix node (``!!opencv-matrix`` or a plain nested sequence of numbers) as a float array."""
+def _plain(node):
+    """A ``cv2.FileNode`` as plain Python: mappings, lists, numbers, strings; an ``!!opencv-matrix`` as a list of
+    rows (or of values, for one row)."""
     if node.isMap():
-        mat = node.mat()
-        if mat is None:
-            raise ConfigError(src, key, "expected a matrix (!!opencv-matrix or a list of numbers)")
-        return np.asarray(mat, dtype=float)
+        keys = list(node.keys())
+        if {"rows", "cols", "dt", "data"} <= set(keys):
+            mat = node.mat()
+            if mat is not None:
+                return np.asarray(mat, dtype=float).tolist()
+        return {k: _plain(node.getNode(k)) for k in keys}
     if node.isSeq():
-        rows = []
-        for i in range(node.size()):
-            item = node.at(i)
-            if item.isSeq():
-                rows.append([_scalar(src, f"{key}[{i}]", item.at(j)) for j in range(item.size())])
-            else:
-                rows.append(_scalar(src, f"{key}[{i}]", item))
-        try:
-            return np.asarray(rows, dtype=float)
-        except ValueError:
-            raise ConfigError(src, key, "rows of unequal length") from None
-    raise ConfigError(src, key, "expected a matrix (!!opencv-matrix or a list of numbers)")
+        return [_plain(node.at(i)) for i in range(node.size())]
+    if node.isInt():
+        return int(node.real())
+    if node.isReal():
+        return float(node.real())
+    if node.isString():
+        return node.string()
+    return None
 
 
-def _scalar(src, key, node) -> float:
-    if not (node.isInt() or node.isReal()):
-        raise ConfigError(src, key, "expected a number")
-    val = float(node.real())
-    if not np.isfinite(val):
-        raise ConfigError(src, key, "must be finite")
-    return val
+def _matrix(value):
+    """A matrix: a list of numbers or of equally long rows of numbers (non-finite values are the camera's to
+    refuse: :class:`~bench.camera.model.CameraModel` names them)."""
+    rows = value if isinstance(value, list) else None
+    if not rows or not all(isinstance(r, list) and r or _is_number(r) for r in rows):
+        raise PydanticCustomError("matrix", "expected a matrix (!!opencv-matrix or a list of numbers)")
+    if any(isinstance(r, list) for r in rows):
+        if not all(isinstance(r, list) and all(_is_number(x) for x in r) for r in rows):
+            raise PydanticCustomError("matrix", "expected a matrix (!!opencv-matrix or a list of numbers)")
+        if len({len(r) for r in rows}) != 1:
+            raise PydanticCustomError("matrix", "rows of unequal length")
+    return value
 
 
-def _int(src, key, node) -> int:
-    if not node.isInt() or node.real() <= 0:
-        raise ConfigError(src, key, "expected a positive integer (px)")
-    return int(node.real())
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
 
 
-def _check_block(src, root, block, names, expected: dict | None):
-    node = root.getNode(block)
-    if not node.isMap():
-        raise ConfigError(src, block, "expected a mapping")
-    keys = set(node.keys())
-    unknown = sorted(keys - set(names))
-    if unknown:
-        raise ConfigError(src, f"{block}.{unknown[0]}", f"unknown key (allowed: {', '.join(names)})")
+def _number_or_text(value):
+    if isinstance(value, str):
+        return value
+    if not _is_number(value) or not np.isfinite(value):
+        raise PydanticCustomError("number_type", "expected a number")
+    return value
+
+
+Matrix = Annotated[list, PlainValidator(_matrix)]
+_POSITIVE_PX = at_least(1, "expected a positive integer (px), got {v}")
+
+
+class _Eq50Block(Section):
+    alpha_px: float
+    beta_px: float
+    theta_deg: float
+    u0_px: float
+    v0_px: float
+
+
+class _HeikkilaBlock(Section):
+    s_u: float
+    f_px: float
+    f_mm: float
+    u0_px: float
+    v0_px: float
+    k1_per_mm2: float
+    k2_per_mm4: float
+    T1_per_mm: float
+    T2_per_mm: float
+    pixels_per_mm: float
+
+
+class _FlatPortBlock(Section):
+    lens_to_glass_mm: float
+    glass_thickness_mm: float
+    n_air: float
+    n_glass: float
+    n_water: float
+    tilt_x_deg: float
+    tilt_y_deg: float
+    working_range_m: float
+
+
+class CameraFile(Section):
+    """``camera.yaml`` (module docstring); the keys of OpenCV's calibration sample are accepted and ignored."""
+
+    camera_matrix: Matrix
+    dist_coeffs: Matrix | None = None
+    distortion_coefficients: Matrix | None = None  # OpenCV's calibration sample's name of dist_coeffs
+    image_width: Annotated[int, _POSITIVE_PX]
+    image_height: Annotated[int, _POSITIVE_PX]
+    model: str | None = None
+    name: str | None = None
+    pixel_pitch_mm: float | None = None
+    intrinsics_eq50: _Eq50Block | None = None
+    heikkila_eq75: _HeikkilaBlock | None = None
+    extra: dict[str, Annotated[Any, PlainValidator(_number_or_text)]] = {}
+    flat_port: _FlatPortBlock | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _sample_keys(cls, data):
+        return {k: v for k, v in data.items() if k not in _OPENCV_SAMPLE_KEYS or k in cls.model_fields} \
+            if isinstance(data, dict) else data
+
+    @model_validator(mode="after")
+    def _distortion(self):
+        if self.dist_coeffs is None and self.distortion_coefficients is None:
+            raise KeyProblem("dist_coeffs", "missing")
+        return self
+
+
+def _check_block(src, block, values: dict, expected: dict | None):
+    """A derived block read back must agree with the camera its matrices make."""
     if expected is None:
         raise ConfigError(src, block, "present, but the camera has no such form (needs pixel_pitch_mm, no skew, "
                                       "no k3)")
-    for k in names:
-        if k not in keys:
-            raise ConfigError(src, f"{block}.{k}", "missing")
-        val = _scalar(src, f"{block}.{k}", node.getNode(k))
+    for k, val in values.items():
         ref = expected[k]
         if abs(val - ref) > _CONSISTENCY_RTOL * max(abs(ref), 1e-12) + 1e-15:
             raise ConfigError(src, f"{block}.{k}", f"{val!r} disagrees with camera_matrix/dist_coeffs ({ref!r})")
@@ -212,75 +275,41 @@ def read_camera_yaml(path, with_extra: bool = False, allow_refractive: bool = Fa
         root = fs.root()
         if not root.isMap():
             raise ConfigError(src, "<top>", "expected a mapping")
-        keys = list(root.keys())
-        for k in keys:
-            if k not in _KEYS and k not in _OPENCV_SAMPLE_KEYS:
-                raise ConfigError(src, k, f"unknown key (allowed: {', '.join(sorted(_KEYS))})")
-        for k in ("camera_matrix", "image_width", "image_height"):
-            if k not in keys:
-                raise ConfigError(src, k, "missing")
-        dist_key = "dist_coeffs" if "dist_coeffs" in keys else "distortion_coefficients"
-        if dist_key not in keys:
-            raise ConfigError(src, "dist_coeffs", "missing")
-        K = _numbers(src, "camera_matrix", root.getNode("camera_matrix"))
-        if K.shape != (3, 3):
-            raise ConfigError(src, "camera_matrix", f"expected 3x3, got shape {K.shape}")
-        dist = _numbers(src, dist_key, root.getNode(dist_key)).ravel()
-        width = _int(src, "image_width", root.getNode("image_width"))
-        height = _int(src, "image_height", root.getNode("image_height"))
-        model = None
-        if "model" in keys:
-            node = root.getNode("model")
-            if not node.isString():
-                raise ConfigError(src, "model", "expected a string")
-            model = node.string()
-        name = root.getNode("name").string() if "name" in keys else (path.parent.name or "camera")
-        pitch = None
-        if "pixel_pitch_mm" in keys:
-            pitch = _scalar(src, "pixel_pitch_mm", root.getNode("pixel_pitch_mm")) * 1e-3
-        try:
-            camera = CameraModel(width, height, K, dist, name=name, model=model, pixel_pitch=pitch)
-        except ValueError as exc:
-            field, _, problem = str(exc).partition(": ")
-            field = {"K": "camera_matrix", "dist": dist_key, "pixel_pitch": "pixel_pitch_mm"}.get(field, field)
-            raise ConfigError(src, field, problem or str(exc)) from None
-        derived = thesis_blocks(camera)
-        if "intrinsics_eq50" in keys:
-            _check_block(src, root, "intrinsics_eq50", _EQ50_KEYS, derived["intrinsics_eq50"])
-        if "heikkila_eq75" in keys:
-            _check_block(src, root, "heikkila_eq75", _HEIKKILA_KEYS, derived.get("heikkila_eq75"))
-        extra = {}
-        if "extra" in keys:
-            node = root.getNode("extra")
-            if not node.isMap():
-                raise ConfigError(src, "extra", "expected a mapping")
-            for k in node.keys():
-                item = node.getNode(k)
-                extra[k] = item.string() if item.isString() else _scalar(src, f"extra.{k}", item)
-        if "flat_port" in keys:
-            if not allow_refractive:
-                raise ConfigError(src, "flat_port", "a refractive camera (lens behind a flat port) is not supported "
-                                                    "here: only the in-situ localisation (bench locate) takes one")
-            camera = _refractive(src, root.getNode("flat_port"), camera)
+        data = _plain(root)
     finally:
         fs.release()
+    cfg = parse(CameraFile, data, src)
+    dist_key = "dist_coeffs" if cfg["dist_coeffs"] is not None else "distortion_coefficients"
+    K = np.asarray(cfg["camera_matrix"], dtype=float)
+    if K.shape != (3, 3):
+        raise ConfigError(src, "camera_matrix", f"expected 3x3, got shape {K.shape}")
+    dist = np.asarray(cfg[dist_key], dtype=float).ravel()
+    name = cfg["name"] if cfg["name"] is not None else (path.parent.name or "camera")
+    pitch = None if cfg["pixel_pitch_mm"] is None else cfg["pixel_pitch_mm"] * 1e-3
+    try:
+        camera = CameraModel(cfg["image_width"], cfg["image_height"], K, dist, name=name, model=cfg["model"],
+                             pixel_pitch=pitch)
+    except ValueError as exc:
+        field, _, problem = str(exc).partition(": ")
+        field = {"K": "camera_matrix", "dist": dist_key, "pixel_pitch": "pixel_pitch_mm"}.get(field, field)
+        raise ConfigError(src, field, problem or str(exc)) from None
+    derived = thesis_blocks(camera)
+    for block in ("intrinsics_eq50", "heikkila_eq75"):
+        if cfg[block] is not None:
+            _check_block(src, block, cfg[block], derived.get(block))
+    extra = {k: v if isinstance(v, str) else float(v) for k, v in cfg["extra"].items()}
+    if cfg["flat_port"] is not None:
+        if not allow_refractive:
+            raise ConfigError(src, "flat_port", "a refractive camera (lens behind a flat port) is not supported "
+                                                "here: only the in-situ localisation (bench locate) takes one")
+        camera = _refractive(src, cfg["flat_port"], camera)
     return (camera, extra) if with_extra else camera
 
 
-def _refractive(src, node, lens):
+def _refractive(src, v: dict, lens):
     from bench.camera.flatport import FlatPort
     from bench.camera.refractive import RefractiveCamera
 
-    if not node.isMap():
-        raise ConfigError(src, "flat_port", "expected a mapping")
-    for k in node.keys():
-        if k not in _PORT_KEYS:
-            raise ConfigError(src, f"flat_port.{k}", f"unknown key (allowed: {', '.join(_PORT_KEYS)})")
-    v = {}
-    for k in _PORT_KEYS:
-        if node.getNode(k).empty():
-            raise ConfigError(src, f"flat_port.{k}", "missing")
-        v[k] = _scalar(src, f"flat_port.{k}", node.getNode(k))
     try:
         port = FlatPort(d0=v["lens_to_glass_mm"] * 1e-3, t=v["glass_thickness_mm"] * 1e-3, n_air=v["n_air"],
                         n_glass=v["n_glass"], n_water=v["n_water"],
@@ -297,7 +326,26 @@ def _refractive(src, node, lens):
 
 #: ``housing.yaml``: the underwater housing's datasheet and the site's water, what a refractive calibration starts
 #: from and holds fixed (lens_to_glass_mm is the design value, a start: the calibration estimates it)
-HOUSING_KEYS = ("lens_to_glass_mm", "lens_to_glass_tolerance_mm", "glass_thickness_mm", "n_air", "n_glass", "n_water")
+_INDEX_PROBLEM = "expected a refractive index in [1, 2.5], got {v}"
+_INDEX = Annotated[float, at_least(1, _INDEX_PROBLEM), at_most(2.5, _INDEX_PROBLEM)]
+
+
+class HousingFile(Section):
+    """``housing.yaml`` (every key required)."""
+
+    lens_to_glass_mm: Annotated[float, Field(ge=1, le=500)]
+    lens_to_glass_tolerance_mm: PositiveFloat
+    glass_thickness_mm: Annotated[float, Field(ge=0, le=100)]
+    n_air: _INDEX
+    n_glass: _INDEX
+    n_water: _INDEX
+
+    @model_validator(mode="after")
+    def _tolerance(self):
+        if not self.lens_to_glass_tolerance_mm < self.lens_to_glass_mm:
+            raise KeyProblem("lens_to_glass_tolerance_mm", f"expected below lens_to_glass_mm, got "
+                                                           f"{self.lens_to_glass_tolerance_mm}")
+        return self
 
 
 def housing_yaml_text(port, tolerance_mm: float) -> str:
@@ -322,32 +370,12 @@ def read_housing_yaml(path):
     src = str(path)
     if not path.is_file():
         raise ConfigError(src, "<file>", "missing: a refractive camera model needs the housing's datasheet "
-                                         f"({', '.join(HOUSING_KEYS)})")
+                                         f"({', '.join(HousingFile.model_fields)})")
     try:
         spec = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise ConfigError(src, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(spec, dict):
-        raise ConfigError(src, "<top>", "expected a mapping")
-    for k in spec:
-        if k not in HOUSING_KEYS:
-            raise ConfigError(src, str(k), f"unknown key (allowed: {', '.join(HOUSING_KEYS)})")
-    v = {}
-    for k in HOUSING_KEYS:
-        x = spec.get(k)
-        if isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x):
-            raise ConfigError(src, k, f"expected a number, got {x!r}")
-        v[k] = float(x)
-    if not 1.0 <= v["lens_to_glass_mm"] <= 500.0:
-        raise ConfigError(src, "lens_to_glass_mm", f"expected 1-500 mm, got {v['lens_to_glass_mm']}")
-    if not 0.0 < v["lens_to_glass_tolerance_mm"] < v["lens_to_glass_mm"]:
-        raise ConfigError(src, "lens_to_glass_tolerance_mm", f"expected > 0 and below lens_to_glass_mm, got "
-                                                             f"{v['lens_to_glass_tolerance_mm']}")
-    if not 0.0 <= v["glass_thickness_mm"] <= 100.0:
-        raise ConfigError(src, "glass_thickness_mm", f"expected 0-100 mm, got {v['glass_thickness_mm']}")
-    for k in ("n_air", "n_glass", "n_water"):
-        if not 1.0 <= v[k] <= 2.5:
-            raise ConfigError(src, k, f"expected a refractive index in [1, 2.5], got {v[k]}")
+    v = parse(HousingFile, spec, src)
     port = FlatPort(d0=v["lens_to_glass_mm"] * 1e-3, t=v["glass_thickness_mm"] * 1e-3, n_air=v["n_air"],
                     n_glass=v["n_glass"], n_water=v["n_water"], source=src)
     return port, v["lens_to_glass_tolerance_mm"] * 1e-3 / np.sqrt(3.0)

@@ -14,20 +14,66 @@ T2_per_mm, pixels_per_mm``, see :mod:`bench.camera.heikkila` for the units). Mal
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
 import yaml
+from pydantic import model_validator
 
 from bench.camera.dlt import intrinsic_matrix
 from bench.camera.heikkila import HeikkilaParameters, camera_from_heikkila
 from bench.camera.model import CameraModel
+from bench.config import KeyProblem, PositiveFloat, PositiveInt, Section, at_least, at_most, parse
 from bench.errors import ConfigError
 
-_TOP_KEYS = {"name", "source", "image_width_px", "image_height_px", "intrinsics_eq50", "distortion",
-             "heikkila_eq75", "reprojection_chi_px"}
-_EQ50_KEYS = ("alpha_px", "beta_px", "theta_deg", "u0_px", "v0_px")
-_HEIKKILA_KEYS = ("s_u", "f_px", "u0_px", "v0_px", "k1_per_mm2", "k2_per_mm4", "T1_per_mm", "T2_per_mm",
-                  "pixels_per_mm")
+_SKEW = "skew angle {v} deg is implausible (expected near 90; radians given?)"
+
+
+class Eq50(Section):
+    """``intrinsics_eq50``: the thesis's Eq. 50 intrinsics."""
+
+    alpha_px: PositiveFloat
+    beta_px: PositiveFloat
+    theta_deg: Annotated[float, at_least(45, _SKEW, strict=True), at_most(135, _SKEW, strict=True)]
+    u0_px: float
+    v0_px: float
+
+
+class Heikkila75(Section):
+    """``heikkila_eq75``: Heikkilä's parameters in the thesis's units (:mod:`bench.camera.heikkila`)."""
+
+    s_u: PositiveFloat
+    f_px: PositiveFloat
+    u0_px: float
+    v0_px: float
+    k1_per_mm2: float
+    k2_per_mm4: float
+    T1_per_mm: float
+    T2_per_mm: float
+    pixels_per_mm: PositiveFloat
+
+
+class CameraSpec(Section):
+    """A camera specification file (``models/cameras/*.yaml``): exactly one of the two intrinsics blocks."""
+
+    name: str
+    source: str = ""
+    image_width_px: PositiveInt
+    image_height_px: PositiveInt
+    intrinsics_eq50: Eq50 | None = None
+    distortion: Literal["none"] | None = None  # with intrinsics_eq50 (heikkila_eq75 holds its own distortion)
+    heikkila_eq75: Heikkila75 | None = None
+    reprojection_chi_px: float | None = None
+
+    @model_validator(mode="after")
+    def _one_block(self):
+        if (self.intrinsics_eq50 is None) == (self.heikkila_eq75 is None):
+            raise KeyProblem("intrinsics_eq50/heikkila_eq75", "exactly one of the two blocks is required")
+        if self.intrinsics_eq50 is not None and self.distortion is None:
+            raise KeyProblem("distortion", "expected 'none' with intrinsics_eq50")
+        if self.heikkila_eq75 is not None and self.distortion is not None:
+            raise KeyProblem("distortion", "not allowed with heikkila_eq75 (the block holds the distortion)")
+        return self
 
 
 def presets_dir() -> Path:
@@ -53,30 +99,6 @@ def load_preset(name: str) -> CameraModel:
     return load_camera_spec(preset_path(name))
 
 
-def _number(src, key, value, positive=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(src, key, f"expected a number, got {value!r}")
-    value = float(value)
-    if not np.isfinite(value):
-        raise ConfigError(src, key, "must be finite")
-    if positive and value <= 0:
-        raise ConfigError(src, key, f"must be > 0, got {value}")
-    return value
-
-
-def _block(src, doc, key, names):
-    block = doc[key]
-    if not isinstance(block, dict):
-        raise ConfigError(src, key, "expected a mapping")
-    unknown = set(block) - set(names)
-    if unknown:
-        raise ConfigError(src, f"{key}.{sorted(unknown)[0]}", f"unknown key (allowed: {', '.join(names)})")
-    for n in names:
-        if n not in block:
-            raise ConfigError(src, f"{key}.{n}", "missing")
-    return block
-
-
 def load_camera_spec(path) -> CameraModel:
     """Read a camera specification file (the format of ``models/cameras/*.yaml``) into a :class:`CameraModel`."""
     path = Path(path)
@@ -87,46 +109,16 @@ def load_camera_spec(path) -> CameraModel:
         doc = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise ConfigError(src, "file", f"not valid YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(doc, dict):
-        raise ConfigError(src, "<top>", "expected a mapping")
-    unknown = set(doc) - _TOP_KEYS
-    if unknown:
-        raise ConfigError(src, sorted(unknown)[0], f"unknown key (allowed: {', '.join(sorted(_TOP_KEYS))})")
-    for key in ("name", "image_width_px", "image_height_px"):
-        if key not in doc:
-            raise ConfigError(src, key, "missing")
-    size = []
-    for key in ("image_width_px", "image_height_px"):
-        val = doc[key]
-        if isinstance(val, bool) or not isinstance(val, int) or val <= 0:
-            raise ConfigError(src, key, f"expected a positive integer, got {val!r}")
-        size.append(val)
-    name = str(doc["name"])
-    has_eq50, has_heik = "intrinsics_eq50" in doc, "heikkila_eq75" in doc
-    if has_eq50 == has_heik:
-        raise ConfigError(src, "intrinsics_eq50/heikkila_eq75", "exactly one of the two blocks is required")
+    doc = parse(CameraSpec, doc, src)
+    size, name = (doc["image_width_px"], doc["image_height_px"]), doc["name"]
     try:
-        if has_eq50:
-            if doc.get("distortion") != "none":
-                raise ConfigError(src, "distortion", f"expected 'none' with intrinsics_eq50, got "
-                                                     f"{doc.get('distortion')!r}")
-            b = _block(src, doc, "intrinsics_eq50", _EQ50_KEYS)
-            alpha, beta = (_number(src, f"intrinsics_eq50.{k}", b[k], positive=True) for k in ("alpha_px", "beta_px"))
-            theta_deg = _number(src, "intrinsics_eq50.theta_deg", b["theta_deg"])
-            if not 45.0 < theta_deg < 135.0:
-                raise ConfigError(src, "intrinsics_eq50.theta_deg", f"skew angle {theta_deg} deg is implausible "
-                                                                    "(expected near 90; radians given?)")
-            u0, v0 = (_number(src, f"intrinsics_eq50.{k}", b[k]) for k in ("u0_px", "v0_px"))
-            theta = np.deg2rad(theta_deg)
-            K = intrinsic_matrix(alpha, beta, theta, u0, v0)  # Eq. 50
-            if theta_deg == 90.0:
+        if doc["intrinsics_eq50"] is not None:
+            b = doc["intrinsics_eq50"]
+            K = intrinsic_matrix(b["alpha_px"], b["beta_px"], np.deg2rad(b["theta_deg"]), b["u0_px"], b["v0_px"])
+            if b["theta_deg"] == 90.0:
                 K[0, 1] = 0.0  # cot(pi/2) is 6e-17 in floating point, not 0
             return CameraModel(size[0], size[1], K, np.zeros(5), name=name, model="pinhole")
-        if "distortion" in doc:
-            raise ConfigError(src, "distortion", "not allowed with heikkila_eq75 (the block holds the distortion)")
-        b = _block(src, doc, "heikkila_eq75", _HEIKKILA_KEYS)
-        v = {k: _number(src, f"heikkila_eq75.{k}", b[k], positive=k in ("s_u", "f_px", "pixels_per_mm"))
-             for k in _HEIKKILA_KEYS}
+        v = doc["heikkila_eq75"]
         pitch = 1e-3 / v["pixels_per_mm"]  # m per pixel
         mm = 1e-3
         params = HeikkilaParameters(s_u=v["s_u"], f=v["f_px"] * pitch, u0=v["u0_px"], v0=v["v0_px"],

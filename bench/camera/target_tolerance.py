@@ -28,17 +28,30 @@ board. Nothing here knows a simulation: the values are what the user states abou
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from pydantic import Field
 
 from bench.camera.corners import BoardGeometry
+from bench.config import Number, Section, parse
 from bench.errors import ConfigError
 
-#: keys of ``target.yaml``'s ``tolerance`` mapping: (number of values, unit factor to SI)
-TOLERANCE_KEYS = {"flatness_rms_mm": (1, 1e-3), "flatness_length_mm": (2, 1e-3), "bow_sagitta_mm": (1, 1e-3),
-                  "print_rms_mm": (2, 1e-3), "scale_rms_pct": (1, 1e-2), "fold_rms_deg": (1, np.pi / 180)}
-_LIMITS = {"flatness_rms_mm": 20.0, "flatness_length_mm": 1e4, "bow_sagitta_mm": 50.0, "print_rms_mm": 20.0,
-           "scale_rms_pct": 10.0, "fold_rms_deg": 10.0}
+
+def _at_most(limit):
+    return Field(ge=0, le=limit)
+
+
+class Tolerance(Section):
+    """``target.yaml``'s ``tolerance`` mapping (1-sigma values; module docstring); a key left out is 0."""
+
+    flatness_rms_mm: Annotated[float, _at_most(20)] = 0.0
+    flatness_length_mm: Annotated[list[Annotated[Number, Field(gt=0, le=1e4)]], Field(min_length=2, max_length=2)] = \
+        [25.0, 17.0]
+    bow_sagitta_mm: Annotated[float, _at_most(50)] = 0.0
+    print_rms_mm: Annotated[list[Annotated[Number, _at_most(20)]], Field(min_length=2, max_length=2)] = [0.0, 0.0]
+    scale_rms_pct: Annotated[float, _at_most(10)] = 0.0
+    fold_rms_deg: Annotated[float, _at_most(10)] = 0.0
 
 
 @dataclass(frozen=True)
@@ -58,26 +71,14 @@ class TargetTolerance:
 
 
 def parse_tolerance(t, source) -> TargetTolerance:
-    """A :class:`TargetTolerance` from the ``tolerance`` mapping; one-line :class:`ConfigError` naming ``source`` and
-    ``tolerance.<key>`` for an unknown key, a wrong count, a negative, non-finite or implausible value."""
-    if not isinstance(t, dict):
-        raise ConfigError(source, "tolerance", f"expected a mapping of {', '.join(TOLERANCE_KEYS)}, got {t!r}")
-    vals = {}
-    for key, v in t.items():
-        if key not in TOLERANCE_KEYS:
-            raise ConfigError(source, f"tolerance.{key}", f"unknown key (known: {', '.join(TOLERANCE_KEYS)})")
-        n, unit = TOLERANCE_KEYS[key]
-        seq = v if isinstance(v, list) else [v]
-        if len(seq) != n or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x)
-                                or not 0 <= x <= _LIMITS[key] for x in seq):
-            what = "a number" if n == 1 else f"a list of {n} numbers"
-            raise ConfigError(source, f"tolerance.{key}", f"expected {what} in [0, {_LIMITS[key]:g}], got {v!r}")
-        if key == "flatness_length_mm" and min(seq) <= 0:
-            raise ConfigError(source, f"tolerance.{key}", f"correlation lengths must be > 0, got {v!r}")
-        vals[key] = tuple(float(x) * unit for x in seq) if n > 1 else float(seq[0]) * unit
-    return TargetTolerance(vals.get("flatness_rms_mm", 0.0), vals.get("flatness_length_mm", (0.025, 0.017)),
-                           vals.get("bow_sagitta_mm", 0.0), vals.get("print_rms_mm", (0.0, 0.0)),
-                           vals.get("scale_rms_pct", 0.0), vals.get("fold_rms_deg", 0.0))
+    """A :class:`TargetTolerance` from the ``tolerance`` mapping (checked by :class:`Tolerance`); one-line
+    :class:`ConfigError` naming ``source`` and ``tolerance.<key>`` for an unknown key, a wrong count, a negative,
+    non-finite or implausible value."""
+    v = parse(Tolerance, t, source, at="tolerance")
+    mm, deg = 1e-3, np.pi / 180
+    return TargetTolerance(v["flatness_rms_mm"] * mm, tuple(float(x) * mm for x in v["flatness_length_mm"]),
+                           v["bow_sagitta_mm"] * mm, tuple(float(x) * mm for x in v["print_rms_mm"]),
+                           v["scale_rms_pct"] * 1e-2, v["fold_rms_deg"] * deg)
 
 
 def object_point_covariance(geometry: BoardGeometry, tol: TargetTolerance) -> np.ndarray:

@@ -22,11 +22,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from bench.config import parse
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text, read_yaml
 from bench.geometry.quaternion import matrix_to_quaternion, quaternion_to_matrix
 from bench.geometry.transforms import check_transform, homogeneous
-from bench.robot.model import Robot, error_names, robot_from_dict
+from bench.robot.model import Robot, RobotFile, error_names, robot_from_dict
 
 _UNIT = {"x": "mm", "y": "mm", "z": "mm", "s": "rad", "r": "rad", "p": "rad"}
 
@@ -65,43 +66,26 @@ def load_calibrated_robot(path):
     """``(robot, eps (42,) SI, T_link5_cam (4, 4) or None)`` from a (possibly calibrated) robot file."""
     path = Path(path)
     data = read_yaml(path)
-    robot = robot_from_dict(data, str(path))
-    cal = data.get("calibration") or {}
-    if not isinstance(cal, dict):
-        raise ConfigError(path, "calibration", "expected a mapping")
-    unknown = set(cal) - {"errors", "camera_mount", "notes"}
-    if unknown:
-        raise ConfigError(path, f"calibration.{sorted(unknown)[0]}", "unknown key (allowed: errors, camera_mount, "
-                                                                     "notes)")
+    robot = robot_from_dict(data, str(path))  # checks the calibration section too (RobotFile)
+    cal = parse(RobotFile, data, str(path))["calibration"] or {}
     eps = np.zeros(robot.n_errors)
-    if "errors" in cal:
-        errs = cal["errors"]
-        names = error_names(robot.n + 1)
-        keys = [_error_key(n) for n in names]
-        if not isinstance(errs, dict):
-            raise ConfigError(path, "calibration.errors", "expected a mapping of x0_mm, y0_mm, ... p6_rad")
-        bad = set(errs) - set(keys)
-        if bad:
-            b = sorted(bad)[0]
-            hint = f" (did you mean {b}_{_UNIT[b[0]]}?)" if b in names else ""
-            raise ConfigError(path, f"calibration.errors.{b}", f"unknown key{hint}")
-        for i, (n, k) in enumerate(zip(names, keys, strict=True)):
-            v = errs.get(k, 0.0)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
-                raise ConfigError(path, f"calibration.errors.{k}", f"expected a finite number, got {v!r}")
-            eps[i] = v * (1e-3 if n[0] in "xyz" else 1.0)
-            if n[0] in "srp" and abs(eps[i]) > 0.5:
-                raise ConfigError(path, f"calibration.errors.{k}", f"{v} rad is not a plausible error (degrees?)")
+    names = error_names(robot.n + 1)
+    keys = [_error_key(n) for n in names]
+    bad = set(cal.get("errors") or {}) - set(keys)
+    if bad:
+        b = sorted(bad)[0]
+        hint = f" (did you mean {b}_{_UNIT[b[0]]}?)" if b in names else ""
+        raise ConfigError(path, f"calibration.errors.{b}", f"unknown key{hint}")
+    for i, (n, k) in enumerate(zip(names, keys, strict=True)):
+        v = (cal.get("errors") or {}).get(k, 0.0)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+            raise ConfigError(path, f"calibration.errors.{k}", f"expected a finite number, got {v!r}")
+        eps[i] = v * (1e-3 if n[0] in "xyz" else 1.0)
+        if n[0] in "srp" and abs(eps[i]) > 0.5:
+            raise ConfigError(path, f"calibration.errors.{k}", f"{v} rad is not a plausible error (degrees?)")
     T = None
-    if "camera_mount" in cal:
+    if cal.get("camera_mount"):
         m = cal["camera_mount"]
-        try:
-            t = np.array(m["translation_mm"], dtype=float).reshape(3) * 1e-3
-            q = np.array(m["quaternion_wxyz"], dtype=float).reshape(4)
-        except (KeyError, TypeError, ValueError):
-            raise ConfigError(path, "calibration.camera_mount", "expected translation_mm: [3 numbers] and "
-                                                                "quaternion_wxyz: [4 numbers]") from None
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))) or abs(np.linalg.norm(q) - 1.0) > 1e-6:
-            raise ConfigError(path, "calibration.camera_mount.quaternion_wxyz", "must be a finite unit quaternion")
-        T = homogeneous(quaternion_to_matrix(q), t)
+        T = homogeneous(quaternion_to_matrix(np.array(m["quaternion_wxyz"], float)),
+                        np.array(m["translation_mm"], float) * 1e-3)
     return robot, eps, T

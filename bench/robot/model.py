@@ -8,18 +8,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
+from pydantic import AfterValidator, Field, model_validator
 
-from bench.errors import ConfigError
+from bench.config import KeyProblem, MmDeg, Number, Section, Vec3, parse, section
 from bench.fileio import read_yaml
 
 #: Order of the six generalized errors inside one frame (thesis Table 2, Eq. 9): translations along x, y, z, then
 #: rotations about y (s), z (r) and x (p).
 PARAM_KINDS = ("x", "y", "z", "s", "r", "p")
 
-_JOINT_KEYS = {"name", "type", "a_mm", "d_mm", "alpha_deg", "theta_offset_deg", "min_deg", "max_deg"}
-_TOP_KEYS = {"name", "units", "joints", "ee_point_mm", "calibration"}  # calibration: bench.robot.calibration_file
 
 
 @dataclass(frozen=True)
@@ -92,100 +92,100 @@ def error_names(n_frames: int = 7) -> list[str]:
     return [f"{k}{i}" for i in range(n_frames) for k in PARAM_KINDS]
 
 
-def _number(src, field, value):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(src, field, f"expected a number, got {value!r}")
-    if not np.isfinite(value):
-        raise ConfigError(src, field, "must be finite")
-    return float(value)
+def _not_radians(v: float) -> float:
+    """A twist or offset of +-pi/2 or +-pi *in radians* (within 2e-3: 1.5708, 1.571, 3.1416, 3.14) does not occur
+    in degrees in a nominal model: the radian value was given where degrees belong."""
+    if any(abs(abs(v) - r) < 2e-3 for r in (np.pi / 2, np.pi)):
+        raise ValueError(f"{v:g} looks like radians ({np.rad2deg(v):.1f} deg); the key is in degrees")
+    return v
 
 
-def _check_units(source, joints, arr) -> None:
-    """Plausibility of the units in the robot file (one-line :class:`ConfigError` naming the field).
+DEGREES = Annotated[float, AfterValidator(_not_radians)]
 
-    * ``alpha_deg`` / ``theta_offset_deg`` equal to +-pi/2 or +-pi *in radians* (within 2e-3: 1.5708, 1.571, 3.1416,
-      3.14): a twist or offset of 1.57 or 3.14 degrees does not occur in a nominal model; the degree value is given.
-    * every joint limit within +-2 pi: radians (a manipulator whose every joint moves less than 6.3 degrees either
-      way is not one).
-    * a non-zero ``a_mm`` / ``d_mm`` below 1 mm beside a link of 100 mm or more, or a whole arm shorter than 10 mm:
-      metres (a nominal dimension below 1 mm is below the tolerance that the calibration identifies as an error).
+
+class Joint(Section):
+    """One joint of a robot file: standard DH (Eq. 8) in mm and degrees, the limits of its reading."""
+
+    name: str | None = None
+    type: Literal["revolute"] = "revolute"
+    a_mm: float
+    d_mm: float
+    alpha_deg: Annotated[DEGREES, Field(ge=-360, le=360)]
+    theta_offset_deg: DEGREES = 0.0
+    min_deg: float
+    max_deg: float
+
+    @model_validator(mode="after")
+    def _limits(self):
+        if not self.min_deg < self.max_deg:
+            raise KeyProblem("min_deg", f"min_deg ({self.min_deg}) must be < max_deg ({self.max_deg})")
+        return self
+
+
+class CameraMount(Section):
+    """``calibration.camera_mount``: T_link5_cam, the camera's optical frame (OpenCV) in link 5 (Eq. 188)."""
+
+    translation_mm: Vec3
+    quaternion_wxyz: Annotated[list[Number], Field(min_length=4, max_length=4)]
+
+    @model_validator(mode="after")
+    def _unit(self):
+        if abs(np.linalg.norm(self.quaternion_wxyz) - 1.0) > 1e-6:
+            raise KeyProblem("quaternion_wxyz", f"must be a finite unit quaternion, got {self.quaternion_wxyz}")
+        return self
+
+
+class Calibration(Section):
+    """``calibration`` (:mod:`bench.robot.calibration_file`); ``errors`` is checked against the robot's error names
+    there (their number depends on the joints)."""
+
+    errors: dict = {}
+    camera_mount: CameraMount | None = None
+    notes: str = ""
+
+
+class RobotFile(Section):
+    """A robot file (``models/ta40.yaml``): the thesis's mm and degrees, the unit in every key.
+
+    Beyond the types, the units are checked for plausibility: every joint limit within +-2 pi (radians: a
+    manipulator whose every joint moves less than 6.3 degrees either way is not one); a non-zero ``a_mm`` / ``d_mm``
+    below 1 mm beside a link of 100 mm or more, or a whole arm shorter than 10 mm (metres: a nominal dimension below
+    1 mm is below the tolerance that the calibration identifies as an error).
     """
-    for i, j in enumerate(joints):
-        for key in ("alpha_deg", "theta_offset_deg"):
-            v = float(j.get(key, 0.0))
-            if any(abs(abs(v) - r) < 2e-3 for r in (np.pi / 2, np.pi)):
-                raise ConfigError(source, f"joints[{i}].{key}", f"{v:g} looks like radians ({np.rad2deg(v):.1f} deg); "
-                                                                "the key is in degrees")
-    limits = np.concatenate([arr["lo"], arr["hi"]])  # rad, from the *_deg values
-    if np.all(np.abs(np.rad2deg(limits)) <= 2 * np.pi + 1e-3) and np.abs(np.rad2deg(limits)).max() > 1.0:
-        raise ConfigError(source, "joints[0].min_deg", "every joint limit lies within +-2 pi: radians given where "
-                                                      "degrees belong?")
-    lengths = np.abs(np.concatenate([arr["a"], arr["d"]])) * 1e3  # mm
-    names = [f"joints[{i}].a_mm" for i in range(len(arr["a"]))] + [f"joints[{i}].d_mm" for i in range(len(arr["d"]))]
-    if 0.0 < lengths.sum() < 10.0:
-        raise ConfigError(source, names[int(np.argmax(lengths))], f"the arm is {lengths.sum():.4g} mm long in all: "
-                                                                  "metres given where mm belong?")
-    for name, v in zip(names, lengths, strict=True):
-        if 0.0 < v < 1.0 and lengths.max() >= 100.0:
-            raise ConfigError(source, name, f"{v:g} mm beside links of {lengths.max():g} mm: metres given where mm "
-                                            "belong?")
+
+    name: str
+    units: MmDeg = section(MmDeg)
+    joints: Annotated[list[Joint], Field(min_length=1)]
+    ee_point_mm: Vec3 = [0.0, 0.0, 0.0]  # the measured end-effector point, in the last frame
+    calibration: Calibration | None = None
+
+    @model_validator(mode="after")
+    def _units(self):
+        limits = np.array([[j.min_deg, j.max_deg] for j in self.joints])
+        if np.all(np.abs(limits) <= 2 * np.pi + 1e-3) and np.abs(limits).max() > 1.0:
+            raise KeyProblem("joints[0].min_deg", "every joint limit lies within +-2 pi: radians given where degrees "
+                                                  "belong?")
+        lengths = np.abs([j.a_mm for j in self.joints] + [j.d_mm for j in self.joints])
+        names = [f"joints[{i}].a_mm" for i in range(len(self.joints))] + [
+            f"joints[{i}].d_mm" for i in range(len(self.joints))]
+        if 0.0 < lengths.sum() < 10.0:
+            raise KeyProblem(names[int(np.argmax(lengths))], f"the arm is {lengths.sum():.4g} mm long in all: metres "
+                                                             "given where mm belong?")
+        for name, v in zip(names, lengths, strict=True):
+            if 0.0 < v < 1.0 and lengths.max() >= 100.0:
+                raise KeyProblem(name, f"{v:g} mm beside links of {lengths.max():g} mm: metres given where mm belong?")
+        return self
 
 
 def robot_from_dict(data: dict, source: str = "<robot>") -> Robot:
-    """Build a :class:`Robot` from the parsed YAML mapping, validating every field (units in key names)."""
-    if not isinstance(data, dict):
-        raise ConfigError(source, "<top>", "expected a mapping")
-    unknown = set(data) - _TOP_KEYS
-    if unknown:
-        raise ConfigError(source, sorted(unknown)[0], f"unknown key (allowed: {', '.join(sorted(_TOP_KEYS))})")
-    for key in ("name", "joints"):
-        if key not in data:
-            raise ConfigError(source, key, "missing")
-    units = data.get("units", {"length": "mm", "angle": "deg"})
-    if units != {"length": "mm", "angle": "deg"}:
-        raise ConfigError(source, "units", f"must be {{length: mm, angle: deg}}, got {units!r}")
-    joints = data["joints"]
-    if not isinstance(joints, list) or not joints:
-        raise ConfigError(source, "joints", "expected a non-empty list")
-    cols = {k: [] for k in ("a", "d", "alpha", "off", "lo", "hi")}
-    names = []
-    for i, j in enumerate(joints):
-        where = f"joints[{i}]"
-        if not isinstance(j, dict):
-            raise ConfigError(source, where, "expected a mapping")
-        unknown = set(j) - _JOINT_KEYS
-        if unknown:
-            bad = sorted(unknown)[0]
-            hint = " (units go in the key: a_mm, d_mm, alpha_deg, ...)" if bad.split("_")[0] in {
-                "a", "d", "alpha", "theta", "min", "max"} else ""
-            raise ConfigError(source, f"{where}.{bad}", f"unknown key{hint}")
-        for key in ("a_mm", "d_mm", "alpha_deg", "min_deg", "max_deg"):
-            if key not in j:
-                raise ConfigError(source, f"{where}.{key}", "missing")
-        if j.get("type", "revolute") != "revolute":
-            raise ConfigError(source, f"{where}.type", f"only 'revolute' joints are supported, got {j['type']!r}")
-        names.append(str(j.get("name", f"joint{i + 1}")))
-        cols["a"].append(_number(source, f"{where}.a_mm", j["a_mm"]) * 1e-3)
-        cols["d"].append(_number(source, f"{where}.d_mm", j["d_mm"]) * 1e-3)
-        alpha = _number(source, f"{where}.alpha_deg", j["alpha_deg"])
-        if abs(alpha) > 360:
-            raise ConfigError(source, f"{where}.alpha_deg", f"{alpha} is not a plausible angle in degrees")
-        cols["alpha"].append(np.deg2rad(alpha))
-        cols["off"].append(np.deg2rad(_number(source, f"{where}.theta_offset_deg", j.get("theta_offset_deg", 0.0))))
-        lo = _number(source, f"{where}.min_deg", j["min_deg"])
-        hi = _number(source, f"{where}.max_deg", j["max_deg"])
-        if not lo < hi:
-            raise ConfigError(source, f"{where}.min_deg", f"min_deg ({lo}) must be < max_deg ({hi})")
-        cols["lo"].append(np.deg2rad(lo))
-        cols["hi"].append(np.deg2rad(hi))
-    p = data.get("ee_point_mm", [0.0, 0.0, 0.0])
-    if not isinstance(p, list) or len(p) != 3:
-        raise ConfigError(source, "ee_point_mm", "expected a list of 3 numbers (mm, in the last frame)")
-    p_ee = np.array([_number(source, f"ee_point_mm[{k}]", v) for k, v in enumerate(p)]) * 1e-3
-    arr = {k: np.array(v, dtype=float) for k, v in cols.items()}
-    _check_units(source, joints, arr)
-    return Robot(str(data["name"]), tuple(names), arr["a"], arr["d"], arr["alpha"], arr["off"], arr["lo"], arr["hi"],
-                 p_ee)
+    """Build a :class:`Robot` from the parsed YAML mapping of a robot file, checked by :class:`RobotFile`."""
+    f = parse(RobotFile, data, source)
+    js = f["joints"]
+    col = {k: np.array([j[k] for j in js], dtype=float) for k in ("a_mm", "d_mm", "alpha_deg", "theta_offset_deg",
+                                                                  "min_deg", "max_deg")}
+    return Robot(f["name"], tuple(j["name"] or f"joint{i + 1}" for i, j in enumerate(js)), col["a_mm"] * 1e-3,
+                 col["d_mm"] * 1e-3, np.deg2rad(col["alpha_deg"]), np.deg2rad(col["theta_offset_deg"]),
+                 np.deg2rad(col["min_deg"]), np.deg2rad(col["max_deg"]), np.array(f["ee_point_mm"], dtype=float) * 1e-3)
 
 
 def load_robot(path) -> Robot:

@@ -1,1 +1,2 @@
-"""Scenarios: schema-validated YAML experiments, their runner, results and reports (the bench side)."""
+"""Scenarios: YAML experiments checked by their kind's pydantic model, their runner, results and reports (the bench
+side)."""

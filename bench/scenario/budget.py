@@ -46,9 +46,9 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
     claimed (:func:`bench.fileio.claim_output_dir`, command ``budget``, identity the scenario file's name): a new or
     empty folder or a previous budget of the same scenario (resumed); ``force`` starts a previous budget afresh.
     """
+    from bench.config import load_yaml
     from bench.fileio import check_output_dir, claim_output_dir, foreign_entries, record_output_entries
     from bench.scenario.runner import kind_module, load_scenario
-    from bench.scenario.schema import load_yaml
     from bench.scenario.sweep import check_seeds_and_workers, run_sweep
 
     scenario = Path(scenario)

@@ -65,9 +65,11 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
 import yaml
+from pydantic import Field, model_validator
 
 from bench.camera import dlt
 from bench.camera.calibrate_dataset import detect_dataset_corners, load_target_tolerance
@@ -78,32 +80,81 @@ from bench.camera.model import CameraModel, to_pixels
 from bench.camera.plots import plot_residual_vectors
 from bench.camera.presets import load_preset
 from bench.camera.target_tolerance import calibration_with_tolerance
+from bench.config import KeyProblem, PositiveInt, ScenarioBase, Section, section
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text
 from bench.geometry.transforms import homogeneous, invert, rot_z, transform_points
 from bench.scenario.results import write_result, write_table_csv
-from bench.scenario.schema import required
 
-SCHEMA = {
-    "name": required(str),
-    "kind": required(str),
-    "description": (str, ""),
-    "seed": (int, 0),
-    "camera": {"preset": (str, "air_webcam"), "medium": (str, "air"), "supersample": (int, 3),
-               "housing": (bool, True), "imaging": (str, "realistic"), "imaging_off": (list, [])},
-    "truth": {"focal_error_pct": (float, 1.5), "principal_error_px": (float, 4.0),
-              "distortion_error_pct": (float, 10.0), "table_errors": (bool, True)},
-    "rig": {"distance_mm": (float, 1000.0), "distance_water_mm": (float, 1000.0), "yaw_deg": (float, 10.0),
-            "margin_px": (float, 8.0)},
-    "views": {"count": (int, 7), "spread": (float, 0.8), "depth_range_mm": (float, 100.0)},
-    "pipeline": {"extractor": (str, "thesis"), "model": (str, "heikkila"), "refine_corners": (bool, True),
-                 "compare_extractors": (bool, True), "table3_edges": (str, "pixel"),
-                 "target_tolerance": (bool, True), "tolerance_draws": (int, 48)},
-    "outputs": {"cache": (bool, True), "plots": (bool, True), "rerun": (bool, True)},
-}
-
+MAGNITUDE_PCT = Annotated[float, Field(ge=0, le=50)]
 MEDIA = {"air": ("air",), "water": ("water",), "both": ("air", "water")}
+
+
+class Camera(Section):
+    preset: Literal["air_webcam", "underwater"] = "air_webcam"
+    medium: Literal["air", "water", "both"] = "air"
+    supersample: Annotated[int, Field(ge=1, le=16)] = 3
+    housing: bool = True
+    imaging: str = "realistic"
+    imaging_off: list[str] = []
+
+    @model_validator(mode="after")
+    def _media(self):
+        if self.preset == "air_webcam" and self.medium != "air":
+            raise KeyProblem("medium", "the webcam (air_webcam) is calibrated in air only")
+        if "water" in MEDIA[self.medium] and not self.housing:
+            raise KeyProblem("housing", "the camera cannot be submerged without its housing")
+        return self
+
+
+class Truth(Section):
+    focal_error_pct: MAGNITUDE_PCT = 1.5
+    principal_error_px: Annotated[float, Field(ge=0, le=100)] = 4.0
+    distortion_error_pct: MAGNITUDE_PCT = 10.0
+    table_errors: bool = True
+
+
+class Rig(Section):
+    distance_mm: Annotated[float, Field(ge=300, le=5000)] = 1000.0
+    distance_water_mm: Annotated[float, Field(ge=300, le=5000)] = 1000.0
+    yaw_deg: Annotated[float, Field(ge=0, le=30)] = 10.0
+    margin_px: Annotated[float, Field(ge=0, le=100)] = 8.0
+
+
+class Views(Section):
+    count: PositiveInt = 7  # the rig is non-planar: one view calibrates
+    spread: Annotated[float, Field(ge=0, le=1)] = 0.8
+    depth_range_mm: Annotated[float, Field(ge=0, le=100)] = 100.0  # the table's z travel is +-100 mm
+
+
+class Pipeline(Section):
+    extractor: Literal["thesis", "opencv"] = "thesis"
+    model: Literal["heikkila", "radial", "pinhole"] = "heikkila"
+    refine_corners: bool = True
+    compare_extractors: bool = True
+    table3_edges: Literal["pixel", "subpixel"] = "pixel"
+    target_tolerance: bool = True
+    tolerance_draws: Annotated[int, Field(ge=10, le=1000)] = 48
+
+
+class Outputs(Section):
+    cache: bool = True
+    plots: bool = True
+    rerun: bool = True
+
+
+class Scenario(ScenarioBase):
+    """A ``camera_calibration`` scenario file."""
+
+    camera: Camera = section(Camera)
+    truth: Truth = section(Truth)
+    rig: Rig = section(Rig)
+    views: Views = section(Views)
+    pipeline: Pipeline = section(Pipeline)
+    outputs: Outputs = section(Outputs)
+
+
 #: (camera.preset, medium) -> optics preset of bench.sim.optics_presets
 OPTICS = {("air_webcam", "air"): "air_webcam", ("underwater", "air"): "underwater_in_air",
           ("underwater", "water"): "underwater_in_water"}
@@ -140,56 +191,10 @@ def _target_errors(cfg, profile, squares):
     return target_geometry(profile, squares, np.random.default_rng(np.random.SeedSequence([cfg["seed"], 0x7A12])))
 
 
-def _check(cfg):
-    src = cfg["_file"]
-    c = cfg["camera"]
-    imaging(cfg)
-    if c["preset"] not in ("air_webcam", "underwater"):
-        raise ConfigError(src, "camera.preset", f"expected air_webcam or underwater, got {c['preset']!r}")
-    if c["medium"] not in MEDIA:
-        raise ConfigError(src, "camera.medium", f"expected air, water or both, got {c['medium']!r}")
-    if c["preset"] == "air_webcam" and c["medium"] != "air":
-        raise ConfigError(src, "camera.medium", "the webcam (air_webcam) is calibrated in air only")
-    if "water" in MEDIA[c["medium"]] and not c["housing"]:
-        raise ConfigError(src, "camera.housing", "the camera cannot be submerged without its housing")
-    if not 1 <= c["supersample"] <= 16:
-        raise ConfigError(src, "camera.supersample", f"expected an integer in 1..16, got {c['supersample']}")
-    if cfg["views"]["count"] < 1:
-        raise ConfigError(src, "views.count", f"must be >= 1 (the rig is non-planar: one view calibrates), got "
-                                              f"{cfg['views']['count']}")
-    if not 0.0 <= cfg["views"]["spread"] <= 1.0:
-        raise ConfigError(src, "views.spread", f"expected a fraction in [0, 1], got {cfg['views']['spread']}")
-    if not 0.0 <= cfg["views"]["depth_range_mm"] <= 100.0:
-        raise ConfigError(src, "views.depth_range_mm", "expected 0..100 mm (the table's z travel is +-100 mm), got "
-                                                       f"{cfg['views']['depth_range_mm']}")
-    for key in ("rig.distance_mm", "rig.distance_water_mm"):
-        sec, k = key.split(".")
-        if not 300.0 <= cfg[sec][k] <= 5000.0:
-            raise ConfigError(src, key, f"expected 300..5000 mm, got {cfg[sec][k]} (the unit is mm)")
-    if not 0.0 <= cfg["rig"]["yaw_deg"] <= 30.0:
-        raise ConfigError(src, "rig.yaw_deg", f"expected 0..30 deg, got {cfg['rig']['yaw_deg']}")
-    if not 0.0 <= cfg["rig"]["margin_px"] <= 100.0:
-        raise ConfigError(src, "rig.margin_px", f"expected 0..100 px, got {cfg['rig']['margin_px']}")
-    for key in ("focal_error_pct", "principal_error_px", "distortion_error_pct"):
-        v = cfg["truth"][key]
-        if not 0.0 <= v <= (50.0 if key != "principal_error_px" else 100.0):
-            raise ConfigError(src, f"truth.{key}", f"expected a magnitude in 0..{50 if 'pct' in key else 100}, got "
-                                                   f"{v}")
-    p = cfg["pipeline"]
-    if p["extractor"] not in ("thesis", "opencv"):
-        raise ConfigError(src, "pipeline.extractor", f"expected thesis or opencv, got {p['extractor']!r}")
-    if p["model"] not in ("heikkila", "radial", "pinhole"):
-        raise ConfigError(src, "pipeline.model", f"expected heikkila, radial or pinhole, got {p['model']!r}")
-    if not 10 <= p["tolerance_draws"] <= 1000:
-        raise ConfigError(src, "pipeline.tolerance_draws", f"must be in 10..1000 (Monte Carlo draws), got "
-                                                           f"{p['tolerance_draws']}")
-    if p["table3_edges"] not in ("pixel", "subpixel"):
-        raise ConfigError(src, "pipeline.table3_edges", f"expected pixel or subpixel, got {p['table3_edges']!r}")
-
-
 def validate(cfg) -> None:
-    """The value checks, run by ``load_scenario`` before anything is created or rendered (also by sweeps)."""
-    _check(cfg)
+    """The check the model cannot make (the imaging profile, :mod:`bench.sim.imaging`), run by ``load_scenario``
+    before anything is created or rendered (also by sweeps)."""
+    imaging(cfg)
 
 
 def media(cfg) -> tuple:
@@ -486,7 +491,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     One medium: ``out_dataset`` is the dataset; ``camera.medium: both``: ``out_dataset/in_air`` and
     ``out_dataset/in_water`` (one physical camera: the same true lens).
     """
-    _check(cfg)
+    validate(cfg)
     rng = np.random.default_rng(cfg["seed"])
     first = _optics(cfg, media(cfg)[0])
     true_lens = _true_lens(cfg, load_preset(first.lens_camera), rng)
@@ -892,7 +897,7 @@ def print_parameters(t, title, nominal_key):
 
 def run(cfg, out_dir, verbose=True):
     """Render (cached) the campaign(s), calibrate from the datasets, score against the truth, write result.json."""
-    _check(cfg)
+    validate(cfg)
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
     ds_root = out_dir / "dataset"

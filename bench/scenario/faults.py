@@ -263,10 +263,10 @@ FAULTS = {f.__name__: f for f in (clean, swap_images, duplicate_frame, joint_log
 
 def lab_calibration(dataset, out) -> dict:
     """The lab calibration of a rendered in-situ dataset (tracker, rig views; the in_situ kind's defaults)."""
-    from bench.scenario.in_situ import SCHEMA, calibrate_lab
+    from bench.scenario.in_situ import Lab, Pipeline, Truth, calibrate_lab
 
     ds = load_dataset(dataset)
-    cfg = {sec: {k: v[1] for k, v in SCHEMA[sec].items()} for sec in ("lab", "pipeline", "truth")}
+    cfg = {"lab": Lab().model_dump(), "pipeline": Pipeline().model_dump(), "truth": Truth().model_dump()}
     cfg["_file"] = str(ds.root / "manifest.yaml")
     calibrate_lab(ds, ds.robot(), cfg, out)
     return {"camera": Path(out) / "camera.yaml", "robot": Path(out) / "robot.yaml",

@@ -72,61 +72,122 @@ import dataclasses
 import sys
 import time
 from pathlib import Path
+from typing import Annotated, Literal
 
 import cv2
 import numpy as np
+from pydantic import Field, model_validator
 
 from bench.camera.calibration import calibrate_camera
 from bench.camera.flatport import FlatPort, trace_rays
 from bench.camera.model import CameraModel
 from bench.camera.refractive import paraxial_centre
+from bench.config import (
+    Distinct,
+    KeyProblem,
+    NonNegFloat,
+    Number,
+    PositiveFloat,
+    ScenarioBase,
+    Section,
+    section,
+)
 from bench.errors import ConfigError
 from bench.fileio import atomic_save_figure
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rotation_angle, transform_points
 from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
-from bench.scenario.schema import required
 from bench.vision.absolute_orientation import absolute_orientation
-
-SCHEMA = {
-    "name": required(str),
-    "kind": required(str),
-    "description": (str, ""),
-    "seed": (int, 0),
-    "optics": {"preset": (str, "underwater_in_water")},
-    "port": {"lens_to_glass_mm": (list, [5.0, 10.0, 20.0, 50.0, 100.0]), "alignments": (list, ["aligned", "tilted"]),
-             "tilt_deg": (list, None), "glass_thickness_mm": (float, None), "n_glass": (float, None),
-             "n_water": (float, None)},
-    "calibration": {"distance_m": (float, 0.7), "depth_range_m": (float, 0.1), "grid": (list, [5, 4]),
-                    "spread": (float, 0.9), "yaw_deg": (float, 15.0), "pitch_deg": (float, 10.0),
-                    "margin_px": (float, 4.0), "min_points": (int, 12), "k3": (bool, False)},
-    "evaluation": {"distance_min_m": (float, 0.2), "distance_max_m": (float, 3.0), "distances": (int, 15),
-                   "grid": (list, [64, 48])},
-    "threshold": {"px": (float, 0.1), "statistic": (str, "rms")},
-    # the refractive model (bench.camera.refractive) calibrated from the same views with noise_px of pixel noise,
-    # lens free, started from the central fit and a lens-to-glass distance start_offset_mm off (a datasheet's)
-    "refractive": {"enabled": (bool, True), "noise_px": (float, 0.1), "start_offset_mm": (float, 3.0)},
-    "outputs": {"plots": (bool, True)},
-}
 
 ALIGNMENTS = ("aligned", "tilted")
 STATISTICS = ("rms", "max")
+INDEX = Annotated[float, Field(ge=1, le=3)]  # a refractive index
+
+
+class Optics(Section):
+    preset: str = "underwater_in_water"
+
+
+class Port(Section):
+    lens_to_glass_mm: Annotated[list[Annotated[Number, Field(gt=0, le=500)]], Field(min_length=1), Distinct] = [
+        5.0, 10.0, 20.0, 50.0, 100.0]
+    alignments: Annotated[list[Literal[ALIGNMENTS]], Field(min_length=1), Distinct] = ["aligned", "tilted"]
+    tilt_deg: Annotated[list[Annotated[Number, Field(ge=-20, le=20)]], Field(min_length=2, max_length=2)] | None = None
+    glass_thickness_mm: Annotated[float, Field(ge=0, le=200)] | None = None
+    n_glass: INDEX | None = None
+    n_water: INDEX | None = None
+
+
+class Calibration(Section):
+    distance_m: Annotated[float, Field(ge=0.2, le=10)] = 0.7
+    depth_range_m: NonNegFloat = 0.1
+    grid: Annotated[list[Annotated[int, Field(ge=1, le=20)]], Field(min_length=2, max_length=2)] = [5, 4]
+    spread: Annotated[float, Field(ge=0, le=1)] = 0.9
+    yaw_deg: Annotated[float, Field(ge=0, le=45)] = 15.0
+    pitch_deg: Annotated[float, Field(ge=0, le=45)] = 10.0
+    margin_px: Annotated[float, Field(ge=0, le=100)] = 4.0
+    min_points: Annotated[int, Field(ge=6)] = 12
+    k3: bool = False
+
+    @model_validator(mode="after")
+    def _depth_and_views(self):
+        if self.depth_range_m > 0.5 * self.distance_m:
+            raise KeyProblem("depth_range_m", f"expected 0..{0.5 * self.distance_m:g} m (half the distance), got "
+                                              f"{self.depth_range_m}")
+        if self.grid[0] * self.grid[1] < 2:
+            raise KeyProblem("grid", f"expected [n_u, n_v] with >= 2 views, got {self.grid}")
+        return self
+
+
+class Evaluation(Section):
+    distance_min_m: PositiveFloat = 0.2
+    distance_max_m: Annotated[float, Field(gt=0, le=100)] = 3.0
+    distances: Annotated[int, Field(ge=2, le=200)] = 15
+    grid: Annotated[list[Annotated[int, Field(ge=2, le=1000)]], Field(min_length=2, max_length=2)] = [64, 48]
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        if not self.distance_min_m < self.distance_max_m:
+            raise KeyProblem("distance_max_m", f"expected distance_min_m < distance_max_m, got "
+                                               f"{self.distance_min_m}, {self.distance_max_m}")
+        return self
+
+
+class Threshold(Section):
+    px: PositiveFloat = 0.1
+    statistic: Literal[STATISTICS] = "rms"
+
+
+class Refractive(Section):
+    """The refractive model (bench.camera.refractive) calibrated from the same views with noise_px of pixel noise,
+    lens free, started from the central fit and a lens-to-glass distance start_offset_mm off (a datasheet's)."""
+
+    enabled: bool = True
+    noise_px: Annotated[float, Field(ge=0, le=5)] = 0.1
+    start_offset_mm: Annotated[float, Field(ge=-10, le=10)] = 3.0
+
+
+class Outputs(Section):
+    plots: bool = True
+
+
+class Scenario(ScenarioBase):
+    """A ``flatport_study`` scenario file."""
+
+    optics: Optics = section(Optics)
+    port: Port = section(Port)
+    calibration: Calibration = section(Calibration)
+    evaluation: Evaluation = section(Evaluation)
+    threshold: Threshold = section(Threshold)
+    refractive: Refractive = section(Refractive)
+    outputs: Outputs = section(Outputs)
+
+
 TABLE = "flatport_error_vs_distance"
 CALIB_TABLE = "flatport_calibration"
 
 
 # ------------------------------------------------------------------------------------------------ configuration
-
-
-def _numbers(src, key, values, n=None, integer=False):
-    ok = isinstance(values, list) and values and all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in values)
-    if not ok or (integer and not all(isinstance(v, int) for v in values)):
-        raise ConfigError(src, key, f"expected a non-empty list of {'integers' if integer else 'numbers'}, got "
-                                    f"{values!r}")
-    if n is not None and len(values) != n:
-        raise ConfigError(src, key, f"expected {n} values, got {len(values)}")
-    return [int(v) for v in values] if integer else [float(v) for v in values]
 
 
 def _optics(cfg):
@@ -144,66 +205,17 @@ def _optics(cfg):
 
 
 def _check(cfg, port0: FlatPort):
-    """Validate the values; returns ``(d0s_m, alignments, tilt_rad, cases)`` where ``cases`` are the FlatPorts."""
-    src = cfg["_file"]
-    p, c, e, th = cfg["port"], cfg["calibration"], cfg["evaluation"], cfg["threshold"]
-    d0s = _numbers(src, "port.lens_to_glass_mm", p["lens_to_glass_mm"])
-    if any(not 0 < d <= 500 for d in d0s) or len(set(d0s)) != len(d0s):
-        raise ConfigError(src, "port.lens_to_glass_mm", f"expected distinct values in (0, 500] mm, got {d0s}")
-    al = p["alignments"]
-    if not isinstance(al, list) or not al or any(a not in ALIGNMENTS for a in al) or len(set(al)) != len(al):
-        raise ConfigError(src, "port.alignments", f"expected a list of distinct values from {ALIGNMENTS}, got {al!r}")
-    tilt = port0.tilt if p["tilt_deg"] is None else np.deg2rad(_numbers(src, "port.tilt_deg", p["tilt_deg"], 2))
-    if np.any(np.abs(tilt) > np.deg2rad(20)):
-        raise ConfigError(src, "port.tilt_deg", f"expected tilts within +-20 deg, got {np.rad2deg(tilt).tolist()}")
-    repl = {}
+    """The checks that need the optics preset's port; returns the cases ``[(alignment, d0_mm, FlatPort)]``."""
+    src, p = cfg["_file"], cfg["port"]
+    D, dr = cfg["calibration"]["distance_m"], cfg["calibration"]["depth_range_m"]
+    lo = cfg["evaluation"]["distance_min_m"]
+    tilt = port0.tilt if p["tilt_deg"] is None else np.deg2rad(np.asarray(p["tilt_deg"], float))
+    repl = {k: p[k] for k in ("n_glass", "n_water") if p[k] is not None}
     if p["glass_thickness_mm"] is not None:
-        if not 0 <= p["glass_thickness_mm"] <= 200:
-            raise ConfigError(src, "port.glass_thickness_mm", f"expected 0..200 mm, got {p['glass_thickness_mm']}")
         repl["t"] = p["glass_thickness_mm"] * 1e-3
-    for key in ("n_glass", "n_water"):
-        if p[key] is not None:
-            if not 1.0 <= p[key] <= 3.0:
-                raise ConfigError(src, f"port.{key}", f"expected a refractive index in [1, 3], got {p[key]}")
-            repl[key] = p[key]
-    D, dr = c["distance_m"], c["depth_range_m"]
-    if not 0.2 <= D <= 10.0:
-        raise ConfigError(src, "calibration.distance_m", f"expected 0.2..10 m, got {D} (the unit is m)")
-    if not 0.0 <= dr <= 0.5 * D:
-        raise ConfigError(src, "calibration.depth_range_m", f"expected 0..{0.5 * D:g} m (half the distance), got {dr}")
-    grid = _numbers(src, "calibration.grid", c["grid"], 2, integer=True)
-    if min(grid) < 1 or grid[0] * grid[1] < 2 or max(grid) > 20:
-        raise ConfigError(src, "calibration.grid", f"expected [n_u, n_v] in 1..20 with >= 2 views, got {grid}")
-    if not 0.0 <= c["spread"] <= 1.0:
-        raise ConfigError(src, "calibration.spread", f"expected a fraction in [0, 1], got {c['spread']}")
-    for key in ("yaw_deg", "pitch_deg"):
-        if not 0.0 <= c[key] <= 45.0:
-            raise ConfigError(src, f"calibration.{key}", f"expected 0..45 deg, got {c[key]}")
-    if not 0.0 <= c["margin_px"] <= 100.0:
-        raise ConfigError(src, "calibration.margin_px", f"expected 0..100 px, got {c['margin_px']}")
-    if c["min_points"] < 6:
-        raise ConfigError(src, "calibration.min_points", f"must be >= 6, got {c['min_points']}")
-    lo, hi, n = e["distance_min_m"], e["distance_max_m"], e["distances"]
-    if not 0 < lo < hi <= 100.0:
-        raise ConfigError(src, "evaluation.distance_max_m", f"expected 0 < distance_min_m < distance_max_m <= 100 m, "
-                                                            f"got {lo}, {hi}")
-    if n < 2 or n > 200:
-        raise ConfigError(src, "evaluation.distances", f"expected 2..200, got {n}")
-    eg = _numbers(src, "evaluation.grid", e["grid"], 2, integer=True)
-    if min(eg) < 2 or max(eg) > 1000:
-        raise ConfigError(src, "evaluation.grid", f"expected [n_u, n_v] in 2..1000, got {eg}")
-    if not th["px"] > 0:
-        raise ConfigError(src, "threshold.px", f"must be > 0 px, got {th['px']}")
-    if th["statistic"] not in STATISTICS:
-        raise ConfigError(src, "threshold.statistic", f"expected one of {STATISTICS}, got {th['statistic']!r}")
-    r = cfg["refractive"]
-    if not 0.0 <= r["noise_px"] <= 5.0:
-        raise ConfigError(src, "refractive.noise_px", f"expected 0..5 px, got {r['noise_px']}")
-    if not abs(r["start_offset_mm"]) <= 10.0:
-        raise ConfigError(src, "refractive.start_offset_mm", f"expected within +-10 mm, got {r['start_offset_mm']}")
     cases = []
-    for a in al:
-        for d0 in d0s:
+    for a in p["alignments"]:
+        for d0 in [float(d) for d in p["lens_to_glass_mm"]]:
             kw = dict(repl, d0=d0 * 1e-3, source=f"{src}: port")
             if a == "aligned":
                 kw.update(tilt=np.zeros(2), decentre=np.zeros(2))

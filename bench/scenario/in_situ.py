@@ -29,14 +29,31 @@ import shutil
 import sys
 import time
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
 import yaml
+from pydantic import Field
 
 from bench.camera.flatport import FlatPort
 from bench.camera.io import camera_yaml_text, housing_yaml_text, read_camera_yaml, write_camera_yaml
 from bench.camera.model import CameraModel
 from bench.camera.presets import load_preset
+from bench.config import (
+    NonNegFloat,
+    NonNegInt,
+    Number,
+    PositiveFloat,
+    PositiveInt,
+    ScenarioBase,
+    Section,
+    Vec2,
+    Vec3,
+    about,
+    at_least,
+    at_most,
+    section,
+)
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
@@ -49,7 +66,6 @@ from bench.robot.orientation import link5_frame
 from bench.scenario.in_situ_lab import calibrate_lab
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
-from bench.scenario.schema import required
 from bench.sim.imaging import stated_tolerance
 from bench.sim.optics_presets import optics_preset
 from bench.vision.handeye import hand_eye_axxb
@@ -57,73 +73,157 @@ from bench.vision.insitu import MapConfig
 from bench.vision.locate_dataset import locate_dataset
 from bench.vision.triangulation import required_baseline
 
-SCHEMA = {
-    "name": required(str),
-    "kind": required(str),
-    "description": (str, ""),
-    "seed": (int, 0),
-    "robot": (str, "../models/ta40.yaml"),
-    "truth": {"error_trans_mm": (float, 2.0), "error_rot_deg": (float, 1.0),
-              "mount_mm": (list, [120.0, 0.0, 300.0]), "mount_roll_deg": (float, 180.0),
-              "mount_bias_mm": (list, [2.0, -1.5, 3.0]),
-              "mount_bias_deg": (list, [0.5, -0.8, 1.0]), "focal_error_pct": (float, 1.5),
-              "principal_error_px": (float, 4.0)},
-    "camera": {"preset": (str, "air_webcam"), "supersample": (int, 2), "imaging": (str, "realistic"),
-               "imaging_off": (list, []),
-               # the housing datasheet's tolerance (+-) on the lens-to-glass distance: housing.yaml states the true
-               # distance off by a draw within it (a drawing does not locate the lens's entrance pupil exactly)
-               "housing_tolerance_mm": (float, 3.0)},
-    "encoders": {"noise_deg": (float, 0.002), "resolution_deg": (float, 0.001)},
-    "lab": {"tracker_poses": (int, 100), "tracker_sigma_mm": (float, 0.05), "rig_views": (int, 10),
-            "rig_distance_m": (float, 0.9), "eye_base_m": (list, [1.5, 0.7, 0.7]),
-            # the rig also photographed in air (before the tank is flooded) from the same poses: views rigairNN,
-            # role rig_air - the lens's own calibration, which pipeline.camera_model=refractive starts from
-            "rig_in_air": (bool, False),
-            # more rig views (lab.rig_views each) at these distances (m): a campaign over a range of distances, which
-            # a refractive camera model needs to see its port (rendered after the others: their draws do not move)
-            "rig_extra_distances_m": (list, [])},
-    "site": {"panel_width_m": (float, 1.2), "panel_height_m": (float, 0.8), "standoff_m": (float, 0.7),
-             "panel_centre_m": (list, [1.55, 0.45, 0.85]), "base_offset_m": (float, 0.3),
-             "base_rot_deg": (float, 10.0), "parking_attempts": (int, 40),
-             "water": (str, "preset"),  # the water body (bench.sim.medium.WATER_PRESETS), or the camera preset's own
-             # panel: the panel at panel_centre_m, the reference eye standoff_m in front of it; eye: the reference eye
-             # at eye_m (a point the arm reaches comfortably) and the panel standoff_m ahead of it (+x of the world)
-             "placement": (str, "panel"), "eye_m": (list, [1.05, 0.45, 1.0]),
-             "textures": (dict, {})},  # face -> image file (bench.scenario.scene_textures)
-    "survey": {"depth_resolution_mm": (float, 5.0), "directions": (int, 6), "offsets_mm": (list, []),
-               "radius_limit_mm": (float, 0.0)},  # > 0: the Eq. 199 radius capped at what the arm can sweep
-    "task": {"valve": (str, "nearest"), "teach": (bool, True)},
-    "locate": {"baseline_mm": (float, 150.0), "motion_m": (float, 0.15), "motion_deg": (float, 5.0)},
-    "pipeline": {"method": (str, "svd"), "extractor": (str, "opencv"), "refine": (str, "bundle"),
-                 "ransac_iterations": (int, 100), "d_r_mm": (float, 20.0), "r_lim": (float, 0.1),
-                 # the lab camera calibration also estimates the printed rig's structure (line offsets, bows, fold:
-                 # bench.camera.target_refinement), else it trusts the nominal rig
-                 "refine_rig": (bool, False),
-                 # the lab calibration's radial model: Heikkila's k1, k2 (p1, p2), and with lab_k3 the sixth-order k3
-                 # too (a flat port under water bends rays with strong high orders: scenarios/flatport_study.yaml)
-                 "lab_k3": (bool, False),
-                 # refine 'joints' also refines the lens's k1 k2 p1 p2 under the lab calibration's covariance (the
-                 # lab's distortion is the largest error it leaves under water: docs/bounds.md)
-                 "refine_distortion": (bool, True),
-                 # the lab calibrations' priors also carry what the rig's stated tolerances (target.yaml) leave in
-                 # the intrinsics and the mount (bench.camera.target_tolerance; Monte Carlo of this many draws)
-                 "target_tolerance": (bool, True), "tolerance_draws": (int, 48),
-                 # the camera model the lab calibrates and the localisation uses: central (Heikkila, as the thesis)
-                 # or refractive (the lens behind the housing's flat port, calibrated from the same rig views with
-                 # the dataset's housing.yaml: bench.camera.refractive; needs a camera in water)
-                 "camera_model": (str, "central")},
-    # error sources, for the error budget: switching one off injects the truth explicitly (evaluator side), e.g.
-    # kinematics=perfect gives the pipeline the true errors and mount instead of its calibration
-    "sources": {"kinematics": (str, "calibrated"), "camera": (str, "calibrated"), "encoders": (str, "real"),
-                "features": (str, "sift")},
-    # the Cramér-Rao bound of the base pose and a Monte Carlo of the ideal estimator (in_situ_bound)
-    # ml_trials > 0: also a Monte Carlo of refine 'joints' under exactly the bound's model (base_*_crb_mc_*; ~2 s a
-    # trial), the check that the estimator reaches the bound
-    "bound": {"enabled": (bool, True), "mc_trials": (int, 30), "ml_trials": (int, 0)},
-    "outputs": {"cache": (bool, True), "rerun": (bool, True)},
-}
 SOURCES = {"kinematics": ("calibrated", "perfect"), "camera": ("calibrated", "perfect"),
            "encoders": ("real", "perfect"), "features": ("sift", "perfect")}
+ENCODER_DEG = (Field(ge=0), at_most(5.0, "{v} deg is implausible for an encoder (the unit is deg)"))
+
+
+class Truth(Section):
+    error_trans_mm: NonNegFloat = 2.0
+    error_rot_deg: NonNegFloat = 1.0
+    mount_mm: Vec3 = [120.0, 0.0, 300.0]
+    mount_roll_deg: float = 180.0
+    mount_bias_mm: Vec3 = [2.0, -1.5, 3.0]
+    mount_bias_deg: Vec3 = [0.5, -0.8, 1.0]
+    focal_error_pct: NonNegFloat = 1.5
+    principal_error_px: NonNegFloat = 4.0
+
+
+class Camera(Section):
+    preset: str = "air_webcam"
+    supersample: PositiveInt = 2
+    imaging: str = "realistic"
+    imaging_off: list[str] = []
+    housing_tolerance_mm: Annotated[PositiveFloat, about(
+        "the housing datasheet's tolerance (+-) on the lens-to-glass distance: housing.yaml states the true distance "
+        "off by a draw within it (a drawing does not locate the lens's entrance pupil exactly)")] = 3.0
+
+
+class Encoders(Section):
+    noise_deg: Annotated[float, *ENCODER_DEG] = 0.002
+    resolution_deg: Annotated[float, *ENCODER_DEG] = 0.001
+
+
+class Lab(Section):
+    tracker_poses: PositiveInt = 100
+    tracker_sigma_mm: Annotated[float, Field(gt=0), at_most(50, "implausible: the unit is mm")] = 0.05
+    rig_views: Annotated[int, Field(ge=1), at_least(3, "{v} views; the camera calibration needs the rig in at least 3")
+                         ] = 10
+    rig_distance_m: PositiveFloat = 0.9
+    eye_base_m: Vec3 = [1.5, 0.7, 0.7]
+    rig_in_air: Annotated[bool, about(
+        "the rig also photographed in air (before the tank is flooded) from the same poses: views rigairNN, role "
+        "rig_air - the lens's own calibration, which pipeline.camera_model=refractive starts from")] = False
+    rig_extra_distances_m: Annotated[list[Annotated[Number, Field(gt=0.2, lt=3)]], about(
+        "more rig views (lab.rig_views each) at these distances: a campaign over a range of distances, which a "
+        "refractive camera model needs to see its port (rendered after the others: their draws do not move)")] = []
+
+
+class Site(Section):
+    panel_width_m: PositiveFloat = 1.2
+    panel_height_m: PositiveFloat = 0.8
+    standoff_m: PositiveFloat = 0.7
+    panel_centre_m: Vec3 = [1.55, 0.45, 0.85]
+    base_offset_m: NonNegFloat = 0.3
+    base_rot_deg: NonNegFloat = 10.0
+    parking_attempts: PositiveInt = 40
+    water: Annotated[str, about("the water body (bench.sim.medium.WATER_PRESETS), or the camera preset's own")] = \
+        "preset"
+    placement: Annotated[Literal["panel", "eye"], about(
+        "panel: the panel at panel_centre_m, the reference eye standoff_m in front of it; eye: the reference eye at "
+        "eye_m (a point the arm reaches comfortably) and the panel standoff_m ahead of it (+x of the world)")] = "panel"
+    eye_m: Vec3 = [1.05, 0.45, 1.0]
+    textures: Annotated[dict, about("face -> image file (bench.scenario.scene_textures)")] = {}
+
+
+class Survey(Section):
+    depth_resolution_mm: PositiveFloat = 5.0
+    directions: PositiveInt = 6
+    offsets_mm: Annotated[list[Vec2], about("[x_mm, y_mm] pairs")] = []
+    radius_limit_mm: Annotated[NonNegFloat, about(
+        "> 0: the Eq. 199 radius capped at what the arm can sweep (0: no limit)")] = 0.0
+
+
+class Task(Section):
+    valve: str = "nearest"
+    teach: bool = True
+
+
+class Locate(Section):
+    baseline_mm: PositiveFloat = 150.0
+    motion_m: NonNegFloat = 0.15
+    motion_deg: NonNegFloat = 5.0
+
+
+class Pipeline(Section):
+    method: Literal["svd", "horn", "rodrigues"] = "svd"
+    extractor: Literal["opencv", "thesis"] = "opencv"
+    refine: Literal["none", "pose", "bundle", "joints"] = "bundle"
+    ransac_iterations: PositiveInt = 100
+    d_r_mm: PositiveFloat = 20.0
+    r_lim: NonNegFloat = 0.1
+    refine_rig: Annotated[bool, about(
+        "the lab camera calibration also estimates the printed rig's structure (line offsets, bows, fold: "
+        "bench.camera.target_refinement), else it trusts the nominal rig")] = False
+    lab_k3: Annotated[bool, about(
+        "the lab calibration's radial model: Heikkila's k1, k2 (p1, p2), and with lab_k3 the sixth-order k3 too (a "
+        "flat port under water bends rays with strong high orders: scenarios/flatport_study.yaml)")] = False
+    refine_distortion: Annotated[bool, about(
+        "refine 'joints' also refines the lens's k1 k2 p1 p2 under the lab calibration's covariance (the lab's "
+        "distortion is the largest error it leaves under water: docs/bounds.md)")] = True
+    target_tolerance: Annotated[bool, about(
+        "the lab calibrations' priors also carry what the rig's stated tolerances (target.yaml) leave in the "
+        "intrinsics and the mount (bench.camera.target_tolerance; Monte Carlo of tolerance_draws draws)")] = True
+    tolerance_draws: Annotated[int, Field(ge=10, le=1000)] = 48
+    camera_model: Annotated[Literal["central", "refractive"], about(
+        "the camera model the lab calibrates and the localisation uses: central (Heikkila, as the thesis) or "
+        "refractive (the lens behind the housing's flat port, calibrated from the same rig views with the dataset's "
+        "housing.yaml: bench.camera.refractive; needs a camera in water)")] = "central"
+
+
+class Sources(Section):
+    """Error sources, for the error budget: switching one off injects the truth explicitly (evaluator side), e.g.
+    kinematics=perfect gives the pipeline the true errors and mount instead of its calibration."""
+
+    kinematics: Literal[SOURCES["kinematics"]] = "calibrated"
+    camera: Literal[SOURCES["camera"]] = "calibrated"
+    encoders: Literal[SOURCES["encoders"]] = "real"
+    features: Literal[SOURCES["features"]] = "sift"
+
+
+class Bound(Section):
+    """The Cramér-Rao bound of the base pose and a Monte Carlo of the ideal estimator (in_situ_bound); ml_trials > 0:
+    also a Monte Carlo of refine 'joints' under exactly the bound's model (base_*_crb_mc_*; ~2 s a trial), the check
+    that the estimator reaches the bound."""
+
+    enabled: bool = True
+    mc_trials: NonNegInt = 30
+    ml_trials: NonNegInt = 0
+
+
+class Outputs(Section):
+    cache: bool = True
+    rerun: bool = True
+
+
+class Scenario(ScenarioBase):
+    """An ``in_situ`` scenario file."""
+
+    robot: str = "../models/ta40.yaml"
+    truth: Truth = section(Truth)
+    camera: Camera = section(Camera)
+    encoders: Encoders = section(Encoders)
+    lab: Lab = section(Lab)
+    site: Site = section(Site)
+    survey: Survey = section(Survey)
+    task: Task = section(Task)
+    locate: Locate = section(Locate)
+    pipeline: Pipeline = section(Pipeline)
+    sources: Sources = section(Sources)
+    bound: Bound = section(Bound)
+    outputs: Outputs = section(Outputs)
+
+
 # bench budget: the overrides that make each error source perfect (issue: perfect features, perfect optics model -
 # the same camera model in simulator and pipeline -, perfect kinematics, perfect encoders)
 BUDGET = {"features": {"sources.features": "perfect"}, "optics_model": {"sources.camera": "perfect"},
@@ -135,14 +235,6 @@ DEG = np.pi / 180
 #: the IK seed of the rig views after the first
 Q_HOME = np.deg2rad([28.0, 37.0, 49.0, 82.0, 29.0, 0.0])
 TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
-
-
-def _vec(cfg, key, n):
-    sec, k = key.split(".")
-    v = cfg[sec][k]
-    if len(v) != n or not all(isinstance(x, (int, float)) and np.isfinite(x) for x in v):
-        raise ConfigError(cfg["_file"], key, f"expected {n} numbers, got {v!r}")
-    return np.array(v, dtype=float)
 
 
 def imaging(cfg):
@@ -176,101 +268,32 @@ def site_optics(cfg):
     return optics_preset(cfg["camera"]["preset"], overrides={"water": {"preset": water}})
 
 
-def _check_ranges(cfg) -> None:
-    """Signs, counts and units of the numbers the schema only types (each message names the user's key and unit)."""
-    src = cfg["_file"]
-    nonneg = {"truth.error_trans_mm": "mm", "truth.error_rot_deg": "deg", "truth.focal_error_pct": "%",
-              "truth.principal_error_px": "px", "encoders.noise_deg": "deg", "encoders.resolution_deg": "deg",
-              "site.base_offset_m": "m", "site.base_rot_deg": "deg", "locate.motion_m": "m",
-              "locate.motion_deg": "deg", "pipeline.r_lim": "(a ratio)", "bound.mc_trials": "trials",
-              "bound.ml_trials": "trials"}
-    for key, unit in nonneg.items():
-        sec, k = key.split(".")
-        if cfg[sec][k] < 0:
-            raise ConfigError(src, key, f"must be >= 0 {unit}, got {cfg[sec][k]}")
-    for key in ("encoders.noise_deg", "encoders.resolution_deg"):
-        sec, k = key.split(".")
-        if cfg[sec][k] > 5.0:  # EncoderModel refuses > 0.1 rad: say it in the user's unit
-            raise ConfigError(src, key, f"{cfg[sec][k]} deg is implausible for an encoder (the unit is deg)")
-    for key, unit in {"site.panel_width_m": "m", "site.panel_height_m": "m", "lab.rig_distance_m": "m",
-                      "pipeline.d_r_mm": "mm"}.items():
-        sec, k = key.split(".")
-        if cfg[sec][k] <= 0:
-            raise ConfigError(src, key, f"must be > 0 {unit}, got {cfg[sec][k]}")
-    if cfg["pipeline"]["ransac_iterations"] < 1:
-        raise ConfigError(src, "pipeline.ransac_iterations",
-                          f"must be >= 1, got {cfg['pipeline']['ransac_iterations']}")
-    if not 10 <= cfg["pipeline"]["tolerance_draws"] <= 1000:
-        raise ConfigError(src, "pipeline.tolerance_draws",
-                          f"must be in 10..1000 (Monte Carlo draws), got {cfg['pipeline']['tolerance_draws']}")
-    # the lab calibration identifies the arm from the tracker points (3 equations each) and the camera from the rig
-    robot = load_robot(Path(src).parent / cfg["robot"])
-    n_params = len(closed_form_reduction(robot).kept)
-    n = cfg["lab"]["tracker_poses"]
-    if 3 * n < n_params:
-        raise ConfigError(src, "lab.tracker_poses", f"{n} poses give {3 * n} equations for {n_params} identifiable "
-                                                    f"errors; need at least {-(-n_params // 3)}")
-    if cfg["lab"]["rig_views"] < 3:
-        raise ConfigError(src, "lab.rig_views", f"{cfg['lab']['rig_views']} views; the camera calibration needs the "
-                                                "rig in at least 3")
-
-
 def validate(cfg) -> None:
-    """Value checks beyond the schema (one-line ConfigError naming the key); also run by ``bench sweep`` up front."""
+    """The checks the model cannot make, before anything is created (also run by ``bench sweep`` up front): the
+    imaging profile, the optics in the site's water, the housing tolerance against the port, the tracker poses
+    against the robot's identifiable errors, a camera in water where one is needed, the texture files."""
     src = cfg["_file"]
     imaging(cfg)
-    optics = site_optics(cfg)
-    port = optics.port
-    if port is not None and port.n_water != port.n_air:  # housing.yaml's d0 = the true one off by up to the tolerance
+    port = site_optics(cfg).port
+    in_water = port is not None and port.n_water != port.n_air
+    if in_water:  # housing.yaml's d0 = the true one off by up to the tolerance
         d0_mm = port.axial_d0 * 1e3
         if cfg["camera"]["housing_tolerance_mm"] >= d0_mm:
             raise ConfigError(src, "camera.housing_tolerance_mm", f"must be below the port's lens-to-glass distance "
                                                                   f"({d0_mm:.1f} mm), got "
                                                                   f"{cfg['camera']['housing_tolerance_mm']}")
-    for key in ("camera.supersample", "lab.tracker_poses", "lab.rig_views", "survey.directions",
-                "site.parking_attempts"):
-        sec, k = key.split(".")
-        if cfg[sec][k] < 1:
-            raise ConfigError(src, key, f"must be >= 1, got {cfg[sec][k]}")
-    for key in ("lab.tracker_sigma_mm", "site.standoff_m", "locate.baseline_mm", "survey.depth_resolution_mm",
-                "camera.housing_tolerance_mm"):
-        sec, k = key.split(".")
-        if cfg[sec][k] <= 0:
-            raise ConfigError(src, key, f"must be > 0, got {cfg[sec][k]}")
-    if cfg["lab"]["tracker_sigma_mm"] > 50:
-        raise ConfigError(src, "lab.tracker_sigma_mm", "implausible: the unit is mm")
-    _check_ranges(cfg)
-    _numbers_list(cfg, "lab.rig_extra_distances_m")
-    if cfg["pipeline"]["method"] not in ("svd", "horn", "rodrigues"):
-        raise ConfigError(src, "pipeline.method", "expected svd, horn or rodrigues")
-    if cfg["pipeline"]["refine"] not in ("none", "pose", "bundle", "joints"):
-        raise ConfigError(src, "pipeline.refine", f"expected none, pose, bundle or joints, got "
-                                                  f"{cfg['pipeline']['refine']!r}")
-    if cfg["pipeline"]["extractor"] not in ("opencv", "thesis"):
-        raise ConfigError(src, "pipeline.extractor", "expected opencv or thesis")
-    if cfg["pipeline"]["camera_model"] not in ("central", "refractive"):
-        raise ConfigError(src, "pipeline.camera_model", f"expected central or refractive, got "
-                                                        f"{cfg['pipeline']['camera_model']!r}")
-    port = site_optics(cfg).port
+    # the lab calibration identifies the arm from the tracker points (3 equations each)
+    n_params = len(closed_form_reduction(load_robot(Path(src).parent / cfg["robot"])).kept)
+    n = cfg["lab"]["tracker_poses"]
+    if 3 * n < n_params:
+        raise ConfigError(src, "lab.tracker_poses", f"{n} poses give {3 * n} equations for {n_params} identifiable "
+                                                    f"errors; need at least {-(-n_params // 3)}")
     for key, on in (("pipeline.camera_model", cfg["pipeline"]["camera_model"] == "refractive"),
                     ("lab.rig_in_air", cfg["lab"]["rig_in_air"])):
-        if on and (port is None or port.n_water == port.n_air):
+        if on and not in_water:
             raise ConfigError(src, key, f"needs a camera behind a port in water, but camera.preset "
                                         f"{cfg['camera']['preset']!r} is in air")
-    for key, allowed in SOURCES.items():
-        if cfg["sources"][key] not in allowed:
-            raise ConfigError(src, f"sources.{key}", f"expected one of {', '.join(allowed)}, got "
-                                                     f"{cfg['sources'][key]!r}")
     texture_paths(cfg, "site.textures")
-    if cfg["site"]["placement"] not in ("panel", "eye"):
-        raise ConfigError(src, "site.placement", f"expected panel or eye, got {cfg['site']['placement']!r}")
-    _vec(cfg, "site.eye_m", 3)
-    if cfg["survey"]["radius_limit_mm"] < 0:
-        raise ConfigError(src, "survey.radius_limit_mm", f"must be >= 0 mm (0 = no limit), got "
-                                                         f"{cfg['survey']['radius_limit_mm']}")
-    for row in cfg["survey"]["offsets_mm"]:
-        if not (isinstance(row, list) and len(row) == 2):
-            raise ConfigError(src, "survey.offsets_mm", f"expected [x_mm, y_mm] pairs, got {row!r}")
 
 
 # ------------------------------------------------------------------------------------------------ truth
@@ -279,9 +302,9 @@ def validate(cfg) -> None:
 def _truth(cfg, robot, rng):
     t = cfg["truth"]
     eps = random_errors(rng, trans=t["error_trans_mm"] * 1e-3, rot=t["error_rot_deg"] * DEG)
-    mount = homogeneous(rot_z(t["mount_roll_deg"] * DEG), _vec(cfg, "truth.mount_mm", 3) * 1e-3)
-    b = _vec(cfg, "truth.mount_bias_deg", 3) * DEG  # thesis theta_x0, theta_y0, theta_z0 (Eq. 197, as labelled)
-    bias = homogeneous(rot_y(b[1]) @ rot_x(b[0]) @ rot_z(b[2]), _vec(cfg, "truth.mount_bias_mm", 3) * 1e-3)
+    mount = homogeneous(rot_z(t["mount_roll_deg"] * DEG), np.array(t["mount_mm"], float) * 1e-3)
+    b = np.array(t["mount_bias_deg"], float) * DEG  # thesis theta_x0, theta_y0, theta_z0 (Eq. 197, as labelled)
+    bias = homogeneous(rot_y(b[1]) @ rot_x(b[0]) @ rot_z(b[2]), np.array(t["mount_bias_mm"], float) * 1e-3)
     optics = site_optics(cfg)  # camera.preset in site.water
     nominal_cam = load_preset(optics.nominal_camera)  # the specification the pipeline is given
     lens = load_preset(optics.lens_camera)  # the lens inside the housing (= the whole camera in air)
@@ -423,16 +446,6 @@ def _why_unreachable(robot, eps, cfg, eyes, centre, valves, mount) -> str:
             "site.parking_attempts")
 
 
-def _numbers_list(cfg, key):
-    """The list of numbers at ``key`` (``section.name``), each in (0.2, 3) m; else a one-line error naming it."""
-    sec, k = key.split(".")
-    v = cfg[sec][k]
-    if not isinstance(v, list) or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
-                                          and np.isfinite(x) and 0.2 < x < 3.0 for x in v):
-        raise ConfigError(cfg["_file"], key, f"expected a list of distances in (0.2, 3) m, got {v!r}")
-    return [float(x) for x in v]
-
-
 def _rig_views(robot, rig_centre, distance, n, prefix, mount_nominal, role="rig"):
     """``(views, unreachable)``: ``n`` views of the rig from ``distance`` (m) in directions spread over +-25 deg
     azimuth and +-12 deg elevation (rotation diversity for AX = XB), base at the world origin; the requested views the
@@ -492,10 +505,10 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
 
     # --- site geometry: the panel faces the arm (normal -x of the world), within reach of the nominal base ----------
     if site["placement"] == "eye":  # the reference eye where the arm reaches it, the panel standoff_m ahead
-        eye_ref = _vec(cfg, "site.eye_m", 3)
+        eye_ref = np.array(cfg["site"]["eye_m"], float)
         centre = eye_ref + np.array([site["standoff_m"], 0.0, 0.0])
     else:
-        centre = _vec(cfg, "site.panel_centre_m", 3)  # world = the nominal base frame, before the ROV parks
+        centre = np.array(cfg["site"]["panel_centre_m"], float)  # world = the nominal base frame, before the ROV parks
         eye_ref = centre - np.array([site["standoff_m"], 0.0, 0.0])
     R_wp = np.column_stack([[0, -1, 0], [0, 0, 1], [-1, 0, 0]]).astype(float)  # panel x, y (up), z (out) in world
     T_world_panel = homogeneous(R_wp, centre)
@@ -503,7 +516,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         panel = manifold_panel(rng, site["panel_width_m"], site["panel_height_m"], name="panel",
                                texture_overrides=texture_paths(cfg, "site.textures"))
     # the lab rig: fold line vertical, both boards facing the arm, in front of the nominal base
-    rig_origin = _vec(cfg, "lab.eye_base_m", 3) + np.array([cfg["lab"]["rig_distance_m"], 0.0, -0.12])
+    rig_origin = np.array(cfg["lab"]["eye_base_m"], float) + np.array([cfg["lab"]["rig_distance_m"], 0.0, -0.12])
     T_world_rig = homogeneous(rot_z(3 * np.pi / 4), rig_origin)  # both boards face the arm (-x of the world)
     from bench.sim.imaging import target_geometry
 
@@ -562,7 +575,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         views += air_views
         unreachable += air_unreachable
         n_requested += n_rig
-    for i, d in enumerate(_numbers_list(cfg, "lab.rig_extra_distances_m")):
+    for i, d in enumerate([float(d) for d in cfg["lab"]["rig_extra_distances_m"]]):
         extra, extra_unreachable = _rig_views(robot, rig_centre, d, n_rig, f"rig{i + 1}d", mount_nominal)
         views += extra
         unreachable += extra_unreachable

@@ -207,7 +207,7 @@ def calibrate_lab(ds, robot, cfg, out):
     # the rig looks the same after a half turn about the horizontal bisector of its boards: make its frame consistent
     z_mid = float(np.mean(geometry.object_points()[:, 2]))
     S = homogeneous(np.array([[0.0, 1, 0], [1, 0, 0], [0, 0, -1]]), [0.0, 0.0, 2 * z_mid])
-    mount_nominal = homogeneous(rot_z(cfg["truth"]["mount_roll_deg"] * DEG),  # validated by the kind (_vec)
+    mount_nominal = homogeneous(rot_z(cfg["truth"]["mount_roll_deg"] * DEG),  # a 3-vector (the kind's model)
                                 np.asarray(cfg["truth"]["mount_mm"], dtype=float) * 1e-3)
     T_cam_target, _ = resolve_target_symmetry(T_base_l5, (cal if refr is None else refr).T_cam_target,
                                               mount_nominal, [S])

@@ -18,9 +18,12 @@ import csv
 import sys
 import time
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
+from pydantic import Field
 
+from bench.config import NonNegInt, PositiveInt, ScenarioBase, Section, Vec3, at_most, section
 from bench.errors import ConfigError
 from bench.robot.identifiability import closed_form_reduction, numeric_identifiability
 from bench.robot.identification import identify_iterative, identify_linear
@@ -30,24 +33,59 @@ from bench.robot.model import error_names, load_robot
 from bench.robot.observability import INDICES, observability_indices, select_poses
 from bench.robot.orientation import orientation_analysis
 from bench.scenario.results import write_result, write_table_csv
-from bench.scenario.schema import required
 
-SCHEMA = {
-    "name": required(str),
-    "kind": required(str),
-    "description": (str, ""),
-    "seed": (int, 0),
-    "robot": (str, "../models/ta40.yaml"),
-    "truth": {"errors_csv": required(str)},
-    "linear": {"n_poses": (int, 100)},
-    "realistic": {"n_poses": (int, 100), "n_heldout": (int, 1000), "tracker_sigma_mm": (float, 0.05)},
-    "monte_carlo": {"seeds": (int, 200)},
-    "pose_selection": {"index": (str, "O1"), "n_poses": (int, 100), "n_candidates": (int, 2000),
-                       "n_random_sets": (int, 20)},
-    "orientation": {"n_configurations": (int, 100)},
-    "identifiability": {"n_poses": (int, 60), "off_axis_point_mm": (list, [50.0, 0.0, 100.0])},
-    "outputs": {"plots": (bool, True)},
-}
+
+class Truth(Section):
+    errors_csv: str
+
+
+class Linear(Section):
+    n_poses: PositiveInt = 100
+
+
+class Realistic(Section):
+    n_poses: PositiveInt = 100
+    n_heldout: PositiveInt = 1000
+    tracker_sigma_mm: Annotated[float, Field(gt=0), at_most(50, "{v} mm is implausible; the unit is mm, not um")] = 0.05
+
+
+class MonteCarlo(Section):
+    seeds: NonNegInt = 200
+
+
+class PoseSelection(Section):
+    index: Literal[INDICES] = "O1"
+    n_poses: PositiveInt = 100
+    n_candidates: PositiveInt = 2000
+    n_random_sets: NonNegInt = 20
+
+
+class Orientation(Section):
+    n_configurations: PositiveInt = 100
+
+
+class Identifiability(Section):
+    n_poses: PositiveInt = 60
+    off_axis_point_mm: Vec3 = [50.0, 0.0, 100.0]
+
+
+class Outputs(Section):
+    plots: bool = True
+
+
+class Scenario(ScenarioBase):
+    """A ``kinematic_identification`` scenario file."""
+
+    robot: str = "../models/ta40.yaml"
+    truth: Truth
+    linear: Linear = section(Linear)
+    realistic: Realistic = section(Realistic)
+    monte_carlo: MonteCarlo = section(MonteCarlo)
+    pose_selection: PoseSelection = section(PoseSelection)
+    orientation: Orientation = section(Orientation)
+    identifiability: Identifiability = section(Identifiability)
+    outputs: Outputs = section(Outputs)
+
 
 _MM = np.array([1e3, 1e3, 1e3, 1.0, 1.0, 1.0])  # SI -> thesis units (mm, rad) per kind x y z s r p
 
@@ -94,33 +132,6 @@ def load_error_table(path) -> dict:
     return out
 
 
-def _check_values(cfg):
-    src = cfg["_file"]
-    positive = [("linear.n_poses", cfg["linear"]["n_poses"]), ("realistic.n_poses", cfg["realistic"]["n_poses"]),
-                ("realistic.n_heldout", cfg["realistic"]["n_heldout"]),
-                ("pose_selection.n_poses", cfg["pose_selection"]["n_poses"]),
-                ("pose_selection.n_candidates", cfg["pose_selection"]["n_candidates"]),
-                ("orientation.n_configurations", cfg["orientation"]["n_configurations"]),
-                ("identifiability.n_poses", cfg["identifiability"]["n_poses"])]
-    for key, v in positive:
-        if v < 1:
-            raise ConfigError(src, key, f"must be >= 1, got {v}")
-    for key in ("monte_carlo.seeds", "pose_selection.n_random_sets"):
-        sec, k = key.split(".")
-        if cfg[sec][k] < 0:
-            raise ConfigError(src, key, f"must be >= 0, got {cfg[sec][k]}")
-    sigma = cfg["realistic"]["tracker_sigma_mm"]
-    if sigma <= 0:
-        raise ConfigError(src, "realistic.tracker_sigma_mm", f"must be > 0 (mm), got {sigma}")
-    if sigma > 50:
-        raise ConfigError(src, "realistic.tracker_sigma_mm", f"{sigma} mm is implausible; the unit is mm, not um")
-    if cfg["pose_selection"]["index"] not in INDICES:
-        raise ConfigError(src, "pose_selection.index", f"expected one of {INDICES}")
-    p = cfg["identifiability"]["off_axis_point_mm"]
-    if len(p) != 3 or not all(isinstance(v, (int, float)) for v in p):
-        raise ConfigError(src, "identifiability.off_axis_point_mm", "expected 3 numbers (mm)")
-
-
 def _check_pose_counts(cfg, n_params):
     """Every identification needs at least ``n_params / 3`` poses (3 equations per tracker point)."""
     need = -(-n_params // 3)
@@ -134,7 +145,6 @@ def _check_pose_counts(cfg, n_params):
 
 def validate(cfg: dict) -> None:
     """Check every value of a loaded scenario without running it (``bench sweep`` does, per grid point)."""
-    _check_values(cfg)
     base = Path(cfg["_file"]).parent
     robot = load_robot(base / cfg["robot"])
     _check_pose_counts(cfg, len(closed_form_reduction(robot).kept))
@@ -163,7 +173,6 @@ class _Progress:
 
 
 def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
-    _check_values(cfg)
     base = Path(cfg["_file"]).parent
     robot = load_robot(base / cfg["robot"])
     table = load_error_table(base / cfg["truth"]["errors_csv"])

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.config import apply_overrides, load_yaml, parse
 from bench.errors import BenchError, ConfigError
 from bench.fileio import claimed_output_dir
-from bench.scenario.schema import apply_overrides, load_yaml, validate
 
 # scenario kind -> module of bench.scenario (imported only when a scenario of that kind runs)
 KINDS = {
@@ -23,29 +23,35 @@ KINDS = {
 
 
 def kind_module(kind: str, source="<scenario>"):
-    """The module implementing a scenario ``kind`` (``SCHEMA``, ``run``, optionally ``render``)."""
+    """The module implementing a scenario ``kind`` (the model ``Scenario``, ``run``, optionally ``validate``,
+    ``render``)."""
     if kind not in KINDS:
         raise ConfigError(source, "kind", f"unknown scenario kind {kind!r} (known: {', '.join(KINDS)})")
     return importlib.import_module(f"bench.scenario.{KINDS[kind]}")
 
 
+def check_scenario(raw: dict, source) -> dict:
+    """A raw scenario mapping checked by its kind's model (keys, types, ranges, choices) and then by the kind's
+    ``validate(cfg)`` where the module has one (what needs a robot, optics or files); the validated nested dicts,
+    ``_file`` the scenario's absolute path."""
+    module = kind_module(raw.get("kind"), source)
+    cfg = parse(module.Scenario, raw, str(source))
+    cfg["_file"] = str(Path(source).resolve())
+    if hasattr(module, "validate"):  # before anything is created
+        module.validate(cfg)
+    return cfg
+
+
 def load_scenario(path, seed=None, overrides=()) -> dict:
-    """Load, override and validate a scenario (the schema, then the kind's own value checks where its module offers
-    ``validate(cfg)``); paths inside it are resolved relative to the file."""
+    """Load, override (``--set``, ``--seed``) and check a scenario (:func:`check_scenario`); paths inside it are
+    resolved relative to the file."""
     path = Path(path)
     raw = apply_overrides(load_yaml(path), overrides, str(path))
-    module = kind_module(raw.get("kind"), path)
-    cfg = validate(raw, module.SCHEMA, str(path))
     if seed is not None:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise BenchError(f"--seed: expected a non-negative integer, got {seed!r}")
-        cfg["seed"] = int(seed)
-    elif "seed" in cfg and (not isinstance(cfg["seed"], int) or cfg["seed"] < 0):
-        raise ConfigError(path, "seed", f"expected a non-negative integer, got {cfg['seed']!r}")
-    cfg["_file"] = str(path.resolve())
-    if hasattr(module, "validate"):  # ranges, units, consistency: before anything is created
-        module.validate(cfg)
-    return cfg
+        raw["seed"] = int(seed)
+    return check_scenario(raw, path)
 
 
 def run_scenario_file(path, out=None, seed=None, overrides=(), verbose=True, quiet=False, force=False):

@@ -9,9 +9,9 @@
   partial or duplicate row; the next ``bench sweep`` with the same arguments skips the finished run ids.
 * Backends: ``local`` (a process pool, default ``os.cpu_count()`` workers) and ``ray`` (the same work function as
   Ray tasks, on a local instance or ``--address`` of a cluster; needs the ``cluster`` extra).
-* Every grid point is validated before any run starts: the schema (unknown keys, types) and, for kinds whose module
-  offers ``validate(cfg)``, the kind's value checks (a negative noise, too few poses) - a bad value in the grid is a
-  one-line error and nothing is run or written.
+* Every grid point is validated before any run starts: the kind's model (unknown keys, types, ranges, choices) and,
+  for kinds whose module offers ``validate(cfg)``, the checks that need the robot, optics or files (too few poses) -
+  a bad value in the grid is a one-line error and nothing is run or written.
 * At the end: a summary table (median and spread per grid point and metric) as CSV and a plot per metric against
   the first swept key.
 """

@@ -20,9 +20,21 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
+from pydantic import Field
 
+from bench.config import (
+    NonNegFloat,
+    Number,
+    PositiveFloat,
+    PositiveNumber,
+    ScenarioBase,
+    Section,
+    at_most,
+    section,
+)
 from bench.errors import ConfigError
 from bench.fileio import atomic_save_figure
 from bench.geometry.transforms import homogeneous, random_transform, rot_z, rotation_angle
@@ -36,73 +48,72 @@ from bench.robot.base_from_arcs import (
 from bench.robot.kinematics import error_matrix
 from bench.robot.model import load_robot, random_errors
 from bench.scenario.results import write_result, write_table_csv
-from bench.scenario.schema import required
 
-SCHEMA = {
-    "name": required(str),
-    "kind": required(str),
-    "description": (str, ""),
-    "seed": (int, 0),
-    "robot": (str, "../models/ta40.yaml"),
-    "tracker": {"position_std_m": (float, 2.0)},
-    "truth": {"error_trans_mm": (float, 2.0), "error_rot_deg": (float, 1.0)},
-    "arcs": {"q_start_deg": (list, [-10.0, 0.0, 100.0, 20.0, 40.0, 0.0]), "n_points": (int, 20),
-             "default_span_deg": (float, 90.0), "spans_deg": (list, [20.0, 40.0, 60.0, 90.0])},
-    "noise": {"default_sigma_mm": (float, 0.05), "sigmas_mm": (list, [0.01, 0.05, 0.1, 0.2])},
-    "monte_carlo": {"trials": (int, 200)},
-    "outputs": {"plots": (bool, True)},
-}
+SIGMA = (Field(gt=0), at_most(50, "{v} mm is implausible for a laser tracker; the unit is mm"))
 
 
-def _numbers(src, key, values, n=None):
-    if not isinstance(values, list) or not values or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in values):
-        raise ConfigError(src, key, f"expected a non-empty list of numbers, got {values!r}")
-    if n is not None and len(values) != n:
-        raise ConfigError(src, key, f"expected {n} numbers, got {len(values)}")
-    return [float(v) for v in values]
+class Tracker(Section):
+    position_std_m: NonNegFloat = 2.0
 
 
-def _check_sigma(src, key, v):
-    if not v > 0:
-        raise ConfigError(src, key, f"must be > 0 (mm), got {v}")
-    if v > 50:
-        raise ConfigError(src, key, f"{v} mm is implausible for a laser tracker; the unit is mm")
+class Truth(Section):
+    error_trans_mm: NonNegFloat = 2.0
+    error_rot_deg: NonNegFloat = 1.0
+
+
+class Arcs(Section):
+    q_start_deg: Annotated[list[Number], Field(min_length=1)] = [-10.0, 0.0, 100.0, 20.0, 40.0, 0.0]
+    n_points: Annotated[int, Field(ge=3)] = 20
+    default_span_deg: PositiveFloat = 90.0
+    spans_deg: Annotated[list[PositiveNumber], Field(min_length=1)] = [20.0, 40.0, 60.0, 90.0]
+
+
+class Noise(Section):
+    default_sigma_mm: Annotated[float, *SIGMA] = 0.05
+    sigmas_mm: Annotated[list[Annotated[Number, *SIGMA]], Field(min_length=1)] = [0.01, 0.05, 0.1, 0.2]
+
+
+class MonteCarlo(Section):
+    trials: Annotated[int, Field(ge=2)] = 200
+
+
+class Outputs(Section):
+    plots: bool = True
+
+
+class Scenario(ScenarioBase):
+    """A ``tracker_base_frame`` scenario file."""
+
+    robot: str = "../models/ta40.yaml"
+    tracker: Tracker = section(Tracker)
+    truth: Truth = section(Truth)
+    arcs: Arcs = section(Arcs)
+    noise: Noise = section(Noise)
+    monte_carlo: MonteCarlo = section(MonteCarlo)
+    outputs: Outputs = section(Outputs)
 
 
 def _check_values(cfg, robot):
+    """The checks that need the robot (its joint count and limits); returns ``(q_start, spans, sigmas)``."""
     src = cfg["_file"]
-    arcs, noise = cfg["arcs"], cfg["noise"]
-    q_start = np.deg2rad(_numbers(src, "arcs.q_start_deg", arcs["q_start_deg"], robot.n))
+    arcs = cfg["arcs"]
+    if len(arcs["q_start_deg"]) != robot.n:
+        raise ConfigError(src, "arcs.q_start_deg", f"expected {robot.n} numbers, got {len(arcs['q_start_deg'])}")
+    q_start = np.deg2rad(np.asarray(arcs["q_start_deg"], float))
     bad = np.flatnonzero((q_start < robot.q_min - 1e-12) | (q_start > robot.q_max + 1e-12))
     if bad.size:
         j = int(bad[0])
         raise ConfigError(src, "arcs.q_start_deg", f"joint {j + 1} at {np.rad2deg(q_start[j]):g} deg is outside "
                                                    f"[{np.rad2deg(robot.q_min[j]):g}, {np.rad2deg(robot.q_max[j]):g}]")
-    if arcs["n_points"] < 3:
-        raise ConfigError(src, "arcs.n_points", f"must be >= 3, got {arcs['n_points']}")
-    if cfg["monte_carlo"]["trials"] < 2:
-        raise ConfigError(src, "monte_carlo.trials", f"must be >= 2, got {cfg['monte_carlo']['trials']}")
-    spans = _numbers(src, "arcs.spans_deg", arcs["spans_deg"])
+    spans = [float(s) for s in arcs["spans_deg"]]
     for key, values in (("arcs.spans_deg", spans), ("arcs.default_span_deg", [arcs["default_span_deg"]])):
         for s in values:
-            if s <= 0:
-                raise ConfigError(src, key, f"must be > 0 (deg), got {s}")
             for j in (0, 1):  # both arcs start at q_start and turn by +span
                 end = np.rad2deg(q_start[j]) + s
                 if end > np.rad2deg(robot.q_max[j]) + 1e-9:
                     raise ConfigError(src, key, f"{s:g} deg from arcs.q_start_deg takes joint {j + 1} to {end:g} deg,"
                                                 f" beyond its limit {np.rad2deg(robot.q_max[j]):g} deg")
-    sigmas = _numbers(src, "noise.sigmas_mm", noise["sigmas_mm"])
-    for s in sigmas:
-        _check_sigma(src, "noise.sigmas_mm", s)
-    _check_sigma(src, "noise.default_sigma_mm", noise["default_sigma_mm"])
-    for key in ("error_trans_mm", "error_rot_deg"):
-        if cfg["truth"][key] < 0:
-            raise ConfigError(src, f"truth.{key}", f"must be >= 0, got {cfg['truth'][key]}")
-    if cfg["tracker"]["position_std_m"] < 0:
-        raise ConfigError(src, "tracker.position_std_m", "must be >= 0 (m)")
-    return q_start, spans, sigmas
+    return q_start, spans, [float(s) for s in cfg["noise"]["sigmas_mm"]]
 
 
 def validate(cfg: dict) -> None:

@@ -38,9 +38,11 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
 import yaml
+from pydantic import Field, model_validator
 
 from bench.camera.calibrate_dataset import load_target, load_target_tolerance
 from bench.camera.calibration import calibrate_camera
@@ -48,6 +50,22 @@ from bench.camera.corners import EXTRACTORS, extract_corners
 from bench.camera.io import camera_yaml_text
 from bench.camera.model import CameraModel
 from bench.camera.presets import load_preset
+from bench.config import (
+    KeyProblem,
+    NonNegFloat,
+    NonNegInt,
+    Number,
+    PositiveFloat,
+    PositiveInt,
+    PositiveNumber,
+    ScenarioBase,
+    Section,
+    Vec2,
+    Vec3,
+    about,
+    at_least,
+    section,
+)
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
 from bench.fileio import atomic_save_figure
@@ -55,7 +73,6 @@ from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, 
 from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
-from bench.scenario.schema import required
 from bench.vision.features import Features
 from bench.vision.insitu import MapConfig
 from bench.vision.triangulation import required_baseline
@@ -84,66 +101,120 @@ CAMERA_CHOICES = ("calibrated", "nominal", "truth")
 BIAS_CHOICES = ("estimated", "truth", "zero")
 FEATURE_CHOICES = ("sift", "corners", "true_projection")
 
-SCHEMA = {
-    "name": required(str),
-    "kind": required(str),
-    "description": (str, ""),
-    "seed": (int, 0),
-    "sim": {
-        "poses": (str, "table4"),               # table4 (section 5.2.2) | table10 (section 5.4)
-        "positions": (list, []),                # pose numbers to use (empty: all rows of the table)
-        "optics": (str, "air_webcam"),          # optics preset (bench.sim.optics_presets)
-        "port": (bool, True),                   # keep the preset's housing glass (false: no port)
-        "sensor_noise": (bool, True),           # shot and read noise (false: noise-free 8-bit images)
-        "supersample": (int, 2),
-        "imaging": (str, "realistic"),          # realistic | ideal (bench.sim.imaging)
-        "imaging_off": (list, []),              # stages of the realistic profile switched off (ablation)
-        "reference_object": (str, "panel"),     # panel (manifold panel) | robot (desk robot in a lab) | rig
-        "textures": (dict, {}),                  # panel face -> image file (bench.scenario.scene_textures)
-        "reference_distance_mm": (float, 700.0),
-        "panel_size_m": (list, [0.8, 0.6]),
-        "table_errors": (bool, True),           # random positioning errors of the table (false: exact table)
-        "table_readout": (str, "steps"),        # steps (the step the table is at) | exact (the carriage's position)
-        "mount_bias_deg": (list, [0.3, 6.2, -1.8]),        # true theta_x0, theta_y0, theta_z0 (Eq. 197)
-        "camera_centre_error_mm": (list, [0.5, 0.3, 1.0]),  # true camera centre minus the nominal one (support)
-        "camera_centre_tolerance_mm": (float, 1.0),  # what table.yaml states of it (1 sigma per axis; 0: not stated)
-        "focal_error_pct": (float, 1.5),        # true intrinsics vs the nominal camera file (uniform +-)
-        "principal_error_px": (float, 4.0),
-        "distortion_error_pct": (float, 5.0),
-        "calibration_views": (int, 7),          # rig views for the camera calibration (thesis: 7)
-        "calibration_distance_mm": (float, 800.0),
-        "true_projection_points": (int, 800),   # points on the reference for pipeline.features = true_projection
-    },
-    "pipeline": {
-        "camera": (str, "calibrated"),          # calibrated (rig views) | nominal (camera.yaml) | truth (INJECTED)
-        "camera_model": (str, "pinhole"),       # heikkila | radial | pinhole (calibration model)
-        "mount_bias": (str, "estimated"),       # estimated (Eq. 197-198 search) | truth (INJECTED) | zero
-        "bias_refine": (bool, False),           # finer second pass of the search
-        "bias_depth_statistic": (str, "median"),  # median (robust) | mean (the thesis's average, Eq. 197 search)
-        "features": (str, "sift"),              # sift | corners (rig) | true_projection (INJECTED)
-        "corner_extractor": (str, "opencv"),    # features = corners: opencv | thesis | thesis_printed (edge pixels)
-        "calibration_corner_extractor": (str, "opencv"),  # the rig's corners in the calibration views, as above
-        "reference_view": (int, 11),
-        "intraocular_mm": (list, [20, 30, 40, 50, 60, 70, 80, 90, 100, 110]),
-        "map_min_baseline_mm": (float, 49.0),   # Eq. 199
-        "map_exclude": (list, []),              # pose numbers never used for 1p
-        "range_mm": (float, 700.0),             # for the Eq. 199 figure reported with the calibrated camera
-        "depth_resolution_mm": (float, 10.0),
-        "orientation_tol_deg": (float, 20.0),
-        "gap_mm": (float, 5.0),
-        "ransac_iterations": (int, 100),
-        "d_r_mm": (float, 20.0),
-        "r_lim": (float, 0.1),
-        "bundle": (bool, True),                 # the ML bundle beside the four (bench.vision.xy_table_bundle)
-        "bundle_intraocular_mm": (list, [50, 100]),  # d_o (among intraocular_mm) where it runs too (~0.3 s each)
-        "bundle_distortion_sigma": (list, [0.3, 0.3, 0.03, 0.03]),  # k1 k2 p1 p2 (8: and the thin prism s1..s4)
-        "bundle_readings": (bool, False),       # also refine every view's reading (prior: one resolution step)
-        "bundle_centre": (bool, False),         # also refine the camera centre (prior: table.yaml's tolerance)
-    },
-    # the Cramér-Rao bound of every estimate and a Monte Carlo of the ideal estimator (xy_table_bound)
-    "bound": {"enabled": (bool, True), "mc_trials": (int, 2), "mc_intraocular_mm": (list, [50, 100])},
-    "outputs": {"cache": (bool, True), "plots": (bool, True), "rerun": (bool, True)},
-}
+DISTANCES_MM = Annotated[list[PositiveNumber], Field(min_length=1)]
+
+
+class Sim(Section):
+    poses: Annotated[Literal["table4", "table10"], about("table4 (section 5.2.2) | table10 (section 5.4)")] = \
+        "table4"
+    positions: Annotated[list[PositiveInt], about("pose numbers to use (empty: all rows of the table)")] = []
+    optics: Annotated[str, about("optics preset (bench.sim.optics_presets)")] = "air_webcam"
+    port: Annotated[bool, about("keep the preset's housing glass (false: no port)")] = True
+    sensor_noise: Annotated[bool, about("shot and read noise (false: noise-free 8-bit images)")] = True
+    supersample: PositiveInt = 2
+    imaging: Annotated[str, about("realistic | ideal (bench.sim.imaging)")] = "realistic"
+    imaging_off: Annotated[list[str], about("stages of the realistic profile switched off (ablation)")] = []
+    reference_object: Annotated[Literal["panel", "robot", "rig"], about(
+        "panel (manifold panel) | robot (desk robot in a lab) | rig")] = "panel"
+    textures: Annotated[dict, about("panel face -> image file (bench.scenario.scene_textures)")] = {}
+    reference_distance_mm: Annotated[float, Field(gt=0), at_least(100, "implausible: the unit is mm")] = 700.0
+    panel_size_m: Vec2 = [0.8, 0.6]
+    table_errors: Annotated[bool, about("random positioning errors of the table (false: exact table)")] = True
+    table_readout: Annotated[Literal["steps", "exact"], about(
+        "steps (the step the table is at) | exact (the carriage's position)")] = "steps"
+    mount_bias_deg: Annotated[Vec3, about("true theta_x0, theta_y0, theta_z0 (Eq. 197)")] = [0.3, 6.2, -1.8]
+    camera_centre_error_mm: Annotated[Vec3, about("true camera centre minus the nominal one (support)")] = [
+        0.5, 0.3, 1.0]
+    camera_centre_tolerance_mm: Annotated[NonNegFloat, about(
+        "what table.yaml states of it (1 sigma per axis; 0: not stated)")] = 1.0
+    focal_error_pct: Annotated[NonNegFloat, about("true intrinsics vs the nominal camera file (uniform +-)")] = 1.5
+    principal_error_px: NonNegFloat = 4.0
+    distortion_error_pct: NonNegFloat = 5.0
+    calibration_views: Annotated[PositiveInt, about("rig views for the camera calibration (thesis: 7)")] = 7
+    calibration_distance_mm: PositiveFloat = 800.0
+    true_projection_points: Annotated[PositiveInt, about(
+        "points on the reference for pipeline.features = true_projection")] = 800
+
+
+class Pipeline(Section):
+    camera: Annotated[Literal[CAMERA_CHOICES], about(
+        "calibrated (rig views) | nominal (camera.yaml) | truth (INJECTED)")] = "calibrated"
+    camera_model: Annotated[Literal["heikkila", "radial", "pinhole"], about("calibration model")] = "pinhole"
+    mount_bias: Annotated[Literal[BIAS_CHOICES], about(
+        "estimated (Eq. 197-198 search) | truth (INJECTED) | zero")] = "estimated"
+    bias_refine: Annotated[bool, about("finer second pass of the search")] = False
+    bias_depth_statistic: Annotated[Literal["median", "mean"], about(
+        "median (robust) | mean (the thesis's average, Eq. 197 search)")] = "median"
+    features: Annotated[Literal[FEATURE_CHOICES], about(
+        "sift | corners (rig) | true_projection (INJECTED)")] = "sift"
+    corner_extractor: Annotated[Literal[EXTRACTORS], about(
+        "features = corners: opencv | thesis | thesis_printed (edge pixels)")] = "opencv"
+    calibration_corner_extractor: Annotated[Literal[EXTRACTORS], about(
+        "the rig's corners in the calibration views, as above")] = "opencv"
+    reference_view: int = 11
+    intraocular_mm: DISTANCES_MM = [20, 30, 40, 50, 60, 70, 80, 90, 100, 110]
+    map_min_baseline_mm: Annotated[NonNegFloat, about("Eq. 199")] = 49.0
+    map_exclude: Annotated[list[PositiveInt], about("pose numbers never used for 1p")] = []
+    range_mm: Annotated[PositiveFloat, about("for the Eq. 199 figure reported with the calibrated camera")] = 700.0
+    depth_resolution_mm: PositiveFloat = 10.0
+    orientation_tol_deg: PositiveFloat = 20.0
+    gap_mm: PositiveFloat = 5.0
+    ransac_iterations: PositiveInt = 100
+    d_r_mm: PositiveFloat = 20.0
+    r_lim: PositiveFloat = 0.1
+    bundle: Annotated[bool, about("the ML bundle beside the four (bench.vision.xy_table_bundle)")] = True
+    bundle_intraocular_mm: Annotated[list[Number], about(
+        "d_o (among intraocular_mm) where it runs too (~0.3 s each)")] = [50, 100]
+    bundle_distortion_sigma: Annotated[list[PositiveNumber], about(
+        "k1 k2 p1 p2 (8: and the thin prism s1..s4)")] = [0.3, 0.3, 0.03, 0.03]
+    bundle_readings: Annotated[bool, about("also refine every view's reading (prior: one resolution step)")] = \
+        False
+    bundle_centre: Annotated[bool, about("also refine the camera centre (prior: table.yaml's tolerance)")] = False
+
+    @model_validator(mode="after")
+    def _bundle(self):
+        bad = [x for x in self.bundle_intraocular_mm if not any(abs(x - y) < 1e-9 for y in self.intraocular_mm)]
+        if self.bundle and bad:
+            raise KeyProblem("bundle_intraocular_mm", f"{bad[0]!r} is not among pipeline.intraocular_mm "
+                                                      f"({', '.join(f'{y:g}' for y in self.intraocular_mm)})")
+        if len(self.bundle_distortion_sigma) not in (0, 4, 8):
+            raise KeyProblem("bundle_distortion_sigma", f"expected [], four standard deviations > 0 (k1, k2, p1, p2) "
+                                                        f"or eight (and the thin prism's s1..s4), got "
+                                                        f"{self.bundle_distortion_sigma!r}")
+        return self
+
+
+class Bound(Section):
+    """The Cramér-Rao bound of every estimate and a Monte Carlo of the ideal estimator (xy_table_bound)."""
+
+    enabled: bool = True
+    mc_trials: NonNegInt = 2
+    mc_intraocular_mm: list[PositiveNumber] = [50, 100]
+
+
+class Outputs(Section):
+    cache: bool = True
+    plots: bool = True
+    rerun: bool = True
+
+
+class Scenario(ScenarioBase):
+    """An ``xy_table`` scenario file."""
+
+    sim: Sim = section(Sim)
+    pipeline: Pipeline = section(Pipeline)
+    bound: Bound = section(Bound)
+    outputs: Outputs = section(Outputs)
+
+    @model_validator(mode="after")
+    def _across(self):
+        if self.pipeline.features == "corners" and self.sim.reference_object != "rig":
+            raise KeyProblem("pipeline.features", "corners need the rig as reference object (sim.reference_object)")
+        if self.pipeline.bundle and self.pipeline.bundle_centre and not self.sim.camera_centre_tolerance_mm > 0:
+            raise KeyProblem("pipeline.bundle_centre", "needs the centre's tolerance (sim.camera_centre_tolerance_mm "
+                                                       "> 0, written to table.yaml)")
+        return self
+
 
 # the error budget (bench budget): each source switched off in turn; the primary metric first
 BUDGET = {"features": {"pipeline.features": "true_projection"},
@@ -157,23 +228,6 @@ BUDGET_FIXED = {"outputs.plots": False, "outputs.rerun": False, "bound.enabled":
 
 
 # ------------------------------------------------------------------------------------------------ configuration
-
-
-def _vec(cfg, key, n):
-    sec, k = key.split(".")
-    v = cfg[sec][k]
-    if not isinstance(v, list) or len(v) != n or not all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v):
-        raise ConfigError(cfg["_file"], key, f"expected {n} numbers, got {v!r}")
-    return np.array(v, dtype=float)
-
-
-def _ints(cfg, key):
-    sec, k = key.split(".")
-    v = cfg[sec][k]
-    if not all(isinstance(x, int) and not isinstance(x, bool) and x >= 1 for x in v):
-        raise ConfigError(cfg["_file"], key, f"expected a list of pose numbers (integers >= 1), got {v!r}")
-    return [int(x) for x in v]
 
 
 def imaging(cfg):
@@ -192,73 +246,10 @@ def _rig_errors(cfg, profile, salt):
     return target_geometry(profile, 7, np.random.default_rng(np.random.SeedSequence([cfg["seed"], salt])))
 
 
-def _check(cfg):
-    src, s, p = cfg["_file"], cfg["sim"], cfg["pipeline"]
-    imaging(cfg)
-    choices = {"sim.poses": ("table4", "table10"), "sim.reference_object": ("panel", "robot", "rig"),
-               "pipeline.camera": CAMERA_CHOICES, "pipeline.mount_bias": BIAS_CHOICES,
-               "pipeline.features": FEATURE_CHOICES, "pipeline.camera_model": ("heikkila", "radial", "pinhole"),
-               "pipeline.bias_depth_statistic": ("median", "mean"), "sim.table_readout": ("steps", "exact"),
-               "pipeline.corner_extractor": EXTRACTORS,
-               "pipeline.calibration_corner_extractor": EXTRACTORS}
-    for key, allowed in choices.items():
-        sec, k = key.split(".")
-        if cfg[sec][k] not in allowed:
-            raise ConfigError(src, key, f"expected one of {', '.join(allowed)}, got {cfg[sec][k]!r}")
-    for key in ("sim.supersample", "sim.calibration_views", "pipeline.ransac_iterations", "sim.true_projection_points"):
-        sec, k = key.split(".")
-        if cfg[sec][k] < 1:
-            raise ConfigError(src, key, f"must be >= 1, got {cfg[sec][k]}")
-    for key in ("sim.reference_distance_mm", "sim.calibration_distance_mm", "pipeline.gap_mm", "pipeline.d_r_mm",
-                "pipeline.r_lim", "pipeline.range_mm", "pipeline.depth_resolution_mm",
-                "pipeline.orientation_tol_deg"):
-        sec, k = key.split(".")
-        if cfg[sec][k] <= 0:
-            raise ConfigError(src, key, f"must be > 0, got {cfg[sec][k]}")
-    for key in ("sim.focal_error_pct", "sim.principal_error_px", "sim.distortion_error_pct",
-                "sim.camera_centre_tolerance_mm",
-                "pipeline.map_min_baseline_mm"):
-        sec, k = key.split(".")
-        if cfg[sec][k] < 0:
-            raise ConfigError(src, key, f"must be >= 0, got {cfg[sec][k]}")
-    if s["reference_distance_mm"] < 100:
-        raise ConfigError(src, "sim.reference_distance_mm", "implausible: the unit is mm")
-    if p["features"] == "corners" and s["reference_object"] != "rig":
-        raise ConfigError(src, "pipeline.features", "corners need the rig as reference object (sim.reference_object)")
-    d = p["intraocular_mm"]
-    if not d or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in d):
-        raise ConfigError(src, "pipeline.intraocular_mm", f"expected positive distances (mm), got {d!r}")
-    bad = [x for x in p["bundle_intraocular_mm"] if not (isinstance(x, (int, float)) and not isinstance(x, bool)
-                                                         and any(abs(x - y) < 1e-9 for y in d))]
-    if p["bundle"] and bad:
-        raise ConfigError(src, "pipeline.bundle_intraocular_mm", f"{bad[0]!r} is not among pipeline.intraocular_mm "
-                                                                 f"({', '.join(f'{y:g}' for y in d)})")
-    if p["bundle"] and p["bundle_centre"] and not s["camera_centre_tolerance_mm"] > 0:
-        raise ConfigError(src, "pipeline.bundle_centre", "needs the centre's tolerance (sim.camera_centre_tolerance_mm "
-                                                         "> 0, written to table.yaml)")
-    sd = p["bundle_distortion_sigma"]
-    if sd and not (len(sd) in (4, 8) and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0
-                                             for x in sd)):
-        raise ConfigError(src, "pipeline.bundle_distortion_sigma", f"expected [], four standard deviations > 0 "
-                                                                    f"(k1, k2, p1, p2) or eight (and the thin prism's "
-                                                                    f"s1..s4), got {sd!r}")
-    d = cfg["bound"]["mc_intraocular_mm"]
-    if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in d):
-        raise ConfigError(src, "bound.mc_intraocular_mm", f"expected positive distances (mm), got {d!r}")
-    if cfg["bound"]["mc_trials"] < 0:
-        raise ConfigError(src, "bound.mc_trials", f"must be >= 0, got {cfg['bound']['mc_trials']}")
-    _vec(cfg, "sim.mount_bias_deg", 3)
-    _vec(cfg, "sim.camera_centre_error_mm", 3)
-    _vec(cfg, "sim.panel_size_m", 2)
-    texture_paths(cfg, "sim.textures")
-    _ints(cfg, "sim.positions")
-    _ints(cfg, "pipeline.map_exclude")
-
-
 def _positions(cfg, n_rows: int) -> list:
     """The pose numbers of ``sim.positions`` (all ``n_rows`` when empty), sorted; they must hold the reference."""
     numbers = list(range(1, n_rows + 1))
-    chosen = _ints(cfg, "sim.positions") or numbers
+    chosen = cfg["sim"]["positions"] or numbers
     bad = [n for n in chosen if n not in numbers]
     if bad:
         raise ConfigError(cfg["_file"], "sim.positions", f"pose {bad[0]} is not in {cfg['sim']['poses']} "
@@ -270,10 +261,12 @@ def _positions(cfg, n_rows: int) -> list:
 
 
 def validate(cfg) -> None:
-    """The kind's value checks (choices, ranges, pose numbers), before anything is created (runner, sweeps)."""
+    """The checks the model cannot make (the imaging profile, the texture files, the pose numbers against the pose
+    table), before anything is created (runner, sweeps)."""
     from bench.sim.scenes.xy_table import TABLE4_CSV, TABLE10_CSV, load_pose_table
 
-    _check(cfg)
+    imaging(cfg)
+    texture_paths(cfg, "sim.textures")
     path = TABLE4_CSV if cfg["sim"]["poses"] == "table4" else TABLE10_CSV
     _positions(cfg, len(load_pose_table(path)["position"]))
 
@@ -463,7 +456,7 @@ def reference_object(cfg, rng):
             return desk_robot(rng, name="ref", texture_overrides=texture_paths(cfg, "sim.textures"))
 
     if cfg["sim"]["reference_object"] == "panel":
-        w, h = _vec(cfg, "sim.panel_size_m", 2)
+        w, h = np.array(cfg["sim"]["panel_size_m"], float)
         try:
             with naming_the_key(cfg, "sim.textures"):
                 return manifold_panel(rng, w, h, name="ref", texture_overrides=texture_paths(cfg, "sim.textures"))
@@ -491,7 +484,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     from bench.sim.scenes.rig import calibration_rig
     from bench.sim.scenes.xy_table import DEFAULT_T_WORLD_TABLE, reference_pose, xy_table
 
-    _check(cfg)
+    validate(cfg)
     t0 = time.perf_counter()
     s = cfg["sim"]
     rng = np.random.default_rng(cfg["seed"])
@@ -501,9 +494,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     profile = imaging(cfg)
     nominal_cam = load_preset(optics.nominal_camera)
     lens = _true_camera(cfg, rng, load_preset(optics.lens_camera))
-    b = _vec(cfg, "sim.mount_bias_deg", 3) * DEG
+    b = np.array(cfg["sim"]["mount_bias_deg"], float) * DEG
     R0_true = rot_y(b[1]) @ rot_x(b[0]) @ rot_z(b[2])  # Eq. 197, factors as labelled
-    T_mount_cam = homogeneous(R0_true, _vec(cfg, "sim.camera_centre_error_mm", 3) * 1e-3)
+    T_mount_cam = homogeneous(R0_true, np.array(cfg["sim"]["camera_centre_error_mm"], float) * 1e-3)
     ref_obj = reference_object(cfg, rng)
     # the experimenter puts the object where the camera sees it: its centre (the panel's face centre, the rig's
     # pattern centroid) on the reference view's TRUE optical axis, reference_distance_mm from the camera centre;
@@ -584,7 +577,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         "true_joints": run.true.tolist(), "table_readout": s["table_readout"],
         "T_table_mount": run.T_table_mount.tolist(),
         "T_mount_cam": T_mount_cam.tolist(),
-        "mount_bias_deg": _vec(cfg, "sim.mount_bias_deg", 3).tolist(),
+        "mount_bias_deg": np.array(cfg["sim"]["mount_bias_deg"], float).tolist(),
         "T_table_cam": {view_name(n): T_table_cam[i].tolist() for i, n in enumerate(numbers)},
         "camera_offset_m": tm.camera_offset_m.tolist(),
         "camera_K": lens.K.tolist(), "camera_dist": lens.dist.tolist(), "camera_size": list(lens.size),
@@ -594,7 +587,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
             "decentre": optics.port.decentre.tolist()}},
         "reference_object": s["reference_object"], "T_table_reference": T_table_ref.tolist(),
         "reference_corners": ref_obj.features["corners"].tolist() if s["reference_object"] == "rig" else None,
-        "panel_size_m": _vec(cfg, "sim.panel_size_m", 2).tolist() if s["reference_object"] == "panel" else None,
+        "panel_size_m": [float(x) for x in s["panel_size_m"]] if s["reference_object"] == "panel" else None,
         "calibration": {"T_world_rig": T_world_rig.tolist(),
                         "T_world_cam": {f"cal{k + 1:02d}": T.tolist() for k, T in enumerate(T_world_cal)}},
     }
@@ -1012,7 +1005,7 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose, cov_K=None, co
 
 def run(cfg, out_dir, verbose=True):
     """Render (cached), calibrate the camera, run the positioning pipeline, score against the truth."""
-    _check(cfg)
+    validate(cfg)
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
     s, p = cfg["sim"], cfg["pipeline"]
@@ -1087,7 +1080,7 @@ def run(cfg, out_dir, verbose=True):
     pc = PositioningConfig(
         reference=ref, intraocular_mm=tuple(float(d) for d in p["intraocular_mm"]),
         map_min_baseline_m=p["map_min_baseline_mm"] * 1e-3,
-        map_exclude=tuple(view_name(n) for n in _ints(cfg, "pipeline.map_exclude")),
+        map_exclude=tuple(view_name(n) for n in cfg["pipeline"]["map_exclude"]),
         map=MapConfig(orientation_tol_deg=p["orientation_tol_deg"], gap_max_m=p["gap_mm"] * 1e-3),
         ransac_iterations=p["ransac_iterations"], d_r_m=p["d_r_mm"] * 1e-3, r_lim=p["r_lim"],
         bias_refine=p["bias_refine"], bias_depth_statistic=p["bias_depth_statistic"], seed=cfg["seed"],

@@ -56,7 +56,7 @@ def test_plain_folder_of_real_photos(tmp_path, capsys):
     ("type: two_plane_rig\nsquares: 7\n", "size_mm", "missing"),
     ("type: two_plane_rig\nsize_mm: 197\nsquares: 2\n", "squares", "integer >= 3"),
     ("type: two_plane_rig\nsize_mm: 197\nmargin_mm: -1\n", "margin_mm", ">= 0"),
-    ("type: two_plane_rig\nsize_mm: '197'\n", "size_mm", "expected a length in mm"),
+    ("type: two_plane_rig\nsize_mm: '197'\n", "size_mm", "expected float, got str '197'"),
     ("type: checkerboard\n", "type", "expected 'chessboard' or 'two_plane_rig'"),
     ("[1, 2]\n", "<top>", "expected a mapping"),
 ])

@@ -34,14 +34,14 @@ def test_bad_spec_files(tmp_path):
         (good.replace("f_px: 510.06", "f_px: .nan"), "heikkila_eq75.f_px: must be finite"),
         (good.replace("f_px: 510.06", "f_mm: 5.1"), "heikkila_eq75.f_mm: unknown key"),
         (good.replace("  k2_per_mm4: 1.45e-3\n", ""), "heikkila_eq75.k2_per_mm4: missing"),
-        (good.replace("image_width_px: 640", "image_width_px: 640.5"), "image_width_px: expected a positive integer"),
+        (good.replace("image_width_px: 640", "image_width_px: 640.5"), "image_width_px: expected int, got float 640.5"),
         (good + "lens: wide\n", "lens: unknown key"),
         (good.replace("k1_per_mm2: 1.38e-2", "k1_per_mm2: -0.2"), "heikkila_eq75: .*distortion"),
         ("- a\n- b\n", "<top>: expected a mapping"),
     ]
     web = preset_path("air_webcam").read_text()
     cases += [(web.replace("theta_deg: 90.0", "theta_deg: 1.5708"), "theta_deg: skew angle"),
-              (web.replace("distortion: none", "distortion: barrel"), "distortion: expected 'none'")]
+              (web.replace("distortion: none", "distortion: barrel"), "distortion: expected none, got 'barrel'")]
     for text, message in cases:
         path = tmp_path / "cam.yaml"
         path.write_text(text)

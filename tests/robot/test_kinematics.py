@@ -99,7 +99,7 @@ def _joint(**kw):
         ({"name": "x", "joints": [_joint(a_mm="big")]}, "joints[0].a_mm"),
         ({"name": "x", "joints": [_joint(min_deg=10, max_deg=0)]}, "joints[0].min_deg"),
         ({"name": "x", "joints": [_joint(alpha_deg=1000)]}, "joints[0].alpha_deg"),
-        ({"name": "x", "joints": [_joint()], "units": {"length": "m", "angle": "rad"}}, "units"),
+        ({"name": "x", "joints": [_joint()], "units": {"length": "m", "angle": "rad"}}, "units.length"),
         ({"name": "x", "joints": [_joint(type="prismatic")]}, "joints[0].type"),
     ],
 )
