@@ -33,13 +33,14 @@ from typing import Annotated, Literal
 
 import numpy as np
 import yaml
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from bench.camera.flatport import FlatPort
 from bench.camera.io import camera_yaml_text, housing_yaml_text, read_camera_yaml, write_camera_yaml
 from bench.camera.model import CameraModel
 from bench.camera.presets import load_preset
 from bench.config import (
+    KeyProblem,
     NonNegFloat,
     NonNegInt,
     Number,
@@ -179,6 +180,15 @@ class Pipeline(Section):
         "the camera model the lab calibrates and the localisation uses: central (Heikkila, as the thesis) or "
         "refractive (the lens behind the housing's flat port, calibrated from the same rig views with the dataset's "
         "housing.yaml: bench.camera.refractive; needs a camera in water)")] = "central"
+    guided: Annotated[bool, about(
+        "refine 'joints' then searches the map again in both locate views at the refined poses and re-runs the joint "
+        "bundle on the grown set (bench.vision.guided; not the thesis's): docs/integrity.md measures it")] = False
+
+    @model_validator(mode="after")
+    def _guided_needs_joints(self):
+        if self.guided and self.refine != "joints":
+            raise KeyProblem("guided", f"used only by refine 'joints', got refine {self.refine!r}")
+        return self
 
 
 class Sources(Section):
@@ -953,7 +963,7 @@ def run(cfg, out_dir, verbose=True):
     res, report = locate_dataset(ds_dir, out_dir, method=p["method"], seed=cfg["seed"],
                                  config=MapConfig(), verbose=False, camera_path=camera_path,
                                  robot_path=robot_path, refine=p["refine"], ransac=ransac, details=details,
-                                 features_fn=features_fn, priors_path=priors_path)
+                                 features_fn=features_fn, priors_path=priors_path, guided=p["guided"])
 
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
     T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
