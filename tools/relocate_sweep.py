@@ -1,6 +1,7 @@
 """Re-localise every finished run of an in-situ sweep with this version of the pipeline, without re-rendering.
 
     python tools/relocate_sweep.py SWEEP_DIR SCENARIO [--name relocated] [--workers 1] [--force]
+        [--set pipeline.KEY=VALUE ...]
 
 Each run of a ``bench sweep`` of an ``in_situ`` scenario keeps its dataset (``runs/<id>/dataset``) and the lab's
 calibration of it (``runs/<id>/calibrated``: camera, arm + mount, and the calibration priors). This tool runs
@@ -81,6 +82,8 @@ def main(argv=None) -> int:
     ap.add_argument("--name", default="relocated", help="sub-folder of each run for the new locate.json")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--force", action="store_true", help="re-localise runs already done")
+    ap.add_argument("--set", action="append", default=[], metavar="pipeline.KEY=VALUE",
+                    help="override a pipeline key of the scenario (e.g. pipeline.guided=true); repeatable")
     args = ap.parse_args(argv)
     if args.workers < 1:
         raise SystemExit(f"--workers: expected >= 1, got {args.workers}")
@@ -89,8 +92,11 @@ def main(argv=None) -> int:
     from bench.errors import BenchError
     from bench.scenario.runner import load_scenario
 
+    for item in args.set:
+        if not item.startswith("pipeline."):
+            raise SystemExit(f"--set {item}: only pipeline.* keys (the renders and the lab files are the runs' own)")
     try:
-        cfg = load_scenario(args.scenario)
+        cfg = load_scenario(args.scenario, overrides=args.set)
     except BenchError as exc:
         raise SystemExit(str(exc)) from None
     if cfg.get("kind") != "in_situ":
