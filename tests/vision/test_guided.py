@@ -66,7 +66,7 @@ def test_nan_projections_empty_inputs_and_bad_arguments():
     with pytest.raises(ValueError, match="radius_px"):
         search_by_projection(uv, uv, desc, desc, radius_px=0.0)
     with pytest.raises(ValueError, match="ratio"):
-        search_by_projection(uv, uv, desc, desc, ratio=1.5)
+        search_by_projection(uv, uv, desc, desc, radius_px=1.0, ratio=1.5)
 
 
 def test_project_matches_the_pinhole_and_drops_points_behind():
