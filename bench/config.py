@@ -261,6 +261,12 @@ def message(err: dict, model, data) -> tuple[str, str]:
         key_loc, items = [_path(loc)], []
     ann, meta = resolve(model, loc)
     key = ".".join(str(p) for p in key_loc) or "<top>"
+    if kind == "invalid_key":  # a YAML key that is not a string (1:, true:): unknown, whatever it is
+        node = data
+        for part in loc[:-1]:
+            node = node.get(part, {}) if isinstance(node, dict) else {}
+        bad = [k for k in node if not isinstance(k, str)] if isinstance(node, dict) else []
+        return _path(loc[:-1]) or "<top>", f"unknown key {(bad or [loc[-1]])[0]!r} (keys are names)"
     if kind == "extra_forbidden":
         parent, _ = resolve(model, loc[:-1])
         names = list(parent.model_fields) if isinstance(parent, type) and issubclass(parent, BaseModel) else []

@@ -123,3 +123,21 @@ def test_manifest_problems_are_one_line_errors(tmp_path, edit, says):
     with pytest.raises(ConfigError, match=r"manifest.yaml: " + says) as exc:
         load_dataset(root)
     assert "\n" not in str(exc.value)
+
+
+@pytest.mark.parametrize("raw, key, says", [
+    ({"name": "n", "kind": ["in_situ"]}, "kind", "unknown scenario kind ['in_situ']"),
+    ({"name": "n", "kind": {"a": 1}}, "kind", "unknown scenario kind"),
+    ({"name": "n"}, "kind", "missing (known kinds:"),
+    ({"name": "n", "kind": "in_situ", 1: 2}, "<top>", "unknown key 1"),
+    ({"name": "n", "kind": "in_situ", "truth": {True: 2}}, "truth", "unknown key True"),
+])
+def test_a_kind_or_key_of_the_wrong_type_is_one_line(raw, key, says):
+    """A YAML `kind:` that is a list or mapping, a missing kind, and a key that is not a name (`1:`, `true:`): one
+    line naming the key, never a TypeError or pydantic's own wording."""
+    from bench.scenario.runner import check_scenario
+
+    with pytest.raises(ConfigError) as e:
+        check_scenario(raw, "f.yaml")
+    text = str(e.value)
+    assert f"f.yaml: {key}: " in text and says in text and "\n" not in text, text

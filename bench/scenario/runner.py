@@ -25,7 +25,9 @@ KINDS = {
 def kind_module(kind: str, source="<scenario>"):
     """The module implementing a scenario ``kind`` (the model ``Scenario``, ``run``, optionally ``validate``,
     ``render``)."""
-    if kind not in KINDS:
+    if kind is None:
+        raise ConfigError(source, "kind", f"missing (known kinds: {', '.join(KINDS)})")
+    if not isinstance(kind, str) or kind not in KINDS:
         raise ConfigError(source, "kind", f"unknown scenario kind {kind!r} (known: {', '.join(KINDS)})")
     return importlib.import_module(f"bench.scenario.{KINDS[kind]}")
 

@@ -112,23 +112,36 @@ def run_id(scenario_text: str, overrides: dict, seed: int) -> str:
 
 
 def code_version() -> str:
-    """The code a run used: ``git describe --always --dirty`` of the checkout ``bench`` is imported from (a commit,
-    ``-dirty`` with uncommitted changes), or ``bench <version>`` outside a git checkout."""
+    """The code a run used: ``git describe --always --dirty`` of the checkout ``bench`` is imported from (a commit;
+    with uncommitted changes ``-dirty-`` and a hash of them: ``git diff HEAD`` and the untracked files under
+    ``bench/`` and ``models/``, so two different edits of one commit are told apart), or ``bench <version>`` outside
+    a git checkout."""
     import subprocess
 
     import bench
 
     root = Path(bench.__file__).resolve().parents[1]
-    try:
-        # GIT_OPTIONAL_LOCKS=0: --dirty refreshes the index without writing it, so concurrent workers never meet
-        # each other's index.lock
-        out = subprocess.run(["git", "-C", str(root), "describe", "--always", "--dirty", "--abbrev=12"],
-                             capture_output=True, text=True, timeout=20, env={**os.environ, "GIT_OPTIONAL_LOCKS": "0"})
-    except (OSError, subprocess.TimeoutExpired):
-        out = None
-    if out is not None and out.returncode == 0 and out.stdout.strip():
-        return out.stdout.strip()
-    return f"bench {bench.__version__}"
+    # GIT_OPTIONAL_LOCKS=0: --dirty refreshes the index without writing it, so concurrent workers never meet each
+    # other's index.lock
+    env = {**os.environ, "GIT_OPTIONAL_LOCKS": "0"}
+
+    def git(*args, text=True):
+        try:
+            out = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=text, timeout=20, env=env)
+        except (OSError, subprocess.TimeoutExpired):
+            return None
+        return out.stdout if out.returncode == 0 else None
+
+    described = (git("describe", "--always", "--dirty", "--abbrev=12") or "").strip()
+    if not described:
+        return f"bench {bench.__version__}"
+    if described.endswith("-dirty"):
+        h = hashlib.sha256(git("diff", "HEAD", "--binary", text=False) or b"")
+        for name in sorted((git("ls-files", "--others", "--exclude-standard", "--", "bench", "models") or "").split()):
+            path = root / name
+            h.update(name.encode() + (path.read_bytes() if path.is_file() else b""))
+        described += "-" + h.hexdigest()[:8]
+    return described
 
 
 def versions() -> dict:
@@ -420,8 +433,9 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
 
 
 def _warn_mixed_code(finished: dict, stream=None) -> None:
-    """A resumed sweep whose finished runs were made by other code than the runs it will add: say so (one line on
-    stderr; the finished runs are kept, since the user may want them - ``--force`` starts afresh)."""
+    """A resumed sweep whose finished runs other code made than this one: say so (one line on stderr, also when
+    nothing is left to run, since the summary then pools them; the finished runs are kept, since the user may want
+    them - ``--force`` starts afresh)."""
     now = code_version()
     other = {v: n for v, n in finished.items() if v != now}
     if other:

@@ -161,30 +161,38 @@ def encoder_sigma_rad(root) -> float:
     return sigma
 
 
-def _guided_used(kmap, view_a, view_b, used, T_ref_a, T_ref_b, K, dist) -> tuple:
+def _guided_used(kmap, view_a, view_b, used, T_ref_a, T_ref_b, K, dist, camera) -> tuple:
     """``used`` (map indices, their keypoints in views a and b) grown by guided matching
     (:mod:`bench.vision.guided`) in both locate views, at the poses ``T_ref_a``, ``T_ref_b`` through the camera
-    ``K``, ``dist`` (as the joint bundle refined them). Per view, the verified matches set the search: the radius is
-    :data:`~bench.vision.guided.RADIUS_FACTOR` x the 90th percentile of their distances from their projections (the
-    map points' own errors), and a guided match's descriptor distance may reach the 95th percentile of theirs.
-    Returns ``((indices, x_a, x_b), radii)``: the map points found in both views added to ``used`` (the verified ones
-    keep their keypoints), and the two radii (px). A point found in one view only is not added: measured on six
-    envelope runs, such points lowered the protection radius but doubled the error on two."""
+    ``K``, ``dist`` (as the joint bundle refined them). The keypoints are compared in the joint bundle's pixels:
+    their normalised coordinates through ``camera`` (the pixel camera the bundle started from; for a refractive
+    camera its virtual pinhole, whose pixels are not the detected ones). Per view, the verified matches set the
+    search: the radius is :data:`~bench.vision.guided.RADIUS_FACTOR` x the 90th percentile of their distances from
+    their projections (the map points' own errors), and a guided match's descriptor distance may reach the 95th
+    percentile of theirs. Returns ``((indices, x_a, x_b), radii)``: the map points found in both views added to
+    ``used`` (the verified ones keep their keypoints), and the two radii (px). A point found in one view only is not
+    added: measured on six envelope runs, such points lowered the protection radius but doubled the error on two."""
     from bench.camera.model import distort, to_pixels
     from bench.vision.guided import RADIUS_FACTOR, RATIO, project, search_by_projection
 
     idx = np.asarray(used[0], int)
     found, radii = [], []
     for view, x_used, T in ((view_a, used[1], T_ref_a), (view_b, used[2], T_ref_b)):
-        where = {tuple(x): i for i, x in enumerate(np.asarray(view.x_n))}
-        iv = np.array([where[tuple(x)] for x in np.asarray(x_used)], int)
-        d_ver = np.linalg.norm(kmap.features.descriptors[idx].astype(float)
-                               - view.features.descriptors[iv].astype(float), axis=1)
+        x_n, desc = np.asarray(view.x_n), view.features.descriptors.astype(float)
+        twins = {}
+        for i, x in enumerate(x_n):  # SIFT may give one position two orientations: several keypoints
+            twins.setdefault(tuple(x), []).append(i)
+        d_ver, iv = np.empty(len(idx)), np.empty(len(idx), int)
+        for j, x in enumerate(np.asarray(x_used)):  # the verified keypoint: of its twins, the nearest descriptor
+            cand = np.array(twins[tuple(x)])
+            d = np.linalg.norm(desc[cand] - kmap.features.descriptors[idx[j]].astype(float), axis=1)
+            iv[j], d_ver[j] = cand[np.argmin(d)], d.min()
+        uv_view = to_pixels(distort(x_n, camera.dist), camera.K)  # the joint bundle's pixels of the keypoints
         uv_proj = to_pixels(distort(project(kmap.p_ref, T), dist), K)
-        off = np.linalg.norm(uv_proj[idx] - view.features.uv[iv], axis=1)
+        off = np.linalg.norm(uv_proj[idx] - uv_view[iv], axis=1)
         r = max(RADIUS_FACTOR * float(np.nanquantile(off, 0.9)), 1.0)
-        i_m, i_v = search_by_projection(uv_proj, view.features.uv, kmap.features.descriptors,
-                                        view.features.descriptors, r, RATIO, float(np.quantile(d_ver, 0.95)))
+        i_m, i_v = search_by_projection(uv_proj, uv_view, kmap.features.descriptors, view.features.descriptors, r,
+                                        RATIO, float(np.quantile(d_ver, 0.95)))
         found.append(dict(zip(i_m.tolist(), i_v.tolist(), strict=True)))
         radii.append(r)
     verified = {int(i): k for k, i in enumerate(idx)}
@@ -225,6 +233,7 @@ def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma
         jb = bundle(res.used, res.T_world_base)
     except (ValueError, np.linalg.LinAlgError) as exc:
         return replace(res, message=f"{res.message}; joint bundle skipped ({exc})"), False
+    res.timings_s["joint_bundle_s"] = time.perf_counter() - t0
     if not jb.success:
         return replace(res, message=f"{res.message}; joint bundle skipped ({jb.message})"), False
     if jb.sigma_px < 1e-6:  # exact data (an evaluator's oracle): nothing to weigh, the thesis estimate is exact too
@@ -232,13 +241,14 @@ def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma
                                     f"kept"), False
     used, note = res.used, ""
     if guided:
+        t1 = time.perf_counter()
         mount = T_link5_cam if jb.T_link5_cam is None else jb.T_link5_cam
         T_ref_site = invert(kmap.T_world_ref) @ jb.T_site_base
         a, b = (obs[v.name] for v in roles["locate"][:2])
         T_ref = [T_ref_site @ link5_frame(robot, jb.q[n_sur + 1 + i], eps) @ mount for i in (0, 1)]
         K = camera.K if jb.K is None else jb.K
         dist = camera.dist if jb.dist is None else jb.dist
-        grown, radii = _guided_used(kmap, a, b, res.used, T_ref[0], T_ref[1], K, dist)
+        grown, radii = _guided_used(kmap, a, b, res.used, T_ref[0], T_ref[1], K, dist, camera)
         note = (f"; guided matching (radius {radii[0]:.1f} / {radii[1]:.1f} px): {len(grown[0])} map points in both "
                 f"locate views (verified {len(res.used[0])})")
         if len(grown[0]) > len(res.used[0]):
@@ -250,7 +260,7 @@ def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma
                 note = f"{note}, bundle skipped ({jb2.message})"
             elif jb2 is not None:
                 jb, used = jb2, grown
-    res.timings_s["joint_bundle_s"] = time.perf_counter() - t0
+        res.timings_s["guided_s"] = time.perf_counter() - t1
     T_base_a = obs[roles["locate"][0].name].T_base_cam
     T_ref_a = invert(kmap.T_world_ref) @ jb.T_site_base @ T_base_a
     return replace(res, message=f"{res.message}; {jb.message[4:]}{note}", T_world_base=jb.T_site_base,
