@@ -7,9 +7,7 @@ be local: each map point is projected into the view at the estimated pose, the v
 ``radius_px`` of the projection are its candidates, and the nearest candidate in descriptor space is accepted if
 
 * it passes the ratio test against the second-nearest *candidate* (the same test, over the window instead of the
-  image),
-* its descriptor distance is within what the verified matches of the view reach (``max_distance``: the caller takes
-  a high quantile of them), and
+  image; a lone candidate passes), and
 * no other map point claims the same keypoint with a nearer descriptor (one map point per keypoint).
 
 Nothing here is the thesis's; the joint bundle that uses the matches gates their residuals as it gates every
@@ -27,8 +25,7 @@ RADIUS_FACTOR = 2.0
 RATIO = 0.8
 
 
-def search_by_projection(uv_proj, uv_view, desc_map, desc_view, radius_px: float, ratio: float = RATIO,
-                         max_distance: float = np.inf) -> tuple:
+def search_by_projection(uv_proj, uv_view, desc_map, desc_view, radius_px: float, ratio: float = RATIO) -> tuple:
     """One-to-one matches of projected map points to a view's keypoints (see the module docstring).
 
     Parameters
@@ -40,8 +37,8 @@ def search_by_projection(uv_proj, uv_view, desc_map, desc_view, radius_px: float
         The view's keypoints (px, as detected).
     desc_map, desc_view : ndarray (M, D), (N, D)
         Their descriptors.
-    radius_px, ratio, max_distance : float
-        Search radius (px), ratio test within the window, largest accepted descriptor distance.
+    radius_px, ratio : float
+        Search radius (px), ratio test within the window.
 
     Returns
     -------
@@ -68,7 +65,7 @@ def search_by_projection(uv_proj, uv_view, desc_map, desc_view, radius_px: float
     counts = np.diff(np.r_[starts, len(pi)])
     d1 = d[starts]
     d2 = np.where(counts > 1, d[np.minimum(starts + 1, len(d) - 1)], np.inf)
-    ok = (d1 <= ratio * d2) & (d1 <= max_distance)
+    ok = d1 <= ratio * d2
     i_map, i_view, dist = pi[starts][ok], pj[starts][ok], d1[ok]
     if not len(i_map):
         return empty

@@ -35,7 +35,7 @@ def test_outside_the_radius_is_not_a_candidate():
     assert len(i_map) == 1
 
 
-def test_ratio_test_within_the_window_and_the_distance_limit():
+def test_ratio_test_within_the_window():
     uv = np.array([[100.0, 100.0]])
     d0 = np.zeros((1, 4), np.float32)
     kp = np.array([[101.0, 100.0], [99.0, 100.0]])
@@ -44,7 +44,8 @@ def test_ratio_test_within_the_window_and_the_distance_limit():
     clear = np.array([[1.0, 0, 0, 0], [3.0, 0, 0, 0]], np.float32)
     i_map, i_view = search_by_projection(uv, kp, d0, clear, radius_px=3.0, ratio=0.8)
     assert i_map.tolist() == [0] and i_view.tolist() == [0]
-    assert len(search_by_projection(uv, kp, d0, clear, radius_px=3.0, max_distance=0.5)[0]) == 0
+    alone = search_by_projection(uv, kp[:1], d0, close[1:], radius_px=3.0)  # a lone candidate: nothing to compare
+    assert alone[0].tolist() == [0]
 
 
 def test_one_map_point_per_keypoint_the_nearest_descriptor_keeps_it():
