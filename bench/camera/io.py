@@ -37,6 +37,7 @@ from pydantic_core import PydanticCustomError
 from bench.camera.dlt import thesis_parameters
 from bench.camera.heikkila import heikkila_of
 from bench.camera.model import CameraModel
+from bench.camera.presets import Eq50, Heikkila75
 from bench.config import KeyProblem, PositiveFloat, Section, at_least, at_most, parse
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text
@@ -168,25 +169,10 @@ Matrix = Annotated[list, PlainValidator(_matrix)]
 _POSITIVE_PX = at_least(1, "expected a positive integer (px), got {v}")
 
 
-class _Eq50Block(Section):
-    alpha_px: float
-    beta_px: float
-    theta_deg: float
-    u0_px: float
-    v0_px: float
+class _HeikkilaBlock(Heikkila75):
+    """``heikkila_eq75`` as written beside the matrices: the specification's block and the focal length in mm."""
 
-
-class _HeikkilaBlock(Section):
-    s_u: float
-    f_px: float
     f_mm: float
-    u0_px: float
-    v0_px: float
-    k1_per_mm2: float
-    k2_per_mm4: float
-    T1_per_mm: float
-    T2_per_mm: float
-    pixels_per_mm: float
 
 
 class _FlatPortBlock(Section):
@@ -211,7 +197,7 @@ class CameraFile(Section):
     model: str | None = None
     name: str | None = None
     pixel_pitch_mm: float | None = None
-    intrinsics_eq50: _Eq50Block | None = None
+    intrinsics_eq50: Eq50 | None = None
     heikkila_eq75: _HeikkilaBlock | None = None
     extra: dict[str, Annotated[Any, PlainValidator(_number_or_text)]] = {}
     flat_port: _FlatPortBlock | None = None
