@@ -75,13 +75,3 @@ def search_by_projection(uv_proj, uv_view, desc_map, desc_view, radius_px: float
     keep.sort()
     return i_map[keep], i_view[keep]
 
-
-def project(p_ref, T_ref_view) -> np.ndarray:
-    """``(M, 2)`` normalized projections of map points ``p_ref`` (reference frame, m) into a view posed at
-    ``T_ref_view`` (4, 4); NaN for points less than 1 cm in front of it."""
-    T = np.asarray(T_ref_view, float)
-    p = (np.asarray(p_ref, float) - T[:3, 3]) @ T[:3, :3]
-    x = np.full((len(p), 2), np.nan)
-    front = p[:, 2] > 0.01
-    x[front] = p[front, :2] / p[front, 2:3]
-    return x

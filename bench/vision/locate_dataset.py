@@ -174,8 +174,9 @@ def _guided_used(kmap, view_a, view_b, used, T_ref_a, T_ref_b, K, dist, camera) 
     gate decide. Returns ``((indices, x_a, x_b), radii)``: the map points found in both views added to
     ``used`` (the verified ones keep their keypoints), and the two radii (px). A point found in one view only is not
     added: measured on six envelope runs, such points lowered the protection radius but doubled the error on two."""
-    from bench.camera.model import distort, to_pixels
-    from bench.vision.guided import RADIUS_FACTOR, RATIO, project, search_by_projection
+    from bench.camera.model import distort, project_pinhole, to_pixels
+    from bench.geometry.transforms import invert, transform_points
+    from bench.vision.guided import RADIUS_FACTOR, RATIO, search_by_projection
 
     idx = np.asarray(used[0], int)
     found, radii = [], []
@@ -184,7 +185,7 @@ def _guided_used(kmap, view_a, view_b, used, T_ref_a, T_ref_b, K, dist, camera) 
         where = {tuple(x): i for i, x in enumerate(x_n)}  # SIFT's twins (one position, two orientations): either
         iv = np.array([where[tuple(x)] for x in np.asarray(x_used)], int)
         uv_view = to_pixels(distort(x_n, camera.dist), camera.K)  # the joint bundle's pixels of the keypoints
-        uv_proj = to_pixels(distort(project(kmap.p_ref, T), dist), K)
+        uv_proj = to_pixels(distort(project_pinhole(transform_points(invert(T), kmap.p_ref)), dist), K)
         off = np.linalg.norm(uv_proj[idx] - uv_view[iv], axis=1)
         r = max(RADIUS_FACTOR * float(np.nanquantile(off, 0.9)), 1.0)
         i_m, i_v = search_by_projection(uv_proj, uv_view, kmap.features.descriptors, view.features.descriptors, r,

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from bench.vision.guided import project, search_by_projection
+from bench.vision.guided import search_by_projection
 
 
 def _scene(rng, m=60, d=128):
@@ -69,17 +69,3 @@ def test_nan_projections_empty_inputs_and_bad_arguments():
     with pytest.raises(ValueError, match="ratio"):
         search_by_projection(uv, uv, desc, desc, radius_px=1.0, ratio=1.5)
 
-
-def test_project_matches_the_pinhole_and_drops_points_behind():
-    rng = np.random.default_rng(2)
-    from scipy.spatial.transform import Rotation
-
-    from bench.geometry.transforms import homogeneous
-
-    T_ref_view = homogeneous(Rotation.from_rotvec(rng.normal(0, 0.2, 3)).as_matrix(), rng.normal(0, 0.1, 3))
-    p_view = np.c_[rng.uniform(-0.3, 0.3, (20, 2)), rng.uniform(0.2, 2.0, 20)]
-    p_view[0, 2] = -0.5  # behind
-    p_ref = (T_ref_view[:3, :3] @ p_view.T).T + T_ref_view[:3, 3]
-    x = project(p_ref, T_ref_view)
-    assert np.all(np.isnan(x[0]))
-    np.testing.assert_allclose(x[1:], p_view[1:, :2] / p_view[1:, 2:], atol=1e-12)
