@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import itertools
 import json
@@ -111,11 +112,13 @@ def run_id(scenario_text: str, overrides: dict, seed: int) -> str:
     return h.hexdigest()[:16]
 
 
+@functools.lru_cache(maxsize=1)
 def code_version() -> str:
     """The code a run used: ``git describe --always --dirty`` of the checkout ``bench`` is imported from (a commit;
     with uncommitted changes ``-dirty-`` and a hash of them: ``git diff HEAD`` and the untracked files under
     ``bench/`` and ``models/``, so two different edits of one commit are told apart), or ``bench <version>`` outside
-    a git checkout."""
+    a git checkout. Read once per process: its modules, once imported, are the code it runs whatever is edited
+    later."""
     import subprocess
 
     import bench
