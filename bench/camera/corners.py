@@ -58,6 +58,8 @@ SOBEL_X = np.array([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]])
 SOBEL_Y = SOBEL_X.T.copy()
 #: the four quantised gradient directions of Figure 23 as pixel steps (du, dv): 0, 45, 90, 135 degrees
 DIRECTIONS = np.array([[1, 0], [1, 1], [0, 1], [-1, 1]])
+#: OpenCV's RNG state before each chessboard detection (0 = OpenCV's default state, 0xffffffff)
+CV_RNG_SEED = 0
 
 
 # ----------------------------------------------------------------------------------------------------------------------
@@ -539,6 +541,10 @@ def _detect_grid(gray_u8, inner, accuracy=True, subpix=True):
     flags = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE
     if accuracy:
         flags |= cv2.CALIB_CB_ACCURACY
+    # The SB detector draws from OpenCV's process-wide RNG (cv::theRNG), so without a seed its corners depend on
+    # what ran before in the process (measured: 0.1 px on one x-y table view, enough to move a run's result).
+    # Seeding it with OpenCV's default state makes every call what the first call of a fresh process gives.
+    cv2.setRNGSeed(CV_RNG_SEED)
     ok, c = cv2.findChessboardCornersSB(gray_u8, inner, flags=flags)
     how = "findChessboardCornersSB"
     reasons = ["findChessboardCornersSB found no board"]
