@@ -58,7 +58,8 @@ reproduce: $(STAMP)
 		--out $(OUT)/sweep-camera_calibration_webcam $(CAL_SWEEP)
 	$(BIN)/bench sweep scenarios/camera_calibration_webcam.yaml --seeds $(CAL_SEEDS) --seed 1 \
 		--out $(OUT)/sweep-camera_calibration_webcam-ideal $(CAL_SWEEP) --set camera.imaging=ideal
-	$(BIN)/python tools/real_webcam_sim.py --seeds $$(seq -s ' ' 1 $(CAL_SEEDS)) --json $(OUT)/real_webcam_sim.json
+	$(BIN)/bench sweep scenarios/real_webcam_replica.yaml --seeds $(CAL_SEEDS) --seed 1 \
+		--out $(OUT)/sweep-real_webcam_replica --set outputs.images=false
 	$(BIN)/bench run scenarios/camera_calibration_underwater.yaml --out $(OUT)/camera_calibration_underwater
 	$(BIN)/bench run scenarios/flatport_study.yaml --out $(OUT)/flatport_study
 	$(BIN)/bench run scenarios/flatport_study.yaml --out $(OUT)/flatport_study_k3 --set calibration.k3=true

@@ -49,8 +49,8 @@ def test_report_from_runs(tmp_path):
     t3 = {"thesis_table3_alpha_std_px": 4.64, "thesis_table3_beta_std_px": 6.30}
     _sweep(runs / "sweep-camera_calibration_webcam",
            [{**t3, "table3_chi_mean_px": c, "table3_alpha_std_px": 4.0, "table3_beta_std_px": 5.0} for c in (.2, .4)])
-    (runs / "real_webcam_sim.json").write_text(json.dumps({"args": {"seeds": [1, 2]}, "summary": {
-        "rms_px": {"real": 0.5, "sim_median": 0.45, "sim_min": 0.4, "sim_max": 0.5}}}))
+    _sweep(runs / "sweep-real_webcam_replica", [{"real_rms_px": 0.5, "sim_rms_px": s, "rms_ratio": s / 0.5}
+                                                for s in (0.4, 0.5)])
     tool = _tool()
     assert tool.main(["--runs", str(runs), "--docs", str(tmp_path / "docs")]) == 0
     doc = (tmp_path / "docs" / "results.md").read_text()

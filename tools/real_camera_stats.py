@@ -4,9 +4,9 @@
 
 ``DIR`` holds JPEG/PNG photos of a chessboard with ``--pattern`` inner corners (default the project's real webcam
 photos, ``tests/data/real_webcam_chessboard``: 19 views, 640 x 480, 7 x 7 inner corners). Every statistic is
-defined in :func:`residual_statistics` and the ``measure_*`` functions; docs/realistic_imaging.md quotes this tool's
-output. The same residual statistics are computed for simulated photos (``bench.sim.imaging``'s tests and the
-``camera_calibration_real_webcam_sim`` scenario), so the two are compared with one piece of code.
+defined in :mod:`bench.camera.photo_stats` (detection, calibration, :func:`residual_statistics`, SIFT) and the
+``measure_*`` functions here; docs/realistic_imaging.md quotes this tool's output. The ``camera_replica`` scenario
+kind computes the same statistics for the photos and their simulation, with the same code.
 
 Measured here:
 
@@ -40,7 +40,29 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-DEFAULT_DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "real_webcam_chessboard"
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bench.camera.photo_stats import (  # noqa: E402 - detection, calibration, residual statistics, SIFT precision
+    apply_homography,
+    board_homography,
+    calibrate_views,
+    detect_views,
+    measure_sift_precision,
+    residual_statistics,
+)
+
+DEFAULT_DATA = ROOT / "tests" / "data" / "real_webcam_chessboard"
+
+
+def detect(files, pattern):
+    """:func:`bench.camera.photo_stats.detect_views` (the photos where the board is found)."""
+    return detect_views(files, pattern)
+
+
+def calibrate(views, pattern, model="heikkila"):
+    """The bench's calibration of the detected views (unit squares): ``(result, uvs)``."""
+    return calibrate_views(views, pattern, model), [v.uv for v in views]
 
 #: IJG (libjpeg) standard luminance quantisation table (ITU-T T.81 Annex K, Table K.1); its sum is order-free
 IJG_LUMA = np.array([16, 11, 10, 16, 24, 40, 51, 61, 12, 12, 14, 19, 26, 58, 60, 55, 14, 13, 16, 24, 40, 57, 69, 56,
@@ -89,78 +111,6 @@ def estimate_jpeg_quality(data: bytes) -> tuple:
     return best, False
 
 
-def detect(files, pattern):
-    """Grey images, colour images and corners ``(N, 2)`` of the photos where the board is found."""
-    out = []
-    for f in files:
-        bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
-        if bgr is None:
-            continue
-        grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
-        ok, c = cv2.findChessboardCornersSB(grey, pattern, flags=cv2.CALIB_CB_ACCURACY)
-        if ok:
-            out.append((Path(f), bgr, grey, c.reshape(-1, 2).astype(float)))
-    return out
-
-
-def residual_statistics(residuals, pattern, uvs=None, max_lag: int = 3) -> dict:
-    """Spatial structure of calibration residuals of chessboard views.
-
-    Parameters
-    ----------
-    residuals : list of ndarray (N, 2)
-        Per view, the residual of each corner (px), corners row-major with ``pattern = (cols, rows)``.
-    uvs : list of ndarray (N, 2), optional
-        The detected corners (px), for the cross-view image-distance correlation.
-
-    Returns
-    -------
-    dict
-        ``rms_px`` (all corners), ``per_view_rms_px`` (list), ``per_view_rms_cv`` (std / mean of the per-view RMS),
-        ``row_corr_lag{k}`` and ``col_corr_lag{k}``: the normalised correlation of residual *vectors* k corners apart
-        along a board row (column), pooled over views,
-        ``rho_k = sum(r_i . r_{i+k}) / sqrt(sum |r_i|^2 sum |r_{i+k}|^2)``
-        (0 for white noise, 1 for a common shift); ``cross_view_corr_{a}_{b}px``: the same correlation for corner
-        pairs of *different* views whose image positions lie a..b px apart (residual tied to the image).
-    """
-    cols, rows = pattern
-    R = [np.asarray(r, float).reshape(rows, cols, 2) for r in residuals]
-    allr = np.concatenate([r.reshape(-1, 2) for r in R])
-    pv = np.array([np.sqrt(np.mean(np.sum(r ** 2, -1))) for r in R])
-    out = {"rms_px": float(np.sqrt(np.mean(np.sum(allr ** 2, 1)))), "per_view_rms_px": pv.round(4).tolist(),
-           "per_view_rms_cv": float(pv.std() / pv.mean())}
-    for name, axis in (("row", 1), ("col", 0)):
-        for k in range(1, max_lag + 1):
-            a = np.concatenate([(r[:, :-k] if axis == 1 else r[:-k]).reshape(-1, 2) for r in R])
-            b = np.concatenate([(r[:, k:] if axis == 1 else r[k:]).reshape(-1, 2) for r in R])
-            out[f"{name}_corr_lag{k}"] = float(np.sum(a * b) / np.sqrt(np.sum(a * a) * np.sum(b * b)))
-    if uvs is not None:
-        P = [np.asarray(u, float) for u in uvs]
-        Rf = [r.reshape(-1, 2) for r in R]
-        for lo, hi in ((0, 20), (20, 60), (60, 150)):
-            num = den_a = den_b = 0.0
-            for i in range(len(P)):
-                for j in range(i + 1, len(P)):
-                    d = np.linalg.norm(P[i][:, None] - P[j][None], axis=-1)
-                    ii, jj = np.nonzero((d >= lo) & (d < hi))
-                    num += np.sum(Rf[i][ii] * Rf[j][jj])
-                    den_a += np.sum(Rf[i][ii] ** 2)
-                    den_b += np.sum(Rf[j][jj] ** 2)
-            out[f"cross_view_corr_{lo}_{hi}px"] = float(num / np.sqrt(den_a * den_b)) if den_a > 0 else float("nan")
-    return out
-
-
-def _board_homography(corners, pattern):
-    cols, rows = pattern
-    g = np.stack(np.meshgrid(np.arange(cols), np.arange(rows)), -1).reshape(-1, 2).astype(np.float32)
-    H, _ = cv2.findHomography(g, corners.astype(np.float32))
-    return H
-
-
-def _to_image(H, pts):
-    return cv2.perspectiveTransform(np.asarray(pts, np.float32).reshape(-1, 1, 2), H).reshape(-1, 2)
-
-
 def measure_noise(views, pattern) -> dict:
     """Std (DN, grey) inside square interiors after a plane fit; white and black squares; JPEG leaves what it keeps.
 
@@ -170,18 +120,19 @@ def measure_noise(views, pattern) -> dict:
     means = {"white": [], "black": []}
     cols, rows = pattern
     for _, _, grey, c in views:
-        H = _board_homography(c, pattern)
+        H = board_homography(c, pattern)
         for i in range(rows - 1):
             for j in range(cols - 1):
                 s = np.linspace(0.3, 0.7, 9)
                 gx, gy = np.meshgrid(j + s, i + s)
-                p = _to_image(H, np.c_[gx.ravel(), gy.ravel()])
+                p = apply_homography(H, np.c_[gx.ravel(), gy.ravel()])
                 u0, v0 = np.floor(p.min(0)).astype(int)
                 u1, v1 = np.ceil(p.max(0)).astype(int)
                 if u1 - u0 < 4 or v1 - v0 < 4:
                     continue
                 # pixels inside the central quadrilateral
-                quad = _to_image(H, [[j + 0.3, i + 0.3], [j + 0.7, i + 0.3], [j + 0.7, i + 0.7], [j + 0.3, i + 0.7]])
+                quad = apply_homography(H, [[j + 0.3, i + 0.3], [j + 0.7, i + 0.3], [j + 0.7, i + 0.7],
+                                            [j + 0.3, i + 0.7]])
                 mask = np.zeros(grey.shape, np.uint8)
                 cv2.fillConvexPoly(mask, np.round(quad).astype(np.int32), 1)
                 vv, uu = np.nonzero(mask)
@@ -195,52 +146,6 @@ def measure_noise(views, pattern) -> dict:
                 means[kind].append(val.mean())
     return {f"noise_{k}_dn": float(np.median(v)) for k, v in stats.items() if v} | \
            {f"level_{k}_dn": float(np.median(v)) for k, v in means.items() if v}
-
-
-def measure_sift_precision(views, pattern, K, dist, ratio: float = 0.8, inlier_px: float = 1.5) -> dict:
-    """SIFT's localisation noise on the board, from the photos themselves (px, per keypoint and image axis).
-
-    The board is a plane: between two views its SIFT keypoints (inside the board's outline, found from the detected
-    corners) are related by a homography once the lens distortion is removed (``K``, ``dist``: OpenCV's order). Every
-    pair of views is matched (:func:`bench.vision.features.match_descriptors`: Lowe's ratio, cross-checked), a
-    homography fitted by RANSAC (``inlier_px``) and refitted to its inliers; the robust standard deviation (1.4826 MAD)
-    of all pairs' transfer residuals, divided by sqrt(2) (both keypoints are noisy), is the keypoint noise. The board's
-    own unflatness (a few tenths of a millimetre) is in it, for the real photos and their simulation alike, so the
-    figure is for comparing the two, not a detector's noise in isolation."""
-    from bench.vision.features import detect_sift, match_descriptors
-
-    K, dist = np.asarray(K, float), np.asarray(dist, float)
-    cols, rows = pattern
-    feats = []
-    for _, _, grey, c in views:
-        H = _board_homography(c, pattern)
-        quad = _to_image(H, [[-0.8, -0.8], [cols - 0.2, -0.8], [cols - 0.2, rows - 0.2], [-0.8, rows - 0.2]])
-        mask = np.zeros(grey.shape, np.uint8)
-        cv2.fillConvexPoly(mask, np.round(quad).astype(np.int32), 255)
-        f = detect_sift(grey, mask=mask)
-        x = cv2.undistortPoints(f.uv.reshape(-1, 1, 2).astype(np.float64), K, dist, P=K).reshape(-1, 2)
-        feats.append((f, x))
-    residuals, pairs = [], 0
-    for i in range(len(feats)):
-        for j in range(i + 1, len(feats)):
-            (fi, xi), (fj, xj) = feats[i], feats[j]
-            m = match_descriptors(fi, fj, ratio, mutual=True)
-            if len(m) < 12:
-                continue
-            a, b = xi[m.i1], xj[m.i2]
-            H, inl = cv2.findHomography(a, b, cv2.RANSAC, inlier_px)
-            if H is None or inl.sum() < 12:
-                continue
-            inl = inl.ravel().astype(bool)
-            H, _ = cv2.findHomography(a[inl], b[inl], 0)
-            residuals.append(_to_image(H, a[inl]) - b[inl])
-            pairs += 1
-    if not residuals:
-        return {"sift_plane_px": float("nan"), "sift_plane_pairs": 0, "sift_plane_matches": 0}
-    r = np.concatenate(residuals)
-    mad = 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)
-    return {"sift_plane_px": float(np.mean(mad) / np.sqrt(2)), "sift_plane_pairs": pairs,
-            "sift_plane_matches": int(len(r))}
 
 
 def _erf_fit(x, y):
@@ -294,9 +199,9 @@ def measure_vignetting(views, pattern) -> dict:
     rr, ii = [], []
     for _, _, grey, c in views:
         h, w = grey.shape
-        H = _board_homography(c, pattern)
+        H = board_homography(c, pattern)
         ctr = np.array([(j + 0.5, i + 0.5) for i in range(rows - 1) for j in range(cols - 1)])
-        p = _to_image(H, ctr)
+        p = apply_homography(H, ctr)
         vals = np.array([cv2.getRectSubPix(grey, (5, 5), tuple(map(float, q))).mean() for q in p])
         white = vals > np.median(vals)
         r = np.linalg.norm(p - [(w - 1) / 2, (h - 1) / 2], axis=1) / np.hypot(w / 2, h / 2)
@@ -312,13 +217,13 @@ def measure_chromatic(views, pattern) -> dict:
     """Lateral chromatic aberration: corners refined in R and B alone minus G, radial component vs radius."""
     rad, dr_r, dr_b = [], [], []
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
-    for _, bgr, _, c in views:
-        h, w = bgr.shape[:2]
+    for _, rgb, _, c in views:
+        h, w = rgb.shape[:2]
         ctr = np.array([(w - 1) / 2, (h - 1) / 2])
         loc = {}
-        for k, ch in (("b", 0), ("g", 1), ("r", 2)):
+        for k, ch in (("r", 0), ("g", 1), ("b", 2)):  # the photos as read_image decodes them: RGB
             p = c.astype(np.float32).reshape(-1, 1, 2).copy()
-            loc[k] = cv2.cornerSubPix(np.ascontiguousarray(bgr[..., ch]), p, (5, 5), (-1, -1), crit).reshape(-1, 2)
+            loc[k] = cv2.cornerSubPix(np.ascontiguousarray(rgb[..., ch]), p, (5, 5), (-1, -1), crit).reshape(-1, 2)
         v = loc["g"] - ctr
         r = np.linalg.norm(v, axis=1)
         e = v / np.maximum(r, 1e-9)[:, None]
@@ -484,7 +389,7 @@ def measure_board_shape(views, pattern, square_mm: float) -> dict:
     cols, rows = pattern
     res, uvs = calibrate(views, pattern)
     uvs = _relabel(res, uvs, pattern)
-    res, _ = calibrate([v[:3] + (u,) for v, u in zip(views, uvs, strict=True)], pattern)
+    res, _ = calibrate([v._replace(uv=u) for v, u in zip(views, uvs, strict=True)], pattern)
     g = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2).astype(float)
     obj = np.c_[g, np.zeros(len(g))]
     K, dist = res.camera.K, res.camera.dist
@@ -564,18 +469,6 @@ def _inverse_jacobian_apply(H, XY, duv):
         J = (H[:2, :2] * p[2] - np.outer(p[:2], H[2, :2])) / p[2] ** 2
         out.append(np.linalg.solve(J, d))
     return np.array(out)
-
-
-def calibrate(views, pattern, model="heikkila"):
-    """The bench's calibration of the detected views (unit squares): ``(result, uvs)``."""
-    from bench.camera import calibration as cal
-
-    cols, rows = pattern
-    obj = np.zeros((cols * rows, 3))
-    obj[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2)
-    uvs = [v[3] for v in views]
-    size = views[0][2].shape[::-1]
-    return cal.calibrate_camera([obj] * len(uvs), uvs, size, model), uvs
 
 
 def measure(data_dir, pattern=(7, 7), square_mm: float = 25.0) -> dict:

@@ -91,7 +91,8 @@ def _stats(values):
     if not len(v):
         return {"n": 0}
     return {"n": len(v), "median": float(np.median(v)), "q25": float(np.percentile(v, 25)),
-            "q75": float(np.percentile(v, 75)), "max": float(v.max()), "rms": float(np.sqrt(np.mean(v**2)))}
+            "q75": float(np.percentile(v, 75)), "min": float(v.min()), "max": float(v.max()),
+            "rms": float(np.sqrt(np.mean(v**2)))}
 
 
 def bound_plot(runs, path, title) -> bool:
@@ -439,24 +440,28 @@ class Report:
                   f"0.443; {_fmt(thesis['table3_alpha_std_px'], 2)} / {_fmt(thesis['table3_beta_std_px'], 2)}",
                   fig(tw) if twin else "")
 
-    def real_webcam(self, name="real_webcam_sim.json"):
-        """The real webcam photos simulated (``tools/real_webcam_sim.py``): the calibration residuals, sim vs real."""
-        r = _load(self.runs / name)
-        if r is None:
-            self.missing.append(f"the real webcam photos simulated (`runs/{name}`)")
+    def real_webcam(self, name="real_webcam_replica"):
+        """The real webcam photos simulated (a ``camera_replica`` sweep): calibration residuals, sim beside real."""
+        runs = _sweep_runs(self.runs / f"sweep-{name}")
+        if not runs:
+            self.missing.append(f"the real webcam photos simulated (`runs/sweep-{name}`)")
             return
-        sm = r["summary"]
-        seeds = r["args"]["seeds"]
-        self.md.append(f"## The real webcam photos simulated\n\n`python tools/real_webcam_sim.py --seeds "
-                       f"{' '.join(map(str, seeds))}`: the real photos' calibration residuals beside the simulated "
-                       "ones (same camera, board and 19 poses; same detector and calibration code)\n")
-        self.md.append(_table(["statistic", "real photos", "simulated (median)", "range"],
-                              [[f"`{k}`", _fmt(v["real"], 3), _fmt(v["sim_median"], 3),
-                                f"{_fmt(v['sim_min'], 3)} – {_fmt(v['sim_max'], 3)}"] for k, v in sm.items()]) + "\n")
-        rms = sm["rms_px"]
-        self.head(f"The real webcam photos simulated: calibration RMS (px), simulated (median of {len(seeds)}) vs real",
-                  f"{_fmt(rms['sim_median'], 3)} vs {_fmt(rms['real'], 3)} (× {rms['sim_median'] / rms['real']:.2f})",
-                  "× 0.7 – 1.3", "")
+        from bench.scenario.camera_replica import STATS
+
+        self.md.append(f"## The real webcam photos simulated\n\n`bench sweep scenarios/{name}.yaml --seeds {len(runs)}`"
+                       f" (folder `sweep-{name}`): the real photos' calibration residuals beside the simulated ones "
+                       "(same camera, board and 19 poses; same detector and calibration code)\n")
+        rows = []
+        for k in STATS + ("rms_ratio", "sift_ratio", "sim_focal_error_pct"):
+            real = runs[0]["metrics"].get(f"real_{k}")
+            st = _stats(r["metrics"].get(k if real is None else f"sim_{k}") for r in runs)
+            rows.append([f"`{k}`", _fmt(real, 3) if real is not None else "—", _fmt(st.get("median"), 3),
+                         f"{_fmt(st.get('min'), 3)} – {_fmt(st.get('max'), 3)}" if st.get("n") else "—"])
+        self.md.append(_table(["statistic", "real photos", "simulated (median)", "range"], rows) + "\n")
+        real = runs[0]["metrics"]["real_rms_px"]
+        sim = _stats(r["metrics"].get("sim_rms_px") for r in runs)
+        self.head(f"The real webcam photos simulated: calibration RMS (px), simulated (median of {len(runs)}) vs real",
+                  f"{_fmt(sim['median'], 3)} vs {_fmt(real, 3)} (× {sim['median'] / real:.2f})", "× 0.7 – 1.3", "")
 
     def envelope(self, folder="envelope", locate="locate.json"):
         """Issue 13's envelope sweep (``tools/integrity_summary.py``'s tables and Stanford plot) and its headline."""

@@ -19,6 +19,7 @@ import numpy as np
 
 from bench.camera import calibration as cal
 from bench.camera.heikkila import fit_implicit_inverse
+from bench.camera.photo_stats import detect_board
 from bench.camera.plots import plot_residual_vectors
 
 WEBCAM = Path(__file__).resolve().parents[1] / "tests" / "data" / "real_webcam_chessboard"
@@ -43,12 +44,12 @@ def main(argv=None):
         if image is None:
             print(f"{f}: unreadable, skipped")
             continue
-        ok, corners = cv2.findChessboardCornersSB(image, (7, 7), flags=cv2.CALIB_CB_ACCURACY)
-        if not ok:
+        corners = detect_board(image, (7, 7))  # findChessboardCornersSB, ACCURACY, OpenCV's RNG seeded
+        if corners is None:
             print(f"{f}: board not found, skipped")
             continue
         Xs.append(obj.copy())
-        uvs.append(corners.reshape(-1, 2).astype(float))
+        uvs.append(corners)
         used.append(f)
     t_detect = time.perf_counter() - t0
     size = cv2.imread(used[0]).shape[1::-1]

@@ -36,6 +36,8 @@ PLACEHOLDERS = {
     "index": (r"O[1-5]", "the observability index of `pose_selection.index` (`O1` ... `O5`)"),
     "medium": (r"air_|water_|", "empty, or `air_` / `water_` when `camera.medium: both` (the unprefixed names then "
                                 "hold the in-water calibration)"),
+    "src": (r"real|sim", "`real` (the photos) or `sim` (their simulation, calibrated by the same code)"),
+    "lag": (r"1|2|3", "corners apart: `1`, `2`, `3`"),
     "p": (r"fx_px|fy_px|cx_px|cy_px|k1|k2|p1|p2", "an OpenCV intrinsic: `fx_px`, `fy_px`, `cx_px`, `cy_px` (px), "
                                                  "`k1`, `k2`, `p1`, `p2` (unitless)"),
     "h": (r"s_u|f_px|u0_px|v0_px|k1_per_mm2|k2_per_mm4|T1_per_mm|T2_per_mm",
@@ -278,6 +280,20 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("bundle_efficiency_at_<at2>", "1", "limit / achieved 3D error of the bundle (the same limit)",
                "`bound.enabled`, features not exact, `pipeline.bundle`"),
         Metric("bound_rot_at_<at2>_deg", "deg", "rotation bound at that d_o", "`bound.enabled`, features not exact"),
+    ),
+    "camera_replica": (
+        Metric("photos", "count", "photos in `photos.dir`"),
+        Metric("<src>_views", "count", "photos (renders) where the board was found"),
+        Metric("<src>_rms_px", "px", "calibration residual RMS over all corners"),
+        Metric("<src>_per_view_rms_cv", "1", "spread of the per-view RMS (std / mean)"),
+        Metric("<src>_row_corr_lag<lag>", "1", "correlation of residual vectors that many corners apart along a board "
+               "row, pooled over views (0: white noise; 1: a shift common to the row)"),
+        Metric("<src>_col_corr_lag<lag>", "1", "the same along a board column"),
+        Metric("<src>_sift_plane_px", "px", "SIFT's localisation noise on the board plane (homography transfer "
+               "between views, robust σ / √2)"),
+        Metric("rms_ratio", "1", "simulated / real calibration RMS (issue 12: 0.7-1.3)"),
+        Metric("sift_ratio", "1", "simulated / real SIFT noise on the plane"),
+        Metric("sim_focal_error_pct", "%", "the replica's calibrated fx against its true one (the photos' fx)"),
     ),
     "camera_calibration": (
         Metric("<medium>sim_table_pose_err_m", "m", "simulator check: table poses vs the commanded ones"),

@@ -19,6 +19,7 @@ KINDS = {
     "xy_table": "xy_table",
     "camera_calibration": "camera_calibration",
     "flatport_study": "flatport_study",
+    "camera_replica": "camera_replica",
 }
 
 

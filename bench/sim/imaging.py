@@ -29,7 +29,7 @@ Target (applied to the rig's geometry, :func:`target_geometry`, never to the ima
   shape is estimated (0.219 px) still lies 82 % along the out-of-plane direction; its per-view offsets, each view's
   plane removed, fitted jointly by restricted maximum likelihood: ``rms_mm`` 0.25, ``Lx`` 22 mm, ``Ly`` 19 mm
   (``handling_*``).
-  Only a board that is handled between photos has it (the real-photo simulation, ``tools/real_webcam_sim.py``);
+  Only a board that is handled between photos has it (the real-photo simulation, the ``camera_replica`` scenario kind);
   the two-plane rig of the lab kinds stands still while the camera moves, so there the stage changes nothing;
 * ``fold`` - the two boards of the rig are not exactly perpendicular (``fold_error_rms_deg``; a hand-assembled rig).
 
