@@ -67,7 +67,8 @@ def relocate(run_dir: str, seed: int, pipeline: dict, name: str) -> tuple:
                                     ransac=dict(iterations=pipeline["ransac_iterations"],
                                                 d_r=pipeline["d_r_mm"] * 1e-3, r_lim=pipeline["r_lim"]),
                                     priors_path=priors if priors.is_file() and pipeline["refine"] == "joints"
-                                    else None, guided=pipeline.get("guided", False))
+                                    else None, guided=pipeline.get("guided", False),
+                                    loss=None if pipeline.get("loss", "none") == "none" else pipeline["loss"])
     except BenchError as exc:
         return run.name, f"error: {exc}", time.perf_counter() - t0
     except Exception as exc:  # noqa: BLE001 - one run's failure is reported; the others go on

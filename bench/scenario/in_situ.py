@@ -183,11 +183,15 @@ class Pipeline(Section):
     guided: Annotated[bool, about(
         "refine 'joints' then searches the map again in both locate views at the refined poses and re-runs the joint "
         "bundle on the grown set (bench.vision.guided; not the thesis's): docs/integrity.md measures it")] = False
+    loss: Annotated[Literal["none", "huber"], about(
+        "the joint bundle's loss (refine 'joints'): least squares on the gated observations, or Huber's M-estimate "
+        "(bench.vision.bundle.robust_weights): docs/bounds.md measures it")] = "none"
 
     @model_validator(mode="after")
-    def _guided_needs_joints(self):
-        if self.guided and self.refine != "joints":
-            raise KeyProblem("guided", f"used only by refine 'joints', got refine {self.refine!r}")
+    def _needs_joints(self):
+        for key, on in (("guided", self.guided), ("loss", self.loss != "none")):
+            if on and self.refine != "joints":
+                raise KeyProblem(key, f"used only by refine 'joints', got refine {self.refine!r}")
         return self
 
 
@@ -963,7 +967,8 @@ def run(cfg, out_dir, verbose=True):
     res, report = locate_dataset(ds_dir, out_dir, method=p["method"], seed=cfg["seed"],
                                  config=MapConfig(), verbose=False, camera_path=camera_path,
                                  robot_path=robot_path, refine=p["refine"], ransac=ransac, details=details,
-                                 features_fn=features_fn, priors_path=priors_path, guided=p["guided"])
+                                 features_fn=features_fn, priors_path=priors_path, guided=p["guided"],
+                                 loss=None if p["loss"] == "none" else p["loss"])
 
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
     T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])

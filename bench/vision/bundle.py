@@ -28,6 +28,8 @@ EXTRA_ROUNDS = 4
 SIGMA_FLOOR_PX = 1e-3
 #: relative singular-value cut-off of the Gauss-Newton step
 RCOND = 1e-12
+#: the robust losses' scale, in units of the pixel noise (Huber's 1.345: 95 % efficiency under Gaussian noise)
+LOSS_SCALE = 1.345
 
 
 @dataclass(frozen=True)
@@ -59,7 +61,8 @@ class BundleSolution:
 
 def normal_equations(point, r, J, J_pt, M: int, prior_info, prior_res, keep=None):
     """The reduced system (points eliminated): ``S (n, n)``, gradient ``g (n,)`` and the points' back-substitution.
-    Observations outside ``keep`` (N,) bool weigh nothing; a point left with fewer than two is held where it is."""
+    Observations outside ``keep`` (N,) bool weigh nothing; a point left with fewer than two is held where it is.
+    ``keep`` may be float: each observation's residual and Jacobian are scaled by it (the square root of a weight)."""
     N, n = J.shape[0], J.shape[2]
     if keep is not None:
         w = keep.astype(float)
@@ -114,17 +117,30 @@ def _scaled_step(S, g) -> tuple:
     return scaled / d, scaled
 
 
-def _cost(problem, theta, X, keep, prior_info, mean) -> float:
-    """Sum of the kept observations' squared pixel residuals plus the priors' (in the same units)."""
-    r = problem.residuals(theta, X)[keep]
+def robust_weights(e, s_px: float, loss: str | None, c: float = LOSS_SCALE) -> np.ndarray:
+    """IRLS weights ``w = rho'(u) / u`` (N,) of residual norms ``e`` at ``u = e / s_px``: 1 for ``None``; Huber's
+    (1 within ``c``, ``c / u`` beyond)."""
+    if loss is None:
+        return np.ones(len(e))
+    if loss != "huber":
+        raise ValueError(f"loss: expected None or 'huber', got {loss!r}")
+    u = np.asarray(e, float) / max(s_px, SIGMA_FLOOR_PX)
+    return np.where(u <= c, 1.0, c / np.maximum(u, 1e-300))
+
+
+def _cost(problem, theta, X, keep, prior_info, mean, w=None) -> float:
+    """Sum of the kept observations' squared pixel residuals (weighted by ``w`` (N,), IRLS) plus the priors' (in
+    the same units)."""
+    r = problem.residuals(theta, X)
+    r2 = np.sum(r**2, axis=1) if w is None else w * np.sum(r**2, axis=1)
     d = theta - mean
-    c = float(np.sum(r**2) + d @ prior_info @ d)
+    c = float(np.sum(r2[keep]) + d @ prior_info @ d)
     return c if np.isfinite(c) else np.inf
 
 
 def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10, rounds: int = 3,
           gate: float | None = 3.5, dof_offset: int = 0, gate_groups=None, groups_in_rounds: bool = True,
-          step_tol: float | None = None) -> BundleSolution:
+          step_tol: float | None = None, loss: str | None = None) -> BundleSolution:
     """Maximum-likelihood ``theta`` and points (module docstring).
 
     Parameters
@@ -163,6 +179,10 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
         in the metric of the covariance ``s^2 S^-1``). None: iterate until the cost's decrease is at rounding level.
         Gauss-Newton converges only linearly along weakly observed directions (a camera rotation against the
         principal point), so that takes several steps more for changes far below the noise.
+    loss : {None, "huber"}
+        None: least squares on the kept observations. ``"huber"``: Huber's M-estimate by iteratively re-weighted least
+        squares (:func:`robust_weights`, scale :data:`LOSS_SCALE` x the robust pixel noise, median / 1.1774 of the
+        kept residuals, at every linearisation): keypoint errors have heavy tails below the gate too.
     """
     theta, mean, X = np.array(theta0, float), np.asarray(mean, float), np.array(X, float)
     point = np.asarray(problem.point, int)
@@ -188,7 +208,10 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
             r, J, J_pt, z_min = problem.linearise(theta, X)
             if z_min <= 0:
                 return failed("points behind a camera")
-            S, g, points_step = normal_equations(point, r, J, J_pt, M, prior_info, prior_info @ (theta - mean), keep)
+            e = np.linalg.norm(r, axis=1)
+            w = robust_weights(e, float(np.median(e[keep])) / 1.1774, loss)  # the robust pixel noise (see _gated)
+            S, g, points_step = normal_equations(point, r, J, J_pt, M, prior_info, prior_info @ (theta - mean),
+                                                 keep * np.sqrt(w))
             diag = np.diag(S)
             if not (np.all(np.isfinite(diag)) and diag.max() > 0):
                 return failed("singular reduced system")
@@ -198,11 +221,11 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
             # backtracking: the Gauss-Newton step is halved until the cost (pixels kept + priors) decreases - weakly
             # observed directions (intrinsics against a mount) can make a full step overshoot and diverge
             dX, t = points_step(dc), 1.0
-            c0 = _cost(problem, theta, X, keep, prior_info, mean)
+            c0 = _cost(problem, theta, X, keep, prior_info, mean, w)
             if -float(g @ dc) <= 1e-12 * c0:
                 converged = True
                 break  # the quadratic model's decrease is at rounding level: converged
-            while t > 1e-4 and not _cost(problem, theta + t * dc, X + t * dX, keep, prior_info, mean) <= c0:
+            while t > 1e-4 and not _cost(problem, theta + t * dc, X + t * dX, keep, prior_info, mean, w) <= c0:
                 t /= 2
             if t <= 1e-4:
                 converged = True

@@ -198,7 +198,7 @@ class _Bound:
 def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, point, uv, X, sigma_enc: float,
                  sigma_px: float, K, dist=None, cov_K=None, cov_mount=None, iterations: int = 10, rounds: int = 3,
                  gate: float | None = 3.5, cov_K_mount=None, cov_dist=None, cov_K_dist=None,
-                 cov_dist_mount=None) -> JointBundleResult:
+                 cov_dist_mount=None, loss: str | None = None) -> JointBundleResult:
     """Base pose, joints of every view, map points (and the intrinsics and mount under their lab priors) by maximum
     likelihood (see the module docstring).
 
@@ -238,6 +238,9 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
         After each round, observations whose residual exceeds ``gate`` x the robust sigma (median residual / 1.1774)
         weigh nothing in the next (keypoints' errors have heavy tails: measured ~0.09 px robust but 0.35 px RMS
         within 5 px under realistic imaging); ``None`` keeps every observation.
+    loss : {None, "huber"}
+        None: least squares on the observations the gate keeps; ``"huber"``: Huber's M-estimate by iteratively
+        re-weighted least squares (:func:`bench.vision.bundle.solve`): the tail below the gate weighs less.
     """
     q_read = np.asarray(q_read, float)
     X = np.array(X, dtype=float)
@@ -258,7 +261,8 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     if lab is not None:
         info0[k:, k:] = np.linalg.inv(lab)
     mean = np.r_[np.zeros(6), q_read.ravel(), np.zeros(n - 6 - 6 * V)]
-    sol = solve(_Bound(problem, T_site_b2), mean, mean, info0, X, sigma_px, iterations, rounds, gate, dof_offset=6)
+    sol = solve(_Bound(problem, T_site_b2), mean, mean, info0, X, sigma_px, iterations, rounds, gate, dof_offset=6,
+                loss=loss)
     if not sol.success:
         return JointBundleResult(False, sol.message, T_site_b2, nan6, q_read, sol.sigma_px, np.nan, len(problem.view),
                                  sol.iterations)

@@ -3,6 +3,7 @@ SciPy's least_squares on the full problem, a group gate that keeps a view a glob
 nothing holds refused instead of reported with a covariance."""
 
 import numpy as np
+import pytest
 import scipy.optimize
 
 from bench.vision.bundle import solve
@@ -69,3 +70,42 @@ def test_a_parameter_nothing_holds_is_refused():
     p.view, p.point, p.uv = p.view[~pair_rows], p.point[~pair_rows], p.uv[~pair_rows]
     sol = solve(p, np.zeros(p.n), np.zeros(p.n), info0, X, 0.3)
     assert not sol.success and "nothing observes" in sol.message and np.all(np.isnan(sol.S))
+
+
+def test_robust_weights():
+    from bench.vision.bundle import LOSS_SCALE, robust_weights
+
+    e = np.array([0.0, 0.1, LOSS_SCALE * 0.1, 0.5, 2.0])
+    assert np.array_equal(robust_weights(e, 0.1, None), np.ones(5))
+    w = robust_weights(e, 0.1, "huber")
+    assert np.allclose(w, [1, 1, 1, LOSS_SCALE * 0.1 / 0.5, LOSS_SCALE * 0.1 / 2.0], rtol=1e-12)
+    with pytest.raises(ValueError, match="huber"):
+        robust_weights(e, 0.1, "cauchy")
+
+
+def test_huber_is_exact_on_exact_pixels():
+    rng = np.random.default_rng(7)
+    p, X, info0 = _problem(rng, noise_px=0.0)
+    sol = solve(p, np.zeros(p.n), np.zeros(p.n), info0, X, 0.3, loss="huber")
+    assert sol.success
+    # camera a 70 mm from the reference along the table's x (the start is 3.7 mm off): recovered exactly
+    assert np.abs(p.centre_offset(sol.theta) - [-0.07, 0.0, 0.0]).max() < 1e-9
+    assert np.abs(p.residuals(sol.theta, sol.X)[sol.keep]).max() < 1e-6
+
+
+def test_huber_beats_least_squares_under_a_heavy_tail_below_the_gate():
+    """Pixel noise a mixture (70 % at 0.05 px, 30 % at 0.25 px: most of the tail inside the 3.5-sigma gate), 12
+    draws: Huber's M-estimate of camera a's centre errs less than least squares (measured: RMS 0.114 against 0.160
+    mm, better in 8 of 12)."""
+    err = {None: [], "huber": []}
+    for k in range(12):
+        rng = np.random.default_rng(100 + k)
+        p, X, info0 = _problem(rng, noise_px=0.0)
+        wide = rng.random(len(p.uv)) < 0.3
+        p.uv = p.uv + rng.normal(0, 1, p.uv.shape) * np.where(wide, 0.25, 0.05)[:, None]
+        for loss in err:
+            sol = solve(p, np.zeros(p.n), np.zeros(p.n), info0, X, 0.1, loss=loss)
+            assert sol.success
+            err[loss].append(np.linalg.norm(p.centre_offset(sol.theta) - [-0.07, 0.0, 0.0]) * 1e3)
+    rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in err.items()}
+    assert rms["huber"] < 0.9 * rms[None], rms
