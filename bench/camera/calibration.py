@@ -468,11 +468,6 @@ class CalibrationResult:
         return dict(zip(self.parameter_names, self.std.tolist(), strict=True))
 
     @property
-    def dist_opencv(self) -> np.ndarray:
-        """Distortion coefficients as OpenCV expects them: 4 when ``k3 = 0``, else 5."""
-        return self.dist if self.dist[4] != 0.0 else self.dist[:4].copy()
-
-    @property
     def camera(self):
         """The calibrated :class:`bench.camera.model.CameraModel` (None when the calibration failed)."""
         from bench.camera.model import CameraModel
@@ -765,22 +760,3 @@ def opencv_reference(object_points, image_points, image_size, model: str = "heik
     result.per_view_rms_px = np.array([np.sqrt(np.mean(np.sum(r**2, axis=1))) for r in residuals])
     result.cost = 0.5 * float(np.sum(allr**2))
     return result
-
-
-def random_camera(rng: np.random.Generator, image_size=(640, 480), model: str = "heikkila", k3: bool = False,
-                  fit_skew: bool = False):
-    """A plausible random camera for tests: ``(K (3, 3), dist (5,))`` (px; OpenCV order)."""
-    w, h = image_size
-    f = rng.uniform(0.9, 1.3) * w
-    K = np.array([[f, 0.0, w / 2 + rng.normal(0, 5)], [0.0, f * rng.uniform(0.98, 1.02), h / 2 + rng.normal(0, 5)],
-                  [0.0, 0.0, 1.0]])
-    if fit_skew:
-        K[0, 1] = rng.normal(0, 1.0)
-    dist = np.zeros(5)
-    if model != "pinhole":
-        dist[:2] = [rng.uniform(-0.3, 0.1), rng.uniform(-0.1, 0.2)]
-        if k3:
-            dist[4] = rng.uniform(-0.05, 0.05)
-    if model == "heikkila":
-        dist[2:4] = rng.normal(0, 1e-3, 2)
-    return K, dist

@@ -15,8 +15,6 @@ from pathlib import Path
 
 from bench.errors import BenchError
 
-COMMANDS = ("calibrate-robot", "check-robot")
-
 
 def add_parsers(sub) -> None:
     """Register ``calibrate-robot`` and ``check-robot`` on the ``bench`` sub-parser collection ``sub``."""

@@ -79,7 +79,6 @@ from bench.errors import ConfigError
 #: the stages of the realistic profile, in the order they are applied (each can be switched off alone)
 STAGES = ("print_lines", "print_scale", "flatness", "cockle", "handling", "fold", "distortion", "chromatic",
           "defocus", "motion", "rolling_shutter", "vignetting", "bayer", "prnu_dsnu", "jpeg")
-TARGET_STAGES = ("print_lines", "print_scale", "flatness", "cockle", "handling", "fold")
 IMAGING_NAMES = ("realistic", "ideal")
 #: version of this module's algorithms, part of the render cache key of realistic images (bump when a code change
 #: alters them): 2 = bilinear warp (was bicubic); 3 = the lens Gaussian once after the defocus levels; 4 = a sheet
