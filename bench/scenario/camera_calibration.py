@@ -491,7 +491,6 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     One medium: ``out_dataset`` is the dataset; ``camera.medium: both``: ``out_dataset/in_air`` and
     ``out_dataset/in_water`` (one physical camera: the same true lens).
     """
-    validate(cfg)
     rng = np.random.default_rng(cfg["seed"])
     first = _optics(cfg, media(cfg)[0])
     true_lens = _true_lens(cfg, load_preset(first.lens_camera), rng)
@@ -897,7 +896,6 @@ def print_parameters(t, title, nominal_key):
 
 def run(cfg, out_dir, verbose=True):
     """Render (cached) the campaign(s), calibrate from the datasets, score against the truth, write result.json."""
-    validate(cfg)
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
     ds_root = out_dir / "dataset"

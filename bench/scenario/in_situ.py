@@ -495,7 +495,6 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     from bench.sim.scenes.rig import calibration_rig
     from bench.sim.views import look_at
 
-    validate(cfg)
     t0 = time.perf_counter()
     rng = np.random.default_rng(cfg["seed"])
     robot = load_robot(Path(cfg["_file"]).parent / cfg["robot"])
@@ -938,7 +937,6 @@ def _score_task(cfg, ds, truth, report, robot):
 
 def run(cfg, out_dir, verbose=True):
     """Render (cached) the campaign, run the pipeline on the dataset, score against the truth, write result.json."""
-    validate(cfg)
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
     ds_dir = out_dir / "dataset"

@@ -484,7 +484,6 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     from bench.sim.scenes.rig import calibration_rig
     from bench.sim.scenes.xy_table import DEFAULT_T_WORLD_TABLE, reference_pose, xy_table
 
-    validate(cfg)
     t0 = time.perf_counter()
     s = cfg["sim"]
     rng = np.random.default_rng(cfg["seed"])
@@ -1005,7 +1004,6 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose, cov_K=None, co
 
 def run(cfg, out_dir, verbose=True):
     """Render (cached), calibrate the camera, run the positioning pipeline, score against the truth."""
-    validate(cfg)
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
     s, p = cfg["sim"], cfg["pipeline"]
