@@ -86,6 +86,7 @@ from bench.errors import ConfigError
 from bench.fileio import atomic_write_text
 from bench.geometry.transforms import homogeneous, invert, rot_z, transform_points
 from bench.scenario.results import write_result, write_table_csv
+from bench.sim.imaging import draw_true_lens, rig_errors, rig_target_yaml
 
 MAGNITUDE_PCT = Annotated[float, Field(ge=0, le=50)]
 MEDIA = {"air": ("air",), "water": ("water",), "both": ("air", "water")}
@@ -160,7 +161,6 @@ OPTICS = {("air_webcam", "air"): "air_webcam", ("underwater", "air"): "underwate
           ("underwater", "water"): "underwater_in_water"}
 TABLE3_CSV = Path(__file__).resolve().parents[2] / "scenarios" / "data" / "table3_thesis.csv"
 TABLE3_COLUMNS = ("picture", "theta_deg", "alpha_px", "beta_px", "u0_px", "v0_px", "chi_px")
-TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
 #: the Heikkilä parameters in the thesis's units (Tables 9 and 15) and the factor from SI
 HEIKKILA_ROWS = (("s_u", "s_u", 1.0), ("f_px", "f", None), ("u0_px", "u0", 1.0), ("v0_px", "v0", 1.0),
                  ("k1_per_mm2", "k1", 1e-6), ("k2_per_mm4", "k2", 1e-12), ("T1_per_mm", "p1", 1e-3),
@@ -179,16 +179,6 @@ def imaging(cfg):
     from bench.sim.imaging import profile_from_config
 
     return profile_from_config(cfg["camera"], cfg["_file"], "camera.imaging")
-
-
-def _target_errors(cfg, profile, squares):
-    """The printed rig's geometry errors: one physical rig per seed, from a generator of its own (the other draws
-    do not change when the target's stages are switched off)."""
-    from bench.sim.imaging import target_geometry
-
-    if not profile.stages:
-        return None
-    return target_geometry(profile, squares, np.random.default_rng(np.random.SeedSequence([cfg["seed"], 0x7A12])))
 
 
 def validate(cfg) -> None:
@@ -214,20 +204,6 @@ def _optics(cfg, medium):
 
     name = OPTICS[(cfg["camera"]["preset"], medium)]
     return optics_preset(name, overrides=None if cfg["camera"]["housing"] else {"port": None})
-
-
-def _true_lens(cfg, lens: CameraModel, rng) -> CameraModel:
-    """The true camera: the nominal lens with focal lengths, principal point and distortion perturbed (uniform)."""
-    t = cfg["truth"]
-    K = lens.K.copy()
-    K[0, 0] *= 1 + rng.uniform(-1, 1) * t["focal_error_pct"] / 100
-    K[1, 1] *= 1 + rng.uniform(-1, 1) * t["focal_error_pct"] / 100
-    K[:2, 2] += rng.uniform(-1, 1, 2) * t["principal_error_px"]
-    dist = lens.dist * (1 + rng.uniform(-1, 1, 5) * t["distortion_error_pct"] / 100)
-    from bench.sim.imaging import lens_distortion
-
-    dist = lens_distortion(imaging(cfg), dist)  # realistic imaging: the real webcam's measured distortion on top
-    return lens.replace(K=K, dist=dist, model=None, name=f"{lens.name} (true)")
 
 
 # ------------------------------------------------------------------------------------------------ simulation
@@ -409,7 +385,7 @@ def _render_medium(cfg, medium, true_lens, rng, out_dataset, cache_dir, verbose,
     errors = random_table_errors(rng) if cfg["truth"]["table_errors"] else None
     table_model = lab_table_model(errors)
     profile = imaging(cfg)
-    target = _target_errors(cfg, profile, 7)
+    target = rig_errors(profile, cfg["seed"])  # one physical rig per seed
     rig = calibration_rig(name="rig", errors=target)
     commands, rig_params, T_table_rig = plan_views(cfg, medium, true_lens, optics.port, table_model, rig, rng)
     run = table_model.run(commands)
@@ -462,11 +438,7 @@ def _render_medium(cfg, medium, true_lens, rng, out_dataset, cache_dir, verbose,
         for k in range(n):
             w.add_view(f"rig{k + 1:02d}", images[k], table=run.read[k], role="rig")
         w.write_text("camera.yaml", camera_yaml_text(nominal))
-        # the rig's print tolerances as its maker states them (the specification, not the draws), as in the lab
-        from bench.sim.imaging import stated_tolerance
-
-        tol = stated_tolerance(imaging(cfg))
-        w.write_text("target.yaml", TARGET_YAML + (yaml.safe_dump({"tolerance": tol}) if tol else ""))
+        w.write_text("target.yaml", rig_target_yaml(profile))  # the rig's stated print tolerances, as in the lab
         w.write_text("truth/truth.yaml", yaml.safe_dump(truth, sort_keys=False))
         w.write_text("truth/sim_checks.json", json.dumps(checks, indent=2) + "\n")
     if verbose:
@@ -493,10 +465,12 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     """
     rng = np.random.default_rng(cfg["seed"])
     first = _optics(cfg, media(cfg)[0])
-    true_lens = _true_lens(cfg, load_preset(first.lens_camera), rng)
+    t = cfg["truth"]  # the true camera: the nominal lens perturbed (uniform draws)
+    lens = draw_true_lens(load_preset(first.lens_camera), rng, imaging(cfg), t["focal_error_pct"],
+                          t["principal_error_px"], t["distortion_error_pct"])
     checks = {}
     for i, (medium, path) in enumerate(dataset_dirs(cfg, out_dataset).items()):
-        c = _render_medium(cfg, medium, true_lens, rng, path, cache_dir, verbose, 100 * i)
+        c = _render_medium(cfg, medium, lens, rng, path, cache_dir, verbose, 100 * i)
         checks.update(c if len(media(cfg)) == 1 else {f"{medium}_{k}": v for k, v in c.items()})
     return checks
 

@@ -73,6 +73,7 @@ from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, 
 from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
+from bench.sim.imaging import draw_true_lens, rig_errors, rig_target_yaml
 from bench.vision.features import Features
 from bench.vision.insitu import MapConfig
 from bench.vision.triangulation import required_baseline
@@ -96,7 +97,6 @@ LABELS = {"quaternion": "RANSAC, quaternion", "quaternion_ratio": "RANSAC, quate
           "lms": "RANSAC, LMS", "lms_ratio": "RANSAC, LMS, error-ratio elimination",
           "bundle": "bundle: the pair, R0, intrinsics, distortion and points by maximum likelihood"}
 THESIS_METHODS = ("quaternion", "quaternion_ratio", "lms", "lms_ratio")
-TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
 CAMERA_CHOICES = ("calibrated", "nominal", "truth")
 BIAS_CHOICES = ("estimated", "truth", "zero")
 FEATURE_CHOICES = ("sift", "corners", "true_projection")
@@ -235,15 +235,6 @@ def imaging(cfg):
     from bench.sim.imaging import profile_from_config
 
     return profile_from_config(cfg["sim"], cfg["_file"], "sim.imaging")
-
-
-def _rig_errors(cfg, profile, salt):
-    """Geometry errors of a printed rig (:func:`bench.sim.imaging.target_geometry`) from a generator of its own."""
-    from bench.sim.imaging import target_geometry
-
-    if not profile.stages:
-        return None
-    return target_geometry(profile, 7, np.random.default_rng(np.random.SeedSequence([cfg["seed"], salt])))
 
 
 def _positions(cfg, n_rows: int) -> list:
@@ -414,15 +405,8 @@ def _optics(cfg):
 
 def _true_camera(cfg, rng, lens: CameraModel) -> CameraModel:
     s = cfg["sim"]
-    K = lens.K.copy()
-    K[0, 0] *= 1 + rng.uniform(-1, 1) * s["focal_error_pct"] / 100
-    K[1, 1] *= 1 + rng.uniform(-1, 1) * s["focal_error_pct"] / 100
-    K[:2, 2] += rng.uniform(-1, 1, 2) * s["principal_error_px"]
-    dist = lens.dist * (1 + rng.uniform(-1, 1, lens.dist.shape) * s["distortion_error_pct"] / 100)
-    from bench.sim.imaging import lens_distortion
-
-    dist = lens_distortion(imaging(cfg), dist)  # realistic imaging: the real webcam's measured distortion on top
-    return lens.replace(K=K, dist=dist, model=None, name=f"{lens.name} (true)")
+    return draw_true_lens(lens, rng, imaging(cfg), s["focal_error_pct"], s["principal_error_px"],
+                          s["distortion_error_pct"])
 
 
 def _calibration_poses(n, distance_m, rng):
@@ -462,7 +446,7 @@ def reference_object(cfg, rng):
                 return manifold_panel(rng, w, h, name="ref", texture_overrides=texture_paths(cfg, "sim.textures"))
         except ValueError as exc:
             raise ConfigError(cfg["_file"], "sim.panel_size_m", str(exc)) from None
-    return calibration_rig(name="ref", errors=_rig_errors(cfg, imaging(cfg), 0x7A13))
+    return calibration_rig(name="ref", errors=rig_errors(imaging(cfg), cfg["seed"], 0x7A13))
 
 
 def replay_reference_object(cfg, truth: dict):
@@ -516,7 +500,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         return compose([obj], offscreen=(spec.width, spec.height), center=(0.0, dist_m / 2, 0.4), extent=2.0)
 
     # the calibration rig (a scene of its own) stands as it would in front of the table; views around its centre
-    rig = calibration_rig(name="calrig", errors=_rig_errors(cfg, profile, 0x7A12))
+    rig = calibration_rig(name="calrig", errors=rig_errors(profile, cfg["seed"]))
     T_table_rig = reference_pose(rig, 1.0)
     T_world_rig = DEFAULT_T_WORLD_TABLE @ T_table_rig
     c_table = transform_points(T_table_rig, rig.features["corners"]).mean(axis=0)
@@ -614,10 +598,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                        notes=f"{s['poses']} position {num}")
         w.write_text("camera.yaml", camera_yaml_text(nominal_cam))
         w.write_text("table.yaml", spec_yaml)
-        from bench.sim.imaging import stated_tolerance
-
-        tol = stated_tolerance(profile)  # the rig's print tolerances as its maker states them (not the draws)
-        w.write_text("target.yaml", TARGET_YAML + (yaml.safe_dump({"tolerance": tol}) if tol else ""))
+        w.write_text("target.yaml", rig_target_yaml(profile))  # the rig's stated print tolerances
         w.write_text("truth/truth.yaml", yaml.safe_dump(truth, sort_keys=False))
         w.write_text("truth/sim_checks.json", json.dumps(checks, indent=2) + "\n")
     if verbose:
