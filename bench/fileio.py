@@ -148,16 +148,17 @@ def fix_mkdtemp_mode(path) -> Path:
     return Path(path)
 
 
-def read_yaml(path):
+def read_yaml(path, missing: str = "not found"):
     """The parsed content of the YAML file ``path`` (any type: the caller checks its shape); one-line
-    :class:`bench.errors.ConfigError` naming the file when it is missing, unreadable text or not valid YAML."""
+    :class:`bench.errors.ConfigError` naming the file when it is missing (the problem ``missing``), unreadable text or
+    not valid YAML."""
     import yaml
 
     from bench.errors import ConfigError
 
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(path, "<file>", "not found")
+        raise ConfigError(path, "<file>", missing)
     try:
         return yaml.safe_load(path.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as exc:

@@ -53,7 +53,7 @@ from bench.camera.target_tolerance import calibration_with_tolerance, parse_tole
 from bench.config import NonNegFloat, PositiveFloat, Section, at_least, parse
 from bench.dataset import View, load_dataset
 from bench.errors import ConfigError
-from bench.fileio import atomic_write_text, write_table_csv
+from bench.fileio import atomic_write_text, read_yaml, write_table_csv
 from bench.geometry.transforms import homogeneous, rot_z
 
 
@@ -125,13 +125,7 @@ def load_target_tolerance(path):
 def load_target(path):
     """The calibration target geometry from ``target.yaml`` (see the module docstring), SI inside."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "not found (the dataset must describe its calibration target)")
-    try:
-        t = yaml.safe_load(path.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(path, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
-    return parse_target(t, path)
+    return parse_target(read_yaml(path, "not found (the dataset must describe its calibration target)"), path)
 
 
 def target_spec(target: str, inner: str | None = None, square_mm: float | None = None, squares: int | None = None,

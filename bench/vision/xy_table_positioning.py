@@ -57,10 +57,10 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from bench.dataset import load_dataset
 from bench.errors import ConfigError
+from bench.fileio import read_yaml
 from bench.geometry.transforms import homogeneous, rot_y, transform_points
 from bench.vision.absolute_orientation import absolute_orientation
 from bench.vision.features import Features, detect_sift
@@ -112,12 +112,7 @@ class TableSpec:
 def load_table_spec(path) -> TableSpec:
     """Read ``table.yaml`` (mm and degrees in the keys); one-line :class:`ConfigError` naming the file and field."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "not found (an x-y table dataset must describe its table)")
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    doc = read_yaml(path, "not found (an x-y table dataset must describe its table)")
     if not isinstance(doc, dict):
         raise ConfigError(path, "<top>", "expected a mapping")
     bad = sorted(set(doc) - TABLE_SPEC_KEYS)
