@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench.camera import dlt
+from bench.camera.model import distort
 from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, invert, skew, transform_points
 
@@ -64,13 +65,6 @@ def _full_dist(model, d):
 # ----------------------------------------------------------------------------------------------------------------------
 # projection with analytic derivatives
 # ----------------------------------------------------------------------------------------------------------------------
-def _distort_values(x_n, dist5):
-    """Distorted normalised coordinates through the shared camera model (``bench.camera.model``)."""
-    from bench.camera.model import distort  # the one distortion implementation of the bench
-
-    return distort(x_n, dist5)
-
-
 def _distortion_jacobians(x, y, dist5):
     """Partial derivatives of the OpenCV/Heikkilä distortion (Eq. 75-76) at normalised ``x, y (N,)``.
 
@@ -142,7 +136,7 @@ class _Problem:
             Xc = RX + s.t[v]
             z = Xc[:, 2]
             x, y = Xc[:, 0] / z, Xc[:, 1] / z  # Eq. 46
-            xd = _distort_values(np.column_stack([x, y]), dist5)  # Eq. 75-76
+            xd = distort(np.column_stack([x, y]), dist5)  # Eq. 75-76 (the one distortion implementation)
             u = s.fx * xd[:, 0] + s.skew * xd[:, 1] + s.cx  # Eq. 50
             w = s.fy * xd[:, 1] + s.cy
             r[sl] = np.column_stack([u, w]) - self.uv[v]

@@ -74,6 +74,7 @@ from pydantic import Field, model_validator
 from bench.camera import dlt
 from bench.camera.calibrate_dataset import detect_dataset_corners, load_target_tolerance
 from bench.camera.calibration import calibrate_camera, jackknife_views, opencv_reference, per_view_pinhole
+from bench.camera.flatport import FlatPort, lens_port_projector
 from bench.camera.heikkila import OPENCV_NAMES, heikkila_covariance, opencv_to_heikkila
 from bench.camera.io import camera_yaml_text, thesis_blocks, write_camera_yaml
 from bench.camera.model import CameraModel, to_pixels
@@ -288,13 +289,6 @@ class TableRigScene:
         self.optics_camera.close()
 
 
-def project_true(camera: CameraModel, port, p_cam) -> np.ndarray:
-    """True pixels ``(..., 2)`` of camera-frame points (m): the lens alone, or the flat port then the lens."""
-    from bench.camera.flatport import lens_port_projector
-
-    return lens_port_projector(camera, port)(np.asarray(p_cam, dtype=float))
-
-
 def _pattern_outline(rig, samples: int = 12) -> np.ndarray:
     """Points ``(M, 3)`` (rig frame, m) along the outer edges of both printed patterns (what must stay in view)."""
     f = rig.features
@@ -360,7 +354,7 @@ def plan_views(cfg, medium, camera: CameraModel, port, table_model, rig, rng):
             run = table_model.run(cmd[None])
             T_table_cam = run.T_table_mount[0]
             p_cam = transform_points(invert(T_table_cam) @ T_tr, outline)
-            uv = project_true(camera, port, p_cam)
+            uv = lens_port_projector(camera, port)(p_cam)  # the true pixels: lens alone, or port then lens
             ok = np.all(np.isfinite(uv)) and camera.in_image(uv, border=margin).all()
             if ok:
                 break
@@ -662,13 +656,10 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
     tc = truth["camera"]
     true_cam = CameraModel(tc["width"], tc["height"], np.array(tc["K"]), np.array(tc["dist"]), name="true",
                            pixel_pitch=tc["pixel_pitch"])
-    port = None
-    if truth["port"] is not None:
-        from bench.camera.flatport import FlatPort
-
-        port = FlatPort(**{k: (np.array(v) if isinstance(v, list) else v) for k, v in truth["port"].items()})
+    port = None if truth["port"] is None else FlatPort(**{k: (np.array(v) if isinstance(v, list) else v)
+                                                          for k, v in truth["port"].items()})
     corners = np.array(truth["rig_corners"])
-    uv_true_all = {name: project_true(true_cam, port, transform_points(np.array(v["T_cam_rig"]), corners))
+    uv_true_all = {name: lens_port_projector(true_cam, port)(transform_points(np.array(v["T_cam_rig"]), corners))
                    for name, v in truth["views"].items()}
     err, uv_oracle, dup = [], [], 0
     for name, uv in zip(det.names, uvs, strict=True):

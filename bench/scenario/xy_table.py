@@ -74,7 +74,7 @@ from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
 from bench.sim.imaging import draw_true_lens, rig_errors, rig_target_yaml
-from bench.vision.features import Features
+from bench.vision.features import Features, detect_sift
 from bench.vision.insitu import MapConfig
 from bench.vision.triangulation import required_baseline
 from bench.vision.xy_table_positioning import (
@@ -83,7 +83,6 @@ from bench.vision.xy_table_positioning import (
     estimate_positions,
     load_table_spec,
     rig_corner_features,
-    sift_features,
     table_views,
 )
 
@@ -1032,7 +1031,7 @@ def run(cfg, out_dir, verbose=True):
         feats = true_projection_features(truth, names, s["true_projection_points"],
                                          np.random.default_rng((cfg["seed"], 7)), imaging(cfg), reference)
     elif p["features"] == "sift":
-        feats = {v.name: sift_features(v.image(expected_size=camera.size), "rgb") for v in views}
+        feats = {v.name: detect_sift(v.image(expected_size=camera.size), channel_order="rgb") for v in views}
     else:
         geometry = load_target(ds.root / "target.yaml")
         feats, lost = {}, []

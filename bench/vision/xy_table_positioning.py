@@ -42,9 +42,9 @@ views of a pair) and per pair ``(a, b)`` with neither being the reference:
    the pair's displacement, ``R0``, the intrinsics and the distortion under their priors, the points
    (:func:`bench.vision.xy_table_bundle.pair_bundle`).
 
-Features: SIFT keypoints (:func:`sift_features`) or, for the calibration rig of section 5.4, the corners of the rig
-with their ids (:func:`corner_features`: each corner id becomes a one-hot descriptor, so the same matching code pairs
-corners by id - the thesis's "72 correct matches").
+Features: SIFT keypoints with the thesis's thresholds (:func:`~bench.vision.features.detect_sift`) or, for the
+calibration rig of section 5.4, the corners of the rig with their ids (:func:`corner_features`: each corner id becomes
+a one-hot descriptor, so the same matching code pairs corners by id - the thesis's "72 correct matches").
 
 The module is pipeline code: it reads the public part of a dataset only (:func:`position_dataset`).
 """
@@ -175,13 +175,6 @@ def stage_camera(R0, camera_offset_m) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------------ features
-
-
-def sift_features(image, channel_order: str | None = None) -> Features:
-    """SIFT keypoints with the thesis's thresholds (section 3.4; :func:`bench.vision.features.detect_sift`).
-
-    ``channel_order`` (``"rgb"`` / ``"bgr"``) is required for a colour image, as in :func:`detect_sift`."""
-    return detect_sift(image, channel_order=channel_order)
 
 
 def corner_features(uv, ids, n_ids: int) -> Features:
@@ -659,7 +652,7 @@ def position_dataset(root, config: PositioningConfig, camera=None, features: str
     for v in views:
         img = v.image(expected_size=cam.size)
         if features == "sift":
-            feats[v.name] = sift_features(img, "rgb")  # View.image: RGB (or grey)
+            feats[v.name] = detect_sift(img, channel_order="rgb")  # View.image: RGB (or grey)
         elif features == "corners":
             if geometry is None:
                 raise ValueError("features='corners' needs the target geometry")
