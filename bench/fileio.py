@@ -279,6 +279,16 @@ def foreign_entries(path) -> list:
     return sorted(p.name for p in path.iterdir() if not _ours(p.name, entries))
 
 
+def prepare_output_dir(path, command: str) -> Path:
+    """The output folder of ``command``, created; refused (:class:`OutputRefused`, one line) when it is a file, a
+    non-empty folder that bench did not write or another command's output (:func:`check_output_dir`). The CLI also
+    marks it as the command's output (:func:`writing_output_dir`)."""
+    path = Path(path)
+    check_output_dir(path, command)
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
 def check_replaceable(path, option: str = "--out") -> None:
     """Refuse to replace a marked output folder that holds something its command did not write."""
     foreign = foreign_entries(path)
