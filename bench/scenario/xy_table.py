@@ -33,7 +33,6 @@ listed in ``result.json`` (``metrics.truth_injected`` and the ``setup`` table).
 from __future__ import annotations
 
 import csv
-import hashlib
 import json
 import sys
 import time
@@ -73,6 +72,7 @@ from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, 
 from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
+from bench.sim.campaign import CachedCamera
 from bench.sim.imaging import draw_true_lens, rig_errors, rig_target_yaml
 from bench.vision.features import Features, detect_sift
 from bench.vision.insitu import MapConfig
@@ -289,11 +289,10 @@ def view_name(number: int) -> str:
 # ------------------------------------------------------------------------------------------------ rendering
 
 
-class OpticsCamera:
-    """A MuJoCo camera rendered through the optics chain of a preset, cached on disk by content hash.
+class OpticsCamera(CachedCamera):
+    """A MuJoCo camera rendered through the optics chain of a preset, cached on disk by content hash
+    (:class:`~bench.sim.campaign.CachedCamera`, as :class:`~bench.sim.campaign.ArmScene` renders the arm's camera).
 
-    The same stages as :class:`bench.sim.campaign.ArmScene` (which renders the arm's link-5 camera): supersampled
-    pinhole render -> lens stage (in air) or lens + flat port -> medium and sensor chain -> 8-bit RGB.
     ``make_scene(spec)`` returns the ``MjSpec`` of a composed scene holding the MuJoCo camera ``name`` made by
     :func:`~bench.sim.camera.add_opencv_camera` for the render ``spec`` (its K and size); :meth:`render` takes a
     function that sets the state of ``MjData`` and a key that determines that state.
@@ -301,88 +300,13 @@ class OpticsCamera:
 
     def __init__(self, make_scene, lens: CameraModel, optics, supersample: int, cache_dir=None, name="cam",
                  z_min: float = 0.3, imaging=None):
-        import mujoco
-
-        from bench.sim.distortion import DistortionStage
-        from bench.sim.flatport import FlatPortStage
-        from bench.sim.imaging import ImagingChain
-        from bench.sim.medium import cos_beam
-        from bench.sim.scenes.base import scene_key
-
+        super().__init__(lens, supersample, optics.port, z_min)
         self.lens, self.optics, self.name = lens, optics, name
-        if optics.port is None:
-            self.stage = DistortionStage(lens, supersample)
-            self.spec = self.stage.render_spec()
-        else:
-            self.stage = FlatPortStage(lens.K, lens.size, optics.port, supersample, lens=lens)
-            self.spec = self.stage.render_spec(z_min)
-        u, v = np.meshgrid(np.arange(lens.width, dtype=float), np.arange(lens.height, dtype=float))
-        self._rays = lens.unproject(np.stack([u, v], -1), normalize=False)
-        self._cos = cos_beam(self._rays)
-        scene = make_scene(self.spec)
-        self.model = scene.compile()
-        self.data = mujoco.MjData(self.model)
-        from bench.sim.campaign import IMAGE_CHAIN_VERSION
-
-        h = scene_key(self.model, hashlib.sha256(f"image chain {IMAGE_CHAIN_VERSION}".encode()))  # a new chain: afresh
-        h.update(np.ascontiguousarray(lens.K).tobytes())
-        h.update(np.ascontiguousarray(lens.dist).tobytes())
-        h.update(repr((lens.width, lens.height, supersample, optics.chain, optics.port)).encode())
-        # imaging: an ImagingProfile (bench.sim.imaging); None or "ideal" is the ideal chain (its cache keys unchanged)
-        self.imaging = None if imaging is None or not imaging.stages else ImagingChain(imaging, lens.K, lens.size)
-        if self.imaging is not None:
-            h.update(imaging.key().encode())
-        self._key = h.hexdigest()
-        self.cache_dir = Path(cache_dir) if cache_dir else None
-        self._renderer = None
-        self.render_s: list = []
+        self._start_cache(make_scene(self.spec).compile(), optics.chain, imaging, cache_dir)
 
     def render(self, set_state, state_key, seed: int) -> np.ndarray:
         """RGB uint8 (camera size) with the state set by ``set_state(model, data)``; cached by ``state_key``."""
-        import cv2
-        import mujoco
-
-        from bench.sim.imaging import apparent_depth_m, finish_image
-        from bench.sim.medium import path_length_m
-        from bench.sim.render import SceneRenderer
-
-        h = hashlib.sha256(self._key.encode())
-        h.update(np.round(np.asarray(state_key, float), 12).tobytes())
-        h.update(str(seed).encode())
-        key = h.hexdigest()[:32]
-        path = self.cache_dir / f"{key}.png" if self.cache_dir is not None else None
-        if path is not None and path.is_file():
-            img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-            if img is not None:
-                return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-        t0 = time.perf_counter()
-        if self._renderer is None:
-            self._renderer = SceneRenderer(self.model, self.name, self.spec.width, self.spec.height)
-        set_state(self.model, self.data)
-        mujoco.mj_forward(self.model, self.data)
-        rgb, depth = self._renderer.render(self.data)
-        if self.optics.port is None:
-            img, z = self.stage.apply(rgb, self.spec.K, depth)
-            water = path_length_m(z, self._rays)
-        else:
-            out = self.stage.apply(rgb, depth, self.spec.K)
-            img, water, z = out.image, out.water_path, out.depth
-        chain = self.optics.chain
-        focus = None if self.imaging is None else apparent_depth_m(self.optics.port, z, water)
-        img = finish_image(self.imaging, img, water, focus, np.random.default_rng(seed), chain,
-                           self._cos if chain.light is not None else None)
-        self.render_s.append(time.perf_counter() - t0)
-        if path is not None:
-            self.cache_dir.mkdir(parents=True, exist_ok=True)
-            tmp = self.cache_dir / f".{key}.{time.time_ns()}.png"
-            cv2.imwrite(str(tmp), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-            tmp.replace(path)
-        return img
-
-    def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        return self._render(self.name, set_state, state_key, seed)
 
 
 def _optics(cfg):
