@@ -139,6 +139,17 @@ def atomic_save_figure(fig, path, **kwargs) -> Path:
     return path
 
 
+def headless_pyplot():
+    """``matplotlib.pyplot`` on the non-interactive Agg backend (the bench only writes figures to files), imported
+    when a plot is made."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 
 
 def fix_mkdtemp_mode(path) -> Path:

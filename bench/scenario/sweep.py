@@ -37,7 +37,7 @@ import numpy as np
 import yaml
 
 from bench.errors import BenchError, ConfigError
-from bench.fileio import atomic_save_figure
+from bench.fileio import atomic_save_figure, headless_pyplot
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS runs (
@@ -513,10 +513,7 @@ def _is_number(v):
 
 
 def _plot(table, keys, metrics, out):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = headless_pyplot()
 
     x = np.array(table[keys[0]], dtype=float)
     others = list(zip(*(table[k] for k in keys[1:]), strict=True)) if len(keys) > 1 else [()] * len(x)

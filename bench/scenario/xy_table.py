@@ -67,7 +67,7 @@ from bench.config import (
 )
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
-from bench.fileio import atomic_save_figure
+from bench.fileio import atomic_save_figure, headless_pyplot
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
 from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
@@ -735,10 +735,7 @@ def format_tables(summary: dict, poses: str) -> str:
 def plot_tables(summary: dict, poses: str, path) -> str:
     """Error vs intraocular distance, one panel per method (Figures 49-52 / 55-58), the thesis's values dashed; with the
     bundle a fifth panel and the efficiency (limit / error) of LMS + error ratio and the bundle."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = headless_pyplot()
 
     _, numbers, figs = THESIS_TABLES[poses]
     has_bundle = "bundle" in summary["method"]
