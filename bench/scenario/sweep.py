@@ -483,8 +483,11 @@ def summarise(rows: list, keys: list, out: Path, scenario: str = "") -> dict:
     write_table_csv(out / "summary.csv", table)
     plots, recording = [], None
     if keys and metrics and all(_is_number(v) for v in table[keys[0]]):
+        from bench.scenario.sweep_recording import record_sweep
+
         plots = _plot(table, keys, metrics, out)
-        recording = _record(table, keys, metrics, out, scenario)
+        # sweep.rrd: the median of every metric (and its bound) over the first swept key, with a blueprint
+        recording = str(record_sweep(out / "sweep.rrd", table, keys, metrics, _bound_pairs(metrics), scenario))
     return {"store": str(out / "sweep.sqlite"), "summary": str(out / "summary.csv"), "plots": plots,
             "recording": recording, "rows": len(rows), "table": table}
 
@@ -494,14 +497,6 @@ def _bound_pairs(metrics) -> list:
     names = set(metrics)
     return [(m, m.replace("_err_", "_bound_", 1)) for m in metrics if "_err_" in m
             and m.replace("_err_", "_bound_", 1) in names]
-
-
-def _record(table, keys, metrics, out, scenario: str = "") -> str:
-    """``sweep.rrd``: the median of every metric (and its bound) over the first swept key, in rerun, with a blueprint
-    (:mod:`bench.scenario.sweep_recording`)."""
-    from bench.scenario.sweep_recording import record_sweep
-
-    return str(record_sweep(out / "sweep.rrd", table, keys, metrics, _bound_pairs(metrics), scenario))
 
 
 def _sort_key(v):
