@@ -87,6 +87,7 @@ from bench.errors import ConfigError
 from bench.fileio import atomic_write_text
 from bench.geometry.transforms import homogeneous, invert, rot_z, transform_points
 from bench.scenario.results import write_result, write_table_csv
+from bench.sim.campaign import CachedCamera
 from bench.sim.imaging import draw_true_lens, rig_errors, rig_target_yaml
 
 MAGNITUDE_PCT = Annotated[float, Field(ge=0, le=50)]
@@ -210,15 +211,14 @@ def _optics(cfg, medium):
 # ------------------------------------------------------------------------------------------------ simulation
 
 
-class TableRigScene:
+class TableRigScene(CachedCamera):
     """The camera on the x-y table photographing the two-plane rig, through the optics of a preset.
 
     One MuJoCo model: the table of :func:`bench.sim.scenes.xy_table.xy_table` with the camera in its mount body and
-    the rig as a mocap body (its pose set per view). The views are rendered by
-    :class:`bench.scenario.xy_table.OpticsCamera` (the x-y table scenario's camera: supersampled pinhole render ->
-    lens stage or lens + flat port -> medium and sensor, the chain of :class:`bench.sim.campaign.ArmScene`), cached
-    on disk by a content hash of the model, the optics, the table joints, the rig pose and the noise seed, so a sweep
-    never renders a view twice.
+    the rig as a mocap body (its pose set per view). The views are rendered through the optics chain of
+    :class:`bench.sim.campaign.CachedCamera` (supersampled pinhole render -> lens stage or lens + flat port -> medium
+    and sensor, as the x-y table scenario's camera and the arm's), cached on disk by a content hash of the model, the
+    optics, the table joints, the rig pose and the noise seed, so a sweep never renders a view twice.
 
     Parameters
     ----------
@@ -239,23 +239,19 @@ class TableRigScene:
 
     def __init__(self, camera: CameraModel, optics, table_model, rig, supersample: int, cache_dir=None,
                  z_min: float = 0.3, imaging=None):
-        from bench.scenario.xy_table import OpticsCamera
         from bench.sim.camera import add_opencv_camera
         from bench.sim.scenes.base import compose, place
         from bench.sim.scenes.xy_table import xy_table
 
-        def make_scene(spec):
-            table = xy_table(table_model, lambda body: add_opencv_camera(body, self.CAMERA, spec.K, spec.width,
-                                                                         spec.height, np.eye(4)))
-            self.T_world_table = table.features["T_world_table"]
-            rig_body = place(rig, np.eye(4), f"{rig.name}_mocap", mocap=True)
-            return compose([table, rig_body], offscreen=(spec.width, spec.height), center=self.T_world_table[:3, 3],
-                           extent=3.0)
-
-        self.optics_camera = OpticsCamera(make_scene, camera, optics, supersample, cache_dir, self.CAMERA, z_min,
-                                          imaging)
-        self.model, self.data = self.optics_camera.model, self.optics_camera.data
-        self.render_s = self.optics_camera.render_s
+        super().__init__(camera, supersample, optics.port, z_min)
+        spec = self.spec
+        table = xy_table(table_model, lambda body: add_opencv_camera(body, self.CAMERA, spec.K, spec.width,
+                                                                     spec.height, np.eye(4)))
+        self.T_world_table = table.features["T_world_table"]
+        rig_body = place(rig, np.eye(4), f"{rig.name}_mocap", mocap=True)
+        self._start_cache(compose([table, rig_body], offscreen=(spec.width, spec.height),
+                                  center=self.T_world_table[:3, 3], extent=3.0).compile(), optics.chain, imaging,
+                          cache_dir)
         self._mocap = self.model.body_mocapid[self.model.body(f"{rig.name}_mocap").id]
         self._qadr = {n: self.model.jnt_qposadr[self.model.joint(n).id] for n in table_model.joint_names}
 
@@ -283,10 +279,7 @@ class TableRigScene:
         """``(image uint8 (H, W, 3), T_world_cam (4, 4))`` of one view (from the cache when rendered before)."""
         T_world_cam = self.pose(qpos, T_world_rig)
         key = np.concatenate([[qpos[n] for n in sorted(qpos)], np.ravel(T_world_rig)])
-        return self.optics_camera.render(self._set_state(qpos, T_world_rig), key, seed), T_world_cam
-
-    def close(self):
-        self.optics_camera.close()
+        return self._render(self.CAMERA, self._set_state(qpos, T_world_rig), key, seed), T_world_cam
 
 
 def _pattern_outline(rig, samples: int = 12) -> np.ndarray:
