@@ -17,7 +17,6 @@ import difflib
 import math
 import types
 import typing
-from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
@@ -401,13 +400,9 @@ def apply_overrides(data: dict, overrides, source: str) -> dict:
 
 def load_yaml(path) -> dict:
     """Parse a YAML mapping; one-line :class:`ConfigError` if missing, unreadable or not a mapping."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(path, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    from bench.fileio import read_yaml
+
+    data = read_yaml(path)
     if not isinstance(data, dict):
         raise ConfigError(path, "<file>", "expected a mapping at the top level")
     return data

@@ -46,6 +46,7 @@ from bench.fileio import (
     fix_mkdtemp_mode,
     mark_output_dir,
     output_marker,
+    read_yaml,
     record_output_entries,
 )
 
@@ -391,13 +392,7 @@ def load_dataset(root) -> Dataset:
     mpath = root / "manifest.yaml"
     if not root.is_dir():
         raise ConfigError(root, "<folder>", "dataset folder not found")
-    if not mpath.is_file():
-        raise ConfigError(mpath, "<file>", "not found: not a dataset folder")
-    try:
-        man = yaml.safe_load(mpath.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(mpath, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
-    man = parse(Manifest, man, mpath)
+    man = parse(Manifest, read_yaml(mpath, "not found: not a dataset folder"), mpath)
     kind = man["kind"]
 
     joints = _read_csv(root / "joints.csv", "view", JOINT_COLUMNS) if (root / "joints.csv").is_file() else {}

@@ -139,6 +139,17 @@ def atomic_save_figure(fig, path, **kwargs) -> Path:
     return path
 
 
+def headless_pyplot():
+    """``matplotlib.pyplot`` on the non-interactive Agg backend (the bench only writes figures to files), imported
+    when a plot is made."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 
 
 def fix_mkdtemp_mode(path) -> Path:
@@ -148,16 +159,17 @@ def fix_mkdtemp_mode(path) -> Path:
     return Path(path)
 
 
-def read_yaml(path):
+def read_yaml(path, missing: str = "not found"):
     """The parsed content of the YAML file ``path`` (any type: the caller checks its shape); one-line
-    :class:`bench.errors.ConfigError` naming the file when it is missing, unreadable text or not valid YAML."""
+    :class:`bench.errors.ConfigError` naming the file when it is missing (the problem ``missing``), unreadable text or
+    not valid YAML."""
     import yaml
 
     from bench.errors import ConfigError
 
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(path, "<file>", "not found")
+        raise ConfigError(path, "<file>", missing)
     try:
         return yaml.safe_load(path.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
@@ -276,6 +288,16 @@ def foreign_entries(path) -> list:
     if not isinstance(entries, list):
         return []
     return sorted(p.name for p in path.iterdir() if not _ours(p.name, entries))
+
+
+def prepare_output_dir(path, command: str) -> Path:
+    """The output folder of ``command``, created; refused (:class:`OutputRefused`, one line) when it is a file, a
+    non-empty folder that bench did not write or another command's output (:func:`check_output_dir`). The CLI also
+    marks it as the command's output (:func:`writing_output_dir`)."""
+    path = Path(path)
+    check_output_dir(path, command)
+    path.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 def check_replaceable(path, option: str = "--out") -> None:

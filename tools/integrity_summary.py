@@ -208,13 +208,9 @@ def report(runs, figure: Path | None, locate: str = "locate.json") -> str:
 
 
 def plot(runs, path: Path) -> None:
-    import matplotlib
+    from bench.fileio import atomic_save_figure, headless_pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from bench.fileio import atomic_save_figure
-
+    plt = headless_pyplot()
     fig, ax = plt.subplots(figsize=(6.0, 5.0))
     colours = {"ok": "tab:green", "warning": "tab:orange", "refused": "tab:red"}
     top = 1.0

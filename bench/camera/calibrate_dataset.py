@@ -53,7 +53,7 @@ from bench.camera.target_tolerance import calibration_with_tolerance, parse_tole
 from bench.config import NonNegFloat, PositiveFloat, Section, at_least, parse
 from bench.dataset import View, load_dataset
 from bench.errors import ConfigError
-from bench.fileio import atomic_write_text, write_table_csv
+from bench.fileio import atomic_write_text, prepare_output_dir, read_yaml, write_table_csv
 from bench.geometry.transforms import homogeneous, rot_z
 
 
@@ -125,13 +125,7 @@ def load_target_tolerance(path):
 def load_target(path):
     """The calibration target geometry from ``target.yaml`` (see the module docstring), SI inside."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "not found (the dataset must describe its calibration target)")
-    try:
-        t = yaml.safe_load(path.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(path, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
-    return parse_target(t, path)
+    return parse_target(read_yaml(path, "not found (the dataset must describe its calibration target)"), path)
 
 
 def target_spec(target: str, inner: str | None = None, square_mm: float | None = None, squares: int | None = None,
@@ -319,18 +313,6 @@ def detect_dataset_corners(root, extractor: str = "thesis", camera=None, target:
     return DatasetCorners(names, Xs, uvs, size, skipped, geometry, time.perf_counter() - t0)
 
 
-def prepare_out_dir(out) -> Path:
-    """The output folder, created; refused (:class:`bench.fileio.OutputRefused`, one line) when it is a file, a
-    non-empty folder that bench did not write or another command's output (:func:`bench.fileio.check_output_dir`).
-    The CLI also marks it as this command's output (:func:`bench.fileio.writing_output_dir`)."""
-    from bench.fileio import check_output_dir
-
-    out = Path(out)
-    check_output_dir(out, "calibrate-camera")
-    out.mkdir(parents=True, exist_ok=True)
-    return out
-
-
 def calibrate_mount(robot_file, views, T_cam_target, geometry) -> dict:
     """The camera mount on link 5 by ``AX = XB`` from the used views' joint readings (module docstring).
 
@@ -379,7 +361,7 @@ def calibrate_dataset(root, out, model: str = "heikkila", extractor: str = "thes
     if robot is not None and not (Path(root) / "manifest.yaml").is_file():
         raise ConfigError(root, "--robot", "the mount needs the joint readings of a dataset (bench dataset init), "
                                            "not a plain folder of photos")
-    out = prepare_out_dir(out)
+    out = prepare_output_dir(out, "calibrate-camera")
     views, _, ds = _views_and_target(root, target)
     det = detect_dataset_corners(root, extractor, target=target)
     Xs, uvs, names, skipped, size = det.object_points, det.image_points, det.names, det.skipped, det.image_size

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench.camera import dlt
+from bench.camera.model import distort
 from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, invert, skew, transform_points
 
@@ -64,13 +65,6 @@ def _full_dist(model, d):
 # ----------------------------------------------------------------------------------------------------------------------
 # projection with analytic derivatives
 # ----------------------------------------------------------------------------------------------------------------------
-def _distort_values(x_n, dist5):
-    """Distorted normalised coordinates through the shared camera model (``bench.camera.model``)."""
-    from bench.camera.model import distort  # the one distortion implementation of the bench
-
-    return distort(x_n, dist5)
-
-
 def _distortion_jacobians(x, y, dist5):
     """Partial derivatives of the OpenCV/Heikkilä distortion (Eq. 75-76) at normalised ``x, y (N,)``.
 
@@ -142,7 +136,7 @@ class _Problem:
             Xc = RX + s.t[v]
             z = Xc[:, 2]
             x, y = Xc[:, 0] / z, Xc[:, 1] / z  # Eq. 46
-            xd = _distort_values(np.column_stack([x, y]), dist5)  # Eq. 75-76
+            xd = distort(np.column_stack([x, y]), dist5)  # Eq. 75-76 (the one distortion implementation)
             u = s.fx * xd[:, 0] + s.skew * xd[:, 1] + s.cx  # Eq. 50
             w = s.fy * xd[:, 1] + s.cy
             r[sl] = np.column_stack([u, w]) - self.uv[v]
@@ -468,11 +462,6 @@ class CalibrationResult:
         return dict(zip(self.parameter_names, self.std.tolist(), strict=True))
 
     @property
-    def dist_opencv(self) -> np.ndarray:
-        """Distortion coefficients as OpenCV expects them: 4 when ``k3 = 0``, else 5."""
-        return self.dist if self.dist[4] != 0.0 else self.dist[:4].copy()
-
-    @property
     def camera(self):
         """The calibrated :class:`bench.camera.model.CameraModel` (None when the calibration failed)."""
         from bench.camera.model import CameraModel
@@ -765,22 +754,3 @@ def opencv_reference(object_points, image_points, image_size, model: str = "heik
     result.per_view_rms_px = np.array([np.sqrt(np.mean(np.sum(r**2, axis=1))) for r in residuals])
     result.cost = 0.5 * float(np.sum(allr**2))
     return result
-
-
-def random_camera(rng: np.random.Generator, image_size=(640, 480), model: str = "heikkila", k3: bool = False,
-                  fit_skew: bool = False):
-    """A plausible random camera for tests: ``(K (3, 3), dist (5,))`` (px; OpenCV order)."""
-    w, h = image_size
-    f = rng.uniform(0.9, 1.3) * w
-    K = np.array([[f, 0.0, w / 2 + rng.normal(0, 5)], [0.0, f * rng.uniform(0.98, 1.02), h / 2 + rng.normal(0, 5)],
-                  [0.0, 0.0, 1.0]])
-    if fit_skew:
-        K[0, 1] = rng.normal(0, 1.0)
-    dist = np.zeros(5)
-    if model != "pinhole":
-        dist[:2] = [rng.uniform(-0.3, 0.1), rng.uniform(-0.1, 0.2)]
-        if k3:
-            dist[4] = rng.uniform(-0.05, 0.05)
-    if model == "heikkila":
-        dist[2:4] = rng.normal(0, 1e-3, 2)
-    return K, dist

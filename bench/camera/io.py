@@ -40,7 +40,7 @@ from bench.camera.model import CameraModel
 from bench.camera.presets import Eq50, Heikkila75
 from bench.config import KeyProblem, PositiveFloat, Section, at_least, at_most, parse
 from bench.errors import ConfigError
-from bench.fileio import atomic_write_text
+from bench.fileio import atomic_write_text, read_yaml
 
 #: keys that OpenCV's calibration sample writes beside the camera; accepted and ignored
 _OPENCV_SAMPLE_KEYS = {"distortion_coefficients", "calibration_time", "nr_of_frames", "nrOfFrames", "board_width",
@@ -348,19 +348,11 @@ def read_housing_yaml(path):
     """``(port, d0_sigma_m)``: the nominal :class:`~bench.camera.flatport.FlatPort` of a ``housing.yaml`` (no tilt)
     and the standard deviation of its lens-to-glass distance (m), the stated tolerance taken as uniform (``tol /
     sqrt(3)``); a missing file, key or a bad value is a one-line error naming the file and the key."""
-    import yaml
-
     from bench.camera.flatport import FlatPort
 
-    path = Path(path)
     src = str(path)
-    if not path.is_file():
-        raise ConfigError(src, "<file>", "missing: a refractive camera model needs the housing's datasheet "
-                                         f"({', '.join(HousingFile.model_fields)})")
-    try:
-        spec = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(src, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    spec = read_yaml(path, "missing: a refractive camera model needs the housing's datasheet "
+                           f"({', '.join(HousingFile.model_fields)})")
     v = parse(HousingFile, spec, src)
     port = FlatPort(d0=v["lens_to_glass_mm"] * 1e-3, t=v["glass_thickness_mm"] * 1e-3, n_air=v["n_air"],
                     n_glass=v["n_glass"], n_water=v["n_water"], source=src)

@@ -24,8 +24,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-#: names of the OpenCV distortion coefficients handled here, in order
-DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
 #: distortion model names: no distortion, radial only (Eq. 67-68), radial + tangential (Eq. 75-76)
 MODELS = ("pinhole", "radial", "heikkila")
 #: convergence tolerance of :func:`undistort` on the distortion residual (normalised units)

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.errors import BenchError, ConfigError
-from bench.fileio import atomic_write_text
+from bench.fileio import atomic_write_text, prepare_output_dir
 from bench.robot.calibration_file import write_calibrated_robot
 from bench.robot.identifiability import closed_form_reduction
 from bench.robot.identification import identify_iterative
@@ -46,18 +46,6 @@ class DatasetCalibration:
     n_parameters: int
     robot_path: Path
     report_path: Path
-
-
-def prepare_out_dir(out, command: str = "calibrate-robot") -> Path:
-    """The output folder, created; refused (:class:`bench.fileio.OutputRefused`, one line) when it is a file, a
-    non-empty folder that bench did not write or another command's output (:func:`bench.fileio.check_output_dir`).
-    The CLI also marks it as this command's output (:func:`bench.fileio.writing_output_dir`)."""
-    from bench.fileio import check_output_dir
-
-    out = Path(out)
-    check_output_dir(out, command)
-    out.mkdir(parents=True, exist_ok=True)
-    return out
 
 
 def check_plausible(robot, eps, err_nominal, source) -> None:
@@ -154,7 +142,7 @@ def calibrate_robot_dataset(dataset, out, robot_file=None, sigma_mm: float = 0.0
         raise ConfigError(nominal, "joints", f"{robot.n} joints, tracker.csv has readings of {q.shape[1]}")
     if tracker_frame not in ("base", "estimate"):
         raise BenchError(f"--tracker-frame: expected base or estimate, got {tracker_frame!r}")
-    out = prepare_out_dir(out)
+    out = prepare_output_dir(out, "calibrate-robot")
     if tracker_frame == "estimate":
         return _write_estimated(ds, robot, nominal, q, p, sigma_mm, out, t0, verbose)
     red = closed_form_reduction(robot)

@@ -15,8 +15,6 @@ from pathlib import Path
 
 from bench.errors import BenchError
 
-COMMANDS = ("calibrate-robot", "check-robot")
-
 
 def add_parsers(sub) -> None:
     """Register ``calibrate-robot`` and ``check-robot`` on the ``bench`` sub-parser collection ``sub``."""
@@ -66,7 +64,7 @@ def add_parsers(sub) -> None:
 
 
 def _calibrate_urdf(args) -> int:
-    from bench.robot.calibrate_dataset import prepare_out_dir
+    from bench.fileio import prepare_output_dir
     from bench.robot.marker_calibration import identify, parse_points, read_measurements, write_calibration
     from bench.robot.urdf import load_urdf_chain
 
@@ -79,7 +77,7 @@ def _calibrate_urdf(args) -> int:
     markers = parse_points(args.points)
     chain = load_urdf_chain(args.urdf, args.base_link, args.tip_link)
     meas = read_measurements(args.measurements, chain, markers, args.units, args.joint_units)
-    out = prepare_out_dir(args.out)
+    out = prepare_output_dir(args.out, "calibrate-robot")
     cal = identify(chain, meas, args.model, args.weights, None if args.sigma_mm is None else args.sigma_mm * 1e-3,
                    args.refuse_outliers, compliance=args.compliance == "auto" and chain.body_mass is not None)
     robot_path, report_path = write_calibration(out, cal, args.urdf, args.units, args.joint_units,
@@ -100,12 +98,11 @@ def _calibrate_urdf(args) -> int:
 
 
 def _check(args) -> int:
-    from bench.fileio import atomic_write_text
-    from bench.robot.calibrate_dataset import prepare_out_dir
+    from bench.fileio import atomic_write_text, prepare_output_dir
     from bench.robot.marker_calibration import check
 
     rep = check(args.robot, args.measurements, args.points, args.units, args.joint_units)
-    out = prepare_out_dir(args.out, "check-robot")
+    out = prepare_output_dir(args.out, "check-robot")
     atomic_write_text(Path(out) / "check.json", json.dumps(rep, indent=2) + "\n")
     print(f"{rep['n_postures']} postures, {rep['n_markers']} marker(s): RMS {rep['rms_mm']:.4g} mm, max "
           f"{rep['max_mm']:.4g} mm; wrote {Path(out) / 'check.json'}")

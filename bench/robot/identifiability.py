@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from bench.robot.jacobian import stacked_jacobian
+from bench.robot.jacobian import identification_jacobian
 from bench.robot.model import PARAM_KINDS, Robot, error_names
 
 _IDX = {k: j for j, k in enumerate(PARAM_KINDS)}
@@ -215,7 +215,8 @@ def numeric_identifiability(
     if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
         raise ValueError(f"n_poses: expected a positive integer, got {n_poses!r}")
     q = robot.random_configurations(rng, n_poses)
-    J = stacked_jacobian(robot, q, rows=rows)
+    J = identification_jacobian(robot, q, rows=rows)
+    J = J.reshape(-1, J.shape[-1])  # J_t of Eq. 13: the per-pose Jacobians stacked, (n_poses * rows, p)
     reach = max(float(np.sum(np.abs(robot.a)) + np.sum(np.abs(robot.d))), 1e-3)
     scale = np.tile([1.0, 1.0, 1.0, reach, reach, reach], robot.n + 1)
     Js = J / scale

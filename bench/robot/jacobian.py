@@ -118,13 +118,3 @@ def identification_jacobian(robot: Robot, q, eps=None, form="exact", rows="posit
     if return_points:
         return J, (T[..., :3, :3] @ robot.p_ee) + T[..., :3, 3]
     return J
-
-
-def stacked_jacobian(robot: Robot, q, eps=None, form="exact", rows="position", columns=None):
-    """Total identification matrix ``J_t`` of Eq. 13: the per-pose Jacobians of ``q (m, n)`` stacked, (m*rows, p).
-
-    ``columns`` (indices into the error vector) selects a reduced set (the thesis's ``G_e``).
-    """
-    J = identification_jacobian(robot, q, eps, form, rows)
-    J = J.reshape(-1, J.shape[-1])
-    return J if columns is None else J[:, columns]

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.errors import ConfigError
-from bench.fileio import atomic_save_figure
+from bench.fileio import atomic_save_figure, headless_pyplot
 from bench.scenario.results import write_result, write_table_csv
 
 
@@ -174,10 +174,7 @@ def _rows(store_path) -> list:
 
 
 def _plot(budget_table, metrics, table, path, title) -> str:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = headless_pyplot()
 
     fig, axes = plt.subplots(1, len(metrics), figsize=(4.2 * len(metrics), 3.6), squeeze=False)
     for ax, m in zip(axes[0], metrics, strict=True):

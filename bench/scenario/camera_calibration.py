@@ -74,6 +74,7 @@ from pydantic import Field, model_validator
 from bench.camera import dlt
 from bench.camera.calibrate_dataset import detect_dataset_corners, load_target_tolerance
 from bench.camera.calibration import calibrate_camera, jackknife_views, opencv_reference, per_view_pinhole
+from bench.camera.flatport import FlatPort, lens_port_projector
 from bench.camera.heikkila import OPENCV_NAMES, heikkila_covariance, opencv_to_heikkila
 from bench.camera.io import camera_yaml_text, thesis_blocks, write_camera_yaml
 from bench.camera.model import CameraModel, to_pixels
@@ -86,6 +87,8 @@ from bench.errors import ConfigError
 from bench.fileio import atomic_write_text
 from bench.geometry.transforms import homogeneous, invert, rot_z, transform_points
 from bench.scenario.results import write_result, write_table_csv
+from bench.sim.campaign import CachedCamera
+from bench.sim.imaging import draw_true_lens, rig_errors, rig_target_yaml
 
 MAGNITUDE_PCT = Annotated[float, Field(ge=0, le=50)]
 MEDIA = {"air": ("air",), "water": ("water",), "both": ("air", "water")}
@@ -160,7 +163,6 @@ OPTICS = {("air_webcam", "air"): "air_webcam", ("underwater", "air"): "underwate
           ("underwater", "water"): "underwater_in_water"}
 TABLE3_CSV = Path(__file__).resolve().parents[2] / "scenarios" / "data" / "table3_thesis.csv"
 TABLE3_COLUMNS = ("picture", "theta_deg", "alpha_px", "beta_px", "u0_px", "v0_px", "chi_px")
-TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
 #: the Heikkilä parameters in the thesis's units (Tables 9 and 15) and the factor from SI
 HEIKKILA_ROWS = (("s_u", "s_u", 1.0), ("f_px", "f", None), ("u0_px", "u0", 1.0), ("v0_px", "v0", 1.0),
                  ("k1_per_mm2", "k1", 1e-6), ("k2_per_mm4", "k2", 1e-12), ("T1_per_mm", "p1", 1e-3),
@@ -179,16 +181,6 @@ def imaging(cfg):
     from bench.sim.imaging import profile_from_config
 
     return profile_from_config(cfg["camera"], cfg["_file"], "camera.imaging")
-
-
-def _target_errors(cfg, profile, squares):
-    """The printed rig's geometry errors: one physical rig per seed, from a generator of its own (the other draws
-    do not change when the target's stages are switched off)."""
-    from bench.sim.imaging import target_geometry
-
-    if not profile.stages:
-        return None
-    return target_geometry(profile, squares, np.random.default_rng(np.random.SeedSequence([cfg["seed"], 0x7A12])))
 
 
 def validate(cfg) -> None:
@@ -216,32 +208,17 @@ def _optics(cfg, medium):
     return optics_preset(name, overrides=None if cfg["camera"]["housing"] else {"port": None})
 
 
-def _true_lens(cfg, lens: CameraModel, rng) -> CameraModel:
-    """The true camera: the nominal lens with focal lengths, principal point and distortion perturbed (uniform)."""
-    t = cfg["truth"]
-    K = lens.K.copy()
-    K[0, 0] *= 1 + rng.uniform(-1, 1) * t["focal_error_pct"] / 100
-    K[1, 1] *= 1 + rng.uniform(-1, 1) * t["focal_error_pct"] / 100
-    K[:2, 2] += rng.uniform(-1, 1, 2) * t["principal_error_px"]
-    dist = lens.dist * (1 + rng.uniform(-1, 1, 5) * t["distortion_error_pct"] / 100)
-    from bench.sim.imaging import lens_distortion
-
-    dist = lens_distortion(imaging(cfg), dist)  # realistic imaging: the real webcam's measured distortion on top
-    return lens.replace(K=K, dist=dist, model=None, name=f"{lens.name} (true)")
-
-
 # ------------------------------------------------------------------------------------------------ simulation
 
 
-class TableRigScene:
+class TableRigScene(CachedCamera):
     """The camera on the x-y table photographing the two-plane rig, through the optics of a preset.
 
     One MuJoCo model: the table of :func:`bench.sim.scenes.xy_table.xy_table` with the camera in its mount body and
-    the rig as a mocap body (its pose set per view). The views are rendered by
-    :class:`bench.scenario.xy_table.OpticsCamera` (the x-y table scenario's camera: supersampled pinhole render ->
-    lens stage or lens + flat port -> medium and sensor, the chain of :class:`bench.sim.campaign.ArmScene`), cached
-    on disk by a content hash of the model, the optics, the table joints, the rig pose and the noise seed, so a sweep
-    never renders a view twice.
+    the rig as a mocap body (its pose set per view). The views are rendered through the optics chain of
+    :class:`bench.sim.campaign.CachedCamera` (supersampled pinhole render -> lens stage or lens + flat port -> medium
+    and sensor, as the x-y table scenario's camera and the arm's), cached on disk by a content hash of the model, the
+    optics, the table joints, the rig pose and the noise seed, so a sweep never renders a view twice.
 
     Parameters
     ----------
@@ -262,23 +239,19 @@ class TableRigScene:
 
     def __init__(self, camera: CameraModel, optics, table_model, rig, supersample: int, cache_dir=None,
                  z_min: float = 0.3, imaging=None):
-        from bench.scenario.xy_table import OpticsCamera
         from bench.sim.camera import add_opencv_camera
         from bench.sim.scenes.base import compose, place
         from bench.sim.scenes.xy_table import xy_table
 
-        def make_scene(spec):
-            table = xy_table(table_model, lambda body: add_opencv_camera(body, self.CAMERA, spec.K, spec.width,
-                                                                         spec.height, np.eye(4)))
-            self.T_world_table = table.features["T_world_table"]
-            rig_body = place(rig, np.eye(4), f"{rig.name}_mocap", mocap=True)
-            return compose([table, rig_body], offscreen=(spec.width, spec.height), center=self.T_world_table[:3, 3],
-                           extent=3.0)
-
-        self.optics_camera = OpticsCamera(make_scene, camera, optics, supersample, cache_dir, self.CAMERA, z_min,
-                                          imaging)
-        self.model, self.data = self.optics_camera.model, self.optics_camera.data
-        self.render_s = self.optics_camera.render_s
+        super().__init__(camera, supersample, optics.port, z_min)
+        spec = self.spec
+        table = xy_table(table_model, lambda body: add_opencv_camera(body, self.CAMERA, spec.K, spec.width,
+                                                                     spec.height, np.eye(4)))
+        self.T_world_table = table.features["T_world_table"]
+        rig_body = place(rig, np.eye(4), f"{rig.name}_mocap", mocap=True)
+        self._start_cache(compose([table, rig_body], offscreen=(spec.width, spec.height),
+                                  center=self.T_world_table[:3, 3], extent=3.0).compile(), optics.chain, imaging,
+                          cache_dir)
         self._mocap = self.model.body_mocapid[self.model.body(f"{rig.name}_mocap").id]
         self._qadr = {n: self.model.jnt_qposadr[self.model.joint(n).id] for n in table_model.joint_names}
 
@@ -306,17 +279,7 @@ class TableRigScene:
         """``(image uint8 (H, W, 3), T_world_cam (4, 4))`` of one view (from the cache when rendered before)."""
         T_world_cam = self.pose(qpos, T_world_rig)
         key = np.concatenate([[qpos[n] for n in sorted(qpos)], np.ravel(T_world_rig)])
-        return self.optics_camera.render(self._set_state(qpos, T_world_rig), key, seed), T_world_cam
-
-    def close(self):
-        self.optics_camera.close()
-
-
-def project_true(camera: CameraModel, port, p_cam) -> np.ndarray:
-    """True pixels ``(..., 2)`` of camera-frame points (m): the lens alone, or the flat port then the lens."""
-    from bench.camera.flatport import lens_port_projector
-
-    return lens_port_projector(camera, port)(np.asarray(p_cam, dtype=float))
+        return self._render(self.CAMERA, self._set_state(qpos, T_world_rig), key, seed), T_world_cam
 
 
 def _pattern_outline(rig, samples: int = 12) -> np.ndarray:
@@ -384,7 +347,7 @@ def plan_views(cfg, medium, camera: CameraModel, port, table_model, rig, rng):
             run = table_model.run(cmd[None])
             T_table_cam = run.T_table_mount[0]
             p_cam = transform_points(invert(T_table_cam) @ T_tr, outline)
-            uv = project_true(camera, port, p_cam)
+            uv = lens_port_projector(camera, port)(p_cam)  # the true pixels: lens alone, or port then lens
             ok = np.all(np.isfinite(uv)) and camera.in_image(uv, border=margin).all()
             if ok:
                 break
@@ -409,7 +372,7 @@ def _render_medium(cfg, medium, true_lens, rng, out_dataset, cache_dir, verbose,
     errors = random_table_errors(rng) if cfg["truth"]["table_errors"] else None
     table_model = lab_table_model(errors)
     profile = imaging(cfg)
-    target = _target_errors(cfg, profile, 7)
+    target = rig_errors(profile, cfg["seed"])  # one physical rig per seed
     rig = calibration_rig(name="rig", errors=target)
     commands, rig_params, T_table_rig = plan_views(cfg, medium, true_lens, optics.port, table_model, rig, rng)
     run = table_model.run(commands)
@@ -462,11 +425,7 @@ def _render_medium(cfg, medium, true_lens, rng, out_dataset, cache_dir, verbose,
         for k in range(n):
             w.add_view(f"rig{k + 1:02d}", images[k], table=run.read[k], role="rig")
         w.write_text("camera.yaml", camera_yaml_text(nominal))
-        # the rig's print tolerances as its maker states them (the specification, not the draws), as in the lab
-        from bench.sim.imaging import stated_tolerance
-
-        tol = stated_tolerance(imaging(cfg))
-        w.write_text("target.yaml", TARGET_YAML + (yaml.safe_dump({"tolerance": tol}) if tol else ""))
+        w.write_text("target.yaml", rig_target_yaml(profile))  # the rig's stated print tolerances, as in the lab
         w.write_text("truth/truth.yaml", yaml.safe_dump(truth, sort_keys=False))
         w.write_text("truth/sim_checks.json", json.dumps(checks, indent=2) + "\n")
     if verbose:
@@ -491,13 +450,14 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     One medium: ``out_dataset`` is the dataset; ``camera.medium: both``: ``out_dataset/in_air`` and
     ``out_dataset/in_water`` (one physical camera: the same true lens).
     """
-    validate(cfg)
     rng = np.random.default_rng(cfg["seed"])
     first = _optics(cfg, media(cfg)[0])
-    true_lens = _true_lens(cfg, load_preset(first.lens_camera), rng)
+    t = cfg["truth"]  # the true camera: the nominal lens perturbed (uniform draws)
+    lens = draw_true_lens(load_preset(first.lens_camera), rng, imaging(cfg), t["focal_error_pct"],
+                          t["principal_error_px"], t["distortion_error_pct"])
     checks = {}
     for i, (medium, path) in enumerate(dataset_dirs(cfg, out_dataset).items()):
-        c = _render_medium(cfg, medium, true_lens, rng, path, cache_dir, verbose, 100 * i)
+        c = _render_medium(cfg, medium, lens, rng, path, cache_dir, verbose, 100 * i)
         checks.update(c if len(media(cfg)) == 1 else {f"{medium}_{k}": v for k, v in c.items()})
     return checks
 
@@ -689,13 +649,10 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
     tc = truth["camera"]
     true_cam = CameraModel(tc["width"], tc["height"], np.array(tc["K"]), np.array(tc["dist"]), name="true",
                            pixel_pitch=tc["pixel_pitch"])
-    port = None
-    if truth["port"] is not None:
-        from bench.camera.flatport import FlatPort
-
-        port = FlatPort(**{k: (np.array(v) if isinstance(v, list) else v) for k, v in truth["port"].items()})
+    port = None if truth["port"] is None else FlatPort(**{k: (np.array(v) if isinstance(v, list) else v)
+                                                          for k, v in truth["port"].items()})
     corners = np.array(truth["rig_corners"])
-    uv_true_all = {name: project_true(true_cam, port, transform_points(np.array(v["T_cam_rig"]), corners))
+    uv_true_all = {name: lens_port_projector(true_cam, port)(transform_points(np.array(v["T_cam_rig"]), corners))
                    for name, v in truth["views"].items()}
     err, uv_oracle, dup = [], [], 0
     for name, uv in zip(det.names, uvs, strict=True):
@@ -897,7 +854,6 @@ def print_parameters(t, title, nominal_key):
 
 def run(cfg, out_dir, verbose=True):
     """Render (cached) the campaign(s), calibrate from the datasets, score against the truth, write result.json."""
-    validate(cfg)
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
     ds_root = out_dir / "dataset"

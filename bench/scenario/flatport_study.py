@@ -93,7 +93,7 @@ from bench.config import (
     section,
 )
 from bench.errors import ConfigError
-from bench.fileio import atomic_save_figure
+from bench.fileio import atomic_save_figure, headless_pyplot
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rotation_angle, transform_points
 from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
@@ -581,11 +581,9 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
 def plot_study(table: dict, cfg: dict, path, tilt_deg=(0.0, 0.0)) -> str:
     """Error vs working distance (log-log), one curve per lens-to-glass distance, one column per port alignment
     (``tilt_deg``: the tilted case's port tilt about the camera x and y axes, for the title)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.ticker import FormatStrFormatter, NullFormatter
+
+    plt = headless_pyplot()
 
     al = np.asarray(table["alignment"])
     aligns = [a for a in ALIGNMENTS if a in set(al.tolist())]

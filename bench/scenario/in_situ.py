@@ -67,7 +67,7 @@ from bench.robot.orientation import link5_frame
 from bench.scenario.in_situ_lab import calibrate_lab
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
-from bench.sim.imaging import stated_tolerance
+from bench.sim.imaging import draw_true_lens, rig_errors, rig_target_yaml
 from bench.sim.optics_presets import optics_preset
 from bench.vision.handeye import hand_eye_axxb
 from bench.vision.insitu import MapConfig
@@ -248,7 +248,6 @@ BUDGET_FIXED = {"outputs.rerun": False, "bound.enabled": False}
 DEG = np.pi / 180
 #: the IK seed of the rig views after the first
 Q_HOME = np.deg2rad([28.0, 37.0, 49.0, 82.0, 29.0, 0.0])
-TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
 
 
 def imaging(cfg):
@@ -322,14 +321,8 @@ def _truth(cfg, robot, rng):
     optics = site_optics(cfg)  # camera.preset in site.water
     nominal_cam = load_preset(optics.nominal_camera)  # the specification the pipeline is given
     lens = load_preset(optics.lens_camera)  # the lens inside the housing (= the whole camera in air)
-    K = lens.K.copy()
-    K[0, 0] *= 1 + rng.uniform(-1, 1) * t["focal_error_pct"] / 100
-    K[1, 1] *= 1 + rng.uniform(-1, 1) * t["focal_error_pct"] / 100
-    K[:2, 2] += rng.uniform(-1, 1, 2) * t["principal_error_px"]
-    from bench.sim.imaging import lens_distortion
-
-    dist = lens_distortion(imaging(cfg), lens.dist)  # realistic imaging: the real webcam's measured distortion
-    true_cam = lens.replace(K=K, dist=dist, model=None, name=f"{lens.name} (true)")
+    # the true lens: the nominal one perturbed (its distortion the real webcam's measured one under realistic imaging)
+    true_cam = draw_true_lens(lens, rng, imaging(cfg), t["focal_error_pct"], t["principal_error_px"])
     return eps, mount, mount @ bias, nominal_cam, true_cam, optics
 
 
@@ -499,7 +492,6 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     from bench.sim.scenes.rig import calibration_rig
     from bench.sim.views import look_at
 
-    validate(cfg)
     t0 = time.perf_counter()
     rng = np.random.default_rng(cfg["seed"])
     robot = load_robot(Path(cfg["_file"]).parent / cfg["robot"])
@@ -532,11 +524,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     # the lab rig: fold line vertical, both boards facing the arm, in front of the nominal base
     rig_origin = np.array(cfg["lab"]["eye_base_m"], float) + np.array([cfg["lab"]["rig_distance_m"], 0.0, -0.12])
     T_world_rig = homogeneous(rot_z(3 * np.pi / 4), rig_origin)  # both boards face the arm (-x of the world)
-    from bench.sim.imaging import target_geometry
-
-    profile = imaging(cfg)
-    rig = calibration_rig(name="rig", errors=None if not profile.stages else target_geometry(
-        profile, 7, np.random.default_rng(np.random.SeedSequence([cfg["seed"], 0x7A12]))))
+    rig = calibration_rig(name="rig", errors=rig_errors(imaging(cfg), cfg["seed"]))
     rig_centre = transform_points(T_world_rig, rig.features["corners"]).mean(axis=0)
 
     views = []  # (name, role, T_world_base, q_true)
@@ -654,9 +642,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
             nominal = port.centred(off, keep_tilt=False)
             w.write_text("housing.yaml", housing_yaml_text(nominal, tol))
         shutil.copyfile(Path(cfg["_file"]).parent / cfg["robot"], w.path("robot.yaml"))
-        # the rig's print tolerances as its maker states them (the specification, not the draws)
-        tol = stated_tolerance(imaging(cfg))
-        w.write_text("target.yaml", TARGET_YAML + (yaml.safe_dump({"tolerance": tol}) if tol else ""))
+        w.write_text("target.yaml", rig_target_yaml(imaging(cfg)))  # the rig's stated print tolerances
         # the encoders' datasheet (the configured specification, not the draws): refine 'joints' weighs the readings
         w.write_text("encoders.yaml", f"noise_deg: {cfg['encoders']['noise_deg']}\n"
                                       f"resolution_deg: {cfg['encoders']['resolution_deg']}\n")
@@ -942,7 +928,6 @@ def _score_task(cfg, ds, truth, report, robot):
 
 def run(cfg, out_dir, verbose=True):
     """Render (cached) the campaign, run the pipeline on the dataset, score against the truth, write result.json."""
-    validate(cfg)
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
     ds_dir = out_dir / "dataset"

@@ -42,13 +42,6 @@ from bench.vision.insitu import ViewObservation, build_map, locate
 from bench.vision.locate_dataset import normalised
 
 
-def panel_points(corners_world, n: int, rng: np.random.Generator, margin: float = 0.05) -> np.ndarray:
-    """``n`` points (n, 3) uniformly on the panel face spanned by its four corners (world, m)."""
-    c = np.asarray(corners_world, dtype=float)
-    u, v = rng.uniform(margin, 1 - margin, (2, n))
-    return c[0] + u[:, None] * (c[1] - c[0]) + v[:, None] * (c[3] - c[0])
-
-
 class _Model(MultiViewModel):
     """Pixels of every (view, point) observation as a function of the parameters: blocks ``xi`` (the locate
     parking's base pose, 6), ``q`` (joints, 6 per view), ``d_eps`` (identified arm errors), optionally ``d_K``

@@ -187,7 +187,6 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     # 1. identifiability ---------------------------------------------------------------------------------
     t0 = time.perf_counter()
     red = closed_form_reduction(robot)
-    _check_pose_counts(cfg, len(red.kept))
     try:
         num = numeric_identifiability(robot, rng, cfg["identifiability"]["n_poses"], preferred=red.kept)
         num_free = numeric_identifiability(robot, rng, cfg["identifiability"]["n_poses"])

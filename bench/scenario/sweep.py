@@ -37,7 +37,7 @@ import numpy as np
 import yaml
 
 from bench.errors import BenchError, ConfigError
-from bench.fileio import atomic_save_figure
+from bench.fileio import atomic_save_figure, headless_pyplot
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS runs (
@@ -483,8 +483,11 @@ def summarise(rows: list, keys: list, out: Path, scenario: str = "") -> dict:
     write_table_csv(out / "summary.csv", table)
     plots, recording = [], None
     if keys and metrics and all(_is_number(v) for v in table[keys[0]]):
+        from bench.scenario.sweep_recording import record_sweep
+
         plots = _plot(table, keys, metrics, out)
-        recording = _record(table, keys, metrics, out, scenario)
+        # sweep.rrd: the median of every metric (and its bound) over the first swept key, with a blueprint
+        recording = str(record_sweep(out / "sweep.rrd", table, keys, metrics, _bound_pairs(metrics), scenario))
     return {"store": str(out / "sweep.sqlite"), "summary": str(out / "summary.csv"), "plots": plots,
             "recording": recording, "rows": len(rows), "table": table}
 
@@ -496,14 +499,6 @@ def _bound_pairs(metrics) -> list:
             and m.replace("_err_", "_bound_", 1) in names]
 
 
-def _record(table, keys, metrics, out, scenario: str = "") -> str:
-    """``sweep.rrd``: the median of every metric (and its bound) over the first swept key, in rerun, with a blueprint
-    (:mod:`bench.scenario.sweep_recording`)."""
-    from bench.scenario.sweep_recording import record_sweep
-
-    return str(record_sweep(out / "sweep.rrd", table, keys, metrics, _bound_pairs(metrics), scenario))
-
-
 def _sort_key(v):
     return (0, v, "") if _is_number(v) else (1, 0, str(v))
 
@@ -513,10 +508,7 @@ def _is_number(v):
 
 
 def _plot(table, keys, metrics, out):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = headless_pyplot()
 
     x = np.array(table[keys[0]], dtype=float)
     others = list(zip(*(table[k] for k in keys[1:]), strict=True)) if len(keys) > 1 else [()] * len(x)

@@ -36,7 +36,7 @@ from bench.config import (
     section,
 )
 from bench.errors import ConfigError
-from bench.fileio import atomic_save_figure
+from bench.fileio import atomic_save_figure, headless_pyplot
 from bench.geometry.transforms import homogeneous, random_transform, rot_z, rotation_angle
 from bench.robot.base_from_arcs import (
     base_frame_accuracy,
@@ -259,10 +259,7 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
 
 def plot_accuracy(table: dict, path) -> str:
     """Observed (Monte Carlo RMS, median) and predicted base errors vs tracker noise, one line per arc span."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = headless_pyplot()
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     sig, span = np.asarray(table["sigma_mm"]), np.asarray(table["span_deg"])

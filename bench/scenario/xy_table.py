@@ -33,7 +33,6 @@ listed in ``result.json`` (``metrics.truth_injected`` and the ``setup`` table).
 from __future__ import annotations
 
 import csv
-import hashlib
 import json
 import sys
 import time
@@ -68,12 +67,14 @@ from bench.config import (
 )
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
-from bench.fileio import atomic_save_figure
+from bench.fileio import atomic_save_figure, headless_pyplot
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
 from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
-from bench.vision.features import Features
+from bench.sim.campaign import CachedCamera
+from bench.sim.imaging import draw_true_lens, rig_errors, rig_target_yaml
+from bench.vision.features import Features, detect_sift
 from bench.vision.insitu import MapConfig
 from bench.vision.triangulation import required_baseline
 from bench.vision.xy_table_positioning import (
@@ -82,7 +83,6 @@ from bench.vision.xy_table_positioning import (
     estimate_positions,
     load_table_spec,
     rig_corner_features,
-    sift_features,
     table_views,
 )
 
@@ -96,7 +96,6 @@ LABELS = {"quaternion": "RANSAC, quaternion", "quaternion_ratio": "RANSAC, quate
           "lms": "RANSAC, LMS", "lms_ratio": "RANSAC, LMS, error-ratio elimination",
           "bundle": "bundle: the pair, R0, intrinsics, distortion and points by maximum likelihood"}
 THESIS_METHODS = ("quaternion", "quaternion_ratio", "lms", "lms_ratio")
-TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
 CAMERA_CHOICES = ("calibrated", "nominal", "truth")
 BIAS_CHOICES = ("estimated", "truth", "zero")
 FEATURE_CHOICES = ("sift", "corners", "true_projection")
@@ -237,15 +236,6 @@ def imaging(cfg):
     return profile_from_config(cfg["sim"], cfg["_file"], "sim.imaging")
 
 
-def _rig_errors(cfg, profile, salt):
-    """Geometry errors of a printed rig (:func:`bench.sim.imaging.target_geometry`) from a generator of its own."""
-    from bench.sim.imaging import target_geometry
-
-    if not profile.stages:
-        return None
-    return target_geometry(profile, 7, np.random.default_rng(np.random.SeedSequence([cfg["seed"], salt])))
-
-
 def _positions(cfg, n_rows: int) -> list:
     """The pose numbers of ``sim.positions`` (all ``n_rows`` when empty), sorted; they must hold the reference."""
     numbers = list(range(1, n_rows + 1))
@@ -299,11 +289,10 @@ def view_name(number: int) -> str:
 # ------------------------------------------------------------------------------------------------ rendering
 
 
-class OpticsCamera:
-    """A MuJoCo camera rendered through the optics chain of a preset, cached on disk by content hash.
+class OpticsCamera(CachedCamera):
+    """A MuJoCo camera rendered through the optics chain of a preset, cached on disk by content hash
+    (:class:`~bench.sim.campaign.CachedCamera`, as :class:`~bench.sim.campaign.ArmScene` renders the arm's camera).
 
-    The same stages as :class:`bench.sim.campaign.ArmScene` (which renders the arm's link-5 camera): supersampled
-    pinhole render -> lens stage (in air) or lens + flat port -> medium and sensor chain -> 8-bit RGB.
     ``make_scene(spec)`` returns the ``MjSpec`` of a composed scene holding the MuJoCo camera ``name`` made by
     :func:`~bench.sim.camera.add_opencv_camera` for the render ``spec`` (its K and size); :meth:`render` takes a
     function that sets the state of ``MjData`` and a key that determines that state.
@@ -311,88 +300,13 @@ class OpticsCamera:
 
     def __init__(self, make_scene, lens: CameraModel, optics, supersample: int, cache_dir=None, name="cam",
                  z_min: float = 0.3, imaging=None):
-        import mujoco
-
-        from bench.sim.distortion import DistortionStage
-        from bench.sim.flatport import FlatPortStage
-        from bench.sim.imaging import ImagingChain
-        from bench.sim.medium import cos_beam
-        from bench.sim.scenes.base import scene_key
-
+        super().__init__(lens, supersample, optics.port, z_min)
         self.lens, self.optics, self.name = lens, optics, name
-        if optics.port is None:
-            self.stage = DistortionStage(lens, supersample)
-            self.spec = self.stage.render_spec()
-        else:
-            self.stage = FlatPortStage(lens.K, lens.size, optics.port, supersample, lens=lens)
-            self.spec = self.stage.render_spec(z_min)
-        u, v = np.meshgrid(np.arange(lens.width, dtype=float), np.arange(lens.height, dtype=float))
-        self._rays = lens.unproject(np.stack([u, v], -1), normalize=False)
-        self._cos = cos_beam(self._rays)
-        scene = make_scene(self.spec)
-        self.model = scene.compile()
-        self.data = mujoco.MjData(self.model)
-        from bench.sim.campaign import IMAGE_CHAIN_VERSION
-
-        h = scene_key(self.model, hashlib.sha256(f"image chain {IMAGE_CHAIN_VERSION}".encode()))  # a new chain: afresh
-        h.update(np.ascontiguousarray(lens.K).tobytes())
-        h.update(np.ascontiguousarray(lens.dist).tobytes())
-        h.update(repr((lens.width, lens.height, supersample, optics.chain, optics.port)).encode())
-        # imaging: an ImagingProfile (bench.sim.imaging); None or "ideal" is the ideal chain (its cache keys unchanged)
-        self.imaging = None if imaging is None or not imaging.stages else ImagingChain(imaging, lens.K, lens.size)
-        if self.imaging is not None:
-            h.update(imaging.key().encode())
-        self._key = h.hexdigest()
-        self.cache_dir = Path(cache_dir) if cache_dir else None
-        self._renderer = None
-        self.render_s: list = []
+        self._start_cache(make_scene(self.spec).compile(), optics.chain, imaging, cache_dir)
 
     def render(self, set_state, state_key, seed: int) -> np.ndarray:
         """RGB uint8 (camera size) with the state set by ``set_state(model, data)``; cached by ``state_key``."""
-        import cv2
-        import mujoco
-
-        from bench.sim.imaging import apparent_depth_m, finish_image
-        from bench.sim.medium import path_length_m
-        from bench.sim.render import SceneRenderer
-
-        h = hashlib.sha256(self._key.encode())
-        h.update(np.round(np.asarray(state_key, float), 12).tobytes())
-        h.update(str(seed).encode())
-        key = h.hexdigest()[:32]
-        path = self.cache_dir / f"{key}.png" if self.cache_dir is not None else None
-        if path is not None and path.is_file():
-            img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-            if img is not None:
-                return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-        t0 = time.perf_counter()
-        if self._renderer is None:
-            self._renderer = SceneRenderer(self.model, self.name, self.spec.width, self.spec.height)
-        set_state(self.model, self.data)
-        mujoco.mj_forward(self.model, self.data)
-        rgb, depth = self._renderer.render(self.data)
-        if self.optics.port is None:
-            img, z = self.stage.apply(rgb, self.spec.K, depth)
-            water = path_length_m(z, self._rays)
-        else:
-            out = self.stage.apply(rgb, depth, self.spec.K)
-            img, water, z = out.image, out.water_path, out.depth
-        chain = self.optics.chain
-        focus = None if self.imaging is None else apparent_depth_m(self.optics.port, z, water)
-        img = finish_image(self.imaging, img, water, focus, np.random.default_rng(seed), chain,
-                           self._cos if chain.light is not None else None)
-        self.render_s.append(time.perf_counter() - t0)
-        if path is not None:
-            self.cache_dir.mkdir(parents=True, exist_ok=True)
-            tmp = self.cache_dir / f".{key}.{time.time_ns()}.png"
-            cv2.imwrite(str(tmp), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-            tmp.replace(path)
-        return img
-
-    def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        return self._render(self.name, set_state, state_key, seed)
 
 
 def _optics(cfg):
@@ -414,15 +328,8 @@ def _optics(cfg):
 
 def _true_camera(cfg, rng, lens: CameraModel) -> CameraModel:
     s = cfg["sim"]
-    K = lens.K.copy()
-    K[0, 0] *= 1 + rng.uniform(-1, 1) * s["focal_error_pct"] / 100
-    K[1, 1] *= 1 + rng.uniform(-1, 1) * s["focal_error_pct"] / 100
-    K[:2, 2] += rng.uniform(-1, 1, 2) * s["principal_error_px"]
-    dist = lens.dist * (1 + rng.uniform(-1, 1, lens.dist.shape) * s["distortion_error_pct"] / 100)
-    from bench.sim.imaging import lens_distortion
-
-    dist = lens_distortion(imaging(cfg), dist)  # realistic imaging: the real webcam's measured distortion on top
-    return lens.replace(K=K, dist=dist, model=None, name=f"{lens.name} (true)")
+    return draw_true_lens(lens, rng, imaging(cfg), s["focal_error_pct"], s["principal_error_px"],
+                          s["distortion_error_pct"])
 
 
 def _calibration_poses(n, distance_m, rng):
@@ -462,7 +369,7 @@ def reference_object(cfg, rng):
                 return manifold_panel(rng, w, h, name="ref", texture_overrides=texture_paths(cfg, "sim.textures"))
         except ValueError as exc:
             raise ConfigError(cfg["_file"], "sim.panel_size_m", str(exc)) from None
-    return calibration_rig(name="ref", errors=_rig_errors(cfg, imaging(cfg), 0x7A13))
+    return calibration_rig(name="ref", errors=rig_errors(imaging(cfg), cfg["seed"], 0x7A13))
 
 
 def replay_reference_object(cfg, truth: dict):
@@ -484,7 +391,6 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     from bench.sim.scenes.rig import calibration_rig
     from bench.sim.scenes.xy_table import DEFAULT_T_WORLD_TABLE, reference_pose, xy_table
 
-    validate(cfg)
     t0 = time.perf_counter()
     s = cfg["sim"]
     rng = np.random.default_rng(cfg["seed"])
@@ -517,7 +423,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         return compose([obj], offscreen=(spec.width, spec.height), center=(0.0, dist_m / 2, 0.4), extent=2.0)
 
     # the calibration rig (a scene of its own) stands as it would in front of the table; views around its centre
-    rig = calibration_rig(name="calrig", errors=_rig_errors(cfg, profile, 0x7A12))
+    rig = calibration_rig(name="calrig", errors=rig_errors(profile, cfg["seed"]))
     T_table_rig = reference_pose(rig, 1.0)
     T_world_rig = DEFAULT_T_WORLD_TABLE @ T_table_rig
     c_table = transform_points(T_table_rig, rig.features["corners"]).mean(axis=0)
@@ -615,10 +521,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                        notes=f"{s['poses']} position {num}")
         w.write_text("camera.yaml", camera_yaml_text(nominal_cam))
         w.write_text("table.yaml", spec_yaml)
-        from bench.sim.imaging import stated_tolerance
-
-        tol = stated_tolerance(profile)  # the rig's print tolerances as its maker states them (not the draws)
-        w.write_text("target.yaml", TARGET_YAML + (yaml.safe_dump({"tolerance": tol}) if tol else ""))
+        w.write_text("target.yaml", rig_target_yaml(profile))  # the rig's stated print tolerances
         w.write_text("truth/truth.yaml", yaml.safe_dump(truth, sort_keys=False))
         w.write_text("truth/sim_checks.json", json.dumps(checks, indent=2) + "\n")
     if verbose:
@@ -832,10 +735,7 @@ def format_tables(summary: dict, poses: str) -> str:
 def plot_tables(summary: dict, poses: str, path) -> str:
     """Error vs intraocular distance, one panel per method (Figures 49-52 / 55-58), the thesis's values dashed; with the
     bundle a fifth panel and the efficiency (limit / error) of LMS + error ratio and the bundle."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = headless_pyplot()
 
     _, numbers, figs = THESIS_TABLES[poses]
     has_bundle = "bundle" in summary["method"]
@@ -1005,7 +905,6 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose, cov_K=None, co
 
 def run(cfg, out_dir, verbose=True):
     """Render (cached), calibrate the camera, run the positioning pipeline, score against the truth."""
-    validate(cfg)
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
     s, p = cfg["sim"], cfg["pipeline"]
@@ -1053,7 +952,7 @@ def run(cfg, out_dir, verbose=True):
         feats = true_projection_features(truth, names, s["true_projection_points"],
                                          np.random.default_rng((cfg["seed"], 7)), imaging(cfg), reference)
     elif p["features"] == "sift":
-        feats = {v.name: sift_features(v.image(expected_size=camera.size), "rgb") for v in views}
+        feats = {v.name: detect_sift(v.image(expected_size=camera.size), channel_order="rgb") for v in views}
     else:
         geometry = load_target(ds.root / "target.yaml")
         feats, lost = {}, []

@@ -35,7 +35,97 @@ from bench.sim.scenes.base import compose, place, scene_key
 IMAGE_CHAIN_VERSION = 4
 
 
-class ArmScene:
+class CachedCamera:
+    """A MuJoCo camera rendered through the optics chain, its finished images cached on disk by content hash.
+
+    The stages: a supersampled pinhole render (RGB + depth) -> the lens stage (``port`` None: camera in air) or lens
+    + flat port -> the imaging profile's stages, the medium and the sensor (:func:`bench.sim.imaging.finish_image`)
+    -> 8-bit RGB. A subclass builds the scene for :attr:`spec` (the render's K and size), then calls
+    :meth:`_start_cache` with the compiled model; :meth:`_render` renders a state of it (or reads it from the cache).
+    """
+
+    def __init__(self, camera: CameraModel, supersample: int, port=None, z_min: float = 0.3):
+        self.camera, self.port = camera, port
+        if port is None:
+            self.stage = DistortionStage(camera, supersample)
+            self.spec = self.stage.render_spec()
+        else:
+            self.stage = FlatPortStage(camera.K, camera.size, port, supersample, lens=camera)
+            self.spec = self.stage.render_spec(z_min)
+        self._rays = camera.unproject(_pixel_grid(camera), normalize=False)  # the lens's pixel rays (distortion in)
+        self._cos = cos_beam(self._rays)
+        self._supersample = supersample
+
+    def _start_cache(self, model, chain: MediumChain, imaging, cache_dir) -> None:
+        """The cache key of the model, camera and optics (``imaging``: an ImagingProfile; None or ``ideal`` is the
+        ideal chain, whose cache keys it leaves unchanged)."""
+        import mujoco
+
+        from bench.sim.imaging import ImagingChain
+
+        self.model, self.data, self.chain = model, mujoco.MjData(model), chain
+        h = scene_key(model, hashlib.sha256(f"image chain {IMAGE_CHAIN_VERSION}".encode()))  # a new chain: afresh
+        h.update(np.ascontiguousarray(self.camera.K).tobytes())
+        h.update(np.ascontiguousarray(self.camera.dist).tobytes())
+        h.update(repr((self.camera.width, self.camera.height, self._supersample, chain, self.port)).encode())
+        self.imaging = None if imaging is None or not imaging.stages else ImagingChain(imaging, self.camera.K,
+                                                                                       self.camera.size)
+        if self.imaging is not None:
+            h.update(imaging.key().encode())
+        self._key = h.hexdigest()
+        self.cache_dir = Path(cache_dir) if cache_dir else None
+        self._renderer = None
+        self.render_s: list = []
+
+    def _air_path(self, z):
+        """The path length (m) along each pixel's ray to its z-depth ``z`` (camera in air)."""
+        return path_length_m(z, self._rays)
+
+    def _render(self, name: str, set_state, state_key, seed: int) -> np.ndarray:
+        """RGB uint8 (camera size) of MuJoCo camera ``name`` with the state set by ``set_state(model, data)``;
+        cached by ``state_key`` (the values that determine the state) and ``seed`` (the noise)."""
+        import mujoco
+
+        h = hashlib.sha256(self._key.encode())
+        h.update(np.round(np.asarray(state_key, float), 12).tobytes())
+        h.update(str(seed).encode())
+        key = h.hexdigest()[:32]
+        if self.cache_dir is not None:
+            path = self.cache_dir / f"{key}.png"
+            if path.is_file():
+                img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+                if img is not None:
+                    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        t0 = time.perf_counter()
+        if self._renderer is None:
+            self._renderer = SceneRenderer(self.model, name, self.spec.width, self.spec.height)
+        set_state(self.model, self.data)
+        mujoco.mj_forward(self.model, self.data)
+        rgb, depth = self._renderer.render(self.data)
+        if self.port is None:
+            img, z = self.stage.apply(rgb, self.spec.K, depth)
+            path = self._air_path(z)
+        else:
+            out = self.stage.apply(rgb, depth, self.spec.K)
+            img, path, z = out.image, out.water_path, out.depth
+        focus = None if self.imaging is None else apparent_depth_m(self.port, z, path)
+        img = finish_image(self.imaging, img, path, focus, np.random.default_rng(seed), self.chain,
+                           self._cos if self.chain.light is not None else None)
+        self.render_s.append(time.perf_counter() - t0)
+        if self.cache_dir is not None:
+            self.cache_dir.mkdir(parents=True, exist_ok=True)
+            tmp = self.cache_dir / f".{key}.{time.time_ns()}.png"
+            cv2.imwrite(str(tmp), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+            tmp.replace(self.cache_dir / f"{key}.png")
+        return img
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+class ArmScene(CachedCamera):
     """The arm with its camera in a scene, ready to render views.
 
     Parameters
@@ -55,84 +145,27 @@ class ArmScene:
     def __init__(self, robot, eps, T_world_base, T_link5_cam, camera: CameraModel, objects, supersample: int = 2,
                  chain: MediumChain | None = None, cache_dir=None, T_link5_mount=None, port=None, z_min: float = 0.3,
                  imaging=None):
-        import mujoco
-
-        from bench.sim.imaging import ImagingChain
-
-        self.robot, self.camera = robot, camera
-        self.port = port
-        if port is None:
-            self.stage = DistortionStage(camera, supersample)
-            self.spec = self.stage.render_spec()
-        else:
-            self.stage = FlatPortStage(camera.K, camera.size, port, supersample, lens=camera)
-            self.spec = self.stage.render_spec(z_min)
-        grid = _pixel_grid(camera)
-        self._rays = camera.unproject(grid, normalize=False)  # the lens's pixel rays (distortion included)
-        self._cos = cos_beam(self._rays)
+        super().__init__(camera, supersample, port, z_min)
+        self.robot = robot
         # path length per unit z-depth along each pixel's ray, |ray| / ray_z (path_length_m, computed once)
         self._path_per_z = path_length_m(np.ones(self._rays.shape[:2]), self._rays)
         arm = robot_object(robot, eps, T_link5_mount, (self.spec.K, self.spec.width, self.spec.height, T_link5_cam))
         self.objects = [place(arm, T_world_base, "ta40")] + list(objects)
         scene = compose(self.objects, offscreen=(self.spec.width, self.spec.height), center=(1.0, 0.0, 0.5),
                         extent=4.0)
-        self.model = scene.compile()
-        self.data = mujoco.MjData(self.model)
+        self._start_cache(scene.compile(), chain or MediumChain(), imaging, cache_dir)
         self.qadr = [self.model.jnt_qposadr[self.model.joint(f"joint{k}").id] for k in range(1, robot.n + 1)]
-        self.chain = chain or MediumChain()
-        h = scene_key(self.model, hashlib.sha256(f"image chain {IMAGE_CHAIN_VERSION}".encode()))
-        h.update(np.ascontiguousarray(camera.K).tobytes())
-        h.update(np.ascontiguousarray(camera.dist).tobytes())
-        h.update(repr((camera.width, camera.height, supersample, self.chain, port)).encode())
-        # imaging: an ImagingProfile (bench.sim.imaging); None or "ideal" is the ideal chain (its cache keys unchanged)
-        self.imaging = None if imaging is None or not imaging.stages else ImagingChain(imaging, camera.K, camera.size)
-        if self.imaging is not None:
-            h.update(imaging.key().encode())
-        self._key = h.hexdigest()
-        self.cache_dir = Path(cache_dir) if cache_dir else None
-        self._renderer = None
-        self.render_s: list = []
 
-    def _view_key(self, q, seed) -> str:
-        h = hashlib.sha256(self._key.encode())
-        h.update(np.round(np.asarray(q, float), 12).tobytes())
-        h.update(str(seed).encode())
-        return h.hexdigest()[:32]
+    def _air_path(self, z):
+        return z * self._path_per_z  # = path_length_m(z, self._rays)
 
     def render(self, q_true, seed: int = 0) -> np.ndarray:
         """The RGB image (uint8, camera size) of the view at true joint angles ``q_true`` (rad)."""
-        import mujoco
 
-        key = self._view_key(q_true, seed)
-        if self.cache_dir is not None:
-            path = self.cache_dir / f"{key}.png"
-            if path.is_file():
-                img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-                if img is not None:
-                    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-        t0 = time.perf_counter()
-        if self._renderer is None:
-            self._renderer = SceneRenderer(self.model, "link5_camera", self.spec.width, self.spec.height)
-        self.data.qpos[self.qadr] = q_true
-        mujoco.mj_forward(self.model, self.data)
-        rgb, depth = self._renderer.render(self.data)
-        rng = np.random.default_rng(seed)
-        if self.port is None:
-            img, z = self.stage.apply(rgb, self.spec.K, depth)
-            path = z * self._path_per_z  # = path_length_m(z, self._rays)
-        else:
-            out = self.stage.apply(rgb, depth, self.spec.K)
-            img, path, z = out.image, out.water_path, out.depth
-        focus = None if self.imaging is None else apparent_depth_m(self.port, z, path)
-        img = finish_image(self.imaging, img, path, focus, rng, self.chain,
-                           self._cos if self.chain.light is not None else None)
-        self.render_s.append(time.perf_counter() - t0)
-        if self.cache_dir is not None:
-            self.cache_dir.mkdir(parents=True, exist_ok=True)
-            tmp = self.cache_dir / f".{key}.{time.time_ns()}.png"
-            cv2.imwrite(str(tmp), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-            tmp.replace(self.cache_dir / f"{key}.png")
-        return img
+        def set_joints(model, data):
+            data.qpos[self.qadr] = q_true
+
+        return self._render("link5_camera", set_joints, q_true, seed)
 
     # --- truth geometry of a view (for checks; the pipeline never sees it) ------------------------------------------
     def camera_pose(self, q_true) -> np.ndarray:
@@ -170,11 +203,6 @@ class ArmScene:
         from bench.camera.flatport import lens_port_projector
 
         return lens_port_projector(self.camera, self.port)(np.asarray(p_cam, dtype=float))
-
-    def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
 
 
 def _pixel_grid(camera: CameraModel) -> np.ndarray:

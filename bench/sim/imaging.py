@@ -79,7 +79,6 @@ from bench.errors import ConfigError
 #: the stages of the realistic profile, in the order they are applied (each can be switched off alone)
 STAGES = ("print_lines", "print_scale", "flatness", "cockle", "handling", "fold", "distortion", "chromatic",
           "defocus", "motion", "rolling_shutter", "vignetting", "bayer", "prnu_dsnu", "jpeg")
-TARGET_STAGES = ("print_lines", "print_scale", "flatness", "cockle", "handling", "fold")
 IMAGING_NAMES = ("realistic", "ideal")
 #: version of this module's algorithms, part of the render cache key of realistic images (bump when a code change
 #: alters them): 2 = bilinear warp (was bicubic); 3 = the lens Gaussian once after the defocus levels; 4 = a sheet
@@ -288,6 +287,43 @@ def lens_distortion(profile: ImagingProfile, dist) -> np.ndarray:
     if profile.on("distortion"):
         d = d + np.asarray(profile["distortion"]["dist"], float)
     return d
+
+
+def draw_true_lens(lens, rng: np.random.Generator, profile: ImagingProfile, focal_error_pct: float,
+                   principal_error_px: float, distortion_error_pct: float | None = None):
+    """The true lens of a simulated campaign: the nominal ``lens`` (a :class:`~bench.camera.model.CameraModel`) with
+    its focal lengths, principal point and (``distortion_error_pct``) distortion perturbed by uniform draws from
+    ``rng`` (+-%, +-px, +-%), then ``profile``'s measured distortion on top (:func:`lens_distortion`)."""
+    K = lens.K.copy()
+    K[0, 0] *= 1 + rng.uniform(-1, 1) * focal_error_pct / 100
+    K[1, 1] *= 1 + rng.uniform(-1, 1) * focal_error_pct / 100
+    K[:2, 2] += rng.uniform(-1, 1, 2) * principal_error_px
+    dist = lens.dist
+    if distortion_error_pct is not None:
+        dist = dist * (1 + rng.uniform(-1, 1, 5) * distortion_error_pct / 100)
+    return lens.replace(K=K, dist=lens_distortion(profile, dist), model=None, name=f"{lens.name} (true)")
+
+
+#: ``target.yaml`` of the lab kinds' calibration target, the thesis's two-plane rig (section 5.2)
+RIG_TARGET_YAML = "type: two_plane_rig\nsquares: 7\nsize_mm: 197\nmargin_mm: 20\n"
+
+
+def rig_target_yaml(profile: ImagingProfile) -> str:
+    """The rig's ``target.yaml`` with its print tolerances as its maker states them (:func:`stated_tolerance`: the
+    specification, not the draws)."""
+    import yaml
+
+    tol = stated_tolerance(profile)
+    return RIG_TARGET_YAML + (yaml.safe_dump({"tolerance": tol}) if tol else "")
+
+
+def rig_errors(profile: ImagingProfile, seed: int, salt: int = 0x7A12, squares: int = 7) -> dict | None:
+    """The geometry errors of one printed rig (:func:`target_geometry`) from a generator of its own, seeded by the
+    scenario's ``seed`` and ``salt`` (the other draws do not change when a target stage is switched off); None under
+    ideal imaging."""
+    if not profile.stages:
+        return None
+    return target_geometry(profile, squares, np.random.default_rng(np.random.SeedSequence([seed, salt])))
 
 
 # ------------------------------------------------------------------------------------------------ closed forms

@@ -30,6 +30,7 @@ import mujoco
 import numpy as np
 
 from bench.geometry.transforms import homogeneous, rot_x, rot_y, rot_z
+from bench.robot.kinematics import _check_eps
 from bench.robot.model import Robot
 from bench.sim.camera import add_opencv_camera, mujoco_camera_attributes
 from bench.sim.meshes import camera_housing_mesh, link_meshes, stl_bytes
@@ -88,15 +89,6 @@ def camera_mount_with_bias(T_link5_mount, theta_x0: float = 0.0, theta_y0: float
     return T @ homogeneous(R0, t)
 
 
-def _check_eps(robot: Robot, eps):
-    if eps is None:
-        return np.zeros((robot.n + 1, 6))
-    eps = np.asarray(eps, dtype=float)
-    if eps.shape != (robot.n_errors,) or not np.all(np.isfinite(eps)):
-        raise ValueError(f"eps: expected {robot.n_errors} finite generalized errors (m, rad), got shape {eps.shape}")
-    return eps.reshape(robot.n + 1, 6)
-
-
 def _site(body, name, T, size=0.01, rgba=(0.9, 0.2, 0.2, 0.6)):
     site = body.add_site(name=name, rgba=rgba, group=3, **pose(T))
     site.size[0] = size
@@ -119,7 +111,7 @@ def robot_object(robot: Robot, eps=None, T_link5_mount=None, camera=None, name: 
     """
     if robot.n != 6:
         raise ValueError(f"robot: the MuJoCo model builds a 6-joint arm, got {robot.n} joints")
-    E = _check_eps(robot, eps)
+    E = _check_eps(robot, eps).reshape(robot.n + 1, 6)
     meshes = link_meshes(robot)
     files = {f"{name}_{k}.stl": stl_bytes(m) for k, m in meshes.items()}
     files[f"{name}_camera.stl"] = stl_bytes(camera_housing_mesh())

@@ -29,10 +29,13 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from typing import Annotated, Literal
 
 import numpy as np
+from pydantic import Field, model_validator
 
 from bench.camera.flatport import FlatPort
+from bench.config import KeyProblem, Section, parse
 from bench.errors import ConfigError
 from bench.sim.medium import WATER_PRESETS, Light, MediumChain, Sensor, WaterMedium
 
@@ -66,12 +69,6 @@ PRESET_CONFIGS = {
                             "sensor": _SENSOR_AUTO},
 }
 
-_TOP = ("nominal_camera", "lens_camera", "port", "water", "light", "sensor")
-_PORT_KEYS = ("lens_to_glass_mm", "glass_thickness_mm", "n_air", "n_glass", "n_water", "tilt_deg", "decentre_mm")
-_WATER_KEYS = ("preset", "beta_D_per_m", "beta_B_per_m", "B_inf", "forward_scatter_px_per_m")
-_LIGHT_KEYS = ("ref_range_m", "beam_exponent", "ambient", "attenuate_outgoing", "position_m", "axis")
-_SENSOR_KEYS = ("full_well_e", "exposure", "gain_dn_per_e", "read_noise_e", "jpeg_quality", "auto_exposure_target",
-                "auto_exposure_max")
 
 
 @dataclass(frozen=True)
@@ -128,8 +125,8 @@ def optics_preset(name: str, overrides: dict | None = None) -> OpticsPreset:
         if not isinstance(overrides, dict):
             raise ConfigError(source, "overrides", f"expected a mapping, got {type(overrides).__name__}")
         for key, val in overrides.items():
-            if key not in _TOP:
-                raise ConfigError(source, str(key), f"unknown key (known: {', '.join(_TOP)})")
+            if key not in _Optics.model_fields:
+                raise ConfigError(source, str(key), f"unknown key (known: {', '.join(_Optics.model_fields)})")
             if isinstance(val, dict) and isinstance(cfg.get(key), dict) and key != "water":
                 cfg[key] = {**cfg[key], **val}
             else:
@@ -140,94 +137,79 @@ def optics_preset(name: str, overrides: dict | None = None) -> OpticsPreset:
 # ----------------------------------------------------------------------------------------------------------------------
 # validation and construction
 # ----------------------------------------------------------------------------------------------------------------------
-def _section(cfg, key, known, source):
-    sec = cfg.get(key)
-    if sec is None:
-        return None
-    if not isinstance(sec, dict):
-        raise ConfigError(source, key, f"expected a mapping or null, got {type(sec).__name__}")
-    for k in sec:
-        if k not in known:
-            raise ConfigError(source, f"{key}.{k}", f"unknown key (known: {', '.join(known)})")
-    return sec
+_INDEX = Annotated[float, Field(ge=1)]
 
 
-def _get(sec, section, key, source, *, size=None, lo=None, lo_open=False, hi=None):
-    field = f"{section}.{key}"
-    if key not in sec:
-        raise ConfigError(source, field, "missing")
-    val = sec[key]
-    arr = np.asarray(val, dtype=object)
-    if size is None and arr.ndim != 0 or size is not None and arr.shape != (size,):
-        what = "a number" if size is None else f"a list of {size} numbers"
-        raise ConfigError(source, field, f"expected {what}, got {val!r}")
-    items = arr.reshape(-1)
-    for v in items:
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
-            raise ConfigError(source, field, f"expected finite numbers, got {val!r}")
-    out = np.array(items, dtype=float)
-    if lo is not None and (np.any(out < lo) or lo_open and np.any(out == lo)):
-        raise ConfigError(source, field, f"must be {'>' if lo_open else '>='} {lo:g}, got {val!r}")
-    if hi is not None and np.any(out > hi):
-        raise ConfigError(source, field, f"must be <= {hi:g}, got {val!r}")
-    return float(out[0]) if size is None else out
+def _floats(n: int, lo: float | None = None, hi: float | None = None):
+    """A list of ``n`` finite floats, each within ``[lo, hi]``."""
+    return Annotated[list[Annotated[float, Field(ge=lo, le=hi)]], Field(min_length=n, max_length=n)]
 
 
-def _port(sec, source):
-    g = {k: _get(sec, "port", k, source, lo=1.0) for k in ("n_air", "n_glass", "n_water")}
-    d0 = _get(sec, "port", "lens_to_glass_mm", source, lo=0.0, lo_open=True, hi=1000.0) * 1e-3
-    t = _get(sec, "port", "glass_thickness_mm", source, lo=0.0, hi=1000.0) * 1e-3
-    tilt = np.deg2rad(_get(sec, "port", "tilt_deg", source, size=2, lo=-44.9, hi=44.9))
-    dec = _get(sec, "port", "decentre_mm", source, size=2, lo=-999.0, hi=999.0) * 1e-3
-    try:
-        return FlatPort(d0=d0, t=t, tilt=tilt, decentre=dec, source=source, **g)
-    except ConfigError as exc:  # geometry that only the combination makes impossible (the plane behind the centre)
-        field = {"d0": "lens_to_glass_mm", "t": "glass_thickness_mm", "tilt": "tilt_deg",
-                 "decentre": "decentre_mm"}.get(exc.field, exc.field)
-        raise ConfigError(source, f"port.{field}", exc.problem) from None
+class _Port(Section):
+    lens_to_glass_mm: Annotated[float, Field(gt=0, le=1000)]
+    glass_thickness_mm: Annotated[float, Field(ge=0, le=1000)]
+    n_air: _INDEX
+    n_glass: _INDEX
+    n_water: _INDEX
+    tilt_deg: _floats(2, -44.9, 44.9)
+    decentre_mm: _floats(2, -999, 999)
 
 
-def _water(sec, source):
-    if "preset" in sec:
-        extra = [k for k in sec if k != "preset"]
-        if extra:
-            raise ConfigError(source, f"water.{extra[0]}", "give either a preset or the coefficients, not both")
-        name = sec["preset"]
-        if not isinstance(name, str) or name not in WATER_PRESETS:
-            raise ConfigError(source, "water.preset",
-                              f"unknown {name!r} (known: {', '.join(sorted(WATER_PRESETS))})")
-        return WaterMedium(name=name, **WATER_PRESETS[name])
-    vals = {k: _get(sec, "water", k, source, size=3, lo=0.0, hi=50.0) for k in ("beta_D_per_m", "beta_B_per_m")}
-    vals["B_inf"] = _get(sec, "water", "B_inf", source, size=3, lo=0.0, hi=1.0)
-    vals["forward_scatter_px_per_m"] = _get(sec, "water", "forward_scatter_px_per_m", source, lo=0.0, hi=100.0)
-    return WaterMedium(name="custom", **vals)
+class _Water(Section):
+    """A preset's name, or all four coefficients."""
+
+    preset: Literal[tuple(WATER_PRESETS)] | None = None
+    beta_D_per_m: _floats(3, 0, 50) | None = None
+    beta_B_per_m: _floats(3, 0, 50) | None = None
+    B_inf: _floats(3, 0, 1) | None = None
+    forward_scatter_px_per_m: Annotated[float, Field(ge=0, le=100)] | None = None
+
+    @model_validator(mode="after")
+    def _preset_or_coefficients(self):
+        coefficients = [k for k in type(self).model_fields if k != "preset"]
+        given = [k for k in coefficients if getattr(self, k) is not None]
+        if self.preset is not None and given:
+            raise KeyProblem(given[0], "give either a preset or the coefficients, not both")
+        missing = [k for k in coefficients if k not in given]
+        if self.preset is None and missing:
+            raise KeyProblem(missing[0], "missing")
+        return self
 
 
-def _light(sec, source):
-    att = sec.get("attenuate_outgoing", True)
-    if not isinstance(att, bool):
-        raise ConfigError(source, "light.attenuate_outgoing", f"expected true or false, got {att!r}")
-    axis = _get(sec, "light", "axis", source, size=3) if "axis" in sec else np.array([0.0, 0.0, 1.0])
-    if np.linalg.norm(axis) < 1e-9:
-        raise ConfigError(source, "light.axis", "must be a non-zero vector")
-    pos = _get(sec, "light", "position_m", source, size=3, lo=-10.0, hi=10.0) if "position_m" in sec else np.zeros(3)
-    return Light(ref_range_m=_get(sec, "light", "ref_range_m", source, lo=0.0, lo_open=True, hi=1e3),
-                 beam_exponent=_get(sec, "light", "beam_exponent", source, lo=0.0, hi=1e3),
-                 ambient=_get(sec, "light", "ambient", source, lo=0.0, hi=1e3),
-                 attenuate_outgoing=att, position_m=pos, axis=axis)
+class _Light(Section):
+    ref_range_m: Annotated[float, Field(gt=0, le=1e3)]
+    beam_exponent: Annotated[float, Field(ge=0, le=1e3)]
+    ambient: Annotated[float, Field(ge=0, le=1e3)]
+    attenuate_outgoing: bool = True
+    position_m: _floats(3, -10, 10) = [0.0, 0.0, 0.0]
+    axis: _floats(3) = [0.0, 0.0, 1.0]
+
+    @model_validator(mode="after")
+    def _axis(self):
+        if np.linalg.norm(self.axis) < 1e-9:
+            raise KeyProblem("axis", "must be a non-zero vector")
+        return self
 
 
-def _sensor(sec, source):
-    q = sec.get("jpeg_quality", 0)
-    if isinstance(q, bool) or not isinstance(q, (int, np.integer)) or not 0 <= q <= 100:
-        raise ConfigError(source, "sensor.jpeg_quality", f"expected an integer in 0..100 (0 = off), got {q!r}")
-    auto = {k: _get(sec, "sensor", k, source, lo=lo, lo_open=lo_open, hi=hi)
-            for k, lo, lo_open, hi in (("auto_exposure_target", 0.0, False, 1.0), ("auto_exposure_max", 0.0, True, 1e6))
-            if k in sec}  # optional: manual exposure without them
-    return Sensor(full_well_e=_get(sec, "sensor", "full_well_e", source, lo=1.0, hi=1e8),
-                  exposure=_get(sec, "sensor", "exposure", source, lo=0.0, lo_open=True, hi=1e6),
-                  gain_dn_per_e=_get(sec, "sensor", "gain_dn_per_e", source, lo=0.0, lo_open=True, hi=1e3),
-                  read_noise_e=_get(sec, "sensor", "read_noise_e", source, lo=0.0, hi=1e6), jpeg_quality=int(q), **auto)
+class _Sensor(Section):
+    full_well_e: Annotated[float, Field(ge=1, le=1e8)]
+    exposure: Annotated[float, Field(gt=0, le=1e6)]
+    gain_dn_per_e: Annotated[float, Field(gt=0, le=1e3)]
+    read_noise_e: Annotated[float, Field(ge=0, le=1e6)]
+    jpeg_quality: Annotated[int, Field(ge=0, le=100)] = 0  # 0 = off
+    auto_exposure_target: Annotated[float, Field(ge=0, le=1)] | None = None  # optional: manual exposure without them
+    auto_exposure_max: Annotated[float, Field(gt=0, le=1e6)] | None = None
+
+
+class _Optics(Section):
+    """The layout of :data:`PRESET_CONFIGS` (a section set to None is absent)."""
+
+    nominal_camera: Annotated[str, Field(min_length=1)]
+    lens_camera: Annotated[str, Field(min_length=1)]
+    port: _Port | None = None
+    water: _Water | None = None
+    light: _Light | None = None
+    sensor: _Sensor | None = None
 
 
 def optics_from_config(cfg: dict, source: str = "optics", name: str = "custom") -> OpticsPreset:
@@ -242,25 +224,24 @@ def optics_from_config(cfg: dict, source: str = "optics", name: str = "custom") 
     ConfigError
         One line naming ``source`` and the field (``port.glass_thickness_mm``, ``water.beta_D_per_m``...).
     """
-    if not isinstance(cfg, dict):
-        raise ConfigError(source, "optics", f"expected a mapping, got {type(cfg).__name__}")
-    for k in cfg:
-        if k not in _TOP:
-            raise ConfigError(source, str(k), f"unknown key (known: {', '.join(_TOP)})")
-    cams = {}
-    for k in ("nominal_camera", "lens_camera"):
-        if not isinstance(cfg.get(k), str) or not cfg[k]:
-            raise ConfigError(source, k, f"expected a camera preset name, got {cfg.get(k)!r}")
-        cams[k] = cfg[k]
-    port_sec = _section(cfg, "port", _PORT_KEYS, source)
-    water_sec = _section(cfg, "water", _WATER_KEYS, source)
-    light_sec = _section(cfg, "light", _LIGHT_KEYS, source)
-    sensor_sec = _section(cfg, "sensor", _SENSOR_KEYS, source)
-    port = None if port_sec is None else _port(port_sec, source)
-    medium = None if water_sec is None else _water(water_sec, source)
+    c = parse(_Optics, cfg, source)
+    port = None
+    if c["port"] is not None:
+        p = c["port"]
+        try:
+            port = FlatPort(d0=p["lens_to_glass_mm"] * 1e-3, t=p["glass_thickness_mm"] * 1e-3, n_air=p["n_air"],
+                            n_glass=p["n_glass"], n_water=p["n_water"], tilt=np.deg2rad(p["tilt_deg"]),
+                            decentre=np.array(p["decentre_mm"]) * 1e-3, source=source)
+        except ConfigError as exc:  # geometry that only the combination makes impossible (the plane behind the centre)
+            field = {"d0": "lens_to_glass_mm", "t": "glass_thickness_mm", "tilt": "tilt_deg",
+                     "decentre": "decentre_mm"}.get(exc.field, exc.field)
+            raise ConfigError(source, f"port.{field}", exc.problem) from None
+    w = c["water"]
+    medium = None if w is None else WaterMedium(name=w["preset"], **WATER_PRESETS[w["preset"]]) if w["preset"] \
+        else WaterMedium(name="custom", **{k: v for k, v in w.items() if k != "preset"})
     if medium is not None and (port is None or port.n_water == port.n_air):
         raise ConfigError(source, "water", "a water medium needs a port with n_water (the outside) != n_air")
-    light = None if light_sec is None else _light(light_sec, source)
-    sensor = None if sensor_sec is None else _sensor(sensor_sec, source)
-    return OpticsPreset(name, cams["nominal_camera"], cams["lens_camera"], port,
+    light = None if c["light"] is None else Light(**c["light"])
+    sensor = None if c["sensor"] is None else Sensor(**{k: v for k, v in c["sensor"].items() if v is not None})
+    return OpticsPreset(name, c["nominal_camera"], c["lens_camera"], port,
                         MediumChain(medium=medium, light=light, sensor=sensor))

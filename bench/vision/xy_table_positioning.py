@@ -42,9 +42,9 @@ views of a pair) and per pair ``(a, b)`` with neither being the reference:
    the pair's displacement, ``R0``, the intrinsics and the distortion under their priors, the points
    (:func:`bench.vision.xy_table_bundle.pair_bundle`).
 
-Features: SIFT keypoints (:func:`sift_features`) or, for the calibration rig of section 5.4, the corners of the rig
-with their ids (:func:`corner_features`: each corner id becomes a one-hot descriptor, so the same matching code pairs
-corners by id - the thesis's "72 correct matches").
+Features: SIFT keypoints with the thesis's thresholds (:func:`~bench.vision.features.detect_sift`) or, for the
+calibration rig of section 5.4, the corners of the rig with their ids (:func:`corner_features`: each corner id becomes
+a one-hot descriptor, so the same matching code pairs corners by id - the thesis's "72 correct matches").
 
 The module is pipeline code: it reads the public part of a dataset only (:func:`position_dataset`).
 """
@@ -57,10 +57,10 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from bench.dataset import load_dataset
 from bench.errors import ConfigError
+from bench.fileio import read_yaml
 from bench.geometry.transforms import homogeneous, rot_y, transform_points
 from bench.vision.absolute_orientation import absolute_orientation
 from bench.vision.features import Features, detect_sift
@@ -112,12 +112,7 @@ class TableSpec:
 def load_table_spec(path) -> TableSpec:
     """Read ``table.yaml`` (mm and degrees in the keys); one-line :class:`ConfigError` naming the file and field."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "not found (an x-y table dataset must describe its table)")
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    doc = read_yaml(path, "not found (an x-y table dataset must describe its table)")
     if not isinstance(doc, dict):
         raise ConfigError(path, "<top>", "expected a mapping")
     bad = sorted(set(doc) - TABLE_SPEC_KEYS)
@@ -180,13 +175,6 @@ def stage_camera(R0, camera_offset_m) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------------ features
-
-
-def sift_features(image, channel_order: str | None = None) -> Features:
-    """SIFT keypoints with the thesis's thresholds (section 3.4; :func:`bench.vision.features.detect_sift`).
-
-    ``channel_order`` (``"rgb"`` / ``"bgr"``) is required for a colour image, as in :func:`detect_sift`."""
-    return detect_sift(image, channel_order=channel_order)
 
 
 def corner_features(uv, ids, n_ids: int) -> Features:
@@ -664,7 +652,7 @@ def position_dataset(root, config: PositioningConfig, camera=None, features: str
     for v in views:
         img = v.image(expected_size=cam.size)
         if features == "sift":
-            feats[v.name] = sift_features(img, "rgb")  # View.image: RGB (or grey)
+            feats[v.name] = detect_sift(img, channel_order="rgb")  # View.image: RGB (or grey)
         elif features == "corners":
             if geometry is None:
                 raise ValueError("features='corners' needs the target geometry")

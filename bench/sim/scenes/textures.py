@@ -20,7 +20,6 @@ from bench.errors import ConfigError
 
 # Colours (BGR, 0..255)
 SAFETY_YELLOW = (20, 190, 235)
-SUBSEA_ORANGE = (20, 110, 235)
 PANEL_GREY = (120, 118, 112)
 RUST = (30, 70, 140)
 DARK_RUST = (20, 40, 80)
