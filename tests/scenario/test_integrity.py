@@ -225,3 +225,25 @@ def test_fault_out_uses_the_shared_output_claim(rendered, tmp_path, capsys):
     assert "--force" in capsys.readouterr().err
     assert output_marker(earlier)["identity"] == str(tmp_path / "another_dataset")
     assert (tmp / "faults" / OUTPUT_MARKER).is_file() and output_marker(tmp / "faults")["command"] == "faults"
+
+
+def test_huber_loss_on_a_rendered_dataset(rendered):
+    """pipeline.loss: huber - the joint bundle's M-estimate on a rendered dataset: a different estimate from least
+    squares (the weights act), not refused, inside its protection radius; asked of an estimator without the joint
+    bundle, refused in one line."""
+    from bench.errors import BenchError
+    from bench.scenario.runner import load_scenario
+
+    tmp, camera, robot = rendered
+    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
+    T_true = np.linalg.inv(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
+    kw = dict(verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3)
+    plain, _ = locate_dataset(tmp / "ds", None, **kw)
+    res, rep = locate_dataset(tmp / "ds", None, loss="huber", **kw)
+    assert plain.success and res.success and "joint bundle" in res.message
+    assert not np.allclose(res.T_world_base, plain.T_world_base, rtol=0, atol=1e-9)
+    assert rep["integrity"] != "refused", rep["integrity_reasons"]
+    assert np.linalg.norm(res.T_world_base[:3, 3] - T_true[:3, 3]) * 1e3 <= rep["protection_radius_mm"]
+    scenario = Path(__file__).resolve().parents[2] / "scenarios" / "ta40_in_situ_manifold.yaml"
+    with pytest.raises(BenchError, match=r"pipeline\.loss: used only by refine 'joints'"):
+        load_scenario(scenario, overrides=["pipeline.loss=huber", "pipeline.refine=bundle"])
