@@ -164,7 +164,11 @@ def board_errors(profile, pattern, seed: int, square_m: float) -> dict | None:
 
 
 def render_replica(cfg, res, views, out_dir, verbose=False) -> list:
-    """Render the board at every photo's pose through the simulated camera; the grey renders ``(H, W)`` uint8."""
+    """Render the board at every photo's pose through the simulated camera; the grey renders ``(H, W)`` uint8.
+
+    The scene is the lab of the camera-calibration kind (:class:`~bench.scenario.camera_calibration.TableRigScene`):
+    the camera stands still in the x-y table's mount and the board, a mocap body, is put at ``T_cam_board`` in front
+    of it for each photo (a new board, with its own flexing, per photo when the ``handling`` stage is on)."""
     from bench.camera.presets import load_preset
     from bench.scenario.camera_calibration import TableRigScene
     from bench.sim.imaging import handling_dz
