@@ -93,12 +93,13 @@ def imaging(cfg):
 
 def photo_files(cfg) -> list:
     """The photos of ``photos.dir`` (sorted); one-line ConfigError when the folder is missing or holds none."""
-    folder = Path(cfg["_file"]).parent / cfg["photos"]["dir"]
+    given = cfg["photos"]["dir"]  # messages quote it as written (relative to the scenario file's folder, or absolute)
+    folder = Path(cfg["_file"]).parent / given
     if not folder.is_dir():
-        raise ConfigError(cfg["_file"], "photos.dir", f"{folder}: not a folder")
+        raise ConfigError(cfg["_file"], "photos.dir", f"{given}: not a folder (relative to the scenario file's)")
     files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
     if len(files) < 3:
-        raise ConfigError(cfg["_file"], "photos.dir", f"{folder}: {len(files)} photos (.jpg, .jpeg, .png); a "
+        raise ConfigError(cfg["_file"], "photos.dir", f"{given}: {len(files)} photos (.jpg, .jpeg, .png); a "
                                                       "calibration needs at least 3")
     return files
 
