@@ -92,18 +92,24 @@ def seen_twice(point, keep, M: int) -> np.ndarray:
     return keep & (seen[point] >= 2)
 
 
+def robust_sigma(e) -> float:
+    """The pixel noise of residual norms ``e`` from their median: median / 1.1774, the Rayleigh median of a 2-D
+    Gaussian."""
+    return float(np.median(e)) / 1.1774
+
+
 def _gated(e, keep, point, M: int, gate: float, groups=None) -> np.ndarray:
     """The observations to keep: residual ``e`` (N,) within ``gate`` x the robust sigma (median / 1.1774, the
     Rayleigh median of a 2-D Gaussian) of those kept so far - per group, the larger of the group's (over all its
     observations) and the whole set's, when ``groups`` (N,) is given."""
-    s_all = float(np.median(e[keep])) / 1.1774
+    s_all = robust_sigma(e[keep])
     if groups is None:
         return seen_twice(point, e <= gate * s_all, M)
     groups = np.asarray(groups, int)
     ok = np.zeros(len(e), bool)
     for g in np.unique(groups):
         sel = groups == g
-        ok[sel] = e[sel] <= gate * max(float(np.median(e[sel])) / 1.1774, s_all)
+        ok[sel] = e[sel] <= gate * max(robust_sigma(e[sel]), s_all)
     return seen_twice(point, ok, M)
 
 
@@ -117,11 +123,11 @@ def _scaled_step(S, g) -> tuple:
     return scaled / d, scaled
 
 
-def robust_weights(e, s_px: float, loss: str | None, c: float = LOSS_SCALE) -> np.ndarray:
-    """IRLS weights ``w = rho'(u) / u`` (N,) of residual norms ``e`` at ``u = e / s_px``: 1 for ``None``; Huber's
-    (1 within ``c``, ``c / u`` beyond)."""
+def robust_weights(e, s_px: float, loss: str | None, c: float = LOSS_SCALE) -> np.ndarray | None:
+    """IRLS weights ``w = rho'(u) / u`` (N,) of residual norms ``e`` at ``u = e / s_px``: None (unweighted) for
+    ``loss=None``; Huber's (1 within ``c``, ``c / u`` beyond)."""
     if loss is None:
-        return np.ones(len(e))
+        return None
     if loss != "huber":
         raise ValueError(f"loss: expected None or 'huber', got {loss!r}")
     u = np.asarray(e, float) / max(s_px, SIGMA_FLOOR_PX)
@@ -208,10 +214,12 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
             r, J, J_pt, z_min = problem.linearise(theta, X)
             if z_min <= 0:
                 return failed("points behind a camera")
-            e = np.linalg.norm(r, axis=1)
-            w = robust_weights(e, float(np.median(e[keep])) / 1.1774, loss)  # the robust pixel noise (see _gated)
+            w = None  # IRLS weights of the robust loss, at this linearisation
+            if loss is not None:
+                e = np.linalg.norm(r, axis=1)
+                w = robust_weights(e, robust_sigma(e[keep]), loss)
             S, g, points_step = normal_equations(point, r, J, J_pt, M, prior_info, prior_info @ (theta - mean),
-                                                 keep * np.sqrt(w))
+                                                 keep if w is None else keep * np.sqrt(w))
             diag = np.diag(S)
             if not (np.all(np.isfinite(diag)) and diag.max() > 0):
                 return failed("singular reduced system")
