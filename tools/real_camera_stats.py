@@ -55,11 +55,6 @@ from bench.camera.photo_stats import (  # noqa: E402 - detection, calibration, r
 DEFAULT_DATA = ROOT / "tests" / "data" / "real_webcam_chessboard"
 
 
-def detect(files, pattern):
-    """:func:`bench.camera.photo_stats.detect_views` (the photos where the board is found)."""
-    return detect_views(files, pattern)
-
-
 def calibrate(views, pattern, model="heikkila"):
     """The bench's calibration of the detected views (unit squares): ``(result, uvs)``."""
     return calibrate_views(views, pattern, model), [v.uv for v in views]
@@ -475,7 +470,7 @@ def measure(data_dir, pattern=(7, 7), square_mm: float = 25.0) -> dict:
     files = sorted(glob.glob(str(Path(data_dir) / "*.jpg")) + glob.glob(str(Path(data_dir) / "*.png")))
     if not files:
         raise SystemExit(f"{data_dir}: no .jpg or .png images")
-    views = detect(files, pattern)
+    views = detect_views(files, pattern)
     if len(views) < 3:
         raise SystemExit(f"{data_dir}: the {pattern[0]}x{pattern[1]} board was found in only {len(views)} images")
     res, uvs = calibrate(views, pattern)

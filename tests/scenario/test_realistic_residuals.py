@@ -141,7 +141,7 @@ def test_the_real_photos_residual_is_the_board_shape():
     the profile's."""
     from bench.sim.imaging import REALISTIC
 
-    views = rcs.detect(sorted((ROOT / "tests" / "data" / "real_webcam_chessboard").glob("*.jpg")), PATTERN)
+    views = rcs.detect_views(sorted((ROOT / "tests" / "data" / "real_webcam_chessboard").glob("*.jpg")), PATTERN)
     shape = rcs.measure_board_shape(views, PATTERN, 25.0)
     assert shape["normal_energy_fraction"] > 0.85
     assert shape["rms_with_shape_px"] < 0.25 and shape["per_view_rms_vs_normal_sensitivity_corr"] > 0.6
