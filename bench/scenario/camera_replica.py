@@ -249,8 +249,8 @@ def statistics(views, res, pattern) -> dict:
 
 
 def run(cfg, out_dir, verbose=True):
-    """Calibrate the photos, render and calibrate their replica, compare; write result.json and the tables."""
-    validate(cfg)
+    """Calibrate the photos, render and calibrate their replica, compare; write result.json and the tables (``cfg``
+    from :func:`bench.scenario.runner.load_scenario`, which ran :func:`validate`)."""
     out_dir = Path(out_dir)
     pattern = tuple(cfg["photos"]["inner_corners"])
     t0 = time.perf_counter()
