@@ -419,23 +419,34 @@ def _eliminate_points(J, Jp, vis) -> tuple:
     return 0.5 * (S + S.T), use
 
 
-def reduced_information(model: MultiViewModel, sigma_px: float, jacobians=None) -> tuple:
-    """Fisher information of every observed pixel (``model.vis``; Gaussian, ``sigma_px`` per axis) on the model's
-    parameters with every point a free nuisance parameter, eliminated point by point (Schur complement of its 3 x 3
-    block). Points seen in fewer than two views carry no information and are left out. ``jacobians``: the model's
-    :meth:`~MultiViewModel.jacobian_blocks` at its linearisation point, when the caller has them (assembled from
-    blocks shared between models).
+def view_sigma(sigma_px, n_views: int) -> np.ndarray:
+    """The pixel noise per view ``(V,)`` (px, per axis) from a scalar (every view alike) or a ``(V,)`` sequence;
+    each must be finite and > 0."""
+    s = np.broadcast_to(np.asarray(sigma_px, float), (n_views,)).copy()
+    if not np.all(np.isfinite(s) & (s > 0)):
+        raise ValueError(f"sigma_px: expected finite values > 0 (px), got {sigma_px}")
+    return s
+
+
+def reduced_information(model: MultiViewModel, sigma_px, jacobians=None) -> tuple:
+    """Fisher information of every observed pixel (``model.vis``; Gaussian, ``sigma_px`` per axis: a scalar, or one
+    per view ``(V,)``) on the model's parameters with every point a free nuisance parameter, eliminated point by
+    point (Schur complement of its 3 x 3 block). Points seen in fewer than two views carry no information and are
+    left out. ``jacobians``: the model's :meth:`~MultiViewModel.jacobian_blocks` at its linearisation point, when the
+    caller has them (assembled from blocks shared between models).
 
     Returns ``(information (n_params, n_params), observations, points)``: the numbers of (view, point) observations
     and of points used.
     """
     J, Jp = model.jacobian_blocks(*model.values0, model.X0) if jacobians is None else jacobians
-    S, use = _eliminate_points(J / sigma_px, Jp / sigma_px, model.vis)
+    s = view_sigma(sigma_px, model.n_views)[:, None, None, None]
+    S, use = _eliminate_points(J / s, Jp / s, model.vis)
     return S, int(model.vis[:, use].sum()), int(use.sum())
 
 
-def crb(model: MultiViewModel, sigma_px: float, priors: dict, G=None, jacobians=None) -> dict:
+def crb(model: MultiViewModel, sigma_px, priors: dict, G=None, jacobians=None) -> dict:
     """The Cramér-Rao bound: ``cov`` = inverse of (the pixels' reduced information + the priors' information).
+    ``sigma_px``: the pixel noise, one for every view or one per view (:func:`reduced_information`).
 
     ``priors`` as :meth:`MultiViewModel.prior_information`; the sum must be positive definite (every parameter
     observed by the pixels or by a prior). With ``G`` (k, n_params), the bound on a function ``g`` of the
@@ -485,11 +496,11 @@ ML_METHOD = "trf"
 ML_FTOL = 1e-12
 
 
-def ml_estimate(model: MultiViewModel, uv, sigma_px: float, priors: dict, prior_means: list, values, X,
+def ml_estimate(model: MultiViewModel, uv, sigma_px, priors: dict, prior_means: list, values, X,
                 iterations: int = 10, tol: float = 1e-10) -> dict:
     """Maximum-likelihood estimate of every parameter and point from the observed pixels ``uv`` (V, M, 2) (those of
     ``model.vis``) and the priors: ``scipy.optimize.least_squares`` from ``values``, ``X`` on the pixel residuals
-    over ``sigma_px`` and the priors' rows ``R (theta - mean)`` (``R^T R`` their information), with the Jacobian of
+    over ``sigma_px`` (a scalar, or one per view ``(V,)``) and the priors' rows ``R (theta - mean)`` (``R^T R`` their information), with the Jacobian of
     :meth:`MultiViewModel.jacobian`; points seen in fewer than two views stay where they are.
 
     ``priors`` as :meth:`MultiViewModel.prior_information`, centred on ``prior_means`` (block values, e.g. the
@@ -500,6 +511,7 @@ def ml_estimate(model: MultiViewModel, uv, sigma_px: float, priors: dict, prior_
     least_squares' tests met, not its evaluation budget; a run without a step that lowered the cost only by the
     gradient test) and least_squares' ``message``.
     """
+    s = view_sigma(sigma_px, model.n_views)[:, None, None]
     lam, vec = np.linalg.eigh(model.prior_information(priors))
     R = (vec[:, lam > 0] * np.sqrt(lam[lam > 0])).T  # priors as residual rows: R^T R = P
     mean, n = model.pack(prior_means), model.n_params
@@ -517,14 +529,14 @@ def ml_estimate(model: MultiViewModel, uv, sigma_px: float, priors: dict, prior_
 
     def fun(x):
         vals, Xu = split(x)
-        r = (model.pixels(*vals, Xu) - uv)[:, use][obs] / sigma_px
+        r = ((model.pixels(*vals, Xu) - uv) / s)[:, use][obs]
         return np.r_[r.ravel(), R @ (x[:n] - mean)]
 
     def jac(x):
         if "x" not in cache or not np.array_equal(cache["x"], x):
             vals, Xu = split(x)
-            J = model.jacobian(*vals, Xu).reshape(model.n_views, len(X), 2, -1)[:, use][obs][..., cols]
-            cache["x"], cache["J"] = x.copy(), np.r_[J.reshape(-1, len(cols)) / sigma_px, R_rows]
+            J = (model.jacobian(*vals, Xu).reshape(model.n_views, len(X), 2, -1) / s[..., None])[:, use][obs][..., cols]
+            cache["x"], cache["J"] = x.copy(), np.r_[J.reshape(-1, len(cols)), R_rows]
             iterates.append(cache["x"])  # the Jacobian is evaluated at the accepted iterates
         return cache["J"]
 

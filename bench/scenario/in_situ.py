@@ -819,6 +819,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     from bench.scenario.in_situ_bound import (
         crb_base_pose,
         keypoint_sigma_px,
+        locate_sigma_px,
         mc_ideal_estimator,
         model_floor,
         observation_pattern,
@@ -839,11 +840,16 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     out = {"keypoint_sigma_px": sigma_px, "keypoint_sigma_matches": float(n_sigma)}
     if not np.isfinite(sigma_px) or sigma_px <= 0:
         return out
+    # the locate views' own noise (the other parking's viewpoint); without matches there, the survey's
+    sigma_loc, n_loc = locate_sigma_px(sigma_px, obs[ref], [obs[n] for n in loc], poses, lens,
+                                       true_projector(lens, port, profile), port=port)
+    out.update({"keypoint_sigma_locate_px": sigma_loc, "keypoint_sigma_locate_matches": float(n_loc)})
     T_wb1 = np.array(truth["T_world_base_survey"])
     T_site_b2 = invert(T_wb1) @ np.array(truth["T_world_base_locate"])
     X_site = transform_points(kmap.T_world_ref, kmap.p_ref)  # the features the pipeline found (linearisation)
     names = [ref, *surround, *loc]
     views = [(np.array(truth["views"][n]["q_true"]), n in loc) for n in names]
+    sigma_views = np.array([sigma_loc if n in loc and np.isfinite(sigma_loc) else sigma_px for n in names])
     enc = truth["encoders"]
     sigma_enc = float(np.sqrt(enc["noise_std_rad"] ** 2 + enc["resolution_rad"] ** 2 / 12)) or 1e-9
     ident = lab["identification"]
@@ -866,16 +872,16 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     priors = lab["priors"]
     vis = observation_pattern(kmap, len(names), res.used[0]) if res.success and res.used is not None else None
     crb = crb_base_pose(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam.project,
-                        T_site_b2, views, X_site, cam.size, sigma_px, sigma_enc, K=cam.K, vis=vis, dist=cam.dist,
+                        T_site_b2, views, X_site, cam.size, sigma_views, sigma_enc, K=cam.K, vis=vis, dist=cam.dist,
                         **priors)
     mc = mc_ideal_estimator(robot, eps_true, kept, ident.covariance, mount, central, T_site_b2, views, names, X_site,
-                            sigma_px, EncoderModel(**enc), np.random.default_rng([cfg["seed"], 13]),
+                            sigma_views, EncoderModel(**enc), np.random.default_rng([cfg["seed"], 13]),
                             cfg["bound"]["mc_trials"], p["method"], ransac, thesis_refine)
     if cfg["bound"]["ml_trials"] > 0 and vis is not None:
         from bench.scenario.in_situ_bound import mc_joint_bundle
 
         ml = mc_joint_bundle(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam, T_site_b2,
-                             views, X_site, vis, sigma_px, sigma_enc, np.random.default_rng([cfg["seed"], 14]),
+                             views, X_site, vis, sigma_views, sigma_enc, np.random.default_rng([cfg["seed"], 14]),
                              cfg["bound"]["ml_trials"], **priors)
         out.update({"base_pos_crb_mc_mm": ml["pos_rms_m"] * 1e3, "base_rot_crb_mc_deg": np.rad2deg(ml["rot_rms_rad"])})
     if refractive:  # the floor above is the best central camera's (its camera and frame serve the CRB), not this one's

@@ -5,7 +5,8 @@ measured keypoint noise (:func:`keypoint_sigma_px`) and the bound's machinery - 
 
 * :func:`crb_base_pose` - the Cramér-Rao lower bound on the located base pose: Fisher information of every
   observation the ideal estimator would have (each map point in the reference, surrounding and locate views, pixel
-  noise sigma), with the joint angles of every view as nuisance parameters observed by the encoders (sigma_enc),
+  noise sigma: the survey's, and the locate views' own, :func:`locate_sigma_px`), with the joint angles of every
+  view as nuisance parameters observed by the encoders (sigma_enc),
   the identified arm errors (the 25 of §2.5-2.7) with the identification's covariance as prior (tracker noise) and
   the 3D points as free nuisance parameters (eliminated point by point), optionally the intrinsics and the mount
   under the lab calibrations' covariances and the observation pattern the matching produced; the base's 6 x 6 block
@@ -37,6 +38,7 @@ from bench.scenario.bounds import (  # noqa: F401 - the generic parts, re-export
     ideal_features,
     keypoint_sigma_px,
     true_projector,
+    view_sigma,
 )
 from bench.vision.insitu import ViewObservation, build_map, locate
 from bench.vision.locate_dataset import normalised
@@ -123,6 +125,27 @@ def observation_pattern(kmap, n_views: int, locate_idx) -> np.ndarray:
     return vis
 
 
+#: the locate views' noise is not taken below this fraction of the survey's (a floor for the estimate's sampling noise)
+LOCATE_SIGMA_MIN_RATIO = 0.5
+
+
+def locate_sigma_px(sigma_survey: float, reference: ViewObservation, locate_views: list, T_world_cam_true: dict,
+                    camera_true: CameraModel, project, port=None) -> tuple:
+    """The locate views' own keypoint noise (px, 1-sigma per image axis) and the number of matches behind it.
+
+    A locate view sees the panel from the other parking, so SIFT places a keypoint a little differently there than
+    in the survey views that made the map (the detector's response to the changed foreshortening and shading: measured
+    evaluator side on the true panel surface, 1.0-2.0 x the survey's spread in air, 0.7-1.6 x under water;
+    docs/bounds.md). :func:`keypoint_sigma_px` on the reference's matches into the locate views gives the pair's
+    ``s`` with ``2 s^2 = sigma_ref^2 + sigma_locate^2``; the reference view's noise is the survey's
+    (``sigma_survey``, the same parking and viewpoint), so ``sigma_locate = sqrt(2 s^2 - sigma_survey^2)``, not
+    below :data:`LOCATE_SIGMA_MIN_RATIO` x ``sigma_survey``. NaN without matches."""
+    s, n = keypoint_sigma_px(reference, locate_views, T_world_cam_true, camera_true, project, port=port)
+    if not np.isfinite(s) or not n:
+        return float("nan"), int(n)
+    return float(max(np.sqrt(max(2 * s**2 - sigma_survey**2, 0.0)), LOCATE_SIGMA_MIN_RATIO * sigma_survey)), int(n)
+
+
 def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2, views, X_site, size, sigma_px,
                   sigma_enc, cov_K=None, K=None, cov_mount=None, vis=None, cov_K_mount=None, dist=None,
                   cov_dist=None, cov_K_dist=None, cov_dist_mount=None) -> dict:
@@ -145,8 +168,11 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
     X_site : ndarray (M, 3)
         The 3D points (site frame).
     size : (w, h)
-    sigma_px, sigma_enc : float
-        Pixel noise (px, per axis) and encoder noise (rad, per joint, quantisation included).
+    sigma_px : float or ndarray (V,)
+        Pixel noise (px, per axis): every view's, or one per view (the survey's and the locate views' own,
+        :func:`locate_sigma_px`).
+    sigma_enc : float
+        Encoder noise (rad, per joint, quantisation included).
     cov_K : ndarray (4, 4), optional
         Covariance (px^2) of the calibrated ``fx, fy, cx, cy`` (the lab calibration's own); with ``K`` (3, 3) the
         true central camera's intrinsics. Omitted: the intrinsics are exact.
@@ -235,6 +261,7 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
     L = np.linalg.cholesky(cov_eps_dot)
     T_site_cam_true = link5_frame(robot, q_true, eps_true) @ mount
     T_site_cam_true[is_loc] = T_site_b2 @ T_site_cam_true[is_loc]
+    sigma = view_sigma(sigma_px, len(views))
     pos, rot, fails = [], [], 0
     for _ in range(trials):
         eps = np.array(eps_true, float)
@@ -242,7 +269,7 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
         q_read = encoders.read(q_true, rng)
         obs = []
         for k, name in enumerate(names):
-            f = ideal_features(X_site, T_site_cam_true[k], camera.project, camera.size, sigma_px, rng)
+            f = ideal_features(X_site, T_site_cam_true[k], camera.project, camera.size, sigma[k], rng)
             obs.append(ViewObservation(name, f, camera.undistort_pixels(f.uv), link5_frame(robot, q_read[k], eps)
                                        @ mount))
         n_survey = int(np.sum(~is_loc))
@@ -285,6 +312,7 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
                           for v in range(len(views))])
     order = np.concatenate([np.flatnonzero(view == v) for v in range(len(views))])
     view, point = view[order], point[order]
+    sigma = view_sigma(sigma_px, len(views))
     L_eps = np.linalg.cholesky(cov_eps_dot)
     lab = lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount)
     L_lab = None if lab is None else np.linalg.cholesky(lab)
@@ -309,9 +337,9 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
             D[:3, :3], D[:3, 3] = rotation_vector_to_matrix(np.array(d[:3])), d[3:]
             m = m @ D
         q_read = q_true + rng.normal(0, sigma_enc, q_true.shape)
-        uv = uv0 + rng.normal(0, sigma_px, uv0.shape)
-        jb = joint_bundle(robot, eps, m, q_read, is_loc, T_site_b2, view, point, uv, X, sigma_enc, sigma_px, K,
-                          dist, gate=None, **priors)
+        uv = uv0 + rng.normal(0, 1.0, uv0.shape) * sigma[view][:, None]
+        jb = joint_bundle(robot, eps, m, q_read, is_loc, T_site_b2, view, point, uv, X, sigma_enc,
+                          float(sigma.min()), K, dist, gate=None, **priors)
         if not jb.success:
             fails += 1
             continue

@@ -166,9 +166,13 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("valve_tool_err_mm", "mm", "true tool tip vs true valve handle centre after re-targeting the taught "
                "task through the calibrated arm"),
         Metric("valve_tool_err_uncompensated_mm", "mm", "the same when the taught readings are replayed"),
-        Metric("keypoint_sigma_px", "px", "SIFT keypoint noise measured against the true epipolar curves (robust σ)",
-               "`bound.enabled`"),
+        Metric("keypoint_sigma_px", "px", "SIFT keypoint noise of the survey views, measured against the true "
+               "epipolar curves (robust σ)", "`bound.enabled`"),
         Metric("keypoint_sigma_matches", "count", "matches behind that σ", "`bound.enabled`"),
+        Metric("keypoint_sigma_locate_px", "px", "the locate views' own keypoint noise (the other parking's "
+               "viewpoint), from the reference's matches into them (robust σ); the bound's noise there",
+               "`bound.enabled`"),
+        Metric("keypoint_sigma_locate_matches", "count", "matches behind that σ", "`bound.enabled`"),
         Metric("base_pos_bound_mm", "mm", "the limit of the base position: Cramér-Rao bound ⊕ model floor "
                "(root-sum-square)", "`bound.enabled`"),
         Metric("base_rot_bound_deg", "deg", "the limit of the base rotation: bound ⊕ floor", "`bound.enabled`"),

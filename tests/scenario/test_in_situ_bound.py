@@ -11,7 +11,14 @@ from bench.robot.identifiability import closed_form_reduction
 from bench.robot.model import default_robot_path, load_robot, random_errors
 from bench.robot.orientation import link5_frame
 from bench.scenario.bounds import ml_estimate
-from bench.scenario.in_situ_bound import _Model, crb_base_pose, ideal_features, keypoint_sigma_px
+from bench.scenario.in_situ_bound import (
+    LOCATE_SIGMA_MIN_RATIO,
+    _Model,
+    crb_base_pose,
+    ideal_features,
+    keypoint_sigma_px,
+    locate_sigma_px,
+)
 from bench.vision.insitu import ViewObservation
 
 MOUNT = homogeneous(rot_z(np.pi), [0.12, 0.0, 0.3])
@@ -56,12 +63,40 @@ def test_block_jacobian_equals_brute_force(scene):
     assert crb["pos_bound_m"] == pytest.approx(np.sqrt(np.trace(brute[3:, 3:])), rel=1e-6)
 
 
+def test_per_view_noise_equals_brute_force(scene):
+    """One pixel noise per view (the locate views' own): the bound is the inverse of ``J^T W J`` + priors with ``W``
+    the views' ``1 / sigma^2``; a scalar and a constant vector give the same bound; noisier locate views raise it."""
+    robot, eps, cam, T_site_b2, X, views, kept, cov_eps = scene
+    model = _Model(robot, eps, kept, MOUNT, cam.project, T_site_b2, views, X, cam.size)
+    V, M, P = len(views), len(X), len(kept)
+    J = model.jacobian_columnwise(*model.values0, X)  # rows: view by view, point by point, u v
+    sigma = np.array([0.2, 0.25, 0.3, 0.5, 0.4])
+    sigma_enc = 1e-4
+    w = np.repeat(1 / sigma**2, 2 * M)
+    info = J.T @ (J * w[:, None])
+    info[6:6 + 6 * V, 6:6 + 6 * V] += np.eye(6 * V) / sigma_enc**2
+    info[6 + 6 * V:6 + 6 * V + P, 6 + 6 * V:6 + 6 * V + P] += np.linalg.inv(cov_eps)
+    brute = np.linalg.inv(info)[:6, :6]
+    args = (robot, eps, kept, cov_eps, MOUNT, cam.project, T_site_b2, views, X, cam.size)
+    crb = crb_base_pose(*args, sigma, sigma_enc)
+    assert np.allclose(crb["cov"], brute, rtol=1e-5, atol=1e-16)
+    same = crb_base_pose(*args, np.full(V, 0.3), sigma_enc)["cov"]
+    assert np.allclose(same, crb_base_pose(*args, 0.3, sigma_enc)["cov"], rtol=1e-12, atol=0)
+    worse = crb_base_pose(*args, np.r_[np.full(3, 0.3), 0.6, 0.6], sigma_enc)
+    assert worse["pos_bound_m"] > crb_base_pose(*args, 0.3, sigma_enc)["pos_bound_m"]
+    with pytest.raises(ValueError, match="sigma_px"):
+        crb_base_pose(*args, np.r_[np.full(4, 0.3), np.nan], sigma_enc)
+
+
 def test_bound_equals_the_ml_estimator_spread(scene):
     """Bundle adjustment over base pose, joints, arm errors and points (the ML estimator,
     :func:`bench.scenario.bounds.ml_estimate`) on noisy pixels, readings and arm errors: its spread matches the bound
-    (Monte Carlo, 80 draws: +-30 % on the traces, ~3 standard errors of a variance estimate)."""
+    (Monte Carlo, 80 draws: +-30 % on the traces, ~3 standard errors of a variance estimate). The locate views'
+    pixels are 1.5 x noisier than the survey's (their own noise, as measured in the scenes), and the estimator weighs
+    each view by its noise."""
     robot, eps, cam, T_site_b2, X, views, kept, cov_eps = scene
-    sigma_px, sigma_enc = 0.2, 2e-5
+    sigma_px = np.array([0.3 if loc else 0.2 for _, loc in views])
+    sigma_enc = 2e-5
     model = _Model(robot, eps, kept, MOUNT, cam.project, T_site_b2, views, X, cam.size)
     P = len(kept)
     crb = crb_base_pose(robot, eps, kept, cov_eps, MOUNT, cam.project, T_site_b2, views, X, cam.size, sigma_px,
@@ -72,7 +107,7 @@ def test_bound_equals_the_ml_estimator_spread(scene):
     rng = np.random.default_rng(72)
     errs = []
     for _ in range(80):
-        uv = uv0 + rng.normal(0, sigma_px, uv0.shape)
+        uv = uv0 + rng.normal(0, 1.0, uv0.shape) * sigma_px[:, None, None]
         q_read = model.q0 + rng.normal(0, sigma_enc, model.q0.shape)
         e_prior = L @ rng.normal(size=P)  # the lab's estimate of the arm errors, relative to the truth
         # from a start off the truth by more than the noise
@@ -101,6 +136,28 @@ def test_ideal_features_and_measured_noise(scene):
     est, n = keypoint_sigma_px(obs["v0"], [obs["v1"], obs["v2"]], poses, cam, cam.project)
     assert n == 2 * len(Xd)
     assert est == pytest.approx(sigma, rel=0.2)
+
+
+def test_locate_views_own_noise_is_measured(scene):
+    """Survey views (the reference among them) with noise sigma, locate views with 2 sigma: the locate views' own noise
+    comes back from the reference's matches into them; a locate noise below the floor is reported at the floor."""
+    robot, eps, cam, _, X, views, _, _ = scene
+    rng = np.random.default_rng(74)
+    poses = {f"v{k}": link5_frame(robot, q, eps) @ MOUNT for k, (q, _) in enumerate(views)}
+    Xd = np.r_[X, X + 0.01, X - 0.01, X + [0.02, -0.01, 0.0]]
+    sigma = 0.2
+
+    def observe(name, s):
+        f = ideal_features(Xd, poses[name], cam.project, cam.size, s, rng)
+        return ViewObservation(name, f, cam.undistort_pixels(f.uv), poses[name])
+
+    ref, loc = observe("v0", sigma), [observe("v3", 2 * sigma), observe("v4", 2 * sigma)]
+    est, n = locate_sigma_px(sigma, ref, loc, poses, cam, cam.project)
+    assert n == 2 * len(Xd)
+    assert est == pytest.approx(2 * sigma, rel=0.2)
+    quiet = [observe("v3", 0.0), observe("v4", 0.0)]
+    est, _ = locate_sigma_px(sigma, ref, quiet, poses, cam, cam.project)
+    assert est == pytest.approx(LOCATE_SIGMA_MIN_RATIO * sigma)
 
 
 def test_intrinsics_and_mount_blocks(scene):
