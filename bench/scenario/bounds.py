@@ -500,8 +500,9 @@ def ml_estimate(model: MultiViewModel, uv, sigma_px, priors: dict, prior_means: 
                 iterations: int = 10, tol: float = 1e-10) -> dict:
     """Maximum-likelihood estimate of every parameter and point from the observed pixels ``uv`` (V, M, 2) (those of
     ``model.vis``) and the priors: ``scipy.optimize.least_squares`` from ``values``, ``X`` on the pixel residuals
-    over ``sigma_px`` (a scalar, or one per view ``(V,)``) and the priors' rows ``R (theta - mean)`` (``R^T R`` their information), with the Jacobian of
-    :meth:`MultiViewModel.jacobian`; points seen in fewer than two views stay where they are.
+    over ``sigma_px`` (a scalar, or one per view ``(V,)``) and the priors' rows ``R (theta - mean)`` (``R^T R`` their
+    information), with the Jacobian of :meth:`MultiViewModel.jacobian`; points seen in fewer than two views stay
+    where they are.
 
     ``priors`` as :meth:`MultiViewModel.prior_information`, centred on ``prior_means`` (block values, e.g. the
     encoder readings and the lab's identified errors). At most ``iterations`` steps (``max_nfev = iterations + 1``);

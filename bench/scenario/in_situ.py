@@ -482,13 +482,30 @@ def _plan(robot, T_world_base, eye_w, target_w, mount, q_seed):
 # ------------------------------------------------------------------------------------------------ simulation
 
 
+def _site_panel(cfg, rng):
+    """The site's manifold panel, drawn from ``rng`` right after :func:`_truth` (the render's order)."""
+    from bench.sim.scenes.panel import manifold_panel
+
+    with naming_the_key(cfg, "site.textures"):
+        return manifold_panel(rng, cfg["site"]["panel_width_m"], cfg["site"]["panel_height_m"], name="panel",
+                              texture_overrides=texture_paths(cfg, "site.textures"))
+
+
+def replay_panel(cfg):
+    """EVALUATOR SIDE: the panel a render of ``cfg`` (its seed) placed at ``truth.yaml``'s ``T_world_panel``, drawn
+    again from the seed (the render's draws, in the render's order), for ray casting onto its true surfaces
+    (:class:`bench.scenario.scene_points.SceneRays`)."""
+    rng = np.random.default_rng(cfg["seed"])
+    _truth(cfg, load_robot(Path(cfg["_file"]).parent / cfg["robot"]), rng)
+    return _site_panel(cfg, rng)
+
+
 def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     """Simulate the campaign and write the dataset (with ``truth/``); returns the simulator's metrics."""
     from bench.sim.campaign import ArmScene
     from bench.sim.checks import distortion_roundtrip, kinematics_check, marker_check
     from bench.sim.encoders import EncoderModel
     from bench.sim.scenes.base import place
-    from bench.sim.scenes.panel import manifold_panel
     from bench.sim.scenes.rig import calibration_rig
     from bench.sim.views import look_at
 
@@ -518,9 +535,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         eye_ref = centre - np.array([site["standoff_m"], 0.0, 0.0])
     R_wp = np.column_stack([[0, -1, 0], [0, 0, 1], [-1, 0, 0]]).astype(float)  # panel x, y (up), z (out) in world
     T_world_panel = homogeneous(R_wp, centre)
-    with naming_the_key(cfg, "site.textures"):
-        panel = manifold_panel(rng, site["panel_width_m"], site["panel_height_m"], name="panel",
-                               texture_overrides=texture_paths(cfg, "site.textures"))
+    panel = _site_panel(cfg, rng)
     # the lab rig: fold line vertical, both boards facing the arm, in front of the nominal base
     rig_origin = np.array(cfg["lab"]["eye_base_m"], float) + np.array([cfg["lab"]["rig_distance_m"], 0.0, -0.12])
     T_world_rig = homogeneous(rot_z(3 * np.pi / 4), rig_origin)  # both boards face the arm (-x of the world)
