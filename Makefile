@@ -30,9 +30,11 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/bench run scenarios/ta40_in_situ_manifold.yaml --out $(OUT)/demo
 
+# the tests' linear algebra is small: one BLAS thread each (OpenBLAS's threads spin against each other and against
+# anything else on a shared 2-core machine: the x-y bound's Monte Carlo took 164 s with them, 42 s without)
 test: $(STAMP)
 	$(BIN)/ruff check bench tests tools
-	$(BIN)/python -m pytest -q
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q
 
 reproduce: $(STAMP)
 	$(BIN)/bench run scenarios/table2_kinematic_identification.yaml --out $(OUT)/table2 --set monte_carlo.seeds=500

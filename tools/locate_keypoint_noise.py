@@ -13,9 +13,10 @@ nothing fitted to hide any of it. Per run:
 * ``survey``: the robust sigma (1.4826 MAD, per axis) of the survey views' errors about each track's survey mean,
   corrected for the mean's degrees of freedom - the noise the map's views share no part of;
 * ``locate``: the robust sigma of the locate views' errors about the same survey mean, less the mean's own noise -
-  what a locate view adds when it sees the point from the other parking;
-* beside them the run's ``keypoint_sigma_px`` and ``keypoint_sigma_locate_px`` (the bound's, from epipolar
-  distances), when the run has them.
+  what a locate view adds when it sees the point from the other parking
+  (:func:`bench.scenario.in_situ_bound.track_noise_on_surface`, which the ``in_situ`` kind's bound uses too);
+* beside them the run's ``keypoint_sigma_px`` (the survey's, from epipolar distances) and
+  ``keypoint_sigma_locate_px`` (the bound's locate noise), when the run has them.
 
 docs/bounds.md ("The locate views' own keypoint noise") quotes its output.
 """
@@ -35,18 +36,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def robust_sd(a) -> float:
-    a = np.asarray(a, float).ravel()
-    return float(1.4826 * np.median(np.abs(a - np.median(a))))
-
-
 def measure(cfg, run: Path) -> dict:
     """One run's survey and locate noise on the true surface (module docstring)."""
-    from bench.camera.flatport import trace_rays
-    from bench.camera.model import distort, to_pixels
-    from bench.geometry.transforms import invert, transform_points
     from bench.scenario.bounds import true_projector
     from bench.scenario.in_situ import _true_camera_poses, _true_optics, imaging, replay_panel
+    from bench.scenario.in_situ_bound import track_noise_on_surface, track_pixels
     from bench.scenario.scene_points import SceneRays
     from bench.vision.insitu import MapConfig
     from bench.vision.locate_dataset import locate_dataset
@@ -66,46 +60,20 @@ def measure(cfg, run: Path) -> dict:
     if not res.success or res.used is None:
         return {"run": run.name, "error": f"no localisation ({res.message})"}
     lens, port, _ = _true_optics(truth)
-    project = true_projector(lens, port, imaging(cfg))
     poses = _true_camera_poses(det["robot"], truth)
-    obs, kmap, cam = det["observations"], det["map"], det["camera"]
+    obs = det["observations"]
     role = {n: truth["views"][n]["role"] for n in obs}
     ref = next(n for n in obs if role[n] == "reference")
     survey = [n for n in obs if role[n] == "surround"]
     locate = [n for n in obs if role[n] == "locate"][:2]
-    idx, x_a, x_b = res.used
-
-    def pixels(x):  # a normalized keypoint back to the pixel it was detected at (the calibrated camera's round trip)
-        return to_pixels(distort(np.atleast_2d(x), cam.dist), cam.K)
-
-    dirs = lens.unproject(pixels(kmap.x_ref[idx]))
-    origins = np.zeros_like(dirs)
-    if port is not None:
-        origins, dirs, _ = trace_rays(dirs, port)
-    T = poses[ref]
     surface = SceneRays(replay_panel(cfg), np.array(truth["T_world_panel"], float))
-    P = surface.first_hits(origins @ T[:3, :3].T + T[:3, 3], dirs @ T[:3, :3].T)
-
-    def error(name, x, point):
-        return (pixels(x) - project(transform_points(invert(poses[name]), point[None])))[0]
-
-    dev_survey, dev_locate, n_survey = [], [], []
-    for j in np.flatnonzero(np.all(np.isfinite(P), axis=1)):
-        views, xs = kmap.observations[idx[j]]
-        e_s = np.array([error(survey[k], x, P[j]) for k, x in zip(views, np.asarray(xs).reshape(-1, 2), strict=True)])
-        if len(e_s) < 2:
-            continue
-        mean = e_s.mean(axis=0)
-        dev_survey.append(e_s - mean)
-        n_survey.append(len(e_s))
-        dev_locate += [error(locate[0], x_a[j], P[j]) - mean, error(locate[1], x_b[j], P[j]) - mean]
-    n = float(np.mean(n_survey))
-    s_survey = robust_sd(np.concatenate(dev_survey)) * np.sqrt(n / (n - 1))
-    s_locate = np.sqrt(max(robust_sd(dev_locate) ** 2 - s_survey**2 / n, 0.0))
+    tn = track_noise_on_surface(*track_pixels(det["map"], res.used, obs, ref, survey, locate), poses[ref],
+                                np.stack([poses[n] for n in survey]), np.stack([poses[n] for n in locate]), lens, port,
+                                true_projector(lens, port, imaging(cfg)), surface)
     m = result["metrics"]
-    return {"run": run.name, "seed": result["seed"], "points": len(n_survey), "survey_px": float(s_survey),
-            "locate_px": float(s_locate), "ratio": float(s_locate / s_survey),
-            "bound_survey_px": m.get("keypoint_sigma_px"), "bound_locate_px": m.get("keypoint_sigma_locate_px")}
+    return {"run": run.name, "seed": result["seed"], "points": tn["points"], "survey_px": tn["survey_px"],
+            "locate_px": tn["locate_px"], "ratio": tn["ratio"], "bound_survey_px": m.get("keypoint_sigma_px"),
+            "bound_locate_px": m.get("keypoint_sigma_locate_px")}
 
 
 def main(argv=None) -> int:

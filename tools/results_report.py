@@ -210,7 +210,7 @@ class Report:
         keys = [("base_pos_err_mm", "≤ 2"), ("base_rot_err_deg", "≤ 0.05"), ("valve_tool_err_mm", "≤ 3"),
                 ("insitu_solve_s", "≤ 0.3"), ("map_points", ""), ("inliers", ""), ("base_pos_bound_mm", ""),
                 ("base_rot_bound_deg", ""), ("base_pos_crb_mm", ""), ("base_pos_floor_mm", ""),
-                ("base_pos_bound_mc_mm", ""), ("keypoint_sigma_px", ""),
+                ("base_pos_bound_mc_mm", ""), ("keypoint_sigma_px", ""), ("keypoint_sigma_locate_px", ""),
                 ("valve_tool_err_uncompensated_mm", ""), ("panel_sift_keypoints", ""), ("arm_heldout_rms_mm", ""),
                 ("mount_rot_err_deg", ""), ("parking_attempts", ""), ("integrity_ok", ""),
                 ("protection_radius_mm", ""), ("protection_angle_deg", "")]

@@ -834,10 +834,11 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     from bench.scenario.in_situ_bound import (
         crb_base_pose,
         keypoint_sigma_px,
-        locate_sigma_px,
         mc_ideal_estimator,
         model_floor,
         observation_pattern,
+        track_noise_on_surface,
+        track_pixels,
         true_projector,
     )
     from bench.sim.encoders import EncoderModel
@@ -855,16 +856,26 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     out = {"keypoint_sigma_px": sigma_px, "keypoint_sigma_matches": float(n_sigma)}
     if not np.isfinite(sigma_px) or sigma_px <= 0:
         return out
-    # the locate views' own noise (the other parking's viewpoint); without matches there, the survey's
-    sigma_loc, n_loc = locate_sigma_px(sigma_px, obs[ref], [obs[n] for n in loc], poses, lens,
-                                       true_projector(lens, port, profile), port=port)
-    out.update({"keypoint_sigma_locate_px": sigma_loc, "keypoint_sigma_locate_matches": float(n_loc)})
+    # the locate views' own noise (the other parking's viewpoint), relative to the survey's on the same tracks, on the
+    # panel's true surfaces; without a pose (no tracks), the survey's
+    ratio = points = float("nan")
+    if res.success and res.used is not None:
+        from bench.scenario.scene_points import SceneRays
+
+        surface = SceneRays(replay_panel(cfg), np.array(truth["T_world_panel"], float))
+        tn = track_noise_on_surface(*track_pixels(kmap, res.used, obs, ref, surround, loc), poses[ref],
+                                    np.stack([poses[n] for n in surround]), np.stack([poses[n] for n in loc]), lens,
+                                    port, true_projector(lens, port, profile), surface)
+        ratio, points = tn["ratio"], float(tn["points"])
+    sigma_loc = sigma_px * ratio if np.isfinite(ratio) and ratio > 0 else sigma_px
+    out.update({"keypoint_sigma_locate_px": sigma_loc, "keypoint_locate_ratio": ratio,
+                "keypoint_locate_points": points})
     T_wb1 = np.array(truth["T_world_base_survey"])
     T_site_b2 = invert(T_wb1) @ np.array(truth["T_world_base_locate"])
     X_site = transform_points(kmap.T_world_ref, kmap.p_ref)  # the features the pipeline found (linearisation)
     names = [ref, *surround, *loc]
     views = [(np.array(truth["views"][n]["q_true"]), n in loc) for n in names]
-    sigma_views = np.array([sigma_loc if n in loc and np.isfinite(sigma_loc) else sigma_px for n in names])
+    sigma_views = np.array([sigma_loc if n in loc else sigma_px for n in names])
     enc = truth["encoders"]
     sigma_enc = float(np.sqrt(enc["noise_std_rad"] ** 2 + enc["resolution_rad"] ** 2 / 12)) or 1e-9
     ident = lab["identification"]

@@ -5,7 +5,7 @@ measured keypoint noise (:func:`keypoint_sigma_px`) and the bound's machinery - 
 
 * :func:`crb_base_pose` - the Cramér-Rao lower bound on the located base pose: Fisher information of every
   observation the ideal estimator would have (each map point in the reference, surrounding and locate views, pixel
-  noise sigma: the survey's, and the locate views' own, :func:`locate_sigma_px`), with the joint angles of every
+  noise sigma: the survey's, and the locate views' own, :func:`track_noise_on_surface`), with the joint angles of every
   view as nuisance parameters observed by the encoders (sigma_enc),
   the identified arm errors (the 25 of §2.5-2.7) with the identification's covariance as prior (tracker noise) and
   the 3D points as free nuisance parameters (eliminated point by point), optionally the intrinsics and the mount
@@ -125,25 +125,94 @@ def observation_pattern(kmap, n_views: int, locate_idx) -> np.ndarray:
     return vis
 
 
-#: the locate views' noise is not taken below this fraction of the survey's (a floor for the estimate's sampling noise)
-LOCATE_SIGMA_MIN_RATIO = 0.5
+def _robust_sd(a) -> float:
+    a = np.asarray(a, float).ravel()
+    return float(1.4826 * np.median(np.abs(a - np.median(a))))
 
 
-def locate_sigma_px(sigma_survey: float, reference: ViewObservation, locate_views: list, T_world_cam_true: dict,
-                    camera_true: CameraModel, project, port=None) -> tuple:
-    """The locate views' own keypoint noise (px, 1-sigma per image axis) and the number of matches behind it.
+def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_survey, T_world_locate, lens: CameraModel,
+                           port, project, surface) -> dict:
+    """The survey's and the locate views' own keypoint noise, measured on the scene's true surfaces (evaluator side).
 
-    A locate view sees the panel from the other parking, so SIFT places a keypoint a little differently there than
-    in the survey views that made the map (the detector's response to the changed foreshortening and shading: measured
-    evaluator side on the true panel surface, 1.0-2.0 x the survey's spread in air, 0.7-1.6 x under water;
-    docs/bounds.md). :func:`keypoint_sigma_px` on the reference's matches into the locate views gives the pair's
-    ``s`` with ``2 s^2 = sigma_ref^2 + sigma_locate^2``; the reference view's noise is the survey's
-    (``sigma_survey``, the same parking and viewpoint), so ``sigma_locate = sqrt(2 s^2 - sigma_survey^2)``, not
-    below :data:`LOCATE_SIGMA_MIN_RATIO` x ``sigma_survey``. NaN without matches."""
-    s, n = keypoint_sigma_px(reference, locate_views, T_world_cam_true, camera_true, project, port=port)
-    if not np.isfinite(s) or not n:
-        return float("nan"), int(n)
-    return float(max(np.sqrt(max(2 * s**2 - sigma_survey**2, 0.0)), LOCATE_SIGMA_MIN_RATIO * sigma_survey)), int(n)
+    A locate view sees the panel from the other parking, so SIFT may place a keypoint differently there than in the
+    survey views that made the map (the detector's response to the changed foreshortening and shading). For each track
+    (map point), the reference keypoint's ray (the true ``lens``, the flat ``port`` if any, the reference's true pose)
+    meets ``surface`` (``first_hits(origins, directions)``, e.g. :class:`bench.scenario.scene_points.SceneRays`) at
+    ``P``; ``P`` through the true optics (``project``) into each view that observed the track gives its true pixel,
+    and detected minus true is that observation's own error - nothing fitted hides any of it.
+
+    * ``survey_px``: robust sigma (1.4826 MAD per axis) of the survey views' errors about each track's survey mean,
+      times ``sqrt(n / (n - 1))`` for the mean's degrees of freedom (``n`` survey views per track, on average);
+    * ``locate_px``: robust sigma of the locate views' errors about the same mean, less the mean's own variance
+      ``survey_px^2 / n``;
+    * ``ratio`` = ``locate_px / survey_px``; ``points``: the tracks measured (a ray that misses the surface, or a
+      track seen in fewer than two survey views, is left out).
+
+    Parameters
+    ----------
+    uv_ref : ndarray (N, 2)
+        The tracks' reference keypoints (px, as detected).
+    survey : list of N (ndarray (n_i,) int, ndarray (n_i, 2))
+        Each track's survey views (indices into ``T_world_survey``) and its keypoints there (px).
+    uv_locate : ndarray (N, L, 2)
+        Its keypoints in the L locate views (px).
+    T_world_ref, T_world_survey, T_world_locate : ndarray (4, 4), (K, 4, 4), (L, 4, 4)
+        The true camera poses.
+    """
+    from bench.camera.flatport import trace_rays
+    from bench.geometry.transforms import invert
+
+    uv_ref = np.asarray(uv_ref, float)
+    dirs = lens.unproject(uv_ref)
+    origins = np.zeros_like(dirs)
+    if port is not None:
+        origins, dirs, _ = trace_rays(dirs, port)
+    R, t = np.asarray(T_world_ref, float)[:3, :3], np.asarray(T_world_ref, float)[:3, 3]
+    P = surface.first_hits(origins @ R.T + t, dirs @ R.T)
+
+    def error(T_world_cam, uv, point):
+        return np.asarray(uv, float) - project(transform_points(invert(T_world_cam), point[None]))[0]
+
+    dev_survey, dev_locate, n_views = [], [], []
+    for j in np.flatnonzero(np.all(np.isfinite(P), axis=1)):
+        views, uv = survey[j]
+        e = np.array([error(T_world_survey[k], x, P[j]) for k, x in zip(views, np.asarray(uv).reshape(-1, 2),
+                                                                          strict=True)])
+        if len(e) < 2:
+            continue
+        mean = e.mean(axis=0)
+        dev_survey.append(e - mean)
+        n_views.append(len(e))
+        dev_locate += [error(T, x, P[j]) - mean for T, x in zip(T_world_locate, uv_locate[j], strict=True)]
+    if not n_views:
+        return {"survey_px": float("nan"), "locate_px": float("nan"), "ratio": float("nan"), "points": 0}
+    n = float(np.mean(n_views))
+    s_survey = _robust_sd(np.concatenate(dev_survey)) * np.sqrt(n / (n - 1))
+    s_locate = float(np.sqrt(max(_robust_sd(dev_locate) ** 2 - s_survey**2 / n, 0.0)))
+    return {"survey_px": s_survey, "locate_px": s_locate, "ratio": s_locate / s_survey if s_survey > 0 else np.nan,
+            "points": len(n_views)}
+
+
+def track_pixels(kmap, used, observations: dict, reference: str, survey: list, locate: list) -> tuple:
+    """The detected pixels of the tracks the final solve used, for :func:`track_noise_on_surface`: ``(uv_ref (N, 2),
+    [(survey view indices, uv (n_i, 2))] * N, uv_locate (N, L, 2))``. ``used`` is the result's ``(map indices, x_a,
+    x_b)``; each normalized keypoint is looked up among its view's (``ViewObservation.x_n``) to give the pixel the
+    detector returned."""
+    def pixels(name, x):
+        o = observations[name]
+        d = np.linalg.norm(o.x_n[None] - np.asarray(x, float).reshape(-1, 1, 2), axis=2)
+        return o.features.uv[d.argmin(axis=1)]
+
+    idx = np.asarray(used[0], int)
+    uv_ref = observations[reference].features.uv[np.asarray(kmap.ref_index)[idx]]
+    tracks = []
+    for i in idx:
+        views, xs = kmap.observations[i]
+        xs = np.asarray(xs, float).reshape(-1, 2)
+        tracks.append((np.asarray(views, int), np.array([pixels(survey[k], x)[0] for k, x in zip(views, xs,
+                                                                                                   strict=True)])))
+    uv_locate = np.stack([pixels(name, x) for name, x in zip(locate, used[1:], strict=True)], axis=1)
+    return uv_ref, tracks, uv_locate
 
 
 def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2, views, X_site, size, sigma_px,
@@ -170,7 +239,7 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
     size : (w, h)
     sigma_px : float or ndarray (V,)
         Pixel noise (px, per axis): every view's, or one per view (the survey's and the locate views' own,
-        :func:`locate_sigma_px`).
+        :func:`track_noise_on_surface`).
     sigma_enc : float
         Encoder noise (rad, per joint, quantisation included).
     cov_K : ndarray (4, 4), optional

@@ -170,9 +170,11 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "epipolar curves (robust σ)", "`bound.enabled`"),
         Metric("keypoint_sigma_matches", "count", "matches behind that σ", "`bound.enabled`"),
         Metric("keypoint_sigma_locate_px", "px", "the locate views' own keypoint noise (the other parking's "
-               "viewpoint), from the reference's matches into them (robust σ); the bound's noise there",
+               "viewpoint): `keypoint_sigma_px` × `keypoint_locate_ratio`; the bound's noise there",
                "`bound.enabled`"),
-        Metric("keypoint_sigma_locate_matches", "count", "matches behind that σ", "`bound.enabled`"),
+        Metric("keypoint_locate_ratio", "1", "the locate views' keypoint noise over the survey's, on the same "
+               "tracks, measured on the panel's true surfaces (robust σ)", "`bound.enabled`, a pose"),
+        Metric("keypoint_locate_points", "count", "tracks behind that ratio", "`bound.enabled`, a pose"),
         Metric("base_pos_bound_mm", "mm", "the limit of the base position: Cramér-Rao bound ⊕ model floor "
                "(root-sum-square)", "`bound.enabled`"),
         Metric("base_rot_bound_deg", "deg", "the limit of the base rotation: bound ⊕ floor", "`bound.enabled`"),

@@ -12,12 +12,11 @@ from bench.robot.model import default_robot_path, load_robot, random_errors
 from bench.robot.orientation import link5_frame
 from bench.scenario.bounds import ml_estimate
 from bench.scenario.in_situ_bound import (
-    LOCATE_SIGMA_MIN_RATIO,
     _Model,
     crb_base_pose,
     ideal_features,
     keypoint_sigma_px,
-    locate_sigma_px,
+    track_noise_on_surface,
 )
 from bench.vision.insitu import ViewObservation
 
@@ -138,26 +137,48 @@ def test_ideal_features_and_measured_noise(scene):
     assert est == pytest.approx(sigma, rel=0.2)
 
 
-def test_locate_views_own_noise_is_measured(scene):
-    """Survey views (the reference among them) with noise sigma, locate views with 2 sigma: the locate views' own noise
-    comes back from the reference's matches into them; a locate noise below the floor is reported at the floor."""
-    robot, eps, cam, _, X, views, _, _ = scene
+class _Plane:
+    """Ray casting onto the plane through ``point`` with normal ``normal`` (the interface of
+    :class:`bench.scenario.scene_points.SceneRays`)."""
+
+    def __init__(self, point, normal):
+        self.point, self.normal = np.asarray(point, float), np.asarray(normal, float)
+
+    def first_hits(self, origins, directions):
+        s = ((self.point - origins) @ self.normal) / (directions @ self.normal)
+        return origins + s[:, None] * directions
+
+
+def test_locate_views_own_noise_is_measured_on_the_surface(scene):
+    """Tracks on a plane: exact pixels give zero noise; survey views with sigma and locate views with 2 sigma give
+    back sigma and a ratio of 2 - the reference keypoint's own error moves the surface point, which every view
+    shares and the measurement removes."""
+    robot, eps, cam, T_site_b2, _, views, _, _ = scene
     rng = np.random.default_rng(74)
-    poses = {f"v{k}": link5_frame(robot, q, eps) @ MOUNT for k, (q, _) in enumerate(views)}
-    Xd = np.r_[X, X + 0.01, X - 0.01, X + [0.02, -0.01, 0.0]]
-    sigma = 0.2
+    T = [link5_frame(robot, q, eps) @ MOUNT for q, _ in views]
+    T = [T_site_b2 @ t if loc else t for t, (_, loc) in zip(T, views, strict=True)]
+    T_ref, T_survey, T_loc = T[0], np.stack(T[1:3]), np.stack(T[3:])
+    n_plane = T_ref[:3, 2]
+    plane = _Plane(T_ref[:3, 3] + 1.0 * n_plane, n_plane)  # 1 m in front of the reference, facing it
+    p_cam = np.c_[rng.uniform(-0.25, 0.25, (400, 2)), np.ones(400)]
+    P = plane.first_hits(np.tile(T_ref[:3, 3], (400, 1)), transform_points(T_ref, p_cam) - T_ref[:3, 3])
 
-    def observe(name, s):
-        f = ideal_features(Xd, poses[name], cam.project, cam.size, s, rng)
-        return ViewObservation(name, f, cam.undistort_pixels(f.uv), poses[name])
+    def pixels(T_wc, s):
+        uv = cam.project(transform_points(invert(T_wc), P))
+        return uv + rng.normal(0, s, uv.shape) if s else uv
 
-    ref, loc = observe("v0", sigma), [observe("v3", 2 * sigma), observe("v4", 2 * sigma)]
-    est, n = locate_sigma_px(sigma, ref, loc, poses, cam, cam.project)
-    assert n == 2 * len(Xd)
-    assert est == pytest.approx(2 * sigma, rel=0.2)
-    quiet = [observe("v3", 0.0), observe("v4", 0.0)]
-    est, _ = locate_sigma_px(sigma, ref, quiet, poses, cam, cam.project)
-    assert est == pytest.approx(LOCATE_SIGMA_MIN_RATIO * sigma)
+    def measure(s, s_loc):
+        uv_ref = pixels(T_ref, s)
+        sur = np.stack([pixels(t, s) for t in T_survey], axis=1)  # (N, 2 views, 2)
+        loc = np.stack([pixels(t, s_loc) for t in T_loc], axis=1)
+        tracks = [(np.arange(2), sur[j]) for j in range(len(P))]
+        return track_noise_on_surface(uv_ref, tracks, loc, T_ref, T_survey, T_loc, cam, None, cam.project, plane)
+
+    exact = measure(0.0, 0.0)
+    assert exact["points"] == 400 and exact["survey_px"] < 1e-6 and exact["locate_px"] < 1e-6
+    noisy = measure(0.2, 0.4)
+    assert noisy["survey_px"] == pytest.approx(0.2, rel=0.15)
+    assert noisy["ratio"] == pytest.approx(2.0, rel=0.15)
 
 
 def test_intrinsics_and_mount_blocks(scene):
