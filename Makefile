@@ -30,8 +30,8 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/bench run scenarios/ta40_in_situ_manifold.yaml --out $(OUT)/demo
 
-# the tests' linear algebra is small: one BLAS thread each (OpenBLAS's threads spin against each other and against
-# anything else on a shared 2-core machine: the x-y bound's Monte Carlo took 164 s with them, 42 s without)
+# the tests' linear algebra is small: one BLAS thread (OpenBLAS's threads spin against anything else on a shared
+# 2-core machine: the x-y bound's Monte Carlo test took 164 s with them and 42 s without, beside two sweeps)
 test: $(STAMP)
 	$(BIN)/ruff check bench tests tools
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q
