@@ -91,8 +91,10 @@ def main(argv=None) -> int:
         try:
             result = json.loads((run / "result.json").read_text())
             row = measure(load_scenario(args.scenario, result["seed"], args.overrides), run)
+        except FileNotFoundError as exc:
+            row = {"run": str(run), "error": f"not a finished in_situ run ({exc.filename} is missing)"}
         except (OSError, KeyError, json.JSONDecodeError, BenchError) as exc:
-            row = {"run": run.name, "error": f"{type(exc).__name__}: {exc}"}
+            row = {"run": str(run), "error": f"{type(exc).__name__}: {exc}"}
         if "error" in row:
             print(f"{row['run']}: {row['error']}")
             continue
