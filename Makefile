@@ -30,11 +30,16 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/bench run scenarios/ta40_in_situ_manifold.yaml --out $(OUT)/demo
 
-# the tests' linear algebra is small: one BLAS thread (OpenBLAS's threads spin against anything else on a shared
-# 2-core machine: the x-y bound's Monte Carlo test took 164 s with them and 42 s without, beside two sweeps)
+# the suite runs on TEST_WORKERS processes (pytest-xdist; a test file stays in one process, so its module fixtures
+# are built once), each with one BLAS thread: the tests' linear algebra is small, and OpenBLAS's threads spin against
+# anything else on a shared 2-core machine (the x-y bound's Monte Carlo test: 164 s with them, 42 s without, beside
+# two sweeps). One process left the second core idle: 1,238 s on a fresh clone, against 825 s with two (this checkout,
+# the same day).
+TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(BIN)/ruff check bench tests tools
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n $(TEST_WORKERS) \
+		--dist loadfile
 
 reproduce: $(STAMP)
 	$(BIN)/bench run scenarios/table2_kinematic_identification.yaml --out $(OUT)/table2 --set monte_carlo.seeds=500
