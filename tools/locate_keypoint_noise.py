@@ -4,11 +4,11 @@
 
 EVALUATOR SIDE (it reads ``truth/``). Each RUN is a finished ``in_situ`` run folder (``dataset/``, ``calibrated/``,
 ``result.json``) of SCENARIO with the same ``--set`` (e.g. ``camera.preset=air_webcam``; the seed is the run's). The
-dataset is localised again with the scenario's estimator and the run's lab files; for every map point the final
-solve used, the reference keypoint's ray (true lens, port, pose) is cast onto the panel's true surfaces (the panel
-drawn again from the seed: :func:`bench.scenario.in_situ.replay_panel`), and that surface point is projected through
-the true optics into every view that observed the point: detected minus true is each observation's own error, with
-nothing fitted to hide any of it. Per run:
+dataset is localised again with the scenario's estimator and the run's lab files (``relocate_sweep.locate_run``); for
+every map point the final solve used, the reference keypoint's ray (true lens, port, pose) is cast onto the panel's true
+surfaces (the panel drawn again from the seed: :func:`bench.scenario.in_situ.replay_panel`), and that surface point is
+projected through the true optics into every view that observed the point: detected minus true is each observation's own
+error, with nothing fitted to hide any of it. Per run:
 
 * ``survey``: the robust sigma (1.4826 MAD, per axis) of the survey views' errors about each track's survey mean,
   corrected for the mean's degrees of freedom - the noise the map's views share no part of;
@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -34,29 +33,22 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tools"))
 
 
 def measure(cfg, run: Path) -> dict:
     """One run's survey and locate noise on the true surface (module docstring)."""
+    from relocate_sweep import locate_run
+
     from bench.scenario.bounds import true_projector
     from bench.scenario.in_situ import _true_camera_poses, _true_optics, imaging, replay_panel
     from bench.scenario.in_situ_bound import track_noise_on_surface, track_pixels
     from bench.scenario.scene_points import SceneRays
-    from bench.vision.insitu import MapConfig
-    from bench.vision.locate_dataset import locate_dataset
 
     result = json.loads((run / "result.json").read_text())
     truth = yaml.safe_load((run / "dataset" / "truth" / "truth.yaml").read_text())
-    cal, p, det = run / "calibrated", cfg["pipeline"], {}
-    priors = cal / "calibration_priors.yaml"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res, _ = locate_dataset(run / "dataset", None, method=p["method"], seed=result["seed"], config=MapConfig(),
-                                verbose=False, camera_path=cal / "camera.yaml", robot_path=cal / "robot.yaml",
-                                refine=p["refine"], ransac=dict(iterations=p["ransac_iterations"],
-                                                                d_r=p["d_r_mm"] * 1e-3, r_lim=p["r_lim"]),
-                                priors_path=priors if priors.is_file() and p["refine"] == "joints" else None,
-                                details=det)
+    det = {}
+    res, _ = locate_run(run, result["seed"], cfg["pipeline"], details=det)
     if not res.success or res.used is None:
         return {"run": run.name, "error": f"no localisation ({res.message})"}
     lens, port, _ = _true_optics(truth)

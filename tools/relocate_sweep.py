@@ -45,30 +45,38 @@ def _runs(sweep: Path) -> list:
     return [(rid, int(seed), json.loads(params or "{}")) for rid, seed, params in rows]
 
 
-def relocate(run_dir: str, seed: int, pipeline: dict, name: str) -> tuple:
-    """One run: ``(run_id, integrity or the error, seconds)``."""
+def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None) -> tuple:
+    """:func:`bench.vision.locate_dataset.locate_dataset` on a run's ``dataset/`` with its ``calibrated/`` lab files
+    and the scenario's ``pipeline`` settings, as the ``in_situ`` kind passes them; ``(result, report)``."""
     import warnings
 
-    from bench.errors import BenchError
     from bench.vision.insitu import MapConfig
     from bench.vision.locate_dataset import locate_dataset
 
-    run = Path(run_dir)
     cal = run / "calibrated"
     priors = cal / "calibration_priors.yaml"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return locate_dataset(run / "dataset", out, method=pipeline["method"], seed=seed, config=MapConfig(),
+                              verbose=False, camera_path=cal / "camera.yaml", robot_path=cal / "robot.yaml",
+                              refine=pipeline["refine"], ransac=dict(iterations=pipeline["ransac_iterations"],
+                                                                     d_r=pipeline["d_r_mm"] * 1e-3,
+                                                                     r_lim=pipeline["r_lim"]),
+                              priors_path=priors if priors.is_file() and pipeline["refine"] == "joints" else None,
+                              guided=pipeline.get("guided", False),
+                              loss=None if pipeline.get("loss", "none") == "none" else pipeline["loss"],
+                              details=details)
+
+
+def relocate(run_dir: str, seed: int, pipeline: dict, name: str) -> tuple:
+    """One run: ``(run_id, integrity or the error, seconds)``."""
+    from bench.errors import BenchError
+
+    run = Path(run_dir)
     (run / name / "locate.json").unlink(missing_ok=True)  # never a stale result beside a failed run
     t0 = time.perf_counter()
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            _, rep = locate_dataset(run / "dataset", run / name, method=pipeline["method"], seed=seed,
-                                    config=MapConfig(), verbose=False, camera_path=cal / "camera.yaml",
-                                    robot_path=cal / "robot.yaml", refine=pipeline["refine"],
-                                    ransac=dict(iterations=pipeline["ransac_iterations"],
-                                                d_r=pipeline["d_r_mm"] * 1e-3, r_lim=pipeline["r_lim"]),
-                                    priors_path=priors if priors.is_file() and pipeline["refine"] == "joints"
-                                    else None, guided=pipeline.get("guided", False),
-                                    loss=None if pipeline.get("loss", "none") == "none" else pipeline["loss"])
+        _, rep = locate_run(run, seed, pipeline, out=run / name)
     except BenchError as exc:
         return run.name, f"error: {exc}", time.perf_counter() - t0
     except Exception as exc:  # noqa: BLE001 - one run's failure is reported; the others go on

@@ -851,8 +851,8 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     surround = [n for n in obs if truth["views"][n]["role"] == "surround"]
     loc = [n for n in obs if truth["views"][n]["role"] == "locate"][:2]
     profile = imaging(cfg)
-    sigma_px, n_sigma = keypoint_sigma_px(obs[ref], [obs[n] for n in surround], poses, lens,
-                                          true_projector(lens, port, profile), port=port)
+    project = true_projector(lens, port, profile)
+    sigma_px, n_sigma = keypoint_sigma_px(obs[ref], [obs[n] for n in surround], poses, lens, project, port=port)
     out = {"keypoint_sigma_px": sigma_px, "keypoint_sigma_matches": float(n_sigma)}
     if not np.isfinite(sigma_px) or sigma_px <= 0:
         return out
@@ -865,7 +865,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
         surface = SceneRays(replay_panel(cfg), np.array(truth["T_world_panel"], float))
         tn = track_noise_on_surface(*track_pixels(kmap, res.used, obs, ref, surround, loc), poses[ref],
                                     np.stack([poses[n] for n in surround]), np.stack([poses[n] for n in loc]), lens,
-                                    port, true_projector(lens, port, profile), surface)
+                                    port, project, surface)
         ratio, points = tn["ratio"], float(tn["points"])
     sigma_loc = sigma_px * ratio if np.isfinite(ratio) and ratio > 0 else sigma_px
     out.update({"keypoint_sigma_locate_px": sigma_loc, "keypoint_locate_ratio": ratio,
