@@ -75,6 +75,8 @@ def _parser() -> argparse.ArgumentParser:
                      "locate views at the refined poses and re-run the joint bundle (bench.vision.guided)")
     loc.add_argument("--loss", choices=("none", "huber"), default="none", help="with --refine joints: the joint "
                      "bundle's loss, least squares (none) or Huber's M-estimate")
+    loc.add_argument("--map-points", choices=("all", "located"), default="all", help="with --refine joints: the "
+                     "map points the joint bundle weighs, all or only those both locate views matched")
     loc.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     loc.add_argument("--robot", default=None, help="calibrated robot file (default: the dataset's robot.yaml)")
     loc.add_argument("--camera", default=None, help="calibrated camera file (default: the dataset's camera.yaml)")
@@ -343,14 +345,15 @@ def main(argv=None) -> int:
             if args.priors and (args.refine != "joints" or args.pnp):
                 raise BenchError(f"--priors {args.priors}: used only by --refine joints (two views), got --refine "
                                  f"{args.refine}{' --pnp' if args.pnp else ''}")
-            for flag, on in (("--guided", args.guided), (f"--loss {args.loss}", args.loss != "none")):
+            for flag, on in (("--guided", args.guided), (f"--loss {args.loss}", args.loss != "none"),
+                             (f"--map-points {args.map_points}", args.map_points != "all")):
                 if on and (args.refine != "joints" or args.pnp):
                     raise BenchError(f"{flag}: used only by --refine joints (two views), got --refine {args.refine}"
                                      f"{' --pnp' if args.pnp else ''}")
             res, rep = locate_dataset(args.dataset, args.out, method=args.method, pnp=args.pnp, seed=args.seed,
                                       camera_path=args.camera, robot_path=args.robot, refine=args.refine,
                                       priors_path=args.priors, guided=args.guided,
-                                      loss=None if args.loss == "none" else args.loss)
+                                      loss=None if args.loss == "none" else args.loss, map_points=args.map_points)
             return 0 if res.success and rep["integrity"] != "refused" else 1  # refused: do not use the pose
         elif args.command == "faults":
             from bench.scenario.faults import run_faults

@@ -186,10 +186,15 @@ class Pipeline(Section):
     loss: Annotated[Literal["none", "huber"], about(
         "the joint bundle's loss (refine 'joints'): least squares on the gated observations, or Huber's M-estimate "
         "(bench.vision.bundle.robust_weights): docs/bounds.md measures it")] = "none"
+    map_points: Annotated[Literal["all", "located"], about(
+        "the map points the joint bundle weighs (refine 'joints'): all of them, or only those both locate views "
+        "matched; the others hold the survey views' joints and the shared lens and mount (docs/bounds.md measures "
+        "it)")] = "all"
 
     @model_validator(mode="after")
     def _needs_joints(self):
-        for key, on in (("guided", self.guided), ("loss", self.loss != "none")):
+        for key, on in (("guided", self.guided), ("loss", self.loss != "none"), ("map_points",
+                                                                               self.map_points != "all")):
             if on and self.refine != "joints":
                 raise KeyProblem(key, f"used only by refine 'joints', got refine {self.refine!r}")
         return self
@@ -985,7 +990,7 @@ def run(cfg, out_dir, verbose=True):
                                  config=MapConfig(), verbose=False, camera_path=camera_path,
                                  robot_path=robot_path, refine=p["refine"], ransac=ransac, details=details,
                                  features_fn=features_fn, priors_path=priors_path, guided=p["guided"],
-                                 loss=None if p["loss"] == "none" else p["loss"])
+                                 loss=None if p["loss"] == "none" else p["loss"], map_points=p["map_points"])
 
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
     T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])

@@ -94,7 +94,7 @@ REFUSE_CONDITION = 1e8
 #: errors (docs/integrity.md, "An honest covariance"): ``joints`` on ta40_in_situ_manifold seeds 1-20 (realistic
 #: imaging), ``bundle`` on the 84-run envelope of docs/integrity.md; ``pose`` / ``none`` / ``pnp`` were not measured
 #: and take the largest measured value.
-KAPPA = {"joints": 1.46, "bundle": 2.89}
+KAPPA = {"joints": 1.32, "bundle": 2.89}
 KAPPA_UNMEASURED = max(KAPPA.values())
 #: Model floor of the protection levels (the residual kinematic calibration error, see the module docstring).
 FLOOR_MM = 0.5

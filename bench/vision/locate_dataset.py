@@ -200,11 +200,12 @@ def _guided_used(kmap, view_a, view_b, used, T_ref_a, T_ref_b, K, dist, camera) 
 
 
 def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None,
-                   guided: bool = False, loss: str | None = None):
+                   guided: bool = False, loss: str | None = None, map_points: str = "all"):
     """The thesis estimator's pose refined by :func:`~bench.vision.joint_bundle.joint_bundle` (joints under the
     encoder prior); on failure the thesis estimate is kept and the message says why. With ``guided`` the map is
     then searched again in both locate views at the refined poses and camera (:mod:`bench.vision.guided`) and the
-    joint bundle re-run on the grown set; ``loss``: the joint bundle's (``joint_bundle``). Returns ``(result,
+    joint bundle re-run on the grown set; ``loss``: the joint bundle's (``joint_bundle``); ``map_points``: which
+    map points it weighs (:func:`~bench.vision.joint_bundle.observations_of`). Returns ``(result,
     refined)``: ``refined`` False when the thesis's estimate (and covariance) is what comes back; the result's
     ``used`` is what the returned estimate used."""
     from bench.camera.model import distort, to_pixels
@@ -220,7 +221,7 @@ def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma
     is_loc = np.array([v.role == "locate" for v in views])
 
     def bundle(used, T_start):
-        view, point, x, idx = observations_of(kmap, used, n_sur)
+        view, point, x, idx = observations_of(kmap, used, n_sur, map_points)
         X = transform_points(kmap.T_world_ref, kmap.p_ref[idx])
         uv = to_pixels(distort(x, camera.dist), camera.K)  # the keypoints as detected (x: their undistorted form)
         return joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, T_start, view, point, uv, X, sigma_enc,
@@ -267,7 +268,7 @@ def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
                    seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine="bundle",
                    ransac: dict | None = None, details: dict | None = None, features_fn=None, priors_path=None,
-                   guided: bool = False, loss: str | None = None):
+                   guided: bool = False, loss: str | None = None, map_points: str = "all"):
     """Build the map from the survey views and locate the base from the two ``locate`` views.
 
     ``camera_path`` / ``robot_path`` replace the dataset's own files (e.g. the results of an earlier calibration);
@@ -279,10 +280,14 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     dict, if given, receives the intermediate objects (``map``, ``observations``, ``camera``, ``robot``, ``eps``,
     ``T_link5_cam``; with ``joints`` also ``thesis_result``, the ``bundle`` estimate before the joints)
     for inspection and visualisation. ``features_fn`` replaces the SIFT detector (see
-    :func:`observe`). ``loss`` (``refine: joints``): the joint bundle's, None (least squares) or ``"huber"``.
+    :func:`observe`). ``loss`` (``refine: joints``): the joint bundle's, None (least squares) or ``"huber"``;
+    ``map_points`` (``refine: joints``): ``"all"`` (every map point; those the locate views do not see hold the
+    survey's joints and the shared camera) or ``"located"`` (only the points both locate views matched).
     Returns ``(LocateResult, report dict)``; writes ``out/locate.json`` when ``out`` is given.
     """
     t0 = time.perf_counter()
+    if map_points not in ("all", "located"):
+        raise ConfigError("locate_dataset", "map_points", f"expected 'all' or 'located', got {map_points!r}")
     ds = load_dataset(root)
     camera_path = Path(camera_path) if camera_path else ds.camera_path
     robot_path = Path(robot_path) if robot_path else ds.robot_path
@@ -329,7 +334,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
             if refine == "joints" and res.success:
                 thesis = res  # the thesis estimator's (bundle) result, reported beside
                 res, refined = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, pixels_camera,
-                                              sigma_enc, priors, guided, loss)
+                                              sigma_enc, priors, guided, loss, map_points)
         return kmap, res, refined, thesis, t_map
 
     # the joint bundle works in pixels: a refractive camera's coordinates go to it through its virtual pinhole

@@ -3,6 +3,7 @@ views, a duplicated frame) are refused, a clean one is not, the protection level
 ``bench faults`` damages its copy as described."""
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -247,3 +248,31 @@ def test_huber_loss_on_a_rendered_dataset(rendered):
     scenario = Path(__file__).resolve().parents[2] / "scenarios" / "ta40_in_situ_manifold.yaml"
     with pytest.raises(BenchError, match=r"pipeline\.loss: used only by refine 'joints'"):
         load_scenario(scenario, overrides=["pipeline.loss=huber", "pipeline.refine=bundle"])
+
+
+def test_map_points_located_against_all_on_a_rendered_dataset(rendered):
+    """pipeline.map_points: the default ('all') weighs the map points the locate views do not see as well; 'located'
+    (the earlier estimator) only those both locate views matched. On a rendered dataset the two differ, the default
+    weighs more observations and reports a tighter covariance, and both lie inside their protection radii; asked of
+    an estimator without the joint bundle, or with an unknown value, refused in one line."""
+    from bench.errors import BenchError
+
+    tmp, camera, robot = rendered
+    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
+    T_true = np.linalg.inv(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
+    kw = dict(verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3)
+    located, rep_l = locate_dataset(tmp / "ds", None, map_points="located", **kw)
+    every, rep_a = locate_dataset(tmp / "ds", None, **kw)
+    assert located.success and every.success
+    n_obs = [int(re.search(r"(\d+) of \d+ observations kept", r.message).group(1)) for r in (located, every)]
+    assert n_obs[1] > n_obs[0]
+    assert not np.allclose(every.T_world_base, located.T_world_base, rtol=0, atol=1e-9)
+    assert np.trace(every.covariance[3:, 3:]) < np.trace(located.covariance[3:, 3:])
+    for res, rep in ((located, rep_l), (every, rep_a)):
+        assert rep["integrity"] != "refused", rep["integrity_reasons"]
+        assert np.linalg.norm(res.T_world_base[:3, 3] - T_true[:3, 3]) * 1e3 <= rep["protection_radius_mm"]
+    with pytest.raises(ConfigError, match="map_points: expected 'all' or 'located'"):
+        locate_dataset(tmp / "ds", None, map_points="some", **kw)
+    scenario = Path(__file__).resolve().parents[2] / "scenarios" / "ta40_in_situ_manifold.yaml"
+    with pytest.raises(BenchError, match=r"pipeline\.map_points: used only by refine 'joints'"):
+        load_scenario(scenario, overrides=["pipeline.map_points=located", "pipeline.refine=bundle"])
