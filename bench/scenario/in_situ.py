@@ -160,6 +160,10 @@ class Pipeline(Section):
     method: Literal["svd", "horn", "rodrigues"] = "svd"
     extractor: Literal["opencv", "thesis"] = "opencv"
     refine: Literal["none", "pose", "bundle", "joints"] = "bundle"
+    locate: Annotated[Literal["two_view", "pnp"], about(
+        "the localisation: the thesis's two locate views (kinematic triangulation, absolute orientation, RANSAC) or "
+        "PnP of the first locate view against the map (bench.vision.insitu.locate_pnp; it refines its own pose, so "
+        "refine must be none); the bound follows it")] = "two_view"
     ransac_iterations: PositiveInt = 100
     d_r_mm: PositiveFloat = 20.0
     r_lim: NonNegFloat = 0.1
@@ -193,6 +197,9 @@ class Pipeline(Section):
 
     @model_validator(mode="after")
     def _needs_joints(self):
+        if self.locate == "pnp" and self.refine != "none":
+            raise KeyProblem("locate", f"pnp refines its own pose (LM on its inliers): set pipeline.refine=none, got "
+                                       f"refine {self.refine!r}")
         for key, on in (("guided", self.guided), ("loss", self.loss != "none"), ("map_points",
                                                                                self.map_points != "all")):
             if on and self.refine != "joints":
@@ -311,6 +318,9 @@ def validate(cfg) -> None:
         if on and not in_water:
             raise ConfigError(src, key, f"needs a camera behind a port in water, but camera.preset "
                                         f"{cfg['camera']['preset']!r} is in air")
+    if cfg["pipeline"]["locate"] == "pnp" and cfg["bound"]["ml_trials"] > 0:
+        raise ConfigError(src, "bound.ml_trials", "the Monte Carlo of refine 'joints' (two locate views); not with "
+                                                  "pipeline.locate=pnp (its bound's own Monte Carlo is bound.mc_trials)")
     texture_paths(cfg, "site.textures")
 
 
@@ -854,7 +864,8 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     kmap = details["map"]
     ref = [n for n in obs if truth["views"][n]["role"] == "reference"][0]
     surround = [n for n in obs if truth["views"][n]["role"] == "surround"]
-    loc = [n for n in obs if truth["views"][n]["role"] == "locate"][:2]
+    pnp = cfg["pipeline"]["locate"] == "pnp"  # one locate view: the bound, floor and Monte Carlo of PnP
+    loc = [n for n in obs if truth["views"][n]["role"] == "locate"][:1 if pnp else 2]
     profile = imaging(cfg)
     project = true_projector(lens, port, profile)
     sigma_px, n_sigma = keypoint_sigma_px(obs[ref], [obs[n] for n in surround], poses, lens, project, port=port)
@@ -901,14 +912,15 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
                             thesis_refine, central=(cal.camera, invert(mount) @ he_true.T_mount_cam),
                             profile=profile) if he_true is not None and he_true.success else nan
     priors = lab["priors"]
-    vis = observation_pattern(kmap, len(names), res.used[0]) if res.success and res.used is not None else None
+    vis = (observation_pattern(kmap, len(names), res.used[0], len(loc)) if res.success and res.used is not None
+           else None)
     crb = crb_base_pose(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam.project,
                         T_site_b2, views, X_site, cam.size, sigma_views, sigma_enc, K=cam.K, vis=vis, dist=cam.dist,
                         **priors)
     mc = mc_ideal_estimator(robot, eps_true, kept, ident.covariance, mount, central, T_site_b2, views, names, X_site,
                             sigma_views, EncoderModel(**enc), np.random.default_rng([cfg["seed"], 13]),
                             cfg["bound"]["mc_trials"], p["method"], ransac, thesis_refine)
-    if cfg["bound"]["ml_trials"] > 0 and vis is not None:
+    if cfg["bound"]["ml_trials"] > 0 and vis is not None and not pnp:  # the Monte Carlo of refine 'joints'
         from bench.scenario.in_situ_bound import mc_joint_bundle
 
         ml = mc_joint_bundle(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam, T_site_b2,
@@ -990,7 +1002,8 @@ def run(cfg, out_dir, verbose=True):
                                  config=MapConfig(), verbose=False, camera_path=camera_path,
                                  robot_path=robot_path, refine=p["refine"], ransac=ransac, details=details,
                                  features_fn=features_fn, priors_path=priors_path, guided=p["guided"],
-                                 loss=None if p["loss"] == "none" else p["loss"], map_points=p["map_points"])
+                                 loss=None if p["loss"] == "none" else p["loss"], map_points=p["map_points"],
+                                 pnp=p["locate"] == "pnp")
 
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
     T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])

@@ -40,7 +40,7 @@ from bench.scenario.bounds import (  # noqa: F401 - the generic parts, re-export
     true_projector,
     view_sigma,
 )
-from bench.vision.insitu import ViewObservation, build_map, locate
+from bench.vision.insitu import ViewObservation, build_map, locate, locate_pnp
 from bench.vision.locate_dataset import normalised
 
 
@@ -113,15 +113,16 @@ class _Model(MultiViewModel):
         return c + d_K[2:] + (1 + d_K[:2] / f) * (uv - c)
 
 
-def observation_pattern(kmap, n_views: int, locate_idx) -> np.ndarray:
+def observation_pattern(kmap, n_views: int, locate_idx, n_locate: int = 2) -> np.ndarray:
     """``vis (n_views, M)``: which view observed which map point, as the matching found it - every point in the
     reference (row 0), in the surrounding views that contributed to it (``kmap.observations``, rows 1..K) and in the
-    two locate views (the last two rows) where the final solve used it (``locate_idx``, map indices)."""
+    ``n_locate`` locate views (the last rows: two for the two-view solve, one for PnP) where the final solve used it
+    (``locate_idx``, map indices)."""
     vis = np.zeros((n_views, len(kmap)), dtype=bool)
     vis[0] = True
     for i, (views, _) in enumerate(kmap.observations):
         vis[1 + np.asarray(views, int), i] = True
-    vis[-2:, np.asarray(locate_idx, int)] = True
+    vis[n_views - n_locate:, np.asarray(locate_idx, int)] = True
     return vis
 
 
@@ -196,7 +197,7 @@ def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_surve
 def track_pixels(kmap, used, observations: dict, reference: str, survey: list, locate: list) -> tuple:
     """The detected pixels of the tracks the final solve used, for :func:`track_noise_on_surface`: ``(uv_ref (N, 2),
     [(survey view indices, uv (n_i, 2))] * N, uv_locate (N, L, 2))``. ``used`` is the result's ``(map indices, x_a,
-    x_b)``; each normalized keypoint is looked up among its view's (``ViewObservation.x_n``) to give the pixel the
+    x_b)`` (PnP: ``x_b`` None, one locate view); each normalized keypoint is looked up among its view's (``ViewObservation.x_n``) to give the pixel the
     detector returned."""
     def pixels(name, x):
         o = observations[name]
@@ -211,7 +212,7 @@ def track_pixels(kmap, used, observations: dict, reference: str, survey: list, l
         xs = np.asarray(xs, float).reshape(-1, 2)
         tracks.append((np.asarray(views, int), np.array([pixels(survey[k], x)[0] for k, x in zip(views, xs,
                                                                                                    strict=True)])))
-    uv_locate = np.stack([pixels(name, x) for name, x in zip(locate, used[1:], strict=True)], axis=1)
+    uv_locate = np.stack([pixels(name, x) for name, x in zip(locate, used[1:1 + len(locate)], strict=True)], axis=1)
     return uv_ref, tracks, uv_locate
 
 
@@ -274,6 +275,18 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
             "rot_bound_rad": float(np.sqrt(np.trace(cov[:3, :3]))), "observations": res["observations"]}
 
 
+def _estimate(obs, is_loc, method, rng, refine, ransac, focal_px):
+    """The pipeline's estimator on the views ``obs`` (reference, surrounding, then the locate views): the map from
+    the survey views, then the two-view solve (:func:`~bench.vision.insitu.locate`) for two locate views, or PnP
+    (:func:`~bench.vision.insitu.locate_pnp`, seeded from ``rng`` when it is an int) for one."""
+    n_survey = int(np.sum(~is_loc))
+    kmap = build_map(obs[0], obs[1:n_survey])
+    if len(obs) - n_survey == 1:
+        seed = rng if isinstance(rng, (int, np.integer)) else int(rng.integers(2**31))
+        return locate_pnp(kmap, obs[n_survey], focal_px=focal_px, rng_seed=seed)
+    return locate(kmap, obs[n_survey], obs[n_survey + 1], method=method, rng=rng, refine=refine, **(ransac or {}))
+
+
 def model_floor(robot, eps_true, mount, lens: CameraModel, port, T_site_b2, views, names, X_site, method="svd",
                 ransac: dict | None = None, refine="bundle", rng=None, central=None, profile=None) -> dict:
     """The model floor: the base error the pipeline's estimator leaves on *noise-free* features through the true
@@ -302,10 +315,7 @@ def model_floor(robot, eps_true, mount, lens: CameraModel, port, T_site_b2, view
         uv_c = central.project(transform_points(np.linalg.inv(T_site_cam[k] @ T_lens_c), X_site))
         misfit.append(np.linalg.norm(uv_c[:len(X_site)] - project(transform_points(np.linalg.inv(T_site_cam[k]),
                                                                                    X_site)), axis=1))
-    n_survey = int(np.sum(~is_loc))
-    kmap = build_map(obs[0], obs[1:n_survey])
-    res = locate(kmap, obs[n_survey], obs[n_survey + 1], method=method, rng=rng if rng is not None else 0,
-                 refine=refine, **(ransac or {}))
+    res = _estimate(obs, is_loc, method, rng if rng is not None else 0, refine, ransac, central.fx)
     m = np.concatenate(misfit)
     out = {"misfit_px": float(np.sqrt(np.nanmean(m**2))), "pos_m": float("nan"), "rot_rad": float("nan"),
            "camera": central, "T_lens_central": T_lens_c}
@@ -323,7 +333,7 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
     Each draw: pixel noise ``sigma_px`` on exact projections (``camera``: the true central camera), encoder readings
     drawn by ``encoders`` (an :class:`~bench.sim.encoders.EncoderModel`), arm errors drawn from the identification
     covariance; intrinsics and mount exact. ``views`` as for :func:`crb_base_pose` (``names``: reference first, then
-    the surrounding views, then the two locate views).
+    the surrounding views, then the locate views: two for the two-view solve, one for PnP).
     """
     q_true = np.array([q for q, _ in views])
     is_loc = np.array([loc for _, loc in views], dtype=bool)
@@ -341,9 +351,7 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
             f = ideal_features(X_site, T_site_cam_true[k], camera.project, camera.size, sigma[k], rng)
             obs.append(ViewObservation(name, f, camera.undistort_pixels(f.uv), link5_frame(robot, q_read[k], eps)
                                        @ mount))
-        n_survey = int(np.sum(~is_loc))
-        kmap = build_map(obs[0], obs[1:n_survey])
-        res = locate(kmap, obs[n_survey], obs[n_survey + 1], method=method, rng=rng, refine=refine, **(ransac or {}))
+        res = _estimate(obs, is_loc, method, rng, refine, ransac, camera.fx)
         if not res.success:
             fails += 1
             continue

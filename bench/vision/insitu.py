@@ -262,7 +262,8 @@ class LocateResult:
     p1: np.ndarray | None = None  # matched map points (ref frame) used in the alignment
     p2: np.ndarray | None = None  # their 2p estimates (camera-a frame)
     #: the final solve's points: ``(map indices (N,), x_a (N, 2), x_b (N, 2))`` - which map points views a and b
-    #: observed (normalized keypoints), after RANSAC and the reprojection gate (:func:`locate` only)
+    #: observed (normalized keypoints), after RANSAC and the reprojection gate; :func:`locate_pnp`: its inliers in
+    #: view a, ``x_b`` None
     used: tuple | None = None
 
 
@@ -740,4 +741,5 @@ def locate_pnp(kmap: KeypointMap, view_a: ViewObservation, config: MapConfig | N
     if cond > WARN_CONDITION:
         msg += f"; WARNING ill-conditioned point spread (condition {cond:.3g})"
     return LocateResult(True, msg, T_world_base, T_ref_a, cov, cond, len(m), len(inl),
-                        {"total_s": time.perf_counter() - t0}, None, obj[inl], transform_points(T_a_ref, obj[inl]))
+                        {"total_s": time.perf_counter() - t0}, None, obj[inl], transform_points(T_a_ref, obj[inl]),
+                        (np.asarray(m.i1)[inl], img[inl], None))

@@ -231,3 +231,37 @@ def test_best_central_camera():
     parax = lens.replace(K=_paraxial_K(lens.K, port.n_water / port.n_air)).project(p)
     e_fit, e_par = (np.sqrt(np.nanmean(np.sum((u - true) ** 2, axis=1))) for u in (fit, parax))
     assert e_fit < 0.5 * e_par and e_fit > 1e-4
+
+
+def test_pnp_variant_bound_floor_and_monte_carlo(scene):
+    """PnP of one locate view (pipeline.locate: pnp): its observation pattern has one locate row; its bound is the
+    same model with one locate view, at least the two-view bound (less information, Loewner order); on noise-free
+    features through a central lens its floor is 0 (the PnP estimator is exact); and the Monte Carlo of PnP with the
+    bound's noise does not beat the bound."""
+    from bench.scenario.in_situ_bound import mc_ideal_estimator, model_floor, observation_pattern
+    from bench.sim.encoders import EncoderModel
+
+    robot, eps, cam, T_site_b2, X, views, kept, cov_eps = scene
+    class _Map:  # two map points: the first seen by survey views 0 and 2, the second by view 1
+        observations = [(np.array([0, 2]), None), (np.array([1]), None)]
+
+        def __len__(self):
+            return 2
+
+    vis = observation_pattern(_Map(), 5, [1], n_locate=1)
+    assert vis.tolist() == [[True, True], [True, False], [False, True], [True, False], [False, True]]
+    sigma_px, sigma_enc = 0.3, 1e-4
+    two = crb_base_pose(robot, eps, kept, cov_eps, MOUNT, cam.project, T_site_b2, views, X, cam.size, sigma_px,
+                        sigma_enc)
+    one = crb_base_pose(robot, eps, kept, cov_eps, MOUNT, cam.project, T_site_b2, views[:4], X, cam.size, sigma_px,
+                        sigma_enc)
+    assert np.linalg.eigvalsh(one["cov"] - two["cov"]).min() > -1e-9 * np.abs(two["cov"]).max()
+    assert one["pos_bound_m"] > two["pos_bound_m"] and one["observations"] == 4 * len(X)
+    names = ["ref", "s1", "s2", "locate0"]
+    floor = model_floor(robot, eps, MOUNT, cam, None, T_site_b2, views[:4], names, X, refine="none")
+    assert floor["pos_m"] < 1e-8 and floor["rot_rad"] < 1e-8  # OpenCV's LM stops at its own criteria (~4 nm here)
+    enc = EncoderModel(noise_std_rad=sigma_enc, resolution_rad=0.0)
+    mc = mc_ideal_estimator(robot, eps, kept, cov_eps, MOUNT, cam, T_site_b2, views[:4], names, X, sigma_px, enc,
+                            np.random.default_rng(74), trials=30, refine="none")
+    print(mc, one["pos_bound_m"])
+    assert mc["pos_rms_m"] > 0.8 * one["pos_bound_m"]
