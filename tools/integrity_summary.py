@@ -243,13 +243,21 @@ def main(argv=None) -> int:
     ap.add_argument("--figure", type=Path, help="Stanford plot (PNG)")
     ap.add_argument("--locate", default="locate.json",
                     help="each run's localisation file, relative to its folder (default locate.json)")
+    ap.add_argument("--seeds", help="only the runs of these seeds, e.g. 1,2 (a sweep resumed with fewer seeds keeps "
+                                    "the rows of the others)")
     args = ap.parse_args(argv)
+    try:
+        seeds = None if args.seeds is None else {int(v) for v in args.seeds.split(",")}
+    except ValueError:
+        print(f"integrity_summary: --seeds {args.seeds!r}: expected whole numbers separated by commas",
+              file=sys.stderr)
+        return 2
     runs = []
     for sweep in args.sweep:
         if not (sweep / "sweep.sqlite").is_file():
             print(f"integrity_summary: {sweep}: no sweep.sqlite (not a bench sweep folder)", file=sys.stderr)
             return 2
-        runs += load_runs(sweep, args.locate)
+        runs += [r for r in load_runs(sweep, args.locate) if seeds is None or r["seed"] in seeds]
     text = report(runs, args.figure, args.locate)
     print(text)
     if args.doc:

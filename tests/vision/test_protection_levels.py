@@ -142,6 +142,9 @@ def test_summary_measures_coverage_silent_failures_and_fits_kappa(tmp_path):
     text = doc.read_text()
     assert "STALE TEXT" not in text and text.endswith(f"{S.END}\nafter\n") and "| all | 60 |" in text
     assert (tmp_path / "figures" / "stanford.png").stat().st_size > 1000
+    doc.write_text(f"{S.BEGIN}\n{S.END}\n")  # --seeds: only those runs (a sweep resumed with fewer seeds)
+    assert S.main([str(sweep), "--seeds", "0,1,2", "--doc", str(doc)]) == 0 and "| all | 3 |" in doc.read_text()
+    assert S.main([str(sweep), "--seeds", "one"]) == 2
     assert S.main([str(tmp_path)]) == 2  # not a sweep folder
     assert S.main([str(sweep), str(tmp_path)]) == 2
     # --locate: each run's localisation from another file of its folder (tools/relocate_sweep.py)
