@@ -319,8 +319,9 @@ def validate(cfg) -> None:
             raise ConfigError(src, key, f"needs a camera behind a port in water, but camera.preset "
                                         f"{cfg['camera']['preset']!r} is in air")
     if cfg["pipeline"]["locate"] == "pnp" and cfg["bound"]["ml_trials"] > 0:
-        raise ConfigError(src, "bound.ml_trials", "the Monte Carlo of refine 'joints' (two locate views); not with "
-                                                  "pipeline.locate=pnp (its bound's own Monte Carlo is bound.mc_trials)")
+        raise ConfigError(src, "bound.ml_trials", "the Monte Carlo of refine 'joints' (two locate views); not "
+                                                  "with pipeline.locate=pnp (its bound's own Monte Carlo is "
+                                                  "bound.mc_trials)")
     texture_paths(cfg, "site.textures")
 
 

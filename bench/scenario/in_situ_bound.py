@@ -197,8 +197,8 @@ def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_surve
 def track_pixels(kmap, used, observations: dict, reference: str, survey: list, locate: list) -> tuple:
     """The detected pixels of the tracks the final solve used, for :func:`track_noise_on_surface`: ``(uv_ref (N, 2),
     [(survey view indices, uv (n_i, 2))] * N, uv_locate (N, L, 2))``. ``used`` is the result's ``(map indices, x_a,
-    x_b)`` (PnP: ``x_b`` None, one locate view); each normalized keypoint is looked up among its view's (``ViewObservation.x_n``) to give the pixel the
-    detector returned."""
+    x_b)`` (PnP: ``x_b`` None, one locate view); each normalized keypoint is looked up among its view's
+    (``ViewObservation.x_n``) to give the pixel the detector returned."""
     def pixels(name, x):
         o = observations[name]
         d = np.linalg.norm(o.x_n[None] - np.asarray(x, float).reshape(-1, 1, 2), axis=2)
