@@ -92,8 +92,8 @@ REFUSE_CONDITION = 1e8
 #: Optimism of each estimator's first-order covariance (``refine`` mode: its standard deviations times this), fitted
 #: as ``sqrt(q95(NEES_pos) / chi2_3(0.95))`` on clean runs so that the covariance's 95 % region holds 95 % of the
 #: errors (docs/integrity.md, "An honest covariance"): ``joints`` on ta40_in_situ_manifold seeds 1-20 (realistic
-#: imaging; every map point in the joint bundle, pipeline.map_points: all), ``bundle`` on the 84-run envelope of docs/integrity.md; ``pose`` / ``none`` / ``pnp`` were not measured
-#: and take the largest measured value.
+#: imaging; every map point in the joint bundle, pipeline.map_points: all), ``bundle`` on the 84-run envelope of
+#: docs/integrity.md; ``pose`` / ``none`` / ``pnp`` were not measured and take the largest measured value.
 KAPPA = {"joints": 1.32, "bundle": 2.89}
 KAPPA_UNMEASURED = max(KAPPA.values())
 #: Model floor of the protection levels (the residual kinematic calibration error, see the module docstring).
