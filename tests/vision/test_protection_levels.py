@@ -260,3 +260,21 @@ def test_joint_bundle_counts_a_point_only_where_two_views_keep_it():
     point = np.array([0, 0, 1, 1, 1, 2])
     keep = np.array([True, False, True, True, False, True])
     assert seen_twice(point, keep, 3).tolist() == [False, False, True, True, False, False]
+
+
+def test_relocate_passes_every_estimator_setting(tmp_path, monkeypatch):
+    """relocate_sweep.locate_run localises with the scenario's estimator as the in_situ kind does: the joint bundle's
+    settings and the single-view PnP variant reach locate_dataset."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import relocate_sweep as R
+
+    import bench.vision.locate_dataset as L
+
+    seen = {}
+    monkeypatch.setattr(L, "locate_dataset", lambda *a, **kw: seen.update(kw) or (None, None))
+    base = {"method": "svd", "ransac_iterations": 100, "d_r_mm": 20.0, "r_lim": 0.1}
+    R.locate_run(tmp_path, 3, {**base, "refine": "none", "locate": "pnp"})
+    assert seen["pnp"] and seen["refine"] == "none" and seen["seed"] == 3
+    R.locate_run(tmp_path, 3, {**base, "refine": "joints", "map_points": "located", "loss": "huber",
+                               "guided": True})
+    assert not seen["pnp"] and seen["map_points"] == "located" and seen["loss"] == "huber" and seen["guided"]
