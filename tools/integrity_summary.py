@@ -41,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.geometry.quaternion import matrix_to_rotation_vector  # noqa: E402
-from bench.geometry.transforms import invert, rotation_angle  # noqa: E402
+from bench.geometry.transforms import invert, rotation_angle, skew, transform_points  # noqa: E402
 from bench.vision import integrity as I  # noqa: E402
 
 SILENT_MM = 3.0
@@ -53,6 +53,18 @@ def _texture_label(tex) -> str:
     if not tex:
         return "procedural"
     return Path(next(iter(tex.values()))).stem
+
+
+def _at_panel_centre(truth, T, T_true, cov) -> dict:
+    """The located base's error and covariance carried to the panel centre (site frame; evaluator side): the true
+    error there, the covariance's largest standard deviation there and the rotation's, and the lever arm (m)."""
+    c = transform_points(invert(np.array(truth["T_world_base_survey"])), np.array(truth["T_world_panel"])[:3, 3])
+    x_c = transform_points(invert(T_true), c)  # the centre in the locate parking's base frame
+    J = np.hstack([-skew(c - T[:3, 3]), np.eye(3)])  # d (T x_c) / d (w, v): left perturbation of T
+    return {"err_centre_mm": float(np.linalg.norm(transform_points(T, x_c) - c) * 1e3),
+            "sigma_centre_mm": float(np.sqrt(np.linalg.eigvalsh(J @ cov @ J.T).max()) * 1e3),
+            "sigma_rot_deg": float(np.rad2deg(np.sqrt(np.linalg.eigvalsh(cov[:3, :3]).max()))),
+            "lever_m": float(np.linalg.norm(c - T[:3, 3]))}
 
 
 def load_runs(sweep: Path, locate: str = "locate.json") -> list:
@@ -85,6 +97,8 @@ def load_runs(sweep: Path, locate: str = "locate.json") -> list:
             cov = np.array(rep["covariance"])
             e_t = T[:3, 3] - T_true[:3, 3]
             e_r = matrix_to_rotation_vector(T[:3, :3] @ T_true[:3, :3].T)  # left, world frame (as the covariance)
+            if "T_world_panel" in truth:  # the panel centre (site frame), where the work is: the same pose there
+                run.update(_at_panel_centre(truth, T, T_true, cov))
             run.update(cov=cov, err_mm=float(np.linalg.norm(e_t) * 1e3),
                        err_deg=float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_true[:3, :3]))),
                        nees_pos=float(e_t @ np.linalg.solve(cov[3:, 3:], e_t)),
@@ -148,6 +162,23 @@ HEADER = ("| cell | runs | ok | warning | refused | failed | silent | ok: pos er
           "(runs not refused) |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
+def lever_arm(succ) -> list:
+    """Where the base position's uncertainty comes from, per standoff (medians over the runs not refused): the
+    covariance's largest standard deviation at the base origin and at the panel centre (the same pose; the work is
+    there), the base rotation's, the lever arm from the base origin to the panel, and the true errors at both."""
+    lines = ["The base pose's uncertainty at the base origin and at the panel centre (the same pose and covariance; "
+             "medians over the runs not refused; evaluator side - the panel centre is the truth's):", "",
+             "| standoff | runs | largest sd at the base origin (mm) | at the panel centre (mm) | rotation sd (deg) | "
+             "lever arm (m) | error at the base origin / at the panel centre (mm) |", "|---|---|---|---|---|---|---|"]
+    for s in sorted({r["standoff_m"] for r in succ}):
+        cell = [r for r in succ if r["standoff_m"] == s]
+        m = {k: np.median([r[k] for r in cell]) for k in ("sigma_mm", "sigma_centre_mm", "sigma_rot_deg", "lever_m",
+                                                          "err_mm", "err_centre_mm")}
+        lines.append(f"| {s:g} m | {len(cell)} | {m['sigma_mm']:.2f} | {m['sigma_centre_mm']:.3f} | "
+                     f"{m['sigma_rot_deg']:.4f} | {m['lever_m']:.2f} | {m['err_mm']:.2f} / {m['err_centre_mm']:.3f} |")
+    return lines
+
+
 def report(runs, figure: Path | None, locate: str = "locate.json") -> str:
     done = [r for r in runs if r.get("integrity") != "failed"]
     lines = [f"{len(runs)} runs ({len(done)} finished), run time median "
@@ -184,6 +215,8 @@ def report(runs, figure: Path | None, locate: str = "locate.json") -> str:
                       f"median 2.37), 95th percentile {np.quantile(nees, 0.95):.1f} (chi2_3: {Q95:.2f}); largest "
                       f"covariance standard deviation median {np.median(sig):.3f} mm against a median error "
                       f"{np.median(err):.2f} mm."]
+        if any("lever_m" in r for r in succ):
+            lines += ["", *lever_arm([r for r in succ if "lever_m" in r])]
         ids = sorted(r["run_id"] for r in succ)
         folds = [set(ids[0::2]), set(ids[1::2])]
         lines += ["", "Two-fold cross-validation of kappa (fitted on one half of the runs by run id, applied to the "

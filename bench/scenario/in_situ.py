@@ -970,6 +970,8 @@ def _score_task(cfg, ds, truth, report, robot):
     out = {"valve_tool_err_uncompensated_mm": tip_error("uncompensated", ds.view(task["view"]).q)}
     ok = t and t["success"]
     out["valve_tool_err_mm"] = tip_error("compensated", np.deg2rad(t["q_command_deg"])) if ok else nan
+    pr = t.get("protection_radius_mm") if ok else None
+    out["valve_protection_radius_mm"] = nan if pr is None else float(pr)
     return out, reached
 
 
@@ -1109,9 +1111,10 @@ def summary_lines(metrics: dict) -> list:
     when every view came from the render cache) instead of printing ``nan``."""
     lines = []
     for k in ("base_pos_err_mm", "base_rot_err_deg", "base_pos_std_mm", "valve_tool_err_mm",
-              "valve_tool_err_uncompensated_mm", "map_points", "inliers", "insitu_solve_s", "mount_pos_err_mm",
-              "mount_rot_err_deg", "focal_err_pct", "reproj_rms_px", "arm_heldout_rms_mm", "sim_vs_fk_max_err_m",
-              "marker_projection_rms_px", "render_fps", "panel_sift_keypoints"):
+              "valve_protection_radius_mm", "valve_tool_err_uncompensated_mm", "map_points", "inliers",
+              "insitu_solve_s", "mount_pos_err_mm", "mount_rot_err_deg", "focal_err_pct", "reproj_rms_px",
+              "arm_heldout_rms_mm", "sim_vs_fk_max_err_m", "marker_projection_rms_px", "render_fps",
+              "panel_sift_keypoints"):
         if k in metrics:
             lines.append(f"  {k:<28} {metrics[k]:.6g}")
         elif k == "render_fps":  # every view came from the render cache: nothing was timed

@@ -166,6 +166,9 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("valve_tool_err_mm", "mm", "true tool tip vs true valve handle centre after re-targeting the taught "
                "task through the calibrated arm"),
         Metric("valve_tool_err_uncompensated_mm", "mm", "the same when the taught readings are replayed"),
+        Metric("valve_protection_radius_mm", "mm", "protection radius of the re-targeted tool tip: the base "
+               "covariance carried to the taught tip (lever arm from the base origin), as `protection_radius_mm`",
+               "a taught task; the localisation not refused"),
         Metric("keypoint_sigma_px", "px", "SIFT keypoint noise of the survey views, measured against the true "
                "epipolar curves (robust σ)", "`bound.enabled`"),
         Metric("keypoint_sigma_matches", "count", "matches behind that σ", "`bound.enabled`"),

@@ -348,6 +348,31 @@ def protection_levels(covariance, tests: dict, kappa: float = 1.0, floor_mm: flo
     return pr, pa
 
 
+def point_protection_radius(covariance, tests: dict, T_site_base, p_site, floor_mm: float | None = None) -> float:
+    """Protection radius (m) of a point the located base carries: a taught task's tool tip ``p_site`` (3,), fixed in
+    the site frame and reached through the base pose ``T_site_base`` (4, 4).
+
+    A base pose error ``(w, v)`` (left perturbation: rotation vector, then the base origin) moves a point ``p`` it
+    carries by ``w x (p - t) + v``: the covariance at the point is ``J C J^T`` with ``J = [-[p - t]x, I]``. The
+    base origin is 1.6-2 m from the panel it was located on, and its error is mostly the rotation's at that lever
+    arm: measured over the envelope (docs/integrity.md), the largest standard deviation at the panel centre is 9x
+    smaller than at the base origin. Otherwise as :func:`protection_levels`' radius: the ``1 - INTEGRITY_RISK``
+    quantile of the error's norm (:func:`norm_quantile`) times test 3's inflation ``tests["inflation_chi2"]`` (the
+    covariance as calibrated: ``locate_dataset`` applied :data:`KAPPA`), then a third of test 2's disagreement and
+    the floor (default :data:`FLOOR_MM`: the arm's own execution through its calibrated model) in quadrature."""
+    cov = np.asarray(covariance, float)
+    if not np.all(np.isfinite(cov)):
+        return float("inf")
+    a = np.asarray(p_site, float) - np.asarray(T_site_base, float)[:3, 3]
+    J = np.hstack([-skew(a), np.eye(3)])
+    r = float(tests.get("inflation_chi2", 1.0)) * norm_quantile(J @ cov @ J.T, 1 - INTEGRITY_RISK)
+    r = float(np.hypot(r, (FLOOR_MM if floor_mm is None else float(floor_mm)) * 1e-3))
+    d_t = tests.get("relative_pose_mm")
+    if d_t is not None and np.isfinite(d_t):
+        r = float(np.hypot(r, d_t * 1e-3 / 3))
+    return r
+
+
 def smallest_eigenvalue(covariance) -> float:
     """Smallest eigenvalue of a covariance's symmetric part (NaN when it has a non-finite entry)."""
     cov = np.asarray(covariance, float)

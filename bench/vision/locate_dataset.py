@@ -27,13 +27,13 @@ from bench.camera.refractive import RefractiveCamera
 from bench.dataset import load_dataset
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text
-from bench.geometry.transforms import rotation_angle
+from bench.geometry.transforms import rotation_angle, transform_points
 from bench.robot.calibration_file import load_calibrated_robot
 from bench.robot.orientation import link5_frame
-from bench.robot.task import retarget_taught_pose
+from bench.robot.task import retarget_taught_pose, taught_pose
 from bench.vision.features import detect_sift
 from bench.vision.insitu import MapConfig, ViewObservation, build_map, locate, locate_pnp
-from bench.vision.integrity import KAPPA_UNMEASURED, assess, kappa_of
+from bench.vision.integrity import KAPPA_UNMEASURED, assess, kappa_of, point_protection_radius
 
 
 def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0, features_fn=None) -> ViewObservation:
@@ -117,8 +117,10 @@ def _refract_again(obs, camera, kmap, res, roles) -> dict:
     return out
 
 
-def _retarget_tasks(ds, robot, eps, T_site_base, q_now) -> dict:
-    """Joint readings to command for every taught ``task`` frame, from the located base (see the module docstring)."""
+def _retarget_tasks(ds, robot, eps, T_site_base, q_now, covariance, tests) -> dict:
+    """Joint readings to command for every taught ``task`` frame, from the located base (see the module docstring),
+    and the tool tip's protection radius there (:func:`~bench.vision.integrity.point_protection_radius`, from the
+    base ``covariance`` and the integrity ``tests``)."""
     out = {}
     for v in ds.views:
         if v.role != "task":
@@ -127,9 +129,12 @@ def _retarget_tasks(ds, robot, eps, T_site_base, q_now) -> dict:
             raise ConfigError(ds.root / "joints.csv", v.name, "a task frame needs joint readings")
         q_taught = robot.check_q(v.q, f"joints.csv ({v.name})")
         r = retarget_taught_pose(robot, eps, q_taught, T_site_base, q_seed=q_now)
+        p_site = transform_points(taught_pose(robot, eps, q_taught), robot.p_ee)  # the taught tool tip
+        pr = point_protection_radius(covariance, tests, T_site_base, p_site)
         out[v.name] = {"success": bool(r.success), "message": r.message,
                        "q_command_deg": np.rad2deg(r.solutions[0]).tolist(),
-                       "position_error_mm": float(r.position_error_m * 1e3)}
+                       "position_error_mm": float(r.position_error_m * 1e3),
+                       "protection_radius_mm": float(pr * 1e3) if np.isfinite(pr) else None}
     return out
 
 
@@ -392,7 +397,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                        "covariance": res.covariance.tolist()})
         # the compensated task is not offered on a refused localisation
         report["tasks"] = ({} if integ.level == "refused" else
-                           _retarget_tasks(ds, robot, eps, res.T_world_base, roles["locate"][0].q))
+                           _retarget_tasks(ds, robot, eps, res.T_world_base, roles["locate"][0].q, res.covariance,
+                                           integ.tests))
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
@@ -405,7 +411,10 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
             print(f"rotation {report['rotation_deg']:.4f} deg (std {np.linalg.norm(report['rotation_std_deg']):.4f})")
             for name, t in report["tasks"].items():
                 q = ", ".join(f"{v:.3f}" for v in t["q_command_deg"])
-                print(f"task {name}: command q = [{q}] deg" + ("" if t["success"] else f" ({t['message']})"))
+                pr = t["protection_radius_mm"]
+                print(f"task {name}: command q = [{q}] deg" + ("" if pr is None else f", tool tip protection radius "
+                                                                 f"{pr:.2f} mm")
+                      + ("" if t["success"] else f" ({t['message']})"))
         print(res.message)
         pr = report["protection_radius_mm"]
         bound = "" if pr is None else f" (protection radius {pr:.2f} mm, {report['protection_angle_deg']:.3f} deg)"

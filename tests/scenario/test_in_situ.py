@@ -58,6 +58,8 @@ def test_smoke_accuracy(smoke_run):
     assert m["base_pos_efficiency"] == pytest.approx(m["base_pos_bound_mm"] / m["base_pos_err_mm"])
     # the taught valve task: re-targeted from the located base it lands within millimetres; replayed blindly it misses
     assert m["valve_tool_err_mm"] < 3.0 and m["valve_tool_err_uncompensated_mm"] > 10 * m["valve_tool_err_mm"]
+    # the tool tip's protection radius: the base covariance at the tip, at least the floor, and holding its error
+    assert 0.5 <= m["valve_protection_radius_mm"] and m["valve_tool_err_mm"] < m["valve_protection_radius_mm"]
     assert set(res) == {"scenario", "seed", "metrics", "tables", "timings_s", "artifacts"}
 
 

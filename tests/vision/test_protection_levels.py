@@ -278,3 +278,60 @@ def test_relocate_passes_every_estimator_setting(tmp_path, monkeypatch):
     R.locate_run(tmp_path, 3, {**base, "refine": "joints", "map_points": "located", "loss": "huber",
                                "guided": True})
     assert not seen["pnp"] and seen["map_points"] == "located" and seen["loss"] == "huber" and seen["guided"]
+
+
+def test_point_protection_radius_carries_the_base_covariance_to_the_point():
+    """At the base origin it is protection_levels' position radius; at a point the base carries it is the quantile
+    of |w x (p - t) + v| - checked against a Monte Carlo of base poses moved through the exact transform; a rotation
+    error makes it grow with the lever arm; the floor and test 2's third add in quadrature; a covariance with NaN
+    gives inf."""
+    from bench.geometry.transforms import transform_points
+
+    rng = np.random.default_rng(7)
+    cov = _cov(rng, 1e-3, 4e-4)
+    T = homogeneous(rotation_vector_to_matrix([0.1, -0.2, 0.3]), [0.4, -0.3, 0.2])
+    tests = {"inflation_chi2": 1.2}
+    pr, _ = I.protection_levels(cov, dict(tests), floor_mm=0.0, floor_deg=0.0)
+    assert I.point_protection_radius(cov, tests, T, T[:3, 3], floor_mm=0.0) == pytest.approx(pr, rel=1e-12)
+    p_site = T[:3, 3] + np.array([1.5, 0.6, -0.4])  # a tool tip 1.65 m from the base origin
+    r = I.point_protection_radius(cov, {}, T, p_site, floor_mm=0.0)
+    x_b = transform_points(np.linalg.inv(T), p_site)  # the tip in the base frame: moved with every drawn pose
+    d = rng.multivariate_normal(np.zeros(6), cov, size=400_000)
+    moved = np.array([transform_points(homogeneous(rotation_vector_to_matrix(w) @ T[:3, :3], T[:3, 3] + v), x_b)
+                      for w, v in zip(d[:4000, :3], d[:4000, 3:], strict=True)])
+    # first order: the second-order term is ~|w|^2 |p - t| ~ 3e-7 m here, against errors of ~1e-3 m
+    assert np.allclose(moved - p_site, np.cross(d[:4000, :3], p_site - T[:3, 3]) + d[:4000, 3:], atol=2e-6)
+    lin = np.linalg.norm(np.cross(d[:, :3], p_site - T[:3, 3]) + d[:, 3:], axis=1)
+    assert r == pytest.approx(np.quantile(lin, 1 - I.INTEGRITY_RISK), rel=0.03)
+    no_rot = cov.copy()
+    no_rot[:3, :] = no_rot[:, :3] = 0.0  # the rotation's share at the lever arm is all the difference
+    assert I.point_protection_radius(no_rot, {}, T, p_site, floor_mm=0.0) == pytest.approx(
+        I.protection_levels(no_rot, {}, floor_mm=0.0, floor_deg=0.0)[0], rel=1e-12)
+    assert r > 1.1 * I.point_protection_radius(no_rot, {}, T, p_site, floor_mm=0.0)
+    assert I.point_protection_radius(cov, {"relative_pose_mm": 3.0}, T, p_site, floor_mm=0.5) == pytest.approx(
+        np.sqrt(r**2 + 0.5e-3**2 + 1e-3**2), rel=1e-9)
+    assert I.point_protection_radius(np.full((6, 6), np.nan), {}, T, p_site) == float("inf")
+
+
+def test_summary_carries_the_error_to_the_panel_centre():
+    """tools/integrity_summary.py's lever-arm table: a base located with a pure rotation error about the panel
+    centre errs there by nothing and at the base origin by the rotation times the lever arm; a pure translation errs
+    alike at both; the covariance's largest standard deviation at the centre is exact for a rotation-only one."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import integrity_summary as S
+
+    from bench.geometry.transforms import invert, transform_points
+
+    T_ws = homogeneous(rotation_vector_to_matrix([0.0, 0.0, 0.2]), [0.3, -0.1, 0.0])
+    T_wp = homogeneous(np.eye(3), [2.0, 0.5, 1.0])
+    T_true = homogeneous(rotation_vector_to_matrix([0.0, 0.0, 0.1]), [0.2, 0.1, 0.0])  # locate base in the site
+    truth = {"T_world_base_survey": T_ws.tolist(), "T_world_panel": T_wp.tolist()}
+    c = transform_points(invert(T_ws), T_wp[:3, 3])
+    w = np.array([0.0, 1e-3, 0.0])
+    about_c = homogeneous(rotation_vector_to_matrix(w), c - rotation_vector_to_matrix(w) @ c)
+    cov = np.diag([0.0, 1e-6, 0.0, 0.0, 0.0, 0.0])
+    r = S._at_panel_centre(truth, about_c @ T_true, T_true, cov)
+    assert r["err_centre_mm"] < 1e-9 and r["lever_m"] == pytest.approx(np.linalg.norm(c - T_true[:3, 3]), rel=1e-3)
+    assert r["sigma_rot_deg"] == pytest.approx(np.rad2deg(1e-3)) and r["sigma_centre_mm"] > 0.5 * r["lever_m"]
+    shift = homogeneous(np.eye(3), [1e-3, 0.0, 0.0])
+    assert S._at_panel_centre(truth, shift @ T_true, T_true, cov)["err_centre_mm"] == pytest.approx(1.0, rel=1e-9)
