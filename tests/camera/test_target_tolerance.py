@@ -180,3 +180,26 @@ def test_calibration_with_tolerance_refuses_a_failed_calibration_and_too_few_dra
         calibration_with_tolerance(cal, g, tol, Xs, uvs, draws=5)
     with pytest.raises(ValueError, match="the nominal calibration failed"):
         calibration_with_tolerance(replace(cal, success=False, message="not converged"), g, tol, Xs, uvs)
+
+
+def test_sample_factor_is_the_same_whatever_basis_eigh_returns():
+    """The two-plane rig's corner covariance has (numerically) repeated eigenvalues: an eigenvector factor
+    ``V sqrt(W)`` is then any rotation within each repeated subspace, and a 1e-15 perturbation of the matrix (or
+    another BLAS, or another thread count) changes every draw completely. The symmetric square root does not."""
+    from bench.camera.target_tolerance import sample_factor
+
+    g = two_plane_rig(7, 0.197, 0.02)
+    tol = TargetTolerance(flatness_rms=0.42e-3, flatness_length=(0.025, 0.017), bow_sagitta=0.6e-3,
+                          print_rms=(0.05e-3, 0.09e-3), scale_rms=0.002, fold_rms=np.deg2rad(0.2))
+    C = object_point_covariance(g, tol)
+    rng = np.random.default_rng(2)
+    E = rng.standard_normal(C.shape)
+    E = 0.5 * (E + E.T) * 1e-15 * np.abs(C).max()
+    w = np.linalg.eigvalsh(C)
+    big = np.sort(w[w > 1e-10 * w.max()])
+    assert np.min(np.diff(big)) < 1e-12 * w.max()  # the premise: repeated eigenvalues
+    z = rng.standard_normal(len(C))
+    L = sample_factor(C)
+    np.testing.assert_allclose(L @ L.T, C, atol=1e-9 * np.abs(C).max())
+    d0, d1 = L @ z, sample_factor(C + E) @ z
+    assert np.abs(d1 - d0).max() < 1e-5 * np.abs(d0).max()
