@@ -176,6 +176,25 @@ def test_cockle_field_has_its_stated_covariance():
     assert corr(z[:-1], z[1:]) == pytest.approx(across, abs=0.02)  # neighbours across the rows (y)
 
 
+def test_cockle_draws_do_not_depend_on_rounding():
+    """A seed must give the same rig on every machine: the cockle's factor is an eigen-decomposition, whose basis is
+    arbitrary where eigenvalues repeat (bench.camera.target_tolerance.sample_factor had that problem). Here they
+    are apart (smallest gap 5e-4 of the largest: the two correlation lengths differ), so under a 1e-15 perturbation
+    of the covariance - another thread count or CPU kernel - every eigenvector stays itself to 1e-9, up to its sign.
+    The sign is LAPACK's choice: numpy's bundled OpenBLAS makes the same one on every machine; a sign-free factor
+    (the symmetric square root) would change every simulated rig, so it is left."""
+    p = im.REALISTIC["cockle"]
+    n, s = 8, 0.197 / 7
+    L = im.cockle_factor(p, n, s)
+    C = L @ L.T
+    w, V = np.linalg.eigh(C)
+    assert np.min(np.diff(w)) > 1e-5 * w.max()
+    E = np.random.default_rng(1).standard_normal(C.shape)
+    E = 0.5 * (E + E.T) * 1e-15 * np.abs(C).max()
+    _, Vp = np.linalg.eigh(C + E)
+    assert np.abs(np.abs(np.sum(V * Vp, axis=0)) - 1).max() < 1e-9
+
+
 def test_cockle_moves_the_corners_out_of_plane_only():
     from bench.sim.scenes.rig import calibration_rig
 
