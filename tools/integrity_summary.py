@@ -41,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.geometry.quaternion import matrix_to_rotation_vector  # noqa: E402
-from bench.geometry.transforms import invert, rotation_angle, skew, transform_points  # noqa: E402
+from bench.geometry.transforms import invert, rotation_angle, transform_points  # noqa: E402
 from bench.vision import integrity as I  # noqa: E402
 
 SILENT_MM = 3.0
@@ -60,9 +60,8 @@ def _at_panel_centre(truth, T, T_true, cov) -> dict:
     error there, the covariance's largest standard deviation there and the rotation's, and the lever arm (m)."""
     c = transform_points(invert(np.array(truth["T_world_base_survey"])), np.array(truth["T_world_panel"])[:3, 3])
     x_c = transform_points(invert(T_true), c)  # the centre in the locate parking's base frame
-    J = np.hstack([-skew(c - T[:3, 3]), np.eye(3)])  # d (T x_c) / d (w, v): left perturbation of T
     return {"err_centre_mm": float(np.linalg.norm(transform_points(T, x_c) - c) * 1e3),
-            "sigma_centre_mm": float(np.sqrt(np.linalg.eigvalsh(J @ cov @ J.T).max()) * 1e3),
+            "sigma_centre_mm": float(np.sqrt(np.linalg.eigvalsh(I.point_covariance(cov, T, c)).max()) * 1e3),
             "sigma_rot_deg": float(np.rad2deg(np.sqrt(np.linalg.eigvalsh(cov[:3, :3]).max()))),
             "lever_m": float(np.linalg.norm(c - T[:3, 3]))}
 

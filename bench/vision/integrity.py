@@ -339,38 +339,44 @@ def protection_levels(covariance, tests: dict, kappa: float = 1.0, floor_mm: flo
     s_rot = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 1e-300)))
     s_pos = float(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 1e-300)))
     tests.update(kappa=float(kappa), q_factor_pos=q_pos / s_pos, q_factor_rot=q_rot / s_rot)
-    pr = float(np.hypot(f * q_pos, floor_mm * 1e-3))
-    pa = float(np.hypot(f * q_rot, np.deg2rad(floor_deg)))
-    d_t = tests.get("relative_pose_mm")
-    if d_t is not None and np.isfinite(d_t):  # a kinematic relative pose off by d moves the solution by about d
-        pr = float(np.hypot(pr, d_t * 1e-3 / 3))
-        pa = float(np.hypot(pa, np.deg2rad(tests["relative_pose_deg"]) / 3))
-    return pr, pa
+    return (_with_terms(f * q_pos, floor_mm * 1e-3, tests, "relative_pose_mm", 1e-3),
+            _with_terms(f * q_rot, np.deg2rad(floor_deg), tests, "relative_pose_deg", np.deg2rad(1.0)))
+
+
+def _with_terms(level: float, floor: float, tests: dict, key: str, unit: float) -> float:
+    """A protection level ``level`` with the floor and a third of test 2's disagreement ``tests[key]`` (times
+    ``unit`` into SI; absent or NaN when test 2 did not run) added in quadrature: a kinematic relative pose off by
+    ``d`` moves the solution by about ``d``."""
+    r = float(np.hypot(level, floor))
+    d = tests.get(key)
+    return float(np.hypot(r, d * unit / 3)) if d is not None and np.isfinite(d) else r
+
+
+def point_covariance(covariance, T_site_base, p_site) -> np.ndarray:
+    """The covariance (3, 3) of a point ``p_site`` the located base ``T_site_base`` carries: a base pose error
+    ``(w, v)`` (left perturbation: rotation vector, then the base origin; the order of ``covariance`` (6, 6)) moves
+    it by ``w x (p - t) + v``, so ``J C J^T`` with ``J = [-[p - t]x, I]``."""
+    J = np.hstack([-skew(np.asarray(p_site, float) - np.asarray(T_site_base, float)[:3, 3]), np.eye(3)])
+    return J @ np.asarray(covariance, float) @ J.T
 
 
 def point_protection_radius(covariance, tests: dict, T_site_base, p_site, floor_mm: float | None = None) -> float:
     """Protection radius (m) of a point the located base carries: a taught task's tool tip ``p_site`` (3,), fixed in
     the site frame and reached through the base pose ``T_site_base`` (4, 4).
 
-    A base pose error ``(w, v)`` (left perturbation: rotation vector, then the base origin) moves a point ``p`` it
-    carries by ``w x (p - t) + v``: the covariance at the point is ``J C J^T`` with ``J = [-[p - t]x, I]``. The
-    base origin is 1.6-2 m from the panel it was located on, and its error is mostly the rotation's at that lever
-    arm: measured over the envelope (docs/integrity.md), the largest standard deviation at the panel centre is 9x
-    smaller than at the base origin. Otherwise as :func:`protection_levels`' radius: the ``1 - INTEGRITY_RISK``
-    quantile of the error's norm (:func:`norm_quantile`) times test 3's inflation ``tests["inflation_chi2"]`` (the
-    covariance as calibrated: ``locate_dataset`` applied :data:`KAPPA`), then a third of test 2's disagreement and
-    the floor (default :data:`FLOOR_MM`: the arm's own execution through its calibrated model) in quadrature."""
+    The covariance at the point is :func:`point_covariance`'s. The base origin is 1.6-2 m from the panel it was
+    located on, and its error is mostly the rotation's at that lever arm: measured over the envelope
+    (docs/integrity.md), the largest standard deviation at the panel centre is 9x smaller than at the base origin.
+    Otherwise as :func:`protection_levels`' radius: the ``1 - INTEGRITY_RISK`` quantile of the error's norm
+    (:func:`norm_quantile`) times test 3's inflation ``tests["inflation_chi2"]`` (the covariance as calibrated:
+    ``locate_dataset`` applied :data:`KAPPA`), then the floor (default :data:`FLOOR_MM`: the arm's own execution
+    through its calibrated model) and a third of test 2's disagreement in quadrature (:func:`_with_terms`)."""
     cov = np.asarray(covariance, float)
     if not np.all(np.isfinite(cov)):
         return float("inf")
-    a = np.asarray(p_site, float) - np.asarray(T_site_base, float)[:3, 3]
-    J = np.hstack([-skew(a), np.eye(3)])
-    r = float(tests.get("inflation_chi2", 1.0)) * norm_quantile(J @ cov @ J.T, 1 - INTEGRITY_RISK)
-    r = float(np.hypot(r, (FLOOR_MM if floor_mm is None else float(floor_mm)) * 1e-3))
-    d_t = tests.get("relative_pose_mm")
-    if d_t is not None and np.isfinite(d_t):
-        r = float(np.hypot(r, d_t * 1e-3 / 3))
-    return r
+    q = norm_quantile(point_covariance(cov, T_site_base, p_site), 1 - INTEGRITY_RISK)
+    floor = (FLOOR_MM if floor_mm is None else float(floor_mm)) * 1e-3
+    return _with_terms(float(tests.get("inflation_chi2", 1.0)) * q, floor, tests, "relative_pose_mm", 1e-3)
 
 
 def smallest_eigenvalue(covariance) -> float:
