@@ -2,8 +2,9 @@
 
 A dataset is a folder that a real robot campaign or the simulator writes::
 
-    manifest.yaml   format, kind of campaign, units, the views (name, image file, role, notes); a view without an
-                    image file is a frame of joint readings only (e.g. a taught tool pose, role ``task``)
+    manifest.yaml   format, kind of campaign, units, the views (name, image file, role, notes, and for an in-situ
+                    survey over several regions of the scene its ``region``); a view without an image file is a
+                    frame of joint readings only (e.g. a taught tool pose, role ``task``)
     images/         lossless PNG views named in the manifest
     joints.csv      view, q1_deg ... q6_deg        (joint *readings*, robot campaigns)
     table.csv       view, x_mm, z_mm, rot_deg      (x-y table readings, table campaigns)
@@ -72,6 +73,9 @@ class _ViewEntry(Section):
     image: str | None = None
     role: str = ""
     notes: str = ""
+    #: in-situ views: the part of the scene a reference view, its surrounding views and its locate views share
+    #: (``""``: the only one); :func:`bench.vision.locate_dataset.locate_dataset` maps and locates each region
+    region: str = ""
 
     @field_validator("image", mode="before")
     @classmethod
@@ -240,6 +244,7 @@ class View:
     notes: str = ""
     q: np.ndarray | None = None  # joint readings (rad), (6,)
     table: np.ndarray | None = None  # x-y table readings (m, m, rad): x, z, rotation about y
+    region: str = ""  # in-situ views: the region of the scene (manifest ``region``; "" the only one)
 
     def image(self, expected_size=None) -> np.ndarray:
         """The image as ``uint8 (H, W, 3)`` RGB (or ``(H, W)`` grey); one-line error if missing or unreadable.
@@ -410,7 +415,7 @@ def load_dataset(root) -> Dataset:
             t = np.array([t[0] * 1e-3, t[1] * 1e-3, np.deg2rad(t[2])])
         if image is None and q is None and t is None:
             raise ConfigError(mpath, f"views[{i}].image", "missing (a view needs an image or readings)")
-        views.append(View(name, None if image is None else root / image, v["role"], v["notes"], q, t))
+        views.append(View(name, None if image is None else root / image, v["role"], v["notes"], q, t, v["region"]))
     if kind == "in_situ":
         unposed = [v for v in views if v.role in POSED_ROLES and v.q is None]
         if unposed:
@@ -509,11 +514,12 @@ class DatasetWriter:
         self.path(relative).write_text(text)
 
     def add_view(self, name: str, image: np.ndarray | None, q=None, table=None, role: str = "",
-                 notes: str = "") -> None:
+                 notes: str = "", region: str = "") -> None:
         """Add a view: ``image`` uint8 RGB (H, W, 3) or grey (H, W), saved as PNG; readings in SI.
 
         ``q`` joint readings (rad, (6,)); ``table`` x-y table readings ``(x m, z m, rotation rad)``.
-        ``image=None`` records a frame of readings only (e.g. a taught tool pose).
+        ``image=None`` records a frame of readings only (e.g. a taught tool pose). ``region``: an in-situ view's
+        region of the scene (written only when not ``""``).
         """
         import cv2
 
@@ -536,6 +542,8 @@ class DatasetWriter:
             entry["role"] = role
         if notes:
             entry["notes"] = notes
+        if region:
+            entry["region"] = region
         self._views.append(entry)
         if q is not None:
             q = np.asarray(q, dtype=float).reshape(6)

@@ -135,6 +135,10 @@ class Site(Section):
         "eye_m (a point the arm reaches comfortably) and the panel standoff_m ahead of it (+x of the world)")] = "panel"
     eye_m: Vec3 = [1.05, 0.45, 1.0]
     textures: Annotated[dict, about("face -> image file (bench.scenario.scene_textures)")] = {}
+    regions_m: Annotated[list[Vec2], Field(min_length=1), about(
+        "[x, y] of each region's aim point from the panel centre in the panel's plane (x to the right as the arm "
+        "sees it, y up): each region has its own reference, surrounding and locate views (regions after the "
+        "first: views rK_ref, rK_surveyNN, rK_locateN), solved together by pipeline.refine=joints")] = [[0.0, 0.0]]
 
 
 class Survey(Section):
@@ -323,6 +327,19 @@ def validate(cfg) -> None:
                                                   "with pipeline.locate=pnp (its bound's own Monte Carlo is "
                                                   "bound.mc_trials)")
     texture_paths(cfg, "site.textures")
+    regions = cfg["site"]["regions_m"]
+    for i, (x, y) in enumerate(regions):
+        if abs(x) > cfg["site"]["panel_width_m"] / 2 or abs(y) > cfg["site"]["panel_height_m"] / 2:
+            raise ConfigError(src, f"site.regions_m[{i}]", f"[{x}, {y}] m lies off the {cfg['site']['panel_width_m']}"
+                                                           f" x {cfg['site']['panel_height_m']} m panel")
+    if len(regions) > 1:  # several regions are solved together by the joint bundle; the bound takes one
+        for key, bad, why in (("pipeline.refine", cfg["pipeline"]["refine"] != "joints", "must be joints"),
+                              ("pipeline.locate", cfg["pipeline"]["locate"] != "two_view", "must be two_view"),
+                              ("bound.enabled", cfg["bound"]["enabled"], "must be false (the bound takes one region)"),
+                              ("sources.features", cfg["sources"]["features"] != "sift",
+                               "must be sift (perfect features take one region)")):
+            if bad:
+                raise ConfigError(src, key, f"{why} with {len(regions)} site.regions_m")
 
 
 # ------------------------------------------------------------------------------------------------ truth
@@ -571,6 +588,11 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     survey_eyes = [eye_ref] + list(transform_points(T_ref_look, _survey_offsets(cfg, nominal_cam)))
     base_l = cfg["locate"]["baseline_mm"] * 1e-3
     locate_eyes = list(transform_points(T_ref_look, np.array([[-base_l / 2, 0, 0], [base_l / 2, 0, 0]])))
+    # regions after the first: the same pattern of eyes moved in the panel's plane to aim at another part of it
+    regions = [(R_wp @ np.array([x, y, 0.0]), f"r{k}") for k, (x, y) in enumerate(site["regions_m"])]
+    shift0 = regions[0][0]
+    survey_eyes, locate_eyes, centre_aim = ([e + shift0 for e in survey_eyes], [e + shift0 for e in locate_eyes],
+                                            centre + shift0)
     valves = _valve_targets(panel, T_world_panel, cfg)
     ok, parkings = False, 0
     while not ok and parkings < site["parking_attempts"]:
@@ -579,7 +601,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         T_wb2 = T_wb1 @ _random_motion(rng, cfg["locate"]["motion_m"], cfg["locate"]["motion_deg"])
         site_views, ok, q_seed = [], True, None
         for i, eye in enumerate(survey_eyes):
-            sol = _plan(robot, T_wb1, eye, centre, mount_nominal, q_seed)
+            sol = _plan(robot, T_wb1, eye, centre_aim, mount_nominal, q_seed)
             if not sol.success:
                 ok = False
                 break
@@ -587,18 +609,33 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                                sol.q))
             q_seed = sol.q if i == 0 else site_views[0][3]
         for i, eye in enumerate(locate_eyes if ok else []):
-            sol = _plan(robot, T_wb2, eye, centre, mount_nominal, site_views[0][3])
+            sol = _plan(robot, T_wb2, eye, centre_aim, mount_nominal, site_views[0][3])
             if not sol.success:
                 ok = False
                 break
             site_views.append((f"locate{i}", "locate", T_wb2, sol.q))
+        region_views = []  # the other regions' views: rendered last (no draw of the first region's views moves)
+        for shift, name in regions[1:] if ok else []:
+            d = shift - shift0
+            plan = ([(f"{name}_ref" if i == 0 else f"{name}_survey{i:02d}", "reference" if i == 0 else "surround",
+                      T_wb1, e + d) for i, e in enumerate(survey_eyes)]
+                    + [(f"{name}_locate{i}", "locate", T_wb2, e + d) for i, e in enumerate(locate_eyes)])
+            for view, role, T_wb, eye in plan:
+                sol = _plan(robot, T_wb, eye, centre_aim + d, mount_nominal, site_views[0][3])
+                if not sol.success:
+                    ok = False
+                    break
+                region_views.append((view, role, T_wb, sol.q))
+            if not ok:
+                break
         task = _teach(robot, eps, T_wb1, T_wb2, valves, site_views[0][3]) if ok and cfg["task"]["teach"] else None
         if ok and cfg["task"]["teach"] and task is None:
             ok = False  # no valve within reach at both parkings: the pilot parks again
     if not ok:
+        eyes = [e + shift - shift0 for shift, _ in regions for e in survey_eyes + locate_eyes]
         raise ConfigError(cfg["_file"], "site", f"no reachable set of views (and valve) in {parkings} random parkings: "
-                                                + _why_unreachable(robot, eps, cfg, survey_eyes + locate_eyes, centre,
-                                                                   valves, mount_nominal))
+                                                + _why_unreachable(robot, eps, cfg, eyes, centre, valves,
+                                                                   mount_nominal))
     views += site_views
     n_paired = len(views)  # the views every variant renders: the ones after read their own encoder stream
     if cfg["lab"]["rig_in_air"]:  # before the tank is flooded, closer by the port's magnification so that the rig
@@ -613,6 +650,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         views += extra
         unreachable += extra_unreachable
         n_requested += n_rig
+    views += region_views
+    region_of = {v[0]: "r0" if len(regions) > 1 else "" for v in site_views}
+    region_of.update({v[0]: v[0].split("_")[0] for v in region_views})
     if unreachable and verbose:  # the lab's rig views in water, in air and at the extra distances
         print(f"warning: {len(unreachable)} of {n_requested} requested rig views not reachable, not rendered (truth/"
               f"sim_checks.json: rig_views_unreachable): {'; '.join(unreachable)}", file=sys.stderr)
@@ -629,7 +669,8 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     images, readings = {}, {}
     ss = cfg["camera"]["supersample"]
     if verbose:
-        print(f"rendering {len(views)} views ({len(views) - len(site_views)} rig, {len(site_views)} site) ...",
+        n_site = len(site_views) + len(region_views)
+        print(f"rendering {len(views)} views ({len(views) - n_site} rig, {n_site} site) ...",
               file=sys.stderr)
     for n, (name, role, T_wb, q) in enumerate(views):
         key = ("rig" if role == "rig" else role if role == "rig_air" else "site",) + tuple(np.round(T_wb, 12).ravel())
@@ -661,7 +702,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                        command="sim render", identity=cfg["name"],
                        created_by=f"bench sim render {Path(cfg['_file']).name} (seed {cfg['seed']})") as w:
         for name, role, _, _ in views:
-            w.add_view(name, images[name], q=readings[name], role=role)
+            w.add_view(name, images[name], q=readings[name], role=role, region=region_of.get(name, ""))
         if task is not None:
             w.add_view(f"task_{task['valve']}", None, q=q_task_read, role="task",
                        notes="tool tip on the valve handle, taught at the survey parking")

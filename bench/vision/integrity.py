@@ -46,7 +46,7 @@ over 20 clean seeds it did not predict the covariance's misfit (docs/integrity.m
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -76,6 +76,10 @@ RELATIVE_REFUSE_DEG = 1.5
 RELATIVE_OVERDISPERSION = 15.0
 RELATIVE_CHI2_REFUSE = RELATIVE_OVERDISPERSION * 22.458
 RELATIVE_CHI2_WARN = RELATIVE_OVERDISPERSION * 16.812
+#: A region's own estimate against every region's together (test 7, :func:`region_disagreement`): chi2_6 at 1 - 1e-3
+#: (refused, with the raw limits of test 2) and at 0.99 (a warning); its covariances are the calibrated ones.
+REGION_CHI2_REFUSE = 22.458
+REGION_CHI2_WARN = 16.812
 #: Locate residual RMS / survey residual RMS (test 3) beyond which the solution is refused / warned.
 CHI2_RATIO_REFUSE = 10.0
 #: the smallest survey noise test 3 divides by (px): exact data's residuals are rounding errors, not noise
@@ -118,6 +122,9 @@ class Integrity:
         Bound on the base rotation error (rad).
     tests : dict
         The statistic of every test (names carry units).
+    regions, region_reasons : dict
+        A localisation over several regions of the scene (:func:`assess_regions`): each region's own level and
+        reasons (empty for one region).
     """
 
     level: str
@@ -125,13 +132,19 @@ class Integrity:
     protection_radius_m: float = float("inf")
     protection_angle_rad: float = float("inf")
     tests: dict = field(default_factory=dict)
+    regions: dict = field(default_factory=dict)
+    region_reasons: dict = field(default_factory=dict)
 
     def report(self) -> dict:
-        """The locate.json entries (``integrity``, ``integrity_reasons``, ``protection_radius_mm``, ...)."""
-        return {"integrity": self.level, "integrity_reasons": list(self.reasons),
-                "protection_radius_mm": _finite(self.protection_radius_m * 1e3),
-                "protection_angle_deg": _finite(np.rad2deg(self.protection_angle_rad)),
-                "integrity_tests": {k: _finite(v) for k, v in self.tests.items()}}
+        """The locate.json entries (``integrity``, ``integrity_reasons``, ``protection_radius_mm``, ...; with
+        several regions ``integrity_regions``, each region's level)."""
+        out = {"integrity": self.level, "integrity_reasons": list(self.reasons),
+               "protection_radius_mm": _finite(self.protection_radius_m * 1e3),
+               "protection_angle_deg": _finite(np.rad2deg(self.protection_angle_rad)),
+               "integrity_tests": {k: _finite(v) for k, v in self.tests.items()}}
+        if self.regions:
+            out["integrity_regions"] = dict(self.regions)
+        return out
 
 
 def _finite(v):
@@ -415,10 +428,17 @@ def assess(kmap: KeypointMap, surround: list, view_a: ViewObservation, view_b: V
     -------
     Integrity
     """
-    cfg = config or MapConfig()
-    refuse, warn, tests = [], [], {}
     if not result.success:
         return Integrity("refused", [f"no localisation: {result.message}"])
+    return _verdict(*_tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config, seed),
+                    result.covariance)
+
+
+def _tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config, seed) -> tuple:
+    """Tests 1-6 of :func:`assess` on a localisation that succeeded: ``(refuse, warn, tests)`` - the reasons to refuse,
+    the warnings, the statistics."""
+    cfg = config or MapConfig()
+    refuse, warn, tests = [], [], {}
     if view_b is None:
         warn.append("single-view (PnP) localisation: the cross-check of two views with the kinematics is missing")
         T_a_b = np.eye(4)
@@ -513,12 +533,93 @@ def assess(kmap: KeypointMap, surround: list, view_a: ViewObservation, view_b: V
     elif result.condition > WARN_CONDITION:
         warn.append(f"ill-conditioned pose problem (condition {result.condition:.3g})")
 
-    # --- protection levels -------------------------------------------------------------------------------------------
+    return refuse, warn, tests
+
+
+def _verdict(refuse: list, warn: list, tests: dict, covariance) -> Integrity:
+    """The protection levels from ``covariance`` (as calibrated: ``locate_dataset`` applied :data:`KAPPA`) and the
+    tests, and the level: refused on any reason to refuse, a warning on any warning or a level above the alert
+    limits."""
+    ratio = tests.get("chi2_ratio", float("nan"))
     tests["inflation_chi2"] = max(1.0, ratio) if np.isfinite(ratio) else 1.0
-    pr, pa = protection_levels(result.covariance, tests)  # the covariance as calibrated (locate_dataset: KAPPA)
+    pr, pa = protection_levels(covariance, tests)
     if refuse:
         return Integrity("refused", refuse + warn, float("inf"), float("inf"), tests)
     if pr * 1e3 > ALERT_MM or np.rad2deg(pa) > ALERT_DEG:
         warn.append(f"protection radius {pr * 1e3:.2f} mm / {np.rad2deg(pa):.3f} deg exceeds the alert limit "
                     f"{ALERT_MM:g} mm / {ALERT_DEG:g} deg")
     return Integrity("warning" if warn else "ok", warn, pr, pa, tests)
+
+
+def region_disagreement(T_region, cov_region, T_fused, cov_fused) -> tuple:
+    """Test 7: one region's own estimate of the base (``T_region`` (4, 4), covariance ``cov_region`` (6, 6), as
+    calibrated) against the estimate of every region together (``T_fused``, ``cov_fused``). Returns ``(d, chi2)``:
+    ``d`` (6,) the rotation vector (rad, ``R_fused R_region^T``) and the base origin's shift (m), in the order of the
+    covariances, and its Mahalanobis square under ``cov_region + cov_fused`` (the sum, not the difference: the
+    region's estimate is another estimator's, the thesis's, whose errors the joint one does not contain)."""
+    T_r, T_f = np.asarray(T_region, float), np.asarray(T_fused, float)
+    d = np.r_[matrix_to_rotation_vector(T_f[:3, :3] @ T_r[:3, :3].T), T_f[:3, 3] - T_r[:3, 3]]
+    try:
+        m2 = float(d @ np.linalg.solve(np.asarray(cov_region, float) + np.asarray(cov_fused, float), d))
+    except np.linalg.LinAlgError:
+        m2 = float("inf")
+    return d, (m2 if np.isfinite(m2) else float("inf"))
+
+
+def assess_regions(parts: list, result, focal_px: float, image_size, config: MapConfig | None = None,
+                   seed: int = 0) -> Integrity:
+    """Integrity of a localisation over several regions of the scene, each with its own map and two locate views,
+    solved together (``result``: one base pose and its calibrated covariance).
+
+    Tests 1-6 (:func:`assess`) run in every region at the common solution; test 7 compares each region's own
+    estimate with it (:func:`region_disagreement`: refused beyond :data:`RELATIVE_REFUSE_MM` /
+    :data:`RELATIVE_REFUSE_DEG` with a Mahalanobis square above :data:`REGION_CHI2_REFUSE`, a warning above
+    :data:`REGION_CHI2_WARN`). A region's reasons refuse or warn the whole; each region's own level is in
+    ``regions`` (a caller may leave a refused region out and solve again). The protection levels come from the
+    common covariance with the largest of the regions' chi-square inflations (test 3) and relative-pose
+    disagreements (test 2); the statistics are reported per region (``"<region>/<test>"``) and combined
+    (``inliers`` summed, the others their largest).
+
+    Parameters
+    ----------
+    parts : list of tuple
+        Per region ``(name, kmap, surround, view_a, view_b, own)``: its map, surrounding views, locate views and its
+        own localisation (a :class:`~bench.vision.insitu.LocateResult` with a calibrated covariance).
+    """
+    if not result.success:
+        return Integrity("refused", [f"no localisation: {result.message}"],
+                         regions={p[0]: "refused" for p in parts})
+    refuse, warn, tests, regions, region_reasons = [], [], {}, {}, {}
+    worst = {"relative_pose_mm": [], "relative_pose_deg": [], "chi2_ratio": [], "region_chi2": []}
+    n_in = n_match = 0
+    for name, kmap, surround, a, b, own in parts:
+        T_ref_a = invert(kmap.T_world_ref) @ np.asarray(result.T_world_base, float) @ np.asarray(a.T_base_cam, float)
+        at = replace(result, T_ref_cam=T_ref_a, n_matches=own.n_matches, n_inliers=own.n_inliers)
+        r_ref, r_warn, t = _tests(kmap, surround, a, b, at, focal_px, image_size, config, seed)
+        d, m2 = region_disagreement(own.T_world_base, own.covariance, result.T_world_base, result.covariance)
+        d_mm, d_deg = float(np.linalg.norm(d[3:]) * 1e3), float(np.rad2deg(np.linalg.norm(d[:3])))
+        t.update(region_vs_all_mm=d_mm, region_vs_all_deg=d_deg, region_chi2=m2)
+        what = (f"its own estimate differs from the regions' together by {d_mm:.1f} mm and {d_deg:.2f} deg, "
+                f"Mahalanobis square {m2:.0f}")
+        if (d_mm > RELATIVE_REFUSE_MM or d_deg > RELATIVE_REFUSE_DEG) and m2 > REGION_CHI2_REFUSE:
+            r_ref.append(f"{what} (limits {RELATIVE_REFUSE_MM:g} mm, {RELATIVE_REFUSE_DEG:g} deg, "
+                         f"{REGION_CHI2_REFUSE:.1f})")
+        elif m2 > REGION_CHI2_WARN:
+            r_warn.append(what)
+        regions[name] = "refused" if r_ref else "warning" if r_warn else "ok"
+        region_reasons[name] = r_ref + r_warn
+        refuse += [f"region {name}: {r}" for r in r_ref]
+        warn += [f"region {name}: {r}" for r in r_warn]
+        tests.update({f"{name}/{k}": v for k, v in t.items()})
+        for k in worst:
+            worst[k].append(t.get(k, float("nan")))
+        n_in, n_match = n_in + own.n_inliers, n_match + own.n_matches
+    for k, v in worst.items():
+        v = [x for x in v if np.isfinite(x)]
+        if v:
+            tests[k] = max(v)
+    tests.update(inliers=float(n_in), inlier_fraction=n_in / max(n_match, 1), regions=float(len(parts)),
+                 condition=float(result.condition), covariance_min_eig=smallest_eigenvalue(result.covariance))
+    out = _verdict(refuse, warn, tests, result.covariance)
+    out.regions, out.region_reasons = regions, region_reasons
+    return out

@@ -32,7 +32,7 @@ from bench.robot.calibration_file import load_calibrated_robot
 from bench.robot.orientation import link5_frame
 from bench.robot.task import retarget_taught_pose, taught_pose
 from bench.vision.features import detect_sift
-from bench.vision.insitu import MapConfig, ViewObservation, build_map, locate, locate_pnp
+from bench.vision.insitu import LocateResult, MapConfig, ViewObservation, build_map, locate, locate_pnp
 from bench.vision.integrity import KAPPA_UNMEASURED, assess, kappa_of, point_protection_radius
 
 
@@ -96,24 +96,26 @@ def keypoint_depths(x_n, p_cam, focal_px) -> np.ndarray:
     return z
 
 
-def _refract_again(obs, camera, kmap, res, roles) -> dict:
+def _refract_again(obs, camera, maps, res, regions) -> dict:
     """The observations with every keypoint's coordinates recomputed at the depth the first solution gives it
-    (:func:`keypoint_depths` from the map points in each view: the survey views through their kinematics, the locate
-    views through the located base); a view without depths keeps its coordinates."""
+    (:func:`keypoint_depths` from the map points of its region (``maps``, one per entry of ``regions``) in each
+    view: the survey views through their kinematics, the locate views through the located base); a view without
+    depths keeps its coordinates."""
     from bench.geometry.transforms import invert, transform_points
 
-    X_site = transform_points(kmap.T_world_ref, kmap.p_ref)
     out = {}
-    for r, views in roles.items():
-        for v in views:
-            o = obs[v.name]
-            T_site_cam = o.T_base_cam if r != "locate" else res.T_world_base @ o.T_base_cam
-            z = keypoint_depths(o.x_n, transform_points(invert(T_site_cam), X_site), camera.fx)
-            if not np.all(np.isfinite(z)):
-                out[v.name] = o
-                continue
-            f, x_n = normalised(o.features, camera, z)
-            out[v.name] = replace(o, features=f, x_n=x_n)
+    for kmap, (_, roles) in zip(maps, regions, strict=True):
+        X_site = transform_points(kmap.T_world_ref, kmap.p_ref)
+        for r, views in roles.items():
+            for v in views:
+                o = obs[v.name]
+                T_site_cam = o.T_base_cam if r != "locate" else res.T_world_base @ o.T_base_cam
+                z = keypoint_depths(o.x_n, transform_points(invert(T_site_cam), X_site), camera.fx)
+                if not np.all(np.isfinite(z)):
+                    out[v.name] = o
+                    continue
+                f, x_n = normalised(o.features, camera, z)
+                out[v.name] = replace(o, features=f, x_n=x_n)
     return out
 
 
@@ -204,57 +206,74 @@ def _guided_used(kmap, view_a, view_b, used, T_ref_a, T_ref_b, K, dist, camera) 
     return (np.array(both, int), x_a, x_b), radii
 
 
-def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None,
-                   guided: bool = False, loss: str | None = None, map_points: str = "all"):
+def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None, guided: bool = False,
+                   loss: str | None = None, map_points: str = "all"):
     """The thesis estimator's pose refined by :func:`~bench.vision.joint_bundle.joint_bundle` (joints under the
-    encoder prior); on failure the thesis estimate is kept and the message says why. With ``guided`` the map is
-    then searched again in both locate views at the refined poses and camera (:mod:`bench.vision.guided`) and the
-    joint bundle re-run on the grown set; ``loss``: the joint bundle's (``joint_bundle``); ``map_points``: which
-    map points it weighs (:func:`~bench.vision.joint_bundle.observations_of`). Returns ``(result,
-    refined)``: ``refined`` False when the thesis's estimate (and covariance) is what comes back; the result's
-    ``used`` is what the returned estimate used."""
+    encoder prior); on failure the thesis estimate is kept and the message says why.
+
+    ``parts``: one ``(kmap, roles, used)`` per region of the scene - its map, its views by role and the map points
+    its two locate views used (a :class:`~bench.vision.insitu.LocateResult`'s ``used``); several regions are solved
+    together: one base pose, every view's joints, the shared camera, every region's points. ``res``: the thesis
+    estimate to start from. With ``guided`` each region's map is then searched again in its locate views at the
+    refined poses and camera (:mod:`bench.vision.guided`) and the joint bundle re-run on the grown sets; ``loss``:
+    the joint bundle's (``joint_bundle``); ``map_points``: which map points it weighs
+    (:func:`~bench.vision.joint_bundle.observations_of`). Returns ``(result, refined, used)``: ``refined`` False
+    when the thesis's estimate (and covariance) is what comes back; ``used`` the points of every region the returned
+    estimate used (the result's own ``used`` is the first region's)."""
     from bench.camera.model import distort, to_pixels
     from bench.geometry.transforms import invert, transform_points
     from bench.vision.joint_bundle import joint_bundle, observations_of
 
-    if res.used is None or len(res.used[0]) < 3:
-        return replace(res, message=res.message + "; joint bundle skipped (fewer than 3 points)"), False
+    useds = [u for _, _, u in parts]
+    if any(u is None or len(u[0]) < 3 for u in useds):
+        return replace(res, message=res.message + "; joint bundle skipped (fewer than 3 points)"), False, useds
     t0 = time.perf_counter()
-    n_sur = len(roles["surround"])
-    views = [v for r in ("reference", "surround", "locate") for v in roles[r]]
+    views = [v for _, roles, _ in parts for r in ("reference", "surround", "locate") for v in roles[r]]
     q_read = np.array([v.q for v in views], dtype=float)
     is_loc = np.array([v.role == "locate" for v in views])
+    first = np.cumsum([0] + [1 + len(roles["surround"]) + 2 for _, roles, _ in parts])  # each region's first view
 
-    def bundle(used, T_start):
-        view, point, x, idx = observations_of(kmap, used, n_sur, map_points)
-        X = transform_points(kmap.T_world_ref, kmap.p_ref[idx])
-        uv = to_pixels(distort(x, camera.dist), camera.K)  # the keypoints as detected (x: their undistorted form)
-        return joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, T_start, view, point, uv, X, sigma_enc,
-                            0.1, camera.K, camera.dist, **(priors or {}), loss=loss)  # 0.1 px: a start
+    def bundle(useds, T_start):
+        view, point, uv, X = [], [], [], []
+        for (kmap, roles, _), used, v0 in zip(parts, useds, first, strict=False):
+            vw, pt, x, idx = observations_of(kmap, used, len(roles["surround"]), map_points)
+            view.append(vw + v0)
+            point.append(pt + sum(len(p) for p in X))
+            uv.append(to_pixels(distort(x, camera.dist), camera.K))  # the keypoints as detected (x: undistorted)
+            X.append(transform_points(kmap.T_world_ref, kmap.p_ref[idx]))
+        return joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, T_start, np.concatenate(view),
+                            np.concatenate(point), np.concatenate(uv), np.concatenate(X), sigma_enc, 0.1, camera.K,
+                            camera.dist, **(priors or {}), loss=loss)  # 0.1 px: a start
 
     try:
-        jb = bundle(res.used, res.T_world_base)
+        jb = bundle(useds, res.T_world_base)
     except (ValueError, np.linalg.LinAlgError) as exc:
-        return replace(res, message=f"{res.message}; joint bundle skipped ({exc})"), False
+        return replace(res, message=f"{res.message}; joint bundle skipped ({exc})"), False, useds
     res.timings_s["joint_bundle_s"] = time.perf_counter() - t0
     if not jb.success:
-        return replace(res, message=f"{res.message}; joint bundle skipped ({jb.message})"), False
+        return replace(res, message=f"{res.message}; joint bundle skipped ({jb.message})"), False, useds
     if jb.sigma_px < 1e-6:  # exact data (an evaluator's oracle): nothing to weigh, the thesis estimate is exact too
         return replace(res, message=f"{res.message}; joint bundle: residuals {jb.sigma_px:.2g} px, estimate "
-                                    f"kept"), False
-    used, note = res.used, ""
+                                    f"kept"), False, useds
+    note = ""
     if guided:
         t1 = time.perf_counter()
         mount = T_link5_cam if jb.T_link5_cam is None else jb.T_link5_cam
-        T_ref_site = invert(kmap.T_world_ref) @ jb.T_site_base
-        a, b = (obs[v.name] for v in roles["locate"][:2])
-        T_ref = [T_ref_site @ link5_frame(robot, jb.q[n_sur + 1 + i], eps) @ mount for i in (0, 1)]
         K = camera.K if jb.K is None else jb.K
         dist = camera.dist if jb.dist is None else jb.dist
-        grown, radii = _guided_used(kmap, a, b, res.used, T_ref[0], T_ref[1], K, dist, camera)
-        note = (f"; guided matching (radius {radii[0]:.1f} / {radii[1]:.1f} px): {len(grown[0])} map points in both "
-                f"locate views (verified {len(res.used[0])})")
-        if len(grown[0]) > len(res.used[0]):
+        grown, radii = [], []
+        for (kmap, roles, used), v0 in zip(parts, first, strict=False):
+            T_ref_site = invert(kmap.T_world_ref) @ jb.T_site_base
+            a, b = (obs[v.name] for v in roles["locate"][:2])
+            k = v0 + 1 + len(roles["surround"])  # the region's first locate view
+            T_ref = [T_ref_site @ link5_frame(robot, jb.q[k + i], eps) @ mount for i in (0, 1)]
+            g, r = _guided_used(kmap, a, b, used, T_ref[0], T_ref[1], K, dist, camera)
+            grown.append(g)
+            radii += r
+        n_grown, n_used = sum(len(g[0]) for g in grown), sum(len(u[0]) for u in useds)
+        note = (f"; guided matching (radius {' / '.join(f'{r:.1f}' for r in radii)} px): {n_grown} map points in "
+                f"both locate views (verified {n_used})")
+        if n_grown > n_used:
             try:
                 jb2 = bundle(grown, jb.T_site_base)
             except (ValueError, np.linalg.LinAlgError) as exc:
@@ -262,12 +281,88 @@ def _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, camera, sigma
             if jb2 is not None and not jb2.success:
                 note = f"{note}, bundle skipped ({jb2.message})"
             elif jb2 is not None:
-                jb, used = jb2, grown
+                jb, useds = jb2, grown
         res.timings_s["guided_s"] = time.perf_counter() - t1
-    T_base_a = obs[roles["locate"][0].name].T_base_cam
-    T_ref_a = invert(kmap.T_world_ref) @ jb.T_site_base @ T_base_a
+    kmap, roles, _ = parts[0]
+    T_ref_a = invert(kmap.T_world_ref) @ jb.T_site_base @ obs[roles["locate"][0].name].T_base_cam
     return replace(res, message=f"{res.message}; {jb.message[4:]}{note}", T_world_base=jb.T_site_base,
-                   T_ref_cam=T_ref_a, covariance=jb.covariance, used=used), True
+                   T_ref_cam=T_ref_a, covariance=jb.covariance, used=useds[0]), True, useds
+
+
+def _regions(ds, pnp: bool, refine: str) -> list:
+    """``[(region, roles)]``: the in-situ views of every region of the scene (the manifest's ``region``, in the
+    order of their first view); ``roles`` maps ``reference``, ``surround`` and ``locate`` to the region's views (its
+    locate views cut to the two the solve takes, one for PnP). A region needs one reference view, a surrounding view
+    and its locate views; several regions are solved together by the joint bundle, so they need refine 'joints'
+    with two locate views each. A missing piece is a one-line error naming the region."""
+    where = ds.root / "manifest.yaml"
+    posed = [v for v in ds.views if v.role in ("reference", "surround", "locate")]
+    names = list(dict.fromkeys(v.region for v in posed)) or [""]
+    if len(names) > 1 and (pnp or refine != "joints"):
+        raise ConfigError(where, "views", f"{len(names)} regions ({', '.join(map(repr, names))}) are solved together "
+                                          f"by refine 'joints' from two locate views each (got refine {refine!r}"
+                                          f"{' and PnP' if pnp else ''})")
+    out = []
+    for name in names:
+        roles = {r: [v for v in posed if v.role == r and v.region == name] for r in ("reference", "surround",
+                                                                                       "locate")}
+        of = f" in region {name!r}" if len(names) > 1 else ""
+        if len(roles["reference"]) != 1:
+            raise ConfigError(where, "views", f"expected one view with role 'reference'{of}, found "
+                                              f"{len(roles['reference'])}")
+        if not roles["surround"]:
+            raise ConfigError(where, "views", f"no view with role 'surround' (the survey){of}")
+        if len(roles["locate"]) < (1 if pnp else 2):
+            raise ConfigError(where, "views", f"expected {1 if pnp else 2} views with role 'locate'{of}, found "
+                                              f"{len(roles['locate'])}")
+        roles["locate"] = roles["locate"][: 1 if pnp else 2]
+        out.append((name, roles))
+    return out
+
+
+def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, camera, sigma_enc, priors, guided,
+             loss, map_points) -> tuple:
+    """The estimate of the regions ``include`` (indices) from their thesis estimates ``per``: with one region its
+    own, refined by the joint bundle with refine 'joints'; with several the joint bundle over all of them together,
+    started from the region with the most inliers (which then comes first in ``include``; regions whose thesis
+    estimator found no pose are left out). Returns ``(include, result, refined, thesis, used)`` (see
+    :func:`_refine_joints`; ``thesis`` the start's thesis estimate)."""
+    if len(regions) == 1:
+        res = per[0]
+        if sigma_enc is None or not res.success:  # refine 'joints' and two views: sigma_enc is given
+            return [0], res, False, None, [res.used]
+        out, refined, used = _refine_joints(res, [(maps[0], regions[0][1], res.used)], obs, robot, eps, T_link5_cam,
+                                            camera, sigma_enc, priors, guided, loss, map_points)
+        return [0], out, refined, res, used
+    include = [i for i in include if per[i].success and per[i].used is not None and len(per[i].used[0]) >= 3]
+    if not include:
+        nan = np.full((4, 4), np.nan)
+        why = "; ".join(f"region {name!r}: {r.message}" for (name, _), r in zip(regions, per, strict=True))
+        return [], LocateResult(False, f"no region localised ({why})", nan, nan, np.full((6, 6), np.nan), np.nan,
+                                sum(r.n_matches for r in per), 0), False, None, []
+    start = max(include, key=lambda i: per[i].n_inliers)
+    include = [start] + [i for i in include if i != start]
+    names = ", ".join(f"{regions[i][0]!r} ({per[i].n_inliers} inliers)" for i in include)
+    res = replace(per[start], message=f"regions {names}; start: region {regions[start][0]!r}: {per[start].message}",
+                  n_matches=sum(per[i].n_matches for i in include), n_inliers=sum(per[i].n_inliers for i in include),
+                  timings_s=dict(per[start].timings_s))
+    out, refined, used = _refine_joints(res, [(maps[i], regions[i][1], per[i].used) for i in include], obs, robot,
+                                        eps, T_link5_cam, camera, sigma_enc, priors, guided, loss, map_points)
+    return include, out, refined, per[start], used
+
+
+def _assess_regions(res, per, include, maps, regions, obs, camera, config, seed):
+    """:func:`~bench.vision.integrity.assess_regions` of the regions ``include``, each with its own (thesis)
+    estimate's covariance calibrated by :data:`~bench.vision.integrity.KAPPA` ``["bundle"]``."""
+    from bench.vision.integrity import KAPPA, assess_regions
+
+    parts = []
+    for i in include:
+        name, roles = regions[i]
+        own = replace(per[i], covariance=KAPPA["bundle"] ** 2 * np.asarray(per[i].covariance, float))
+        parts.append((name, maps[i], [obs[v.name] for v in roles["surround"]], obs[roles["locate"][0].name],
+                      obs[roles["locate"][1].name], own))
+    return assess_regions(parts, res, camera.fx, camera.size, config, seed)
 
 
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
@@ -305,16 +400,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     if T_link5_cam is None:
         warnings.warn(f"{robot_path}: no calibration.camera_mount; using an identity mount", stacklevel=2)
         T_link5_cam = np.eye(4)
-    roles = {r: [v for v in ds.views if v.role == r] for r in ("reference", "surround", "locate")}
-    if len(roles["reference"]) != 1:
-        raise ConfigError(ds.root / "manifest.yaml", "views", f"expected one view with role 'reference', found "
-                                                              f"{len(roles['reference'])}")
-    if not roles["surround"]:
-        raise ConfigError(ds.root / "manifest.yaml", "views", "no view with role 'surround' (the survey)")
-    if len(roles["locate"]) < (1 if pnp else 2):
-        raise ConfigError(ds.root / "manifest.yaml", "views", f"expected {1 if pnp else 2} views with role 'locate', "
-                                                              f"found {len(roles['locate'])}")
-    roles["locate"] = roles["locate"][: 1 if pnp else 2]
+    regions = _regions(ds, pnp, refine)
     sigma_enc = encoder_sigma_rad(ds.root) if refine == "joints" and not pnp else None  # checked before the work
     priors = None
     if priors_path is not None and refine == "joints" and not pnp:
@@ -322,42 +408,45 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
 
         priors = read_priors(priors_path)
     obs = {v.name: observe(v, camera, robot, eps, T_link5_cam, features_fn=features_fn)
-           for r in roles.values() for v in r}
+           for _, roles in regions for r in roles.values() for v in r}
     t_detect = time.perf_counter() - t0
-
-    def solve(obs):
-        t = time.perf_counter()
-        kmap = build_map(obs[roles["reference"][0].name], [obs[v.name] for v in roles["surround"]], config)
-        t_map = time.perf_counter() - t
-        a, refined, thesis = obs[roles["locate"][0].name], False, None  # refined: the joint bundle's estimate
-        if pnp:
-            res = locate_pnp(kmap, a, config, focal_px=camera.fx)
-        else:
-            res = locate(kmap, a, obs[roles["locate"][1].name], config, method=method, rng=seed,
-                         refine="bundle" if refine == "joints" else refine, focal_px=camera.fx,
-                         **(ransac or {}))  # focal: the baseline checks' 1 px (Eq. 123, 199)
-            if refine == "joints" and res.success:
-                thesis = res  # the thesis estimator's (bundle) result, reported beside
-                res, refined = _refine_joints(res, kmap, roles, obs, robot, eps, T_link5_cam, pixels_camera,
-                                              sigma_enc, priors, guided, loss, map_points)
-        return kmap, res, refined, thesis, t_map
-
     # the joint bundle works in pixels: a refractive camera's coordinates go to it through its virtual pinhole
     pixels_camera = camera.virtual_camera() if isinstance(camera, RefractiveCamera) else camera
-    kmap, res, refined, thesis, t_map = solve(obs)
+
+    def solve(obs, include=None):
+        """Every region's map and thesis estimate, then the estimate of the regions ``include`` (default: every
+        region the thesis estimator localised) - the joint bundle's with refine 'joints'."""
+        t = time.perf_counter()
+        maps = [build_map(obs[roles["reference"][0].name], [obs[v.name] for v in roles["surround"]], config)
+                for _, roles in regions]
+        t_map = time.perf_counter() - t
+        per = []  # the thesis estimator's result in each region
+        for kmap, (_, roles) in zip(maps, regions, strict=True):
+            a = obs[roles["locate"][0].name]
+            per.append(locate_pnp(kmap, a, config, focal_px=camera.fx) if pnp else
+                       locate(kmap, a, obs[roles["locate"][1].name], config, method=method, rng=seed,
+                              refine="bundle" if refine == "joints" else refine, focal_px=camera.fx,
+                              **(ransac or {})))  # focal: the baseline checks' 1 px (Eq. 123, 199)
+        if include is None:
+            include = [i for i, r in enumerate(per) if r.success]
+        return (maps, per, *_combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, pixels_camera,
+                                     sigma_enc, priors, guided, loss, map_points), t_map)
+
+    maps, per, include, res, refined, thesis, useds, t_map = solve(obs)
     passes = 1
     while isinstance(camera, RefractiveCamera) and res.success and passes < REFRACTIVE_PASSES:
         # the port: each keypoint again at the depth the last solution gives it, and the solve again, until the
         # base pose settles (each pass shrinks the depths' effect by ~ the rays' offset / range, ~1e-2)
-        obs2 = _refract_again(obs, camera, kmap, res, roles)
-        kmap2, res2, refined2, thesis2, t_map2 = solve(obs2)
-        t_map, passes = t_map + t_map2, passes + 1
+        obs2 = _refract_again(obs, camera, maps, res, regions)
+        solved2 = solve(obs2)
+        t_map, passes = t_map + solved2[-1], passes + 1
+        res2 = solved2[3]
         if not res2.success:  # the last pass's result stands
             res = replace(res, message=f"{res.message}; refractive pass {passes} failed: {res2.message}")
             passes -= 1
             break
         D = np.linalg.inv(res.T_world_base) @ res2.T_world_base
-        obs, kmap, res, refined, thesis = obs2, kmap2, res2, refined2, thesis2
+        obs, (maps, per, include, res, refined, thesis, useds) = obs2, solved2[:-1]
         std = (np.full(6, 1e-6) if res.covariance is None else  # no covariance: settle at 1 nm / 1 nrad
                np.sqrt(np.clip(np.diag(np.asarray(res.covariance, float)), 0.0, None)))
         if (np.linalg.norm(D[:3, 3]) <= SETTLED_FRACTION * np.linalg.norm(std[3:])
@@ -365,29 +454,57 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
             break
     if isinstance(camera, RefractiveCamera):
         res = replace(res, message=f"{res.message}; refractive camera: {passes} pass(es)")
+
+    def calibrated(res, refined):
+        """The estimator's first-order covariance, calibrated by its measured optimism
+        (:data:`~bench.vision.integrity.KAPPA`) - of the estimate returned: 'joints' falls back to the thesis's
+        'bundle' when the joint bundle fails or is skipped; 'joints' was measured with the lab priors (without them
+        it is unmeasured). Returns ``(result, kappa)``."""
+        used = ("joints" if refined else "bundle") if refine == "joints" else refine
+        kappa = kappa_of(used, pnp) if used != "joints" or priors is not None else KAPPA_UNMEASURED
+        return (replace(res, covariance=kappa**2 * np.asarray(res.covariance, float)) if res.success else res), kappa
+
+    res, kappa = calibrated(res, refined)
+    t_int = time.perf_counter()
+    if len(regions) == 1:
+        _, roles = regions[0]
+        integ = assess(maps[0], [obs[v.name] for v in roles["surround"]], obs[roles["locate"][0].name],
+                       None if pnp else obs[roles["locate"][1].name], res, camera.fx, camera.size, config, seed)
+    else:
+        integ = _assess_regions(res, per, include, maps, regions, obs, camera, config, seed)
+        refused = [i for i in include if integ.regions[regions[i][0]] == "refused"]
+        if res.success and refused and len(refused) < len(include):
+            # fault exclusion: the regions that refuse are left out and the others solved again; the result is then
+            # at best a warning (a fault was found; another may have hidden in the regions kept)
+            keep = [i for i in include if i not in refused]
+            again = _combine(per, keep, maps, regions, obs, refine, robot, eps, T_link5_cam, pixels_camera, sigma_enc,
+                             priors, guided, loss, map_points)
+            res2, kappa2 = calibrated(again[1], again[2])
+            integ2 = _assess_regions(res2, per, keep, maps, regions, obs, camera, config, seed)
+            if res2.success and integ2.level != "refused":
+                names = [regions[i][0] for i in refused]
+                integ2.reasons[:0] = [f"region {n} left out: {'; '.join(integ.region_reasons[n])}" for n in names]
+                integ2.level = "warning"
+                integ2.regions.update(dict.fromkeys(names, "left out"))
+                (include, _, refined, thesis, useds), res, kappa, integ = again, res2, kappa2, integ2
     if details is not None and thesis is not None:
         details["thesis_result"] = thesis
-    a = obs[roles["locate"][0].name]
-    # the estimator's first-order covariance, calibrated by its measured optimism (bench.vision.integrity.KAPPA) - of
-    # the estimate returned: 'joints' falls back to the thesis's 'bundle' when the joint bundle fails or is skipped;
-    # 'joints' was measured with the lab priors (without them it is unmeasured)
-    used = ("joints" if refined else "bundle") if refine == "joints" else refine
-    kappa = kappa_of(used, pnp) if used != "joints" or priors is not None else KAPPA_UNMEASURED
-    if res.success:
-        res = replace(res, covariance=kappa**2 * np.asarray(res.covariance, float))
-    t_int = time.perf_counter()
-    integ = assess(kmap, [obs[v.name] for v in roles["surround"]], a, None if pnp else obs[roles["locate"][1].name],
-                   res, camera.fx, camera.size, config, seed)
     res.timings_s.update({"detect_s": t_detect, "map_s": t_map, "integrity_s": time.perf_counter() - t_int,
                           "pipeline_total_s": time.perf_counter() - t0})
+    kmap, roles = maps[include[0] if include else 0], regions[include[0] if include else 0][1]
     if details is not None:
         details.update(map=kmap, observations=obs, camera=camera, robot=robot, eps=eps, T_link5_cam=T_link5_cam,
-                       integrity=integ)
-    report = {"dataset": str(ds.root), "success": res.success, "message": res.message, "map_points": len(kmap),
-              "map_stats": kmap.stats, "n_matches": res.n_matches, "inliers": res.n_inliers,
-              "condition": res.condition, "method": "pnp" if pnp else method, "covariance_kappa": kappa,
-              **integ.report(),
+                       integrity=integ, maps=maps, regions=regions, region_results=per, region_used=useds,
+                       regions_solved=include)
+    report = {"dataset": str(ds.root), "success": res.success, "message": res.message,
+              "map_points": sum(len(m) for m in maps), "map_stats": kmap.stats, "n_matches": res.n_matches,
+              "inliers": res.n_inliers, "condition": res.condition, "method": "pnp" if pnp else method,
+              "covariance_kappa": kappa, **integ.report(),
               "timings_s": res.timings_s, "tasks": {}}  # no task is offered without a pose
+    if len(regions) > 1:
+        report["regions"] = {name: {"map_points": len(m), "matches": r.n_matches, "inliers": r.n_inliers,
+                                    "solved": i in include, "message": r.message}
+                             for i, (m, r, (name, _)) in enumerate(zip(maps, per, regions, strict=True))}
     if res.success:
         T = res.T_world_base
         std = np.sqrt(np.clip(np.diag(res.covariance), 0.0, None))
@@ -404,7 +521,11 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(out / "locate.json", json.dumps(report, indent=2) + "\n")
     if verbose:
-        print(f"{ds.name}: {len(kmap)} map points ({kmap.stats}), {res.n_matches} matches, {res.n_inliers} inliers")
+        print(f"{ds.name}: {report['map_points']} map points ({kmap.stats}), {res.n_matches} matches, "
+              f"{res.n_inliers} inliers")
+        for name, r in report.get("regions", {}).items():
+            print(f"  region {name}: {r['map_points']} map points, {r['inliers']} inliers"
+                  + ("" if r["solved"] else f" - not in the solution: {r['message']}"))
         if res.success:
             p, s = report["position_mm"], report["position_std_mm"]
             print("T_world_base position [mm]: " + ", ".join(f"{v:.2f} ± {e:.2f}" for v, e in zip(p, s, strict=True)))
