@@ -472,21 +472,30 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                        None if pnp else obs[roles["locate"][1].name], res, camera.fx, camera.size, config, seed)
     else:
         integ = _assess_regions(res, per, include, maps, regions, obs, camera, config, seed)
-        refused = [i for i in include if integ.regions[regions[i][0]] == "refused"]
-        if res.success and refused and len(refused) < len(include):
-            # fault exclusion: the regions that refuse are left out and the others solved again; the result is then
-            # at best a warning (a fault was found; another may have hidden in the regions kept)
-            keep = [i for i in include if i not in refused]
-            again = _combine(per, keep, maps, regions, obs, refine, robot, eps, T_link5_cam, pixels_camera, sigma_enc,
-                             priors, guided, loss, map_points)
-            res2, kappa2 = calibrated(again[1], again[2])
-            integ2 = _assess_regions(res2, per, keep, maps, regions, obs, camera, config, seed)
-            if res2.success and integ2.level != "refused":
-                names = [regions[i][0] for i in refused]
-                integ2.reasons[:0] = [f"region {n} left out: {'; '.join(integ.region_reasons[n])}" for n in names]
-                integ2.level = "warning"
-                integ2.regions.update(dict.fromkeys(names, "left out"))
+        if res.success and integ.level == "refused" and len(include) > 1:
+            # fault exclusion (one faulty region at a time): every subset without one region solved again; when
+            # exactly one of them holds, the region it leaves out is the faulty one. The result is then at best a
+            # warning (a fault was found; another may hide in the regions kept). None or several: refused.
+            held = []
+            for k in include:
+                again = _combine(per, [i for i in include if i != k], maps, regions, obs, refine, robot, eps,
+                                 T_link5_cam, pixels_camera, sigma_enc, priors, guided, loss, map_points)
+                res2, kappa2 = calibrated(again[1], again[2])
+                integ2 = _assess_regions(res2, per, again[0], maps, regions, obs, camera, config, seed)
+                if res2.success and integ2.level != "refused":
+                    held.append((k, again, res2, kappa2, integ2))
+            if len(held) == 1:
+                k, again, res2, kappa2, integ2 = held[0]
+                name = regions[k][0]
+                why = integ.region_reasons.get(name) or integ.reasons
+                integ2.reasons.insert(0, f"region {name} left out: {'; '.join(why)}")
+                integ2.level, integ2.regions[name] = "warning", "left out"
                 (include, _, refined, thesis, useds), res, kappa, integ = again, res2, kappa2, integ2
+            elif len(held) > 1:
+                integ.reasons.append(f"leaving out any one of regions {', '.join(regions[h[0]][0] for h in held)} "
+                                     "gives a pose that holds: the faulty one is not known")
+        for name, _ in regions:  # a region the thesis estimator found no pose in adds nothing (its message says why)
+            integ.regions.setdefault(name, "not localised")
     if details is not None and thesis is not None:
         details["thesis_result"] = thesis
     res.timings_s.update({"detect_s": t_detect, "map_s": t_map, "integrity_s": time.perf_counter() - t_int,

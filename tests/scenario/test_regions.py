@@ -1,0 +1,184 @@
+"""The in-situ localisation over several regions of the panel (``site.regions_m``, the manifest's ``region``): each
+region mapped and located, all solved together by one joint bundle, its integrity per region, and a region whose
+views are faulty left out."""
+
+import shutil
+
+import numpy as np
+import pytest
+import yaml
+
+pytest.importorskip("mujoco")
+
+from bench.camera.io import read_camera_yaml, write_camera_yaml  # noqa: E402
+from bench.dataset import load_dataset  # noqa: E402
+from bench.errors import ConfigError  # noqa: E402
+from bench.geometry.quaternion import rotation_vector_to_matrix  # noqa: E402
+from bench.geometry.transforms import homogeneous, rot_x, rot_z, rotation_angle  # noqa: E402
+from bench.robot.calibration_file import write_calibrated_robot  # noqa: E402
+from bench.scenario.runner import kind_module, load_scenario  # noqa: E402
+from bench.vision.integrity import region_disagreement  # noqa: E402
+from bench.vision.locate_dataset import locate_dataset  # noqa: E402
+from tests.scenario.test_integrity import SCENARIO, SMALL  # noqa: E402
+
+TWO = [*SMALL, "site.regions_m=[[0, 0], [0.2, 0]]", "bound.enabled=false", "task.teach=false"]
+
+
+@pytest.fixture(scope="module")
+def two_regions(tmp_path_factory):
+    """A small two-region dataset and the evaluator's oracle calibration files (true camera, arm errors, mount)."""
+    tmp = tmp_path_factory.mktemp("regions")
+    cfg = load_scenario(SCENARIO, seed=3, overrides=TWO)
+    kind_module("in_situ", SCENARIO).render(cfg, tmp / "ds", verbose=False)
+    ds = load_dataset(tmp / "ds")
+    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
+    cam = read_camera_yaml(ds.camera_path)
+    camera = write_camera_yaml(tmp / "cal" / "camera.yaml", cam.replace(K=np.array(truth["camera_K_effective"]),
+                                                                        dist=np.array(truth["camera_dist"]),
+                                                                        model=None))
+    robot = write_calibrated_robot(tmp / "cal" / "robot.yaml", ds.robot_path, ds.robot(), np.array(truth["errors"]),
+                                   np.array(truth["T_link5_cam_effective"]), notes="test oracle")
+    T_true = np.linalg.inv(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
+    return tmp, camera, robot, T_true
+
+
+def _only(src, dst, region):
+    """A copy of the dataset with the posed views of the other regions removed (as if one region were surveyed)."""
+    shutil.copytree(src, dst)
+    man = yaml.safe_load((src / "manifest.yaml").read_text())
+    drop = {v["name"] for v in man["views"] if v.get("region", "") not in ("", region)}
+    man["views"] = [v for v in man["views"] if v["name"] not in drop]
+    (dst / "manifest.yaml").write_text(yaml.safe_dump(man, sort_keys=False))
+    rows = (src / "joints.csv").read_text().splitlines()
+    (dst / "joints.csv").write_text("\n".join(r for r in rows if r.split(",")[0] not in drop) + "\n")
+    return dst
+
+
+def _errors(res, T_true):
+    T = res.T_world_base
+    return (np.linalg.norm(T[:3, 3] - T_true[:3, 3]) * 1e3,
+            np.rad2deg(rotation_angle(T[:3, :3].T @ T_true[:3, :3])))
+
+
+def test_the_views_carry_their_region(two_regions):
+    tmp, *_ = two_regions
+    ds = load_dataset(tmp / "ds")
+    regions = {v.name: v.region for v in ds.views if v.role in ("reference", "surround", "locate")}
+    assert set(regions.values()) == {"r0", "r1"}
+    assert regions["ref"] == regions["locate0"] == "r0" and regions["r1_ref"] == regions["r1_locate1"] == "r1"
+    assert all(v.region == "" for v in ds.views if v.role == "rig")
+    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
+    assert set(regions) <= set(truth["views"])
+
+
+def test_two_regions_are_solved_together_and_tested_each(two_regions, tmp_path):
+    tmp, camera, robot, T_true = two_regions
+    kw = dict(verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3)
+    res, rep = locate_dataset(tmp / "ds", None, **kw)
+    assert res.success and rep["integrity"] != "refused", rep["integrity_reasons"]
+    assert set(rep["regions"]) == {"r0", "r1"} and all(r["solved"] for r in rep["regions"].values())
+    assert set(rep["integrity_regions"]) == {"r0", "r1"}
+    t = rep["integrity_tests"]
+    for name in ("r0", "r1"):  # every test of every region, at the common pose
+        for k in ("consensus_locate_a", "relative_pose_mm", "chi2_ratio", "region_chi2", "inliers"):
+            assert f"{name}/{k}" in t
+    assert t["inliers"] == t["r0/inliers"] + t["r1/inliers"] == rep["inliers"]
+    assert t["relative_pose_mm"] == max(t["r0/relative_pose_mm"], t["r1/relative_pose_mm"])
+    assert "14 views' joints" in res.message  # 2 x (reference, 4 surrounding, 2 locate)
+    err_mm, err_deg = _errors(res, T_true)
+    assert err_mm <= rep["protection_radius_mm"] and err_deg <= rep["protection_angle_deg"]
+    # more of the panel pins the rotation: the common covariance is no larger than either region's alone (the
+    # regions share the camera and the base; each one's own points and joints are added information)
+    sd = {}
+    for name in ("r0", "r1"):
+        r1, rep1 = locate_dataset(_only(tmp / "ds", tmp_path / name, name), None, **kw)
+        assert r1.success and "regions" not in rep1
+        sd[name] = np.sqrt(np.linalg.eigvalsh(r1.covariance[:3, :3]).max())
+    assert np.sqrt(np.linalg.eigvalsh(res.covariance[:3, :3]).max()) < min(sd.values())
+
+
+def test_a_region_with_swapped_images_adds_nothing(two_regions, tmp_path):
+    """An image swapped between two views of region r1: r1's thesis estimator finds no pose (or its tests refuse
+    it), and region r0 alone answers, inside its protection radius."""
+    tmp, camera, robot, T_true = two_regions
+    ds = tmp_path / "ds"
+    shutil.copytree(tmp / "ds", ds)
+    a, b = ds / "images" / "r1_locate0.png", ds / "images" / "r1_survey02.png"
+    a_bytes = a.read_bytes()
+    a.write_bytes(b.read_bytes())
+    b.write_bytes(a_bytes)
+    res, rep = locate_dataset(ds, None, verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3)
+    assert rep["integrity"] != "refused", rep["integrity_reasons"]
+    assert rep["integrity_regions"]["r1"] in ("not localised", "left out"), rep["integrity_regions"]
+    assert rep["regions"]["r1"]["solved"] is False and rep["regions"]["r0"]["solved"] is True
+    assert "r1/inliers" not in rep["integrity_tests"] and "7 views' joints" in res.message
+    err_mm, err_deg = _errors(res, T_true)
+    assert err_mm <= rep["protection_radius_mm"] and err_deg <= rep["protection_angle_deg"]
+
+
+def test_a_region_whose_joint_reading_is_off_is_left_out(two_regions, tmp_path):
+    """Joint 1 of a locate view of region r1 read 1 deg off: together the regions are refused; of the two subsets
+    without one region only r0 alone holds, so r1 is left out - a warning (a fault was found), inside its protection
+    radius."""
+    tmp, camera, robot, T_true = two_regions
+    ds = tmp_path / "ds"
+    shutil.copytree(tmp / "ds", ds)
+    rows = (ds / "joints.csv").read_text().splitlines()
+    for i, r in enumerate(rows):
+        if r.startswith("r1_locate0,"):
+            f = r.split(",")
+            f[1] = repr(float(f[1]) + 1.0)
+            rows[i] = ",".join(f)
+    (ds / "joints.csv").write_text("\n".join(rows) + "\n")
+    res, rep = locate_dataset(ds, None, verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3)
+    assert rep["integrity"] == "warning", rep["integrity_reasons"]
+    assert rep["integrity_regions"]["r1"] == "left out" and rep["integrity_regions"]["r0"] in ("ok", "warning")
+    assert rep["integrity_reasons"][0].startswith("region r1 left out: ")
+    assert rep["regions"]["r1"]["solved"] is False and "7 views' joints" in res.message
+    err_mm, err_deg = _errors(res, T_true)
+    assert err_mm <= rep["protection_radius_mm"] and err_deg <= rep["protection_angle_deg"]
+
+
+def test_several_regions_need_the_joint_bundle_and_whole_regions(two_regions, tmp_path):
+    tmp, camera, robot, _ = two_regions
+    with pytest.raises(ConfigError, match=r"2 regions \('r0', 'r1'\) are solved together by refine 'joints'"):
+        locate_dataset(tmp / "ds", None, verbose=False, camera_path=camera, robot_path=robot, refine="bundle")
+    with pytest.raises(ConfigError, match="PnP"):
+        locate_dataset(tmp / "ds", None, verbose=False, camera_path=camera, robot_path=robot, refine="joints",
+                       pnp=True)
+    ds = tmp_path / "ds"
+    shutil.copytree(tmp / "ds", ds)
+    man = yaml.safe_load((ds / "manifest.yaml").read_text())
+    man["views"] = [v for v in man["views"] if v["name"] != "r1_ref"]
+    (ds / "manifest.yaml").write_text(yaml.safe_dump(man, sort_keys=False))
+    rows = (ds / "joints.csv").read_text().splitlines()
+    (ds / "joints.csv").write_text("\n".join(r for r in rows if not r.startswith("r1_ref,")) + "\n")
+    with pytest.raises(ConfigError, match="one view with role 'reference' in region 'r1', found 0"):
+        locate_dataset(ds, None, verbose=False, camera_path=camera, robot_path=robot, refine="joints")
+
+
+@pytest.mark.parametrize("override, key", [
+    ("site.regions_m=[[0, 0], [0.7, 0]]", r"site.regions_m\[1\]"),
+    ("bound.enabled=true", "bound.enabled"),
+    ("pipeline.refine=bundle", "pipeline.refine"),
+])
+def test_regions_are_checked_before_anything_is_rendered(override, key):
+    base = [o for o in TWO if not o.startswith(override.split("=")[0] + "=")]
+    with pytest.raises(ConfigError, match=key):  # load_scenario runs the kind's validate
+        load_scenario(SCENARIO, seed=3, overrides=[*base, override])
+
+
+def test_region_disagreement_is_the_shift_of_the_base_and_its_mahalanobis_square():
+    rng = np.random.default_rng(4)
+    T_r = homogeneous(rot_z(0.3) @ rot_x(-0.2), np.array([0.4, -0.1, 0.05]))
+    w = np.array([2e-3, -1e-3, 5e-4])
+    T_f = np.eye(4)
+    T_f[:3, :3] = rotation_vector_to_matrix(w) @ T_r[:3, :3]
+    T_f[:3, 3] = T_r[:3, 3] + np.array([1e-3, 2e-3, -3e-3])
+    A, B = rng.normal(size=(6, 6)), rng.normal(size=(6, 6))
+    C_r, C_f = 1e-6 * A @ A.T + 1e-9 * np.eye(6), 1e-6 * B @ B.T + 1e-9 * np.eye(6)
+    d, m2 = region_disagreement(T_r, C_r, T_f, C_f)
+    assert np.allclose(d, np.r_[w, 1e-3, 2e-3, -3e-3], atol=1e-12)
+    assert m2 == pytest.approx(float(d @ np.linalg.solve(C_r + C_f, d)), rel=1e-12)
+    d0, m0 = region_disagreement(T_r, C_r, T_r, C_f)
+    assert np.allclose(d0, 0, atol=1e-15) and m0 == pytest.approx(0, abs=1e-20)
