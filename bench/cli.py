@@ -157,6 +157,10 @@ def _add_dataset_commands(sub) -> None:
     di.add_argument("--camera", default=None, help="nominal camera file (camera.yaml)")
     di.add_argument("--role", dest="roles", action="append", default=[], metavar="ROLE=PATTERN",
                     help="views whose name matches PATTERN get ROLE (rig, reference, surround, locate, task)")
+    di.add_argument("--region", dest="regions", action="append", default=[], metavar="NAME=PATTERN",
+                    help="a survey over several parts of the scene: its reference, surrounding and locate views whose "
+                         "name matches PATTERN are region NAME (each one's map and locate views; bench locate "
+                         "solves the regions together)")
     di.add_argument("--kind", choices=("in_situ", "camera_calibration", "kinematic"), default=None,
                     help="campaign kind (default: from the files given)")
     di.add_argument("--name", default=None, help="dataset name (default: the folder's name)")
@@ -168,7 +172,7 @@ def _dataset_command(args) -> int:
 
     res = init_dataset(args.out, args.images, args.joints, args.joint_units, args.tracker, args.tracker_units,
                        args.tracker_joints, args.tracker_joint_units, args.robot, args.camera, args.roles, args.kind,
-                       _target_from_flags(args), args.name)
+                       _target_from_flags(args), args.name, args.regions)
     roles = ", ".join(f"{n} {r}" for r, n in res.roles.items())
     print(f"wrote {res.root} ({res.kind}: {res.views} views - {roles}; {res.tracker_points} tracker points)")
     return 0

@@ -15,7 +15,9 @@ The views' **roles** come from ``--role ROLE=PATTERN`` (repeatable; shell-style 
 ``--role rig='rig*' --role reference=ref --role surround='survey*' --role locate='locate*' --role task='task_*'``):
 ``rig`` (calibration target views), ``reference`` / ``surround`` (the survey), ``locate`` (after the base moved) and
 ``task`` (a frame of joint readings without a photo, e.g. a taught tool pose). With any ``--role`` every photo must
-match exactly one pattern.
+match exactly one pattern. A survey over several parts of the scene names each posed view's **region** the same
+way, ``--region NAME=PATTERN`` (e.g. ``--region left='left_*' --region right='right_*'``): with any ``--region``
+every reference, surrounding and locate view must match exactly one.
 
 Everything is checked before the dataset is written (atomically: :class:`bench.dataset.DatasetWriter`), each
 refusal one line naming the file, line or view: a joint-log row whose photo is missing, a photo without its row in
@@ -58,46 +60,52 @@ class _RawDatasetWriter(DatasetWriter):
     """:class:`~bench.dataset.DatasetWriter` that also takes a photo *file*, copied as it is (no re-encoding), and
     joint readings already in the dataset's unit (degrees: the user's numbers are not rounded through radians)."""
 
-    def add_photo(self, name: str, src: Path, q_deg=None, role: str = "") -> None:
+    def add_photo(self, name: str, src: Path, q_deg=None, role: str = "", region: str = "") -> None:
         rel = f"images/{name}{src.suffix.lower()}"
         shutil.copyfile(src, self.path(rel))
-        self._add_entry(name, rel, q_deg, role)
+        self._add_entry(name, rel, q_deg, role, region)
 
     def add_readings(self, name: str, q_deg, role: str) -> None:
-        self._add_entry(name, None, q_deg, role)
+        self._add_entry(name, None, q_deg, role, "")
 
-    def _add_entry(self, name, rel, q_deg, role) -> None:
+    def _add_entry(self, name, rel, q_deg, role, region) -> None:
         entry = {"name": name}
         if rel is not None:
             entry["image"] = rel
         if role:
             entry["role"] = role
+        if region:
+            entry["region"] = region
         self._views.append(entry)
         if q_deg is not None:
             self._joints.append([name, *np.asarray(q_deg, dtype=float).reshape(len(JOINT_COLUMNS))])
 
 
-def parse_roles(items) -> list:
-    """``[(role, pattern)]`` from ``--role ROLE=PATTERN`` strings; one-line BenchError for a malformed one."""
+def parse_roles(items, flag: str = "--role") -> list:
+    """``[(role, pattern)]`` from ``--role ROLE=PATTERN`` strings (``flag="--region"``: ``[(region, pattern)]``
+    from ``--region NAME=PATTERN``, any name); one-line BenchError for a malformed one."""
     out = []
     for item in items or []:
         role, sep, pattern = str(item).partition("=")
         role, pattern = role.strip(), pattern.strip()
-        if not sep or not pattern:
-            raise BenchError(f"--role {item!r}: expected ROLE=PATTERN, e.g. rig='rig*'")
-        if role not in ROLES:
+        if not sep or not pattern or not role:
+            raise BenchError(f"{flag} {item!r}: expected {'ROLE' if flag == '--role' else 'NAME'}=PATTERN, e.g. "
+                             + ("rig='rig*'" if flag == "--role" else "left='left_*'"))
+        if flag == "--role" and role not in ROLES:
             raise BenchError(f"--role {item!r}: unknown role {role!r} (one of {', '.join(ROLES)})")
         out.append((role, pattern))
     return out
 
 
-def _role_of(name: str, roles: list, where: str) -> str:
+def _role_of(name: str, roles: list, where: str, flag: str = "--role") -> str:
+    """The one role (or region) whose pattern ``name`` matches; a one-line error naming the view otherwise."""
+    what = "roles" if flag == "--role" else "regions"
     hits = sorted({r for r, pat in roles if fnmatch.fnmatchcase(name, pat)})
     if len(hits) > 1:
-        raise ConfigError(where, name, f"matches the patterns of several roles ({', '.join(hits)})")
+        raise ConfigError(where, name, f"matches the patterns of several {what} ({', '.join(hits)})")
     if not hits:
         pats = ", ".join(f"{r}={p}" for r, p in roles)
-        raise ConfigError(where, name, f"matches no --role pattern ({pats})")
+        raise ConfigError(where, name, f"matches no {flag} pattern ({pats})")
     return hits[0]
 
 
@@ -138,7 +146,7 @@ def _joint_log(path: Path, units: str | None):
 def init_dataset(out, images=None, joints=None, joint_units: str | None = None, tracker=None,
                  tracker_units: str | None = None, tracker_joints=None, tracker_joint_units: str | None = None,
                  robot=None, camera=None, roles=None, kind: str | None = None, target: dict | None = None,
-                 name: str | None = None) -> InitResult:
+                 name: str | None = None, regions=None) -> InitResult:
     """Build a dataset folder from raw files (module docstring); returns what was written.
 
     Parameters
@@ -164,6 +172,8 @@ def init_dataset(out, images=None, joints=None, joint_units: str | None = None, 
         :func:`bench.camera.calibrate_dataset.target_spec` of the calibration target -> ``target.yaml``.
     name : str, optional
         The dataset's name (default: the folder's name).
+    regions : list of str, optional
+        ``NAME=PATTERN`` items: the region of each reference, surrounding and locate view (module docstring).
     """
     from bench.camera.calibrate_dataset import target_yaml_text
 
@@ -185,6 +195,9 @@ def init_dataset(out, images=None, joints=None, joint_units: str | None = None, 
     if kind not in KINDS or kind == "xy_table":
         raise BenchError(f"--kind: expected in_situ, camera_calibration or kinematic, got {kind!r}")
     role_list = parse_roles(roles)
+    region_list = parse_roles(regions, "--region")
+    if region_list and not role_list:
+        raise BenchError("--region names the regions of the survey's views: give their --role patterns too")
 
     photos = _photos(Path(images)) if images is not None else {}
     readings = _joint_log(Path(joints), joint_units) if joints is not None else {}
@@ -200,6 +213,8 @@ def init_dataset(out, images=None, joints=None, joint_units: str | None = None, 
     view_roles = {}
     for v in sorted(set(photos) | set(by_key)):
         view_roles[v] = _role_of(v, role_list, str(images) if v in photos else jname) if role_list else ""
+    view_regions = {v: _role_of(v, region_list, str(images) if v in photos else jname, "--region")
+                    for v, r in view_roles.items() if region_list and r in ("reference", "surround", "locate")}
     for v, (_, ln) in by_key.items():
         if v not in photos and view_roles[v] not in READINGS_ONLY_ROLES:
             raise ConfigError(jname, f"line {ln}", f"view {v!r}: no photo {v} (.jpg, .jpeg, .png) in {images} (a "
@@ -243,7 +258,7 @@ def init_dataset(out, images=None, joints=None, joint_units: str | None = None, 
         for v in sorted(set(photos) | set(by_key)):
             q = by_key[v][0] if v in by_key else None
             if v in photos:
-                w.add_photo(v, photos[v], q, view_roles[v])
+                w.add_photo(v, photos[v], q, view_roles[v], view_regions.get(v, ""))
             else:
                 w.add_readings(v, q, view_roles[v])
         if tracker is not None:

@@ -68,6 +68,23 @@ def test_init_builds_a_dataset_from_raw_files(tmp_path, capsys):
     assert load_target(tmp_path / "ds" / "target.yaml").n_corners == 54
 
 
+def test_init_names_the_regions_of_a_survey(tmp_path, capsys):
+    """--region NAME=PATTERN: every posed view of the survey gets its region; one matching none, or two, is refused."""
+    _raw(tmp_path, np.random.default_rng(170))
+    regions = ["--region", "a=ref", "--region", "a=survey*", "--region", "a=locate*"]
+    assert main(_argv(tmp_path, tmp_path / "ds", extra=regions)) == 0, capsys.readouterr().err
+    ds = load_dataset(tmp_path / "ds")
+    assert {v.name: v.region for v in ds.views} == {"rig01": "", "rig02": "", "ref": "a", "survey01": "a",
+                                                    "locate0": "a", "locate1": "a", "task_valve": ""}
+    assert main(_argv(tmp_path, tmp_path / "ds2", extra=["--region", "a=ref", "--region", "b=survey*"])) == 2
+    err = capsys.readouterr().err
+    assert "locate0: matches no --region pattern (a=ref, b=survey*)" in err and not (tmp_path / "ds2").exists()
+    assert main(_argv(tmp_path, tmp_path / "ds3", extra=["--region", "a=*", "--region", "b=ref"])) == 2
+    assert "ref: matches the patterns of several regions (a, b)" in capsys.readouterr().err
+    assert main(_argv(tmp_path, tmp_path / "ds4", extra=["--region", "=ref"])) == 2
+    assert "expected NAME=PATTERN" in capsys.readouterr().err
+
+
 def _edit_log(root, fn):
     lines = (root / "log.csv").read_text().splitlines()
     (root / "bad.csv").write_text("\n".join(fn(lines)) + "\n")

@@ -76,10 +76,6 @@ RELATIVE_REFUSE_DEG = 1.5
 RELATIVE_OVERDISPERSION = 15.0
 RELATIVE_CHI2_REFUSE = RELATIVE_OVERDISPERSION * 22.458
 RELATIVE_CHI2_WARN = RELATIVE_OVERDISPERSION * 16.812
-#: A region's own estimate against every region's together (test 7, :func:`region_disagreement`): chi2_6 at 1 - 1e-3
-#: (refused, with the raw limits of test 2) and at 0.99 (a warning); its covariances are the calibrated ones.
-REGION_CHI2_REFUSE = 22.458
-REGION_CHI2_WARN = 16.812
 #: Locate residual RMS / survey residual RMS (test 3) beyond which the solution is refused / warned.
 CHI2_RATIO_REFUSE = 10.0
 #: the smallest survey noise test 3 divides by (px): exact data's residuals are rounding errors, not noise
@@ -430,15 +426,17 @@ def assess(kmap: KeypointMap, surround: list, view_a: ViewObservation, view_b: V
     """
     if not result.success:
         return Integrity("refused", [f"no localisation: {result.message}"])
-    return _verdict(*_tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config, seed),
-                    result.covariance)
+    refuse, warn, soft, late, tests = _tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config,
+                                             seed)
+    return _verdict(refuse, warn + soft + late, tests, result.covariance)
 
 
 def _tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config, seed) -> tuple:
-    """Tests 1-6 of :func:`assess` on a localisation that succeeded: ``(refuse, warn, tests)`` - the reasons to refuse,
-    the warnings, the statistics."""
+    """Tests 1-6 of :func:`assess` on a localisation that succeeded: ``(refuse, warn, soft, late, tests)`` - the
+    reasons to refuse, then the warnings of test 1, of tests 2, 3 and 5 (statistics that a localisation over several
+    regions pools: :func:`assess_regions`) and of test 6, and the statistics."""
     cfg = config or MapConfig()
-    refuse, warn, tests = [], [], {}
+    refuse, warn, soft, late, tests = [], [], [], [], {}
     if view_b is None:
         warn.append("single-view (PnP) localisation: the cross-check of two views with the kinematics is missing")
         T_a_b = np.eye(4)
@@ -490,7 +488,7 @@ def _tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config,
                           f"{RELATIVE_CHI2_REFUSE:.0f})")
         elif (d_t * 1e3 > RELATIVE_REFUSE_MM / 3 or np.rad2deg(d_r) > RELATIVE_REFUSE_DEG / 3
               or m2 > RELATIVE_CHI2_WARN):
-            warn.append(what)
+            soft.append(what)
 
     # --- test 3: reprojection chi-square, locate views vs the survey's own noise -----------------------------------
     sigma_survey = _robust_rms(np.concatenate(survey_res)) if survey_res else float("nan")
@@ -498,12 +496,13 @@ def _tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config,
     rms_loc = _robust_rms(res_loc)
     # no detector localises better than NOISE_FLOOR_PX: below it the ratio would compare rounding errors (exact data)
     ratio = rms_loc / max(sigma_survey, NOISE_FLOOR_PX) if np.isfinite(sigma_survey) else float("nan")
-    tests.update(survey_rms_px=sigma_survey, locate_rms_px=rms_loc, chi2_ratio=ratio)
+    tests.update(survey_rms_px=sigma_survey, locate_rms_px=rms_loc, chi2_ratio=ratio,
+                 survey_residuals=float(sum(len(r) for r in survey_res)), locate_residuals=float(len(res_loc)))
     if np.isfinite(ratio) and ratio > CHI2_RATIO_REFUSE:
         refuse.append(f"reprojection RMS {rms_loc:.2f} px at the solution, {ratio:.1f} x the survey's "
                       f"{sigma_survey:.2f} px (limit {CHI2_RATIO_REFUSE:g} x)")
     elif np.isfinite(ratio) and ratio > CHI2_RATIO_WARN:
-        warn.append(f"reprojection RMS {rms_loc:.2f} px, {ratio:.1f} x the survey's")
+        soft.append(f"reprojection RMS {rms_loc:.2f} px, {ratio:.1f} x the survey's")
 
     # --- test 4: whiteness ------------------------------------------------------------------------------------------
     rho = _whiteness(loc["a"]["uv"], loc["a"]["residual_vec"])
@@ -516,11 +515,11 @@ def _tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config,
     if result.n_inliers < MIN_INLIERS:
         refuse.append(f"{result.n_inliers} inliers (need {MIN_INLIERS})")
     elif result.n_inliers < WARN_INLIERS:
-        warn.append(f"only {result.n_inliers} inliers")
+        soft.append(f"only {result.n_inliers} inliers")
     if frac_in < WARN_INLIER_FRACTION:
-        warn.append(f"inlier fraction {frac_in:.2f} of {result.n_matches} matches")
+        soft.append(f"inlier fraction {frac_in:.2f} of {result.n_matches} matches")
     if spread < WARN_SPREAD:
-        warn.append(f"inliers cover {spread * 100:.1f} % of image a")
+        soft.append(f"inliers cover {spread * 100:.1f} % of image a")
 
     # --- test 6: conditioning ---------------------------------------------------------------------------------------
     tests["condition"] = float(result.condition)
@@ -531,9 +530,9 @@ def _tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config,
     if not result.condition < REFUSE_CONDITION:
         refuse.append(f"ill-conditioned pose problem (condition {result.condition:.3g})")
     elif result.condition > WARN_CONDITION:
-        warn.append(f"ill-conditioned pose problem (condition {result.condition:.3g})")
+        late.append(f"ill-conditioned pose problem (condition {result.condition:.3g})")
 
-    return refuse, warn, tests
+    return refuse, warn, soft, late, tests
 
 
 def _verdict(refuse: list, warn: list, tests: dict, covariance) -> Integrity:
@@ -551,75 +550,83 @@ def _verdict(refuse: list, warn: list, tests: dict, covariance) -> Integrity:
     return Integrity("warning" if warn else "ok", warn, pr, pa, tests)
 
 
-def region_disagreement(T_region, cov_region, T_fused, cov_fused) -> tuple:
-    """Test 7: one region's own estimate of the base (``T_region`` (4, 4), covariance ``cov_region`` (6, 6), as
-    calibrated) against the estimate of every region together (``T_fused``, ``cov_fused``). Returns ``(d, chi2)``:
-    ``d`` (6,) the rotation vector (rad, ``R_fused R_region^T``) and the base origin's shift (m), in the order of the
-    covariances, and its Mahalanobis square under ``cov_region + cov_fused`` (the sum, not the difference: the
-    region's estimate is another estimator's, the thesis's, whose errors the joint one does not contain)."""
-    T_r, T_f = np.asarray(T_region, float), np.asarray(T_fused, float)
-    d = np.r_[matrix_to_rotation_vector(T_f[:3, :3] @ T_r[:3, :3].T), T_f[:3, 3] - T_r[:3, 3]]
-    try:
-        m2 = float(d @ np.linalg.solve(np.asarray(cov_region, float) + np.asarray(cov_fused, float), d))
-    except np.linalg.LinAlgError:
-        m2 = float("inf")
-    return d, (m2 if np.isfinite(m2) else float("inf"))
-
-
 def assess_regions(parts: list, result, focal_px: float, image_size, config: MapConfig | None = None,
                    seed: int = 0) -> Integrity:
     """Integrity of a localisation over several regions of the scene, each with its own map and two locate views,
     solved together (``result``: one base pose and its calibrated covariance).
 
-    Tests 1-6 (:func:`assess`) run in every region at the common solution; test 7 compares each region's own
-    estimate with it (:func:`region_disagreement`: refused beyond :data:`RELATIVE_REFUSE_MM` /
-    :data:`RELATIVE_REFUSE_DEG` with a Mahalanobis square above :data:`REGION_CHI2_REFUSE`, a warning above
-    :data:`REGION_CHI2_WARN`). A region's reasons refuse or warn the whole; each region's own level is in
-    ``regions`` (a caller may leave a refused region out and solve again). The protection levels come from the
-    common covariance with the largest of the regions' chi-square inflations (test 3) and relative-pose
-    disagreements (test 2); the statistics are reported per region (``"<region>/<test>"``) and combined
-    (``inliers`` summed, the others their largest).
+    Tests 1-6 (:func:`assess`) run in every region at the common solution. A region's reasons to refuse, and its
+    test-1 warnings (a view against the map), are its own: they refuse or warn the whole, and each region's level is
+    in ``regions`` (a caller may leave a refused region out and solve again). The soft tests pool the regions, so
+    that more regions do not mean more chances of a false alarm: test 2 on the root mean square of the regions'
+    relative-pose disagreements (an error common to their kinematics shows in every one, their noise averages) and
+    the sum of their Mahalanobis squares (against :data:`RELATIVE_OVERDISPERSION` x chi2 with 6 per region degrees
+    of freedom at 0.99), test 3 on every region's residuals pooled (the locate views' RMS against the survey
+    views'), test 5 on the inliers summed and the largest spread; test 6 on the common solution. The protection
+    levels come from the common covariance with the pooled tests 2 and 3. The statistics are reported per region
+    (``"<region>/<test>"``) and pooled.
 
     Parameters
     ----------
     parts : list of tuple
         Per region ``(name, kmap, surround, view_a, view_b, own)``: its map, surrounding views, locate views and its
-        own localisation (a :class:`~bench.vision.insitu.LocateResult` with a calibrated covariance).
+        own (thesis) localisation, whose match and inlier counts it reports.
     """
+    from scipy.stats import chi2
+
     if not result.success:
         return Integrity("refused", [f"no localisation: {result.message}"],
                          regions={p[0]: "refused" for p in parts})
-    refuse, warn, tests, regions, region_reasons = [], [], {}, {}, {}
-    worst = {"relative_pose_mm": [], "relative_pose_deg": [], "chi2_ratio": [], "region_chi2": []}
+    refuse, warn, late, tests, regions, region_reasons = [], [], [], {}, {}, {}
+    keys = ("relative_pose_mm", "relative_pose_deg", "relative_pose_chi2", "survey_rms_px", "survey_residuals",
+            "locate_rms_px", "locate_residuals", "spread_fraction")
+    each = {k: [] for k in keys}
     n_in = n_match = 0
     for name, kmap, surround, a, b, own in parts:
         T_ref_a = invert(kmap.T_world_ref) @ np.asarray(result.T_world_base, float) @ np.asarray(a.T_base_cam, float)
         at = replace(result, T_ref_cam=T_ref_a, n_matches=own.n_matches, n_inliers=own.n_inliers)
-        r_ref, r_warn, t = _tests(kmap, surround, a, b, at, focal_px, image_size, config, seed)
-        d, m2 = region_disagreement(own.T_world_base, own.covariance, result.T_world_base, result.covariance)
-        d_mm, d_deg = float(np.linalg.norm(d[3:]) * 1e3), float(np.rad2deg(np.linalg.norm(d[:3])))
-        t.update(region_vs_all_mm=d_mm, region_vs_all_deg=d_deg, region_chi2=m2)
-        what = (f"its own estimate differs from the regions' together by {d_mm:.1f} mm and {d_deg:.2f} deg, "
-                f"Mahalanobis square {m2:.0f}")
-        if (d_mm > RELATIVE_REFUSE_MM or d_deg > RELATIVE_REFUSE_DEG) and m2 > REGION_CHI2_REFUSE:
-            r_ref.append(f"{what} (limits {RELATIVE_REFUSE_MM:g} mm, {RELATIVE_REFUSE_DEG:g} deg, "
-                         f"{REGION_CHI2_REFUSE:.1f})")
-        elif m2 > REGION_CHI2_WARN:
-            r_warn.append(what)
+        r_ref, r_warn, r_soft, late, t = _tests(kmap, surround, a, b, at, focal_px, image_size, config, seed)
         regions[name] = "refused" if r_ref else "warning" if r_warn else "ok"
-        region_reasons[name] = r_ref + r_warn
+        region_reasons[name] = r_ref + r_warn + r_soft
         refuse += [f"region {name}: {r}" for r in r_ref]
         warn += [f"region {name}: {r}" for r in r_warn]
         tests.update({f"{name}/{k}": v for k, v in t.items()})
-        for k in worst:
-            worst[k].append(t.get(k, float("nan")))
+        for k, v in each.items():
+            v.append(t.get(k, float("nan")))
         n_in, n_match = n_in + own.n_inliers, n_match + own.n_matches
-    for k, v in worst.items():
-        v = [x for x in v if np.isfinite(x)]
-        if v:
-            tests[k] = max(v)
-    tests.update(inliers=float(n_in), inlier_fraction=n_in / max(n_match, 1), regions=float(len(parts)),
+    e = {k: np.array(v, float) for k, v in each.items()}
+    soft = []
+    # --- test 2 pooled
+    ok = np.isfinite(e["relative_pose_mm"])
+    if ok.any():
+        d_mm, d_deg = (float(np.sqrt(np.mean(e[k][ok] ** 2))) for k in ("relative_pose_mm", "relative_pose_deg"))
+        m2 = float(np.sum(e["relative_pose_chi2"][ok]))
+        tests.update(relative_pose_mm=d_mm, relative_pose_deg=d_deg, relative_pose_chi2=m2)
+        limit = RELATIVE_OVERDISPERSION * float(chi2.ppf(0.99, 6 * int(ok.sum())))
+        if d_mm > RELATIVE_REFUSE_MM / 3 or d_deg > RELATIVE_REFUSE_DEG / 3 or m2 > limit:
+            soft.append(f"the locate views' relative poses from the images differ from the joint readings' by "
+                        f"{d_mm:.1f} mm and {d_deg:.2f} deg (RMS over {int(ok.sum())} regions), Mahalanobis square "
+                        f"{m2:.0f}")
+    # --- test 3 pooled
+    for k in ("survey", "locate"):
+        rms, n = e[f"{k}_rms_px"], e[f"{k}_residuals"]
+        ok = np.isfinite(rms) & (n > 0)
+        tests[f"{k}_rms_px"] = float(np.sqrt(np.sum(n[ok] * rms[ok] ** 2) / n[ok].sum())) if ok.any() else np.nan
+    ratio = tests["locate_rms_px"] / max(tests["survey_rms_px"], NOISE_FLOOR_PX)
+    tests["chi2_ratio"] = ratio
+    if np.isfinite(ratio) and ratio > CHI2_RATIO_WARN:
+        soft.append(f"reprojection RMS {tests['locate_rms_px']:.2f} px, {ratio:.1f} x the survey's (every region)")
+    # --- test 5 pooled
+    frac_in = n_in / max(n_match, 1)
+    spread = float(np.nanmax(e["spread_fraction"])) if np.isfinite(e["spread_fraction"]).any() else 0.0
+    tests.update(inliers=float(n_in), inlier_fraction=frac_in, spread_fraction=spread, regions=float(len(parts)),
                  condition=float(result.condition), covariance_min_eig=smallest_eigenvalue(result.covariance))
-    out = _verdict(refuse, warn, tests, result.covariance)
+    if n_in < WARN_INLIERS:
+        soft.append(f"only {n_in} inliers in {len(parts)} regions")
+    if frac_in < WARN_INLIER_FRACTION:
+        soft.append(f"inlier fraction {frac_in:.2f} of {n_match} matches")
+    if spread < WARN_SPREAD:
+        soft.append(f"inliers cover at most {spread * 100:.1f} % of a region's image a")
+    out = _verdict(refuse, warn + soft + late, tests, result.covariance)  # test 6: the common solution's, as run last
     out.regions, out.region_reasons = regions, region_reasons
     return out

@@ -352,16 +352,11 @@ def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, 
 
 
 def _assess_regions(res, per, include, maps, regions, obs, camera, config, seed):
-    """:func:`~bench.vision.integrity.assess_regions` of the regions ``include``, each with its own (thesis)
-    estimate's covariance calibrated by :data:`~bench.vision.integrity.KAPPA` ``["bundle"]``."""
-    from bench.vision.integrity import KAPPA, assess_regions
+    """:func:`~bench.vision.integrity.assess_regions` of the regions ``include`` at the common result ``res``."""
+    from bench.vision.integrity import assess_regions
 
-    parts = []
-    for i in include:
-        name, roles = regions[i]
-        own = replace(per[i], covariance=KAPPA["bundle"] ** 2 * np.asarray(per[i].covariance, float))
-        parts.append((name, maps[i], [obs[v.name] for v in roles["surround"]], obs[roles["locate"][0].name],
-                      obs[roles["locate"][1].name], own))
+    parts = [(name, maps[i], [obs[v.name] for v in roles["surround"]], obs[roles["locate"][0].name],
+              obs[roles["locate"][1].name], per[i]) for i in include for name, roles in [regions[i]]]
     return assess_regions(parts, res, camera.fx, camera.size, config, seed)
 
 

@@ -13,11 +13,9 @@ pytest.importorskip("mujoco")
 from bench.camera.io import read_camera_yaml, write_camera_yaml  # noqa: E402
 from bench.dataset import load_dataset  # noqa: E402
 from bench.errors import ConfigError  # noqa: E402
-from bench.geometry.quaternion import rotation_vector_to_matrix  # noqa: E402
-from bench.geometry.transforms import homogeneous, rot_x, rot_z, rotation_angle  # noqa: E402
+from bench.geometry.transforms import rotation_angle  # noqa: E402
 from bench.robot.calibration_file import write_calibrated_robot  # noqa: E402
 from bench.scenario.runner import kind_module, load_scenario  # noqa: E402
-from bench.vision.integrity import region_disagreement  # noqa: E402
 from bench.vision.locate_dataset import locate_dataset  # noqa: E402
 from tests.scenario.test_integrity import SCENARIO, SMALL  # noqa: E402
 
@@ -80,10 +78,16 @@ def test_two_regions_are_solved_together_and_tested_each(two_regions, tmp_path):
     assert set(rep["integrity_regions"]) == {"r0", "r1"}
     t = rep["integrity_tests"]
     for name in ("r0", "r1"):  # every test of every region, at the common pose
-        for k in ("consensus_locate_a", "relative_pose_mm", "chi2_ratio", "region_chi2", "inliers"):
+        for k in ("consensus_locate_a", "relative_pose_mm", "chi2_ratio", "inliers"):
             assert f"{name}/{k}" in t
     assert t["inliers"] == t["r0/inliers"] + t["r1/inliers"] == rep["inliers"]
-    assert t["relative_pose_mm"] == max(t["r0/relative_pose_mm"], t["r1/relative_pose_mm"])
+    assert t["relative_pose_mm"] == pytest.approx(np.hypot(t["r0/relative_pose_mm"], t["r1/relative_pose_mm"])
+                                                  / np.sqrt(2), rel=1e-12)
+    n = [t[f"{r}/locate_residuals"] for r in ("r0", "r1")]  # test 3 pooled over the regions
+    rms = np.sqrt((n[0] * t["r0/locate_rms_px"] ** 2 + n[1] * t["r1/locate_rms_px"] ** 2) / sum(n))
+    assert t["locate_rms_px"] == pytest.approx(rms, rel=1e-12)
+    assert t["chi2_ratio"] == pytest.approx(t["locate_rms_px"] / t["survey_rms_px"], rel=1e-12)
+    assert t["relative_pose_chi2"] == pytest.approx(t["r0/relative_pose_chi2"] + t["r1/relative_pose_chi2"])
     assert "14 views' joints" in res.message  # 2 x (reference, 4 surrounding, 2 locate)
     err_mm, err_deg = _errors(res, T_true)
     assert err_mm <= rep["protection_radius_mm"] and err_deg <= rep["protection_angle_deg"]
@@ -166,19 +170,3 @@ def test_regions_are_checked_before_anything_is_rendered(override, key):
     base = [o for o in TWO if not o.startswith(override.split("=")[0] + "=")]
     with pytest.raises(ConfigError, match=key):  # load_scenario runs the kind's validate
         load_scenario(SCENARIO, seed=3, overrides=[*base, override])
-
-
-def test_region_disagreement_is_the_shift_of_the_base_and_its_mahalanobis_square():
-    rng = np.random.default_rng(4)
-    T_r = homogeneous(rot_z(0.3) @ rot_x(-0.2), np.array([0.4, -0.1, 0.05]))
-    w = np.array([2e-3, -1e-3, 5e-4])
-    T_f = np.eye(4)
-    T_f[:3, :3] = rotation_vector_to_matrix(w) @ T_r[:3, :3]
-    T_f[:3, 3] = T_r[:3, 3] + np.array([1e-3, 2e-3, -3e-3])
-    A, B = rng.normal(size=(6, 6)), rng.normal(size=(6, 6))
-    C_r, C_f = 1e-6 * A @ A.T + 1e-9 * np.eye(6), 1e-6 * B @ B.T + 1e-9 * np.eye(6)
-    d, m2 = region_disagreement(T_r, C_r, T_f, C_f)
-    assert np.allclose(d, np.r_[w, 1e-3, 2e-3, -3e-3], atol=1e-12)
-    assert m2 == pytest.approx(float(d @ np.linalg.solve(C_r + C_f, d)), rel=1e-12)
-    d0, m0 = region_disagreement(T_r, C_r, T_r, C_f)
-    assert np.allclose(d0, 0, atol=1e-15) and m0 == pytest.approx(0, abs=1e-20)
