@@ -208,12 +208,15 @@ def record_in_situ(path, cfg, ds, truth, lab, res, report, details, reached, met
             T_anchor = T_wb if lab_view else T_wb1
             rec.camera(f"{prefix}/{v.name}/estimated", T_anchor @ T_site_cam, K_hat, size, static=True)
 
-        kmap = details.get("map")
-        ref = [v for v in images if v.role == "reference"]
-        if kmap is not None and len(kmap) and ref:  # the reference keypoints that made it into the map
-            rec.points2d(f"world/views/{ref[0].name}/true/image/map_keypoints", kmap.features.uv, ORANGE, 2.5,
-                         static=True)
+        kmap = details.get("map")  # with several regions: the map of the region the solve started from
+        ref = [v.name for v in images if v.role == "reference"][:1]
         locate_names = [v.name for v in images if v.role == "locate"][:2]
+        if details.get("regions_solved"):
+            roles = details["regions"][details["regions_solved"][0]][1]
+            ref, locate_names = [roles["reference"][0].name], [v.name for v in roles["locate"][:2]]
+        if kmap is not None and len(kmap) and ref:  # the reference keypoints that made it into the map
+            rec.points2d(f"world/views/{ref[0]}/true/image/map_keypoints", kmap.features.uv, ORANGE, 2.5,
+                         static=True)
         res_scale = 1.0
         if kmap is not None and len(kmap) >= 3 and camera is not None and len(locate_names) == 2 and \
                 all(n in obs for n in locate_names):
