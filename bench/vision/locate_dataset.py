@@ -11,6 +11,15 @@ covariance, position / rotation standard deviations, inliers, condition number, 
 ``task`` (frames of joint readings taught at the survey parking, e.g. the tool on a valve handle) are re-targeted
 from the located base (:func:`bench.robot.task.retarget_taught_pose`): ``locate.json`` then lists the joint readings
 to command for each (``tasks``; none when the localisation is refused).
+
+A survey over several **regions** of the scene (the manifest's ``region`` of each posed view: a reference, its
+surrounding views and two locate views per region) is mapped and located region by region with the thesis's
+estimators, then solved together by the joint bundle (refine ``joints``): one base pose from every region's points,
+which pins the base's rotation that one region's narrow view leaves loose. Its integrity
+(:func:`~bench.vision.integrity.assess_regions`) tests every region at the common pose; when that is refused, each
+subset without one region is solved again, and if exactly one holds the region it leaves out is reported ``left
+out`` (a warning). ``locate.json`` then adds ``regions`` (per region: map points, matches, inliers, whether the
+solution used it) and ``integrity_regions`` (each one's level).
 """
 
 from __future__ import annotations
@@ -33,7 +42,7 @@ from bench.robot.orientation import link5_frame
 from bench.robot.task import retarget_taught_pose, taught_pose
 from bench.vision.features import detect_sift
 from bench.vision.insitu import LocateResult, MapConfig, ViewObservation, build_map, locate, locate_pnp
-from bench.vision.integrity import KAPPA_UNMEASURED, assess, kappa_of, point_protection_radius
+from bench.vision.integrity import KAPPA_UNMEASURED, MIN_INLIERS, assess, kappa_of, point_protection_radius
 
 
 def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0, features_fn=None) -> ViewObservation:
@@ -325,7 +334,8 @@ def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, 
     """The estimate of the regions ``include`` (indices) from their thesis estimates ``per``: with one region its
     own, refined by the joint bundle with refine 'joints'; with several the joint bundle over all of them together,
     started from the region with the most inliers (which then comes first in ``include``; regions whose thesis
-    estimator found no pose are left out). Returns ``(include, result, refined, thesis, used)`` (see
+    estimator found no pose, or one on fewer than :data:`~bench.vision.integrity.MIN_INLIERS` inliers, are left
+    out). Returns ``(include, result, refined, thesis, used)`` (see
     :func:`_refine_joints`; ``thesis`` the start's thesis estimate)."""
     if len(regions) == 1:
         res = per[0]
@@ -334,7 +344,9 @@ def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, 
         out, refined, used = _refine_joints(res, [(maps[0], regions[0][1], res.used)], obs, robot, eps, T_link5_cam,
                                             camera, sigma_enc, priors, guided, loss, map_points)
         return [0], out, refined, res, used
-    include = [i for i in include if per[i].success and per[i].used is not None and len(per[i].used[0]) >= 3]
+    # a region with fewer inliers than test 5 accepts has too little to add (not a fault: left out like a failure)
+    include = [i for i in include if per[i].success and per[i].used is not None and len(per[i].used[0]) >= 3
+               and per[i].n_inliers >= MIN_INLIERS]
     if not include:
         nan = np.full((4, 4), np.nan)
         why = "; ".join(f"region {name!r}: {r.message}" for (name, _), r in zip(regions, per, strict=True))
@@ -507,7 +519,9 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
               "timings_s": res.timings_s, "tasks": {}}  # no task is offered without a pose
     if len(regions) > 1:
         report["regions"] = {name: {"map_points": len(m), "matches": r.n_matches, "inliers": r.n_inliers,
-                                    "solved": i in include, "message": r.message}
+                                    "solved": i in include,
+                                    "message": (f"{r.n_inliers} inliers, fewer than {MIN_INLIERS}: not used; "
+                                                if r.success and r.n_inliers < MIN_INLIERS else "") + r.message}
                              for i, (m, r, (name, _)) in enumerate(zip(maps, per, regions, strict=True))}
     if res.success:
         T = res.T_world_base
