@@ -132,10 +132,12 @@ def atomic_path(path):
 
 
 def atomic_save_figure(fig, path, **kwargs) -> Path:
-    """``fig.savefig(path, **kwargs)`` written atomically (matplotlib figure); returns the path."""
+    """``fig.savefig(path, **kwargs)`` written atomically (matplotlib figure), then the figure closed; returns the
+    path."""
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=path.suffix.lstrip(".") or None, **kwargs)
+    headless_pyplot().close(fig)
     return path
 
 

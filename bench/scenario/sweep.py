@@ -538,6 +538,5 @@ def _plot(table, keys, metrics, out):
         fig.tight_layout()
         path = out / f"sweep_{m}.png"
         atomic_save_figure(fig, path, dpi=110)
-        plt.close(fig)
         paths.append(str(path))
     return paths

@@ -783,7 +783,6 @@ def plot_tables(summary: dict, poses: str, path) -> str:
                  + ("; dotted: the limit (Cramér-Rao bound ⊕ model floor)" if "bound_x_mm" in summary else ""))
     fig.tight_layout()
     atomic_save_figure(fig, path, dpi=110)
-    plt.close(fig)
     return Path(path).name
 
 
