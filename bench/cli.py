@@ -25,24 +25,10 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("scenario", help="scenario YAML file")
     sw.add_argument("--param", dest="params", action="append", default=[], metavar="KEY=V1,V2,...",
                     help="a swept scenario key and its values (repeatable: the grid is their product)")
-    sw.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="a fixed override for every run")
-    sw.add_argument("--seeds", type=int, default=1, help="seeds per grid point (seed, seed+1, ...; default 1)")
-    sw.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
-    sw.add_argument("--backend", choices=("local", "ray"), default="local")
-    sw.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
-    sw.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
-    sw.add_argument("--out", default=None, help="sweep folder (default runs/sweep-<scenario name>)")
+    _add_grid_flags(sw, "seeds per grid point (seed, seed+1, ...; default 1)", 1, "sweep")
     bu = sub.add_parser("budget", help="error budget: re-run with one error source switched off at a time")
     bu.add_argument("scenario", help="scenario YAML file (a kind that declares its error sources)")
-    bu.add_argument("--seeds", type=int, default=10, help="seeds per variant (default 10)")
-    bu.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
-    bu.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="a fixed override for every run")
-    bu.add_argument("--backend", choices=("local", "ray"), default="local")
-    bu.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
-    bu.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
-    bu.add_argument("--out", default=None, help="budget folder (default runs/budget-<scenario name>)")
+    _add_grid_flags(bu, "seeds per variant (default 10)", 10, "budget")
     sim = sub.add_parser("sim", help="simulator commands")
     simsub = sim.add_subparsers(dest="sim_command", required=True)
     rend = simsub.add_parser("render", help="simulate a scenario's campaign and write its dataset (with truth/)")
@@ -112,6 +98,18 @@ def _parser() -> argparse.ArgumentParser:
 
     robot_commands.add_parsers(sub)
     return p
+
+
+def _add_grid_flags(parser, seeds_help: str, seeds: int, command: str) -> None:
+    """The flags ``bench sweep`` and ``bench budget`` share: the fixed overrides, the seeds, the backend, the folder."""
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="a fixed override for every run")
+    parser.add_argument("--seeds", type=int, default=seeds, help=seeds_help)
+    parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    parser.add_argument("--backend", choices=("local", "ray"), default="local")
+    parser.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
+    parser.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
+    parser.add_argument("--out", default=None, help=f"{command} folder (default runs/{command}-<scenario name>)")
 
 
 def _add_target_flags(parser) -> None:
@@ -280,7 +278,8 @@ def _sim_render(args) -> None:
 def _sweep(args) -> None:
     from pathlib import Path
 
-    from bench.scenario.sweep import parse_param, parse_set, run_sweep
+    from bench.config import parse_set
+    from bench.scenario.sweep import parse_param, run_sweep
 
     if args.seeds < 1:
         raise BenchError(f"--seeds: must be >= 1, got {args.seeds}")
@@ -301,8 +300,8 @@ def _sweep(args) -> None:
 def _budget(args) -> None:
     from pathlib import Path
 
+    from bench.config import parse_set
     from bench.scenario.budget import run_budget
-    from bench.scenario.sweep import parse_set
 
     if args.seeds < 1:
         raise BenchError(f"--seeds: must be >= 1, got {args.seeds}")

@@ -377,19 +377,25 @@ def default_of(field: FieldInfo) -> Any:
 # ------------------------------------------------------------------------------------------------ files, overrides
 
 
+def parse_set(item: str, source: str = "--set") -> tuple:
+    """``"key=value"`` of ``--set`` -> ``(key, value parsed as YAML)``; one-line :class:`ConfigError` naming
+    ``source`` otherwise."""
+    if "=" not in item:
+        raise ConfigError(source, item, "--set expects KEY=VALUE")
+    key, raw = item.split("=", 1)
+    try:
+        return key.strip(), yaml.safe_load(raw)
+    except yaml.YAMLError:
+        raise ConfigError(source, key, f"--set value {raw!r} is not valid YAML") from None
+
+
 def apply_overrides(data: dict, overrides, source: str) -> dict:
-    """Apply ``["a.b=1", ...]`` (values parsed as YAML) to a raw mapping; returns a new mapping."""
+    """Apply ``["a.b=1", ...]`` (values parsed as YAML, :func:`parse_set`) to a raw mapping; returns a new mapping."""
     data = copy.deepcopy(data)
     for item in overrides or []:
-        if "=" not in item:
-            raise ConfigError(source, item, "--set expects KEY=VALUE")
-        key, raw = item.split("=", 1)
-        try:
-            value = yaml.safe_load(raw)
-        except yaml.YAMLError:
-            raise ConfigError(source, key, f"--set value {raw!r} is not valid YAML") from None
+        key, value = parse_set(item, source)
         node = data
-        parts = key.strip().split(".")
+        parts = key.split(".")
         for part in parts[:-1]:
             node = node.setdefault(part, {})
             if not isinstance(node, dict):
@@ -413,6 +419,12 @@ class MmDeg(Section):
 
     length: Literal["mm"] = "mm"
     angle: Literal["deg"] = "deg"
+
+
+class RenderOutputs(Section):  # ``outputs`` of a kind that renders: the render cache, the plots, the recording
+    cache: bool = True
+    plots: bool = True
+    rerun: bool = True
 
 
 class ScenarioBase(Section):

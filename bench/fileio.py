@@ -132,10 +132,12 @@ def atomic_path(path):
 
 
 def atomic_save_figure(fig, path, **kwargs) -> Path:
-    """``fig.savefig(path, **kwargs)`` written atomically (matplotlib figure); returns the path."""
+    """``fig.savefig(path, **kwargs)`` written atomically (matplotlib figure), then the figure closed; returns the
+    path."""
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=path.suffix.lstrip(".") or None, **kwargs)
+    headless_pyplot().close(fig)
     return path
 
 
@@ -174,6 +176,40 @@ def read_yaml(path, missing: str = "not found"):
         return yaml.safe_load(path.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(path, "<file>", f"not valid YAML ({str(exc).splitlines()[0]})") from None
+
+
+def read_csv_table(path, columns=None) -> tuple[list, list]:
+    """``(header, rows)`` of a CSV table transcribed or written by hand (blank and ``#`` comment lines skipped, the
+    header's names stripped); one-line :class:`bench.errors.ConfigError` naming the file when it is missing, has no
+    header or not ``columns`` (in order), or a row (``row N``: the N-th data row) has another number of values."""
+    from bench.errors import ConfigError
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(path, "<file>", "not found")
+    lines = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    rows = list(csv.reader(lines))
+    header = [c.strip() for c in rows[0]] if rows else []
+    if not header or columns is not None and tuple(header) != tuple(columns):
+        raise ConfigError(path, "<header>", f"expected columns {', '.join(columns)}" if columns else "empty")
+    for i, row in enumerate(rows[1:], start=1):
+        if len(row) != len(header):
+            raise ConfigError(path, f"row {i}", f"expected {len(header)} values, got {len(row)}")
+    return header, rows[1:]
+
+
+def csv_number(path, where: str, text) -> float:
+    """``float(text)`` of a finite number; a one-line :class:`bench.errors.ConfigError` naming ``path`` and ``where``
+    otherwise."""
+    from bench.errors import ConfigError
+
+    try:
+        x = float(text)
+    except (TypeError, ValueError):
+        raise ConfigError(path, where, f"not a number: {text!r}") from None
+    if not math.isfinite(x):
+        raise ConfigError(path, where, "must be finite")
+    return x
 
 
 def _clean(value):

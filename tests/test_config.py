@@ -68,7 +68,7 @@ def test_missing_required_key():
 
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_every_section_of_every_kind_forbids_unknown_keys(kind):
-    model = importlib.import_module(f"bench.scenario.{KINDS[kind]}").Scenario
+    model = importlib.import_module(f"bench.scenario.{kind}").Scenario
     sections = {key.rsplit(".", 1)[0] for key, _ in leaves(model) if "." in key}
     assert sections
     for section in sections:

@@ -125,7 +125,7 @@ def kind_section(kind: str) -> list[str]:
     keys = list(leaves(module.Scenario))
     refused = refusals(yaml.safe_load(files[0].read_text()), files[0], keys) if files else {}
     doc = (module.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ").replace("``", "`")
-    lines = [f"## `{kind}`", "", f"`bench/scenario/{KINDS[kind]}.py`: {_esc(doc)}", ""]
+    lines = [f"## `{kind}`", "", f"`bench/scenario/{kind}.py`: {_esc(doc)}", ""]
     lines.append("Scenario files: " + (", ".join(f"`scenarios/{p.name}`" for p in files) or "none") + ".")
     lines += ["", "### Keys", "", "| key | type | default | unit | constraints | meaning (the model's description, "
               "else the scenario files' comments) | refused (probe: message) |", "|---|---|---|---|---|---|---|"]

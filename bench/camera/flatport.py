@@ -33,7 +33,7 @@ import numpy as np
 
 from bench.camera.model import CameraModel, check_K, to_pixels
 from bench.errors import ConfigError
-from bench.geometry.transforms import rot_x, rot_y
+from bench.geometry.transforms import check_vectors, rot_x, rot_y
 
 #: convergence tolerance of the forward projection (m, on the radial offset from the port axis)
 PROJECT_TOL = 1e-12
@@ -132,15 +132,6 @@ def check_port(port) -> FlatPort:
     return port
 
 
-def _check_vectors(v, name) -> np.ndarray:
-    v = np.asarray(v, dtype=float)
-    if v.ndim < 1 or v.shape[-1] != 3:
-        raise ValueError(f"{name}: expected shape (..., 3), got {v.shape}")
-    if not np.all(np.isfinite(v)):
-        raise ValueError(f"{name}: contains NaN or inf")
-    return v
-
-
 # ----------------------------------------------------------------------------------------------------------------------
 # Snell's law
 # ----------------------------------------------------------------------------------------------------------------------
@@ -167,8 +158,8 @@ def refract(d, n, n1, n2):
     ok : ndarray (...) bool
         False where total internal reflection occurs (``eta^2 sin^2(theta_i) > 1``).
     """
-    d = _check_vectors(d, "d")
-    n = _check_vectors(n, "n")
+    d = check_vectors(d, "d", 3)
+    n = check_vectors(n, "n", 3)
     n1, n2 = np.asarray(n1, dtype=float), np.asarray(n2, dtype=float)
     if np.any(~np.isfinite(n1)) or np.any(~np.isfinite(n2)) or np.any(n1 < 1) or np.any(n2 < 1):
         raise ValueError("n1, n2: refractive indices must be finite and >= 1")
@@ -208,7 +199,7 @@ def trace_rays(dirs_cam, port: FlatPort):
         False for rays that miss the port (``d . n <= 0``) or are totally reflected; their outputs are NaN.
     """
     port = check_port(port)
-    d = _check_vectors(dirs_cam, "dirs_cam")
+    d = check_vectors(dirs_cam, "dirs_cam", 3)
     norm = np.linalg.norm(d, axis=-1, keepdims=True)
     if np.any(norm == 0):
         raise ValueError("dirs_cam: contains a zero vector")

@@ -31,7 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.camera.model import CameraModel, check_dist, check_K, check_points, distort, from_pixels
+from bench.camera.model import CameraModel, check_dist, check_K, distort, from_pixels
+from bench.geometry.transforms import check_vectors
 
 #: the thesis's pixel pitch (§5.3: 100 pixels/mm), m
 THESIS_PIXEL_PITCH = 1e-5
@@ -172,7 +173,7 @@ def heikkila_project(params: HeikkilaParameters, p_cam) -> np.ndarray:
     Written independently of :mod:`bench.camera.model` (on the image plane in m, then to pixels) so that the two
     can be compared; NaN for ``z <= 0``.
     """
-    p = check_points(p_cam, 3, "p_cam")
+    p = check_vectors(p_cam, "p_cam", 3)
     z = np.where(p[..., 2] > 0, p[..., 2], np.nan)
     x = params.f * p[..., 0] / z  # image-plane coordinates (m)
     y = params.f * p[..., 1] / z
@@ -191,7 +192,7 @@ def eq75_as_printed(params: HeikkilaParameters, x_n) -> np.ndarray:
     Eq. 75 has ``k2 v^5`` where the radial term needs ``k2 u^5``, and Eq. 76 ``k1 u^2 v^2`` where it needs
     ``k1 u^2 v``. Kept for the record; the tests pin the difference to exactly these terms.
     """
-    x_n = check_points(x_n, 2, "x_n")
+    x_n = check_vectors(x_n, "x_n", 2)
     _, d = heikkila_to_opencv(params)
     k1, k2, p1, p2 = d[:4]
     u, v = x_n[..., 0], x_n[..., 1]
@@ -227,7 +228,7 @@ class ImplicitInverse:
 
     def apply(self, x_d) -> np.ndarray:
         """Approximate ideal normalised coordinates ``(..., 2)`` of distorted ones ``x_d (..., 2)`` (Eq. 77-78)."""
-        x_d = check_points(x_d, 2, "x_d")
+        x_d = check_vectors(x_d, "x_d", 2)
         g = self.g
         us, vs = x_d[..., 0], x_d[..., 1]
         r2 = us * us + vs * vs

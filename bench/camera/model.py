@@ -24,6 +24,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from bench.geometry.transforms import check_vectors
+
 #: distortion model names: no distortion, radial only (Eq. 67-68), radial + tangential (Eq. 75-76)
 MODELS = ("pinhole", "radial", "heikkila")
 #: convergence tolerance of :func:`undistort` on the distortion residual (normalised units)
@@ -71,16 +73,6 @@ def check_dist(dist, name: str = "dist") -> np.ndarray:
     return out
 
 
-def check_points(p, dim: int, name: str = "points") -> np.ndarray:
-    """Validate finite coordinates of shape ``(..., dim)``."""
-    p = np.asarray(p, dtype=float)
-    if p.ndim < 1 or p.shape[-1] != dim:
-        raise ValueError(f"{name}: expected shape (..., {dim}), got {p.shape}")
-    if not np.all(np.isfinite(p)):
-        raise ValueError(f"{name}: contains NaN or inf")
-    return p
-
-
 def model_of(dist) -> str:
     """The smallest model in :data:`MODELS` that holds ``dist``: pinhole, radial (p1 = p2 = 0) or heikkila."""
     d = check_dist(dist)
@@ -107,7 +99,7 @@ def project_pinhole(p_cam) -> np.ndarray:
     x_n : ndarray (..., 2)
         Normalised coordinates; NaN for points with ``z <= 0`` (behind the camera or in its centre plane).
     """
-    p = check_points(p_cam, 3, "p_cam")
+    p = check_vectors(p_cam, "p_cam", 3)
     z = p[..., 2:3]
     with np.errstate(divide="ignore", invalid="ignore"):
         x_n = p[..., :2] / z
@@ -121,7 +113,7 @@ def unproject_pinhole(x_n, normalize: bool = True) -> np.ndarray:
     -------
     rays_cam : ndarray (..., 3)
     """
-    x_n = check_points(x_n, 2, "x_n")
+    x_n = check_vectors(x_n, "x_n", 2)
     rays = np.concatenate([x_n, np.ones(x_n.shape[:-1] + (1,))], axis=-1)
     if normalize:
         rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
@@ -267,14 +259,14 @@ def undistort(x_d, dist, *, tol: float = UNDISTORT_TOL, max_iterations: int = 50
         NaN for points where the iteration did not converge (outside the region where the distortion is
         invertible); or an :class:`UndistortResult`.
     """
-    x_d = check_points(x_d, 2, "x_d")
+    x_d = check_vectors(x_d, "x_d", 2)
     dist5 = check_dist(dist)
     shape = x_d.shape
     target = x_d.reshape(-1, 2)
     if x0 is None:
         x = target.copy()
     else:
-        x0 = check_points(x0, 2, "x0")
+        x0 = check_vectors(x0, "x0", 2)
         if x0.shape != shape:
             raise ValueError(f"x0: expected the shape of x_d {shape}, got {x0.shape}")
         x = x0.reshape(-1, 2).copy()
@@ -366,7 +358,7 @@ def to_pixels(x, K) -> np.ndarray:
 
 def from_pixels(uv, K) -> np.ndarray:
     """Normalised coordinates of pixels: ``(x, y, 1) = K^-1 (u, v, 1)`` (Eq. 51), the inverse of :func:`to_pixels`."""
-    uv = check_points(uv, 2, "uv")
+    uv = check_vectors(uv, "uv", 2)
     K = check_K(K)
     x = np.empty(uv.shape)
     x[..., 1] = (uv[..., 1] - K[1, 2]) / K[1, 1]
@@ -381,7 +373,7 @@ def radial_eq67(uv_ideal, K, k1: float, k2: float) -> np.ndarray:
     coordinates (Eq. 70). Because the radial factor scales ``(x, y)`` and ``K`` is linear in them, this equals
     ``to_pixels(distort(x_n, (k1, k2, 0, 0)), K)`` exactly, skew included.
     """
-    uv = check_points(uv_ideal, 2, "uv_ideal")
+    uv = check_vectors(uv_ideal, "uv_ideal", 2)
     K = check_K(K)
     x_n = from_pixels(uv, K)  # Eq. 70
     r2 = np.sum(x_n * x_n, axis=-1, keepdims=True)

@@ -4,13 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from bench.fileio import atomic_save_figure, headless_pyplot
 
-from bench.fileio import atomic_save_figure
+plt = headless_pyplot()
 
 
 def plot_residual_vectors(path, image_points, residuals_px, image=None, image_size=None, scale: float = 50.0,
@@ -69,5 +67,4 @@ def plot_residual_vectors(path, image_points, residuals_px, image=None, image_si
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_save_figure(fig, path)
-    plt.close(fig)
     return path

@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-import yaml
 from pydantic import model_validator
 
 from bench.camera.dlt import intrinsic_matrix
@@ -25,6 +24,7 @@ from bench.camera.heikkila import HeikkilaParameters, camera_from_heikkila
 from bench.camera.model import CameraModel
 from bench.config import KeyProblem, PositiveFloat, PositiveInt, Section, at_least, at_most, parse
 from bench.errors import ConfigError
+from bench.fileio import read_yaml
 
 _SKEW = "skew angle {v} deg is implausible (expected near 90; radians given?)"
 
@@ -101,15 +101,8 @@ def load_preset(name: str) -> CameraModel:
 
 def load_camera_spec(path) -> CameraModel:
     """Read a camera specification file (the format of ``models/cameras/*.yaml``) into a :class:`CameraModel`."""
-    path = Path(path)
     src = str(path)
-    if not path.is_file():
-        raise ConfigError(src, "file", "not found")
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(src, "file", f"not valid YAML ({str(exc).splitlines()[0]})") from None
-    doc = parse(CameraSpec, doc, src)
+    doc = parse(CameraSpec, read_yaml(path), src)
     size, name = (doc["image_width_px"], doc["image_height_px"]), doc["name"]
     try:
         if doc["intrinsics_eq50"] is not None:

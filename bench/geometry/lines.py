@@ -24,6 +24,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from bench.geometry.transforms import check_vectors
+
 #: Default threshold on ``sin(angle between the lines)`` under which two lines count as parallel.
 PARALLEL_TOL = 1e-9
 
@@ -65,18 +67,6 @@ class ClosestPoints(NamedTuple):
         return 0.5 * (self.p1 + self.p2)
 
 
-def _check(v, name):
-    try:
-        v = np.asarray(v, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a numeric (..., 3) array") from None
-    if v.ndim < 1 or v.shape[-1] != 3:
-        raise ValueError(f"{name}: expected shape (..., 3), got {v.shape}")
-    if not np.all(np.isfinite(v)):
-        raise ValueError(f"{name}: contains NaN or inf")
-    return v
-
-
 def _dot(a, b):
     return np.einsum("...i,...i->...", a, b)
 
@@ -104,7 +94,7 @@ def closest_points_between_lines(p1, d1, p2, d2, parallel_tol: float = PARALLEL_
     ClosestPoints
         Broadcast over the leading shapes of the inputs.
     """
-    p1, d1, p2, d2 = _check(p1, "p1"), _check(d1, "d1"), _check(p2, "p2"), _check(d2, "d2")
+    p1, d1, p2, d2 = (check_vectors(v, n, 3) for v, n in ((p1, "p1"), (d1, "d1"), (p2, "p2"), (d2, "d2")))
     p1, d1, p2, d2 = np.broadcast_arrays(p1, d1, p2, d2)
     d2121 = _dot(d1, d1)  # |p^|^2 (Eq. 115 with points 1, 2)
     d4343 = _dot(d2, d2)  # |R p^'|^2
@@ -148,7 +138,7 @@ def closest_points_thesis(P1, P2, P3, P4):
     Returns ``(gamma1, gamma2)``. For reference and tests only: it divides by zero for parallel lines and loses
     precision for nearly parallel ones; use :func:`closest_points_between_lines`.
     """
-    pts = {k: _check(v, f"P{k}") for k, v in zip((1, 2, 3, 4), (P1, P2, P3, P4), strict=True)}
+    pts = {k: check_vectors(v, f"P{k}", 3) for k, v in zip((1, 2, 3, 4), (P1, P2, P3, P4), strict=True)}
 
     def dmnop(m, n, o, p):  # Eq. 115
         return _dot(pts[m] - pts[n], pts[o] - pts[p])

@@ -19,16 +19,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.geometry.transforms import skew
+from bench.geometry.transforms import check_vectors, skew
 
 
 def check_quaternion(q, name="q", unit=False, tol=1e-6):
     """Validate quaternions ``q (..., 4)``: finite, non-zero, and of unit norm if ``unit``; returns a float array."""
-    q = np.asarray(q, dtype=float)
-    if q.shape[-1:] != (4,):
-        raise ValueError(f"{name}: expected shape (..., 4) (scalar first), got {q.shape}")
-    if not np.all(np.isfinite(q)):
-        raise ValueError(f"{name}: contains NaN or inf")
+    q = check_vectors(q, name, 4, " (scalar first)")
     n = np.linalg.norm(q, axis=-1)
     if np.any(n == 0.0):
         raise ValueError(f"{name}: zero quaternion")

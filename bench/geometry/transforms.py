@@ -82,6 +82,20 @@ def rotation_angle(R):
     return np.arctan2(s, c)
 
 
+def check_vectors(v, name: str, dim: int, note: str = "") -> np.ndarray:
+    """``v`` as a float array of shape ``(..., dim)`` with finite entries; otherwise a one-line ``ValueError`` naming
+    ``name`` (``note`` follows the expected shape in the message)."""
+    try:
+        v = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a numeric (..., {dim}) array") from None
+    if v.shape[-1:] != (dim,):
+        raise ValueError(f"{name}: expected shape (..., {dim}){note}, got {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{name}: contains NaN or inf")
+    return v
+
+
 def check_transform(T, name="T", tol=1e-6):
     """Raise ``ValueError`` naming ``name`` unless ``T`` is a finite rigid transform (..., 4, 4)."""
     T = np.asarray(T, dtype=float)

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from bench.geometry.transforms import check_vectors
 from bench.robot.model import Robot
 
 #: Operational frames of the model, in the order returned by :func:`pinocchio_frames` (frame k = index k).
@@ -55,12 +56,7 @@ def _check_eps(robot: Robot, eps) -> np.ndarray:
 
 def _check_q(robot: Robot, q) -> np.ndarray:
     """Validated joint readings ``(..., n)`` (rad)."""
-    q = np.asarray(q, dtype=float)
-    if q.ndim == 0 or q.shape[-1] != robot.n:
-        raise ValueError(f"q: expected shape (..., {robot.n}) joint readings in rad, got {q.shape}")
-    if not np.all(np.isfinite(q)):
-        raise ValueError("q: contains NaN or inf")
-    return q
+    return check_vectors(q, "q", robot.n, " joint readings in rad")
 
 
 def error_placement(e6) -> pin.SE3:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.geometry.quaternion import axis_angle_to_matrix, matrix_to_quaternion, quaternion_to_matrix
-from bench.geometry.transforms import homogeneous, vee
+from bench.geometry.transforms import check_vectors, homogeneous, vee
 from bench.robot.kinematics import error_matrix, error_matrix_derivatives
 
 JOINT_TYPES = ("revolute", "prismatic")
@@ -88,12 +88,7 @@ class SerialChain:
 
     def check_q(self, q, name: str = "q") -> np.ndarray:
         """Validate readings ``q (..., n)`` (rad / m); one-line ``ValueError`` naming ``name`` otherwise."""
-        q = np.asarray(q, dtype=float)
-        if q.shape[-1:] != (self.n,):
-            raise ValueError(f"{name}: expected shape (..., {self.n}), got {q.shape}")
-        if not np.all(np.isfinite(q)):
-            raise ValueError(f"{name}: contains NaN or inf")
-        return q
+        return check_vectors(q, name, self.n)
 
 
 def chain_from_dh(robot) -> SerialChain:

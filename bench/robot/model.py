@@ -15,6 +15,7 @@ from pydantic import AfterValidator, Field, model_validator
 
 from bench.config import KeyProblem, MmDeg, Number, Section, Vec3, parse, section
 from bench.fileio import read_yaml
+from bench.geometry.transforms import check_vectors
 
 #: Order of the six generalized errors inside one frame (thesis Table 2, Eq. 9): translations along x, y, z, then
 #: rotations about y (s), z (r) and x (p).
@@ -69,11 +70,7 @@ class Robot:
 
     def check_q(self, q, name="q") -> np.ndarray:
         """Validate joint readings ``q (..., n)`` in rad; one-line ``ValueError`` naming ``name`` otherwise."""
-        q = np.asarray(q, dtype=float)
-        if q.shape[-1:] != (self.n,):
-            raise ValueError(f"{name}: expected shape (..., {self.n}), got {q.shape}")
-        if not np.all(np.isfinite(q)):
-            raise ValueError(f"{name}: contains NaN or inf")
+        q = check_vectors(q, name, self.n)
         if np.any(np.abs(q) > 4 * np.pi):
             raise ValueError(f"{name}: |angle| > 4*pi rad; were degrees given where radians are expected?")
         return q

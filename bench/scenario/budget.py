@@ -193,5 +193,4 @@ def _plot(budget_table, metrics, table, path, title) -> str:
     fig.suptitle(f"error budget: {title}")
     fig.tight_layout()
     atomic_save_figure(fig, path, dpi=110)
-    plt.close(fig)
     return str(path)

@@ -60,7 +60,6 @@ unprefixed names hold the in-water calibration (section 5.5: the camera as it go
 
 from __future__ import annotations
 
-import csv
 import json
 import sys
 import time
@@ -81,10 +80,10 @@ from bench.camera.model import CameraModel, to_pixels
 from bench.camera.plots import plot_residual_vectors
 from bench.camera.presets import load_preset
 from bench.camera.target_tolerance import calibration_with_tolerance
-from bench.config import KeyProblem, PositiveInt, ScenarioBase, Section, section
+from bench.config import KeyProblem, PositiveInt, RenderOutputs, ScenarioBase, Section, section
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
-from bench.fileio import atomic_write_text
+from bench.fileio import atomic_write_text, csv_number, read_csv_table
 from bench.geometry.transforms import homogeneous, invert, rot_z, transform_points
 from bench.scenario.results import write_result, write_table_csv
 from bench.sim.campaign import CachedCamera
@@ -141,12 +140,6 @@ class Pipeline(Section):
     tolerance_draws: Annotated[int, Field(ge=10, le=1000)] = 48
 
 
-class Outputs(Section):
-    cache: bool = True
-    plots: bool = True
-    rerun: bool = True
-
-
 class Scenario(ScenarioBase):
     """A ``camera_calibration`` scenario file."""
 
@@ -155,7 +148,7 @@ class Scenario(ScenarioBase):
     rig: Rig = section(Rig)
     views: Views = section(Views)
     pipeline: Pipeline = section(Pipeline)
-    outputs: Outputs = section(Outputs)
+    outputs: RenderOutputs = section(RenderOutputs)
 
 
 #: (camera.preset, medium) -> optics preset of bench.sim.optics_presets
@@ -470,26 +463,12 @@ def load_table3(path=TABLE3_CSV) -> dict:
 
     One-line ConfigError naming the file and the row or column when it is malformed.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "not found")
-    lines = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    rows = list(csv.reader(lines))
-    if not rows or tuple(c.strip() for c in rows[0]) != TABLE3_COLUMNS:
-        raise ConfigError(path, "<header>", f"expected columns {', '.join(TABLE3_COLUMNS)}")
+    _, rows = read_csv_table(path, TABLE3_COLUMNS)
     out = {c: [] for c in TABLE3_COLUMNS}
-    for i, row in enumerate(rows[1:], start=1):
-        if len(row) != len(TABLE3_COLUMNS):
-            raise ConfigError(path, f"row {i}", f"expected {len(TABLE3_COLUMNS)} values, got {len(row)}")
+    for i, row in enumerate(rows, start=1):
         out["picture"].append(row[0].strip())
         for c, v in zip(TABLE3_COLUMNS[1:], row[1:], strict=True):
-            try:
-                x = float(v)
-            except ValueError:
-                raise ConfigError(path, f"row {i}, {c}", f"not a number: {v!r}") from None
-            if not np.isfinite(x):
-                raise ConfigError(path, f"row {i}, {c}", "must be finite")
-            out[c].append(x)
+            out[c].append(csv_number(path, f"row {i}, {c}", v))
     if out["picture"] != [str(k) for k in range(1, 8)] + ["average"]:
         raise ConfigError(path, "picture", "expected pictures 1..7 then 'average'")
     return out

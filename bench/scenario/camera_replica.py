@@ -42,7 +42,7 @@ from bench.camera.photo_stats import (
 )
 from bench.config import ScenarioBase, Section, about, at_least, at_most, section
 from bench.errors import BenchError, ConfigError
-from bench.fileio import atomic_save_figure, atomic_write_bytes
+from bench.fileio import atomic_save_figure, atomic_write_bytes, headless_pyplot
 from bench.scenario.results import write_result, write_table_csv
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
@@ -297,11 +297,7 @@ def run(cfg, out_dir, verbose=True):
 
 def plot_replica(per_view: dict, corr: dict, metrics: dict, path) -> str:
     """Per-view calibration RMS (real beside simulated) and the residual correlation along rows and columns."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = headless_pyplot()
     fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.2), gridspec_kw={"width_ratios": [2, 1]})
     x = np.arange(len(per_view["photo"]))
     a.bar(x - 0.2, per_view["real_rms_px"], 0.4, label=f"real photos (RMS {metrics['real_rms_px']:.3f} px)")
@@ -321,7 +317,6 @@ def plot_replica(per_view: dict, corr: dict, metrics: dict, path) -> str:
                  f"{metrics['rms_ratio']:.2f}", fontsize=10)
     fig.tight_layout()
     atomic_save_figure(fig, path, dpi=110)
-    plt.close(fig)
     return Path(path).name
 
 

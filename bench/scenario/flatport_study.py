@@ -633,7 +633,6 @@ def plot_study(table: dict, cfg: dict, path, tilt_deg=(0.0, 0.0)) -> str:
                  f"(grey) behind a flat port: RMS (o-) and max (--) over the image{extra}", fontsize=10)
     fig.tight_layout()
     atomic_save_figure(fig, path, dpi=110)
-    plt.close(fig)
     return Path(path).name
 
 

@@ -14,7 +14,6 @@ Parts (each reported in ``result.json``):
 
 from __future__ import annotations
 
-import csv
 import sys
 import time
 from pathlib import Path
@@ -25,6 +24,7 @@ from pydantic import Field
 
 from bench.config import NonNegInt, PositiveInt, ScenarioBase, Section, Vec3, at_most, section
 from bench.errors import ConfigError
+from bench.fileio import csv_number, read_csv_table
 from bench.robot.identifiability import closed_form_reduction, numeric_identifiability
 from bench.robot.identification import identify_iterative, identify_linear
 from bench.robot.jacobian import identification_jacobian
@@ -102,12 +102,9 @@ def from_thesis_units(eps):
 
 def load_error_table(path) -> dict:
     """Read a Table-2-style CSV (``name`` + numeric columns, mm/rad, rows in error-vector order)."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "not found")
-    lines = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    rows = list(csv.DictReader(lines))
-    if not rows or "name" not in rows[0] or "full" not in rows[0]:
+    header, rows = read_csv_table(path)
+    rows = [dict(zip(header, r, strict=True)) for r in rows]
+    if not rows or "name" not in header or "full" not in header:
         raise ConfigError(path, "<header>", "expected columns 'name' and 'full'")
     names = [r["name"] for r in rows]
     expected = error_names(len(rows) // 6 if len(rows) % 6 == 0 else 7)
@@ -116,19 +113,10 @@ def load_error_table(path) -> dict:
         raise ConfigError(path, f"row {bad + 1}",
                           f"names must be {expected[0]}, {expected[1]}, ... {expected[-1]} in order")
     out = {"name": names}
-    for col in rows[0]:
-        if col == "name":
-            continue
-        vals = []
-        for i, r in enumerate(rows):
-            try:
-                v = float(r[col])
-            except (TypeError, ValueError):
-                raise ConfigError(path, f"{col} (row {i + 1}, {names[i]})", f"not a number: {r[col]!r}") from None
-            if not np.isfinite(v):
-                raise ConfigError(path, f"{col} (row {i + 1}, {names[i]})", "must be finite")
-            vals.append(v)
-        out[col] = np.array(vals)
+    for col in header:
+        if col != "name":
+            out[col] = np.array([csv_number(path, f"{col} (row {i + 1}, {names[i]})", r[col])
+                                 for i, r in enumerate(rows)])
     return out
 
 

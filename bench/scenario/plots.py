@@ -4,13 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from bench.fileio import atomic_save_figure, headless_pyplot
 
-from bench.fileio import atomic_save_figure
+plt = headless_pyplot()
 
 
 def plot_orientation(table: dict, path) -> str:
@@ -33,7 +31,6 @@ def plot_orientation(table: dict, path) -> str:
     fig.suptitle("Calibrated (reduced errors) vs true arm, Eq. 189 - link 5's deviation is a constant bias")
     fig.tight_layout()
     atomic_save_figure(fig, path, dpi=110)
-    plt.close(fig)
     return Path(path).name
 
 
@@ -51,5 +48,4 @@ def plot_monte_carlo(table: dict, path) -> str:
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
     atomic_save_figure(fig, path, dpi=110)
-    plt.close(fig)
     return Path(path).name

@@ -11,16 +11,9 @@ from bench.config import apply_overrides, load_yaml, parse
 from bench.errors import BenchError, ConfigError
 from bench.fileio import claimed_output_dir
 
-# scenario kind -> module of bench.scenario (imported only when a scenario of that kind runs)
-KINDS = {
-    "kinematic_identification": "kinematic_identification",
-    "tracker_base_frame": "tracker_base_frame",
-    "in_situ": "in_situ",
-    "xy_table": "xy_table",
-    "camera_calibration": "camera_calibration",
-    "flatport_study": "flatport_study",
-    "camera_replica": "camera_replica",
-}
+# the scenario kinds, each a module of bench.scenario of the same name (imported only when a scenario of it runs)
+KINDS = ("kinematic_identification", "tracker_base_frame", "in_situ", "xy_table", "camera_calibration",
+         "flatport_study", "camera_replica")
 
 
 def kind_module(kind: str, source="<scenario>"):
@@ -30,7 +23,7 @@ def kind_module(kind: str, source="<scenario>"):
         raise ConfigError(source, "kind", f"missing (known kinds: {', '.join(KINDS)})")
     if not isinstance(kind, str) or kind not in KINDS:
         raise ConfigError(source, "kind", f"unknown scenario kind {kind!r} (known: {', '.join(KINDS)})")
-    return importlib.import_module(f"bench.scenario.{KINDS[kind]}")
+    return importlib.import_module(f"bench.scenario.{kind}")
 
 
 def check_scenario(raw: dict, source) -> dict:

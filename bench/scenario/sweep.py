@@ -83,17 +83,6 @@ def parse_param(spec: str, source: str = "--param") -> tuple:
     return key, values
 
 
-def parse_set(spec: str) -> tuple:
-    """``"key=value"`` -> ``(key, value parsed as YAML)``, as ``bench run --set``."""
-    if "=" not in spec:
-        raise ConfigError("--set", spec, "expected KEY=VALUE")
-    key, raw = spec.split("=", 1)
-    try:
-        return key.strip(), yaml.safe_load(raw)
-    except yaml.YAMLError:
-        raise ConfigError("--set", key, f"value {raw!r} is not valid YAML") from None
-
-
 def grid(params: list, seeds: list) -> list:
     """Every combination as ``(overrides dict, seed)``, params varying slowest-first as given."""
     keys = [k for k, _ in params]
@@ -538,6 +527,5 @@ def _plot(table, keys, metrics, out):
         fig.tight_layout()
         path = out / f"sweep_{m}.png"
         atomic_save_figure(fig, path, dpi=110)
-        plt.close(fig)
         paths.append(str(path))
     return paths

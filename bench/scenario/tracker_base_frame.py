@@ -285,7 +285,6 @@ def plot_accuracy(table: dict, path) -> str:
                  "linear prediction (--), Cramér-Rao bound with the joint readings (:)", fontsize=10)
     fig.tight_layout()
     atomic_save_figure(fig, path, dpi=110)
-    plt.close(fig)
     return Path(path).name
 
 

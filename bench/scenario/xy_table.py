@@ -57,6 +57,7 @@ from bench.config import (
     PositiveFloat,
     PositiveInt,
     PositiveNumber,
+    RenderOutputs,
     ScenarioBase,
     Section,
     Vec2,
@@ -191,19 +192,13 @@ class Bound(Section):
     mc_intraocular_mm: list[PositiveNumber] = [50, 100]
 
 
-class Outputs(Section):
-    cache: bool = True
-    plots: bool = True
-    rerun: bool = True
-
-
 class Scenario(ScenarioBase):
     """An ``xy_table`` scenario file."""
 
     sim: Sim = section(Sim)
     pipeline: Pipeline = section(Pipeline)
     bound: Bound = section(Bound)
-    outputs: Outputs = section(Outputs)
+    outputs: RenderOutputs = section(RenderOutputs)
 
     @model_validator(mode="after")
     def _across(self):
@@ -783,7 +778,6 @@ def plot_tables(summary: dict, poses: str, path) -> str:
                  + ("; dotted: the limit (Cramér-Rao bound ⊕ model floor)" if "bound_x_mm" in summary else ""))
     fig.tight_layout()
     atomic_save_figure(fig, path, dpi=110)
-    plt.close(fig)
     return Path(path).name
 
 

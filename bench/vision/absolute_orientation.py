@@ -6,15 +6,15 @@ base moved), find ``R, t`` with (Eq. 124)::
     R 2p_i + t = 1p_i,        i.e.  T = T_1_2 = [[R, t], [0, 1]] maps 2p-frame coordinates into the 1p frame,
 
 so ``p_1 = T_1_2 @ p_2`` in the design's ``T_a_b`` convention (``R = R_1_2``, ``t = t_1_2``, the origin of frame 2 in
-frame 1). The rotation comes from one of three methods; the translation is always Eq. 125 (weighted when weights are
-given): ``t = sum_i w_i (1p_i - R 2p_i) / sum_i w_i``.
+frame 1). The rotation comes from one of three methods (:func:`absolute_orientation`'s ``method``); the translation
+is always Eq. 125 (weighted when weights are given): ``t = sum_i w_i (1p_i - R 2p_i) / sum_i w_i``.
 
-* :func:`absolute_orientation_rodrigues` - the thesis's quaternion / Rodrigues-parameter method (Eq. 137-156):
+* ``method="rodrigues"`` - the thesis's quaternion / Rodrigues-parameter method (Eq. 137-156):
   linear least squares for the Rodrigues (Gibbs) vector ``x_q = tan(theta / 2) k`` from differences of consecutive
   points, then the quaternion (Eq. 133, 155-156) and the matrix (Eq. 136).
-* :func:`absolute_orientation_svd` - the least-squares SVD method the thesis cites as [21] (Arun, Huang & Blostein
+* ``method="svd"`` - the least-squares SVD method the thesis cites as [21] (Arun, Huang & Blostein
   1987; Umeyama 1991) with Umeyama's reflection fix: ``R = V diag(1, 1, det(V U^T)) U^T``.
-* :func:`absolute_orientation_horn` - Horn's (1987) closed-form unit quaternion: the eigenvector of the largest
+* ``method="horn"`` - Horn's (1987) closed-form unit quaternion: the eigenvector of the largest
   eigenvalue of the symmetric 4x4 matrix ``N`` built from the cross-covariance. Always a proper rotation.
 
 The SVD and Horn methods minimise the same cost ``sum_i w_i |1p_i - R 2p_i - t|^2`` and give the same answer to
@@ -343,21 +343,6 @@ def absolute_orientation(p1, p2, weights=None, method="svd", max_condition=MAX_C
         success=True, message=message, R=R, t=t, T=homogeneous(R, t), rms=rms, condition=condition, method=method,
         n_points=n, residuals=residuals, covariance=covariance,
     )
-
-
-def absolute_orientation_rodrigues(p1, p2, weights=None, max_condition=MAX_CONDITION):
-    """The thesis's quaternion / Rodrigues-parameter method (Eq. 137-156); see :func:`absolute_orientation`."""
-    return absolute_orientation(p1, p2, weights, "rodrigues", max_condition)
-
-
-def absolute_orientation_svd(p1, p2, weights=None, max_condition=MAX_CONDITION):
-    """Arun/Umeyama least-squares SVD [21] with the reflection fix; see :func:`absolute_orientation`."""
-    return absolute_orientation(p1, p2, weights, "svd", max_condition)
-
-
-def absolute_orientation_horn(p1, p2, weights=None, max_condition=MAX_CONDITION):
-    """Horn's 1987 closed-form unit-quaternion method; see :func:`absolute_orientation`."""
-    return absolute_orientation(p1, p2, weights, "horn", max_condition)
 
 
 def predicted_covariance(p1, p2, R, sigma, weights=None, method="svd"):

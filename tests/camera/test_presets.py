@@ -48,5 +48,5 @@ def test_bad_spec_files(tmp_path):
         with pytest.raises(ConfigError, match=message) as info:
             load_camera_spec(path)
         assert "\n" not in str(info.value)
-    with pytest.raises(ConfigError, match="file: not found"):
+    with pytest.raises(ConfigError, match="<file>: not found"):
         load_camera_spec(tmp_path / "none.yaml")

@@ -7,9 +7,6 @@ from bench.geometry.transforms import homogeneous, rot_y, rotation_angle, skew, 
 from bench.vision.absolute_orientation import (
     METHODS,
     absolute_orientation,
-    absolute_orientation_horn,
-    absolute_orientation_rodrigues,
-    absolute_orientation_svd,
     predicted_covariance,
     random_correspondences,
 )
@@ -50,8 +47,8 @@ def test_wrappers_and_weights_noise_free():
     rng = np.random.default_rng(2)
     p1, p2, T, _ = random_correspondences(rng, 12, T_1_2=_truth(rng, 1.0))
     w = rng.uniform(0.1, 5.0, 12)
-    for f in (absolute_orientation_rodrigues, absolute_orientation_svd, absolute_orientation_horn):
-        r = f(p1, p2, weights=w)
+    for method in ("rodrigues", "svd", "horn"):
+        r = absolute_orientation(p1, p2, weights=w, method=method)
         assert r.success and np.abs(r.T - T).max() < 1e-12
     # a zero weight removes a gross outlier exactly
     p1b = p1.copy()
@@ -80,14 +77,14 @@ def test_svd_matches_scipy_kabsch_and_horn_on_noisy_data():
     rng = np.random.default_rng(4)
     p1, p2, _, _ = random_correspondences(rng, 30, sigma1=0.02, sigma2=0.02)
     w = rng.uniform(0.5, 2.0, 30)
-    svd = absolute_orientation_svd(p1, p2, weights=w)
-    horn = absolute_orientation_horn(p1, p2, weights=w)
+    svd = absolute_orientation(p1, p2, weights=w, method="svd")
+    horn = absolute_orientation(p1, p2, weights=w, method="horn")
     c1 = p1 - np.average(p1, axis=0, weights=w)
     c2 = p2 - np.average(p2, axis=0, weights=w)
     rot, _ = Rotation.align_vectors(c1, c2, weights=w)  # a ~ R b
     assert np.abs(svd.R - rot.as_matrix()).max() < 1e-12
     assert np.abs(svd.T - horn.T).max() < 1e-12
-    rod = absolute_orientation_rodrigues(p1, p2, weights=w)
+    rod = absolute_orientation(p1, p2, weights=w, method="rodrigues")
     assert rod.rms > svd.rms  # the algebraic estimator is not the least-squares optimum on noisy data
 
 
@@ -120,7 +117,7 @@ def test_thesis_equations_and_misprints_numerically():
     A = np.concatenate([Q(z + r) for z, r in zip(zeta, rho, strict=True)])
     b = np.concatenate([z - r for z, r in zip(zeta, rho, strict=True)])
     xq = np.linalg.solve(A.T @ A, A.T @ b)  # Eq. 152
-    res = absolute_orientation_rodrigues(pn1, pn2)
+    res = absolute_orientation(pn1, pn2, method="rodrigues")
     assert np.abs(res.R - rodrigues_to_matrix(xq)).max() < 1e-12
     assert np.allclose(res.t, np.mean(pn1 - pn2 @ res.R.T, axis=0))  # Eq. 125
     # the same for many rotations below 90 deg with heavier noise: the printed method is what runs
@@ -131,7 +128,7 @@ def test_thesis_equations_and_misprints_numerically():
         A = np.concatenate([Q(z + r) for z, r in zip(zeta, rho, strict=True)])
         b = np.concatenate([z - r for z, r in zip(zeta, rho, strict=True)])
         xq = np.linalg.lstsq(A, b, rcond=None)[0]
-        assert np.abs(absolute_orientation_rodrigues(q1, q2).R - rodrigues_to_matrix(xq)).max() < 1e-12
+        assert np.abs(absolute_orientation(q1, q2, method="rodrigues").R - rodrigues_to_matrix(xq)).max() < 1e-12
     # Eq. 156 as printed is 0/0 when the largest component of k is zero
     k_bad = np.array([-0.6, -0.8, 0.0])
     with np.errstate(invalid="ignore"):
@@ -152,9 +149,9 @@ def test_reflection_case_plain_svd_gives_det_minus_one():
     R_plain = Vt.T @ U.T
     assert np.linalg.det(R_plain) == pytest.approx(-1.0)
     assert np.abs(c2 @ R_plain.T - c1).max() < 1e-12  # the reflection fits exactly
-    svd = absolute_orientation_svd(p1, p2)
-    horn = absolute_orientation_horn(p1, p2)
-    rod = absolute_orientation_rodrigues(p1, p2)
+    svd = absolute_orientation(p1, p2, method="svd")
+    horn = absolute_orientation(p1, p2, method="horn")
+    rod = absolute_orientation(p1, p2, method="rodrigues")
     for r in (svd, horn, rod):
         assert r.success and np.linalg.det(r.R) == pytest.approx(1.0, abs=1e-12)
         assert np.abs(r.R - T[:3, :3]).max() < 1e-2  # a proper rotation near the truth
@@ -236,7 +233,7 @@ def test_monte_carlo_heteroscedastic_weights():
 def test_result_covariance_uses_residual_sigma():
     rng = np.random.default_rng(9)
     p1, p2, T, _ = random_correspondences(rng, 40, sigma1=1e-3)
-    r = absolute_orientation_svd(p1, p2)
+    r = absolute_orientation(p1, p2, method="svd")
     s_hat = np.sqrt(np.sum(r.residuals**2) / (3 * 40 - 6))
     assert np.allclose(r.covariance, predicted_covariance(p1, p2, r.R, s_hat))
     assert s_hat == pytest.approx(1e-3, rel=0.15)
@@ -259,7 +256,7 @@ def test_degenerate_inputs():
     # nearly collinear: a pose, but with a warning and the condition number
     line = np.outer(np.linspace(-1, 1, 6), [0.3, -0.2, 0.9])
     line[2] += [1e-3, 0.0, 0.0]
-    r = absolute_orientation_svd(line + [1.0, 2.0, 3.0], line)
+    r = absolute_orientation(line + [1.0, 2.0, 3.0], line, method="svd")
     assert r.success and "ill-conditioned" in r.message and 1e4 < r.condition < 1e8
     assert np.allclose(r.R, np.eye(3), atol=1e-9)
 

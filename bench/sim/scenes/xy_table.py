@@ -37,7 +37,6 @@ as the table's controller displays them. The truth (``TableRun.true``, ``T_table
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -45,6 +44,7 @@ import mujoco
 import numpy as np
 
 from bench.errors import ConfigError
+from bench.fileio import csv_number, read_csv_table
 from bench.geometry.transforms import check_transform, homogeneous, rot_x, rot_y, rot_z
 from bench.sim.scenes.base import SceneObject, add_color_material, add_geom, place, pose
 
@@ -242,22 +242,9 @@ POSE_COLUMNS = ("position", "theta_x_deg", "theta_y_deg", "theta_z_deg", "dx_mm"
 
 def load_pose_table(path) -> dict:
     """Read a transcribed thesis pose table (``#`` comment lines, header ``POSE_COLUMNS``) -> {column: (N,) array}."""
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError(str(p), "file", "pose table not found")
-    lines = [ln for ln in p.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    rows = list(csv.reader(lines))
-    if not rows or tuple(c.strip() for c in rows[0]) != POSE_COLUMNS:
-        raise ConfigError(str(p), "header", f"expected columns {', '.join(POSE_COLUMNS)}")
-    data = []
-    for k, row in enumerate(rows[1:], start=1):
-        if len(row) != len(POSE_COLUMNS):
-            raise ConfigError(str(p), f"row {k}", f"expected {len(POSE_COLUMNS)} values, got {len(row)}")
-        try:
-            data.append([float(v) for v in row])
-        except ValueError:
-            raise ConfigError(str(p), f"row {k}", "non-numeric value") from None
-    arr = np.array(data, float).reshape(-1, len(POSE_COLUMNS))
+    _, rows = read_csv_table(path, POSE_COLUMNS)
+    arr = np.array([[csv_number(path, f"row {k}, {c}", v) for c, v in zip(POSE_COLUMNS, row, strict=True)]
+                    for k, row in enumerate(rows, start=1)], float).reshape(-1, len(POSE_COLUMNS))
     out = {c: arr[:, i] for i, c in enumerate(POSE_COLUMNS)}
     out["position"] = out["position"].astype(int)
     return out
