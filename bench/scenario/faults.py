@@ -55,7 +55,12 @@ N_WATER = 1.333
 
 
 def _site_views(ds):
-    roles = {r: [v.name for v in ds.views if v.role == r] for r in ("reference", "surround", "locate")}
+    """The views the faults act on: the survey and locate views by role - of the first region when the dataset has
+    several (the others stay intact: the localisation can leave the damaged region out)."""
+    posed = [v for v in ds.views if v.role in ("reference", "surround", "locate")]
+    first = posed[0].region if posed else ""
+    roles = {r: [v.name for v in posed if v.role == r and v.region == first] for r in ("reference", "surround",
+                                                                                        "locate")}
     if len(roles["locate"]) < 2 or not roles["surround"] or len(roles["reference"]) != 1:
         raise ConfigError(ds.root / "manifest.yaml", "views", "fault injection needs a reference view, surround views "
                                                              "and two locate views")

@@ -67,6 +67,10 @@ def test_the_views_carry_their_region(two_regions):
     assert all(v.region == "" for v in ds.views if v.role == "rig")
     truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
     assert set(regions) <= set(truth["views"])
+    from bench.scenario.faults import _site_views  # bench faults damages the first region's views only
+
+    assert _site_views(ds) == {"reference": ["ref"], "surround": [f"survey{i:02d}" for i in range(1, 5)],
+                               "locate": ["locate0", "locate1"]}
 
 
 def test_two_regions_are_solved_together_and_tested_each(two_regions, tmp_path):
