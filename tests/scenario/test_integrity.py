@@ -32,11 +32,10 @@ SMALL = ["camera.preset=air_webcam", "camera.supersample=1", "lab.rig_views=3", 
          "outputs.cache=false", "survey.offsets_mm=[[130, 0], [-130, 0], [0, 130], [0, -130]]"]
 
 
-@pytest.fixture(scope="module")
-def rendered(tmp_path_factory):
-    """A small rendered dataset and oracle calibration files (the evaluator's: true camera, arm errors, mount)."""
-    tmp = tmp_path_factory.mktemp("integrity")
-    cfg = load_scenario(SCENARIO, seed=3, overrides=SMALL)
+def render_with_oracle(tmp, overrides):
+    """A small dataset rendered into ``tmp/ds`` and the evaluator's oracle calibration files (true camera, arm
+    errors, mount) in ``tmp/cal``: ``(camera, robot, truth)``."""
+    cfg = load_scenario(SCENARIO, seed=3, overrides=overrides)
     kind_module("in_situ", SCENARIO).render(cfg, tmp / "ds", verbose=False)
     ds = load_dataset(tmp / "ds")
     truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
@@ -46,6 +45,14 @@ def rendered(tmp_path_factory):
                                                                         model=None))
     robot = write_calibrated_robot(tmp / "cal" / "robot.yaml", ds.robot_path, ds.robot(), np.array(truth["errors"]),
                                    np.array(truth["T_link5_cam_effective"]), notes="test oracle")
+    return camera, robot, truth
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """A small rendered dataset and oracle calibration files (the evaluator's: true camera, arm errors, mount)."""
+    tmp = tmp_path_factory.mktemp("integrity")
+    camera, robot, _ = render_with_oracle(tmp, SMALL)
     return tmp, camera, robot
 
 

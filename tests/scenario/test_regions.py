@@ -10,14 +10,12 @@ import yaml
 
 pytest.importorskip("mujoco")
 
-from bench.camera.io import read_camera_yaml, write_camera_yaml  # noqa: E402
 from bench.dataset import load_dataset  # noqa: E402
 from bench.errors import ConfigError  # noqa: E402
 from bench.geometry.transforms import rotation_angle  # noqa: E402
-from bench.robot.calibration_file import write_calibrated_robot  # noqa: E402
-from bench.scenario.runner import kind_module, load_scenario  # noqa: E402
+from bench.scenario.runner import load_scenario  # noqa: E402
 from bench.vision.locate_dataset import locate_dataset  # noqa: E402
-from tests.scenario.test_integrity import SCENARIO, SMALL  # noqa: E402
+from tests.scenario.test_integrity import SCENARIO, SMALL, render_with_oracle  # noqa: E402
 
 TWO = [*SMALL, "site.regions_m=[[0, 0], [0.2, 0]]", "bound.enabled=false", "task.teach=false"]
 
@@ -26,16 +24,7 @@ TWO = [*SMALL, "site.regions_m=[[0, 0], [0.2, 0]]", "bound.enabled=false", "task
 def two_regions(tmp_path_factory):
     """A small two-region dataset and the evaluator's oracle calibration files (true camera, arm errors, mount)."""
     tmp = tmp_path_factory.mktemp("regions")
-    cfg = load_scenario(SCENARIO, seed=3, overrides=TWO)
-    kind_module("in_situ", SCENARIO).render(cfg, tmp / "ds", verbose=False)
-    ds = load_dataset(tmp / "ds")
-    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
-    cam = read_camera_yaml(ds.camera_path)
-    camera = write_camera_yaml(tmp / "cal" / "camera.yaml", cam.replace(K=np.array(truth["camera_K_effective"]),
-                                                                        dist=np.array(truth["camera_dist"]),
-                                                                        model=None))
-    robot = write_calibrated_robot(tmp / "cal" / "robot.yaml", ds.robot_path, ds.robot(), np.array(truth["errors"]),
-                                   np.array(truth["T_link5_cam_effective"]), notes="test oracle")
+    camera, robot, truth = render_with_oracle(tmp, TWO)
     T_true = np.linalg.inv(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
     return tmp, camera, robot, T_true
 
