@@ -367,8 +367,11 @@ def _assess_regions(res, per, include, maps, regions, obs, camera, config, seed)
     """:func:`~bench.vision.integrity.assess_regions` of the regions ``include`` at the common result ``res``."""
     from bench.vision.integrity import assess_regions
 
-    parts = [(name, maps[i], [obs[v.name] for v in roles["surround"]], obs[roles["locate"][0].name],
-              obs[roles["locate"][1].name], per[i]) for i in include for name, roles in [regions[i]]]
+    parts = []
+    for i in include:
+        name, roles = regions[i]
+        parts.append((name, maps[i], [obs[v.name] for v in roles["surround"]], obs[roles["locate"][0].name],
+                      obs[roles["locate"][1].name], per[i]))
     return assess_regions(parts, res, camera.fx, camera.size, config, seed)
 
 
@@ -420,9 +423,14 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     # the joint bundle works in pixels: a refractive camera's coordinates go to it through its virtual pinhole
     pixels_camera = camera.virtual_camera() if isinstance(camera, RefractiveCamera) else camera
 
-    def solve(obs, include=None):
-        """Every region's map and thesis estimate, then the estimate of the regions ``include`` (default: every
-        region the thesis estimator localised) - the joint bundle's with refine 'joints'."""
+    def combine(per, maps, obs, include):
+        """:func:`_combine` of the regions ``include`` with this call's robot, camera and settings."""
+        return _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, pixels_camera, sigma_enc,
+                        priors, guided, loss, map_points)
+
+    def solve(obs):
+        """Every region's map and thesis estimate, then their estimate together (:func:`_combine`: the joint
+        bundle's with refine 'joints')."""
         t = time.perf_counter()
         maps = [build_map(obs[roles["reference"][0].name], [obs[v.name] for v in roles["surround"]], config)
                 for _, roles in regions]
@@ -434,10 +442,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                        locate(kmap, a, obs[roles["locate"][1].name], config, method=method, rng=seed,
                               refine="bundle" if refine == "joints" else refine, focal_px=camera.fx,
                               **(ransac or {})))  # focal: the baseline checks' 1 px (Eq. 123, 199)
-        if include is None:
-            include = [i for i, r in enumerate(per) if r.success]
-        return (maps, per, *_combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, pixels_camera,
-                                     sigma_enc, priors, guided, loss, map_points), t_map)
+        return (maps, per, *combine(per, maps, obs, range(len(per))), t_map)
 
     maps, per, include, res, refined, thesis, useds, t_map = solve(obs)
     passes = 1
@@ -485,8 +490,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
             # warning (a fault was found; another may hide in the regions kept). None or several: refused.
             held = []
             for k in include:
-                again = _combine(per, [i for i in include if i != k], maps, regions, obs, refine, robot, eps,
-                                 T_link5_cam, pixels_camera, sigma_enc, priors, guided, loss, map_points)
+                again = combine(per, maps, obs, [i for i in include if i != k])
                 res2, kappa2 = calibrated(again[1], again[2])
                 integ2 = _assess_regions(res2, per, again[0], maps, regions, obs, camera, config, seed)
                 if res2.success and integ2.level != "refused":
