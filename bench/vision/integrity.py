@@ -23,8 +23,9 @@ The tests (each one's statistic is reported in ``tests``):
 2. **The two new views with each other and with the kinematics.** The free poses of the two locate views give their
    relative pose from the images alone; it must agree with the kinematic ``T_a_b``: refused beyond
    :data:`RELATIVE_REFUSE_MM` / :data:`RELATIVE_REFUSE_DEG` when its Mahalanobis square
-   (:func:`relative_pose_disagreement`) also exceeds :data:`RELATIVE_CHI2_REFUSE`; a warning beyond a third of the
-   raw limits or a square above :data:`RELATIVE_CHI2_WARN`.
+   (:func:`relative_pose_disagreement`) also exceeds :data:`RELATIVE_CHI2_REFUSE`; a warning when the part of it
+   beyond a clean run's (:func:`relative_pose_excess`) exceeds a third of those limits, or the square
+   :data:`RELATIVE_CHI2_WARN`.
 3. **Reprojection chi-square.** The locate views' residual RMS at the solution against the survey views' residual
    RMS at their kinematic poses (the keypoint noise of this scene, this water, this camera): the ratio inflates the
    covariance, and refuses beyond :data:`CHI2_RATIO_REFUSE`.
@@ -38,8 +39,9 @@ The tests (each one's statistic is reported in ``tests``):
 Protection levels: the base-pose covariance (position block, rotation block; ``locate_dataset`` has calibrated it
 by the estimator's measured optimism :data:`KAPPA`), inflated by the chi-square factor of test 3, gives the
 ``1 - INTEGRITY_RISK`` quantile of the error's norm (:func:`norm_quantile`: the exact quantile of a Gaussian's norm,
-not ``k`` times its largest standard deviation); the disagreement of test 2 (a kinematic relative pose off by ``d``
-moves the solution by about ``d``; a third of it) and a floor for the model errors no test here resolves
+not ``k`` times its largest standard deviation); the part of test 2's disagreement beyond a clean run's (a
+kinematic relative pose off by ``d`` moves the solution by about ``d``; a third of it) and a floor for the model
+errors no test here resolves
 (:data:`FLOOR_MM`, :data:`FLOOR_DEG`) are added in quadrature. Residual whiteness (test 4) is reported, not applied:
 over 20 clean seeds it did not predict the covariance's misfit (docs/integrity.md).
 """
@@ -76,6 +78,8 @@ RELATIVE_REFUSE_DEG = 1.5
 RELATIVE_OVERDISPERSION = 15.0
 RELATIVE_CHI2_REFUSE = RELATIVE_OVERDISPERSION * 22.458
 RELATIVE_CHI2_WARN = RELATIVE_OVERDISPERSION * 16.812
+#: Degrees of freedom of test 2's disagreement (a rotation vector and a translation).
+RELATIVE_DOF = 6
 #: Locate residual RMS / survey residual RMS (test 3) beyond which the solution is refused / warned.
 CHI2_RATIO_REFUSE = 10.0
 #: the smallest survey noise test 3 divides by (px): exact data's residuals are rounding errors, not noise
@@ -240,6 +244,30 @@ def relative_pose_disagreement(kmap: KeypointMap, free_a: dict, free_b: dict, T_
     return d0, (m2 if np.isfinite(m2) else float("inf"))
 
 
+def relative_pose_excess(d, m2: float) -> tuple:
+    """The part of test 2's disagreement beyond what a clean run shows: ``(mm, deg)``.
+
+    ``d = D + n``: the kinematic relative pose's error ``D`` plus the two free poses' noise ``n``, whose covariance
+    is :func:`relative_pose_disagreement`'s ``C`` times :data:`RELATIVE_OVERDISPERSION` (the spread of clean runs).
+    Along the free poses' tilt-translation mode ``n`` is millimetres (clean runs: 2-18 mm and 0.14-2.3 deg, every
+    one along that mode), so ``|d|`` overstates ``D``. The positive-part James-Stein estimate in the metric of that
+    covariance (James & Stein 1961; it dominates ``d`` itself for 3 or more dimensions) shrinks ``d`` by its own
+    significance: ``D_hat = max(0, 1 - (p - 2) s^2 / m2) d``, ``p`` = :data:`RELATIVE_DOF`, ``s^2`` =
+    :data:`RELATIVE_OVERDISPERSION`, ``m2`` the Mahalanobis square ``d^T C^-1 d``. A disagreement as significant as
+    a clean run's counts little; one far beyond counts almost whole.
+
+    Parameters
+    ----------
+    d : array_like (6,)
+        Rotation vector (rad) and translation (m) of the disagreement.
+    m2 : float
+        Its Mahalanobis square (``inf`` counts it whole, NaN not at all).
+    """
+    d = np.asarray(d, float)
+    scale = max(0.0, 1.0 - (RELATIVE_DOF - 2) * RELATIVE_OVERDISPERSION / m2) if m2 > 0 else 0.0
+    return scale * float(np.linalg.norm(d[3:])) * 1e3, scale * float(np.rad2deg(np.linalg.norm(d[:3])))
+
+
 def free_pose(kmap: KeypointMap, view: ViewObservation, idx_map, idx_view, focal_px: float, seed: int = 0):
     """Single-view pose of ``view`` from its map matches alone (PnP + RANSAC + LM, gate :data:`GATE_PX`).
 
@@ -327,7 +355,8 @@ def protection_levels(covariance, tests: dict, kappa: float = 1.0, floor_mm: flo
     Per block (position, rotation): ``kappa * f_chi * q`` with ``q`` the ``1 - INTEGRITY_RISK`` quantile of the
     norm of a Gaussian error of that block's covariance (:func:`norm_quantile`), ``f_chi`` the test-3 inflation in
     ``tests`` (``inflation_chi2``) and ``kappa`` the estimator's measured covariance optimism (:func:`kappa_of`);
-    then a third of the disagreement of test 2 (``relative_pose_mm`` / ``_deg``) and the floor (default
+    then a third of test 2's disagreement beyond a clean run's (``relative_pose_excess_mm`` / ``_deg``,
+    :func:`relative_pose_excess`) and the floor (default
     :data:`FLOOR_MM` / :data:`FLOOR_DEG`) are added in quadrature. Records ``kappa`` and the quantile factors
     (``q_factor_pos``, ``q_factor_rot``: ``q`` over the block's largest standard deviation) into ``tests``.
 
@@ -348,14 +377,14 @@ def protection_levels(covariance, tests: dict, kappa: float = 1.0, floor_mm: flo
     s_rot = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 1e-300)))
     s_pos = float(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 1e-300)))
     tests.update(kappa=float(kappa), q_factor_pos=q_pos / s_pos, q_factor_rot=q_rot / s_rot)
-    return (_with_terms(f * q_pos, floor_mm * 1e-3, tests, "relative_pose_mm", 1e-3),
-            _with_terms(f * q_rot, np.deg2rad(floor_deg), tests, "relative_pose_deg", np.deg2rad(1.0)))
+    return (_with_terms(f * q_pos, floor_mm * 1e-3, tests, "relative_pose_excess_mm", 1e-3),
+            _with_terms(f * q_rot, np.deg2rad(floor_deg), tests, "relative_pose_excess_deg", np.deg2rad(1.0)))
 
 
 def _with_terms(level: float, floor: float, tests: dict, key: str, unit: float) -> float:
-    """A protection level ``level`` with the floor and a third of test 2's disagreement ``tests[key]`` (times
-    ``unit`` into SI; absent or NaN when test 2 did not run) added in quadrature: a kinematic relative pose off by
-    ``d`` moves the solution by about ``d``."""
+    """A protection level ``level`` with the floor and a third of test 2's disagreement beyond a clean run's
+    ``tests[key]`` (times ``unit`` into SI; absent or NaN when test 2 did not run) added in quadrature: a kinematic
+    relative pose off by ``d`` moves the solution by about ``d``."""
     r = float(np.hypot(level, floor))
     d = tests.get(key)
     return float(np.hypot(r, d * unit / 3)) if d is not None and np.isfinite(d) else r
@@ -379,13 +408,14 @@ def point_protection_radius(covariance, tests: dict, T_site_base, p_site, floor_
     Otherwise as :func:`protection_levels`' radius: the ``1 - INTEGRITY_RISK`` quantile of the error's norm
     (:func:`norm_quantile`) times test 3's inflation ``tests["inflation_chi2"]`` (the covariance as calibrated:
     ``locate_dataset`` applied :data:`KAPPA`), then the floor (default :data:`FLOOR_MM`: the arm's own execution
-    through its calibrated model) and a third of test 2's disagreement in quadrature (:func:`_with_terms`)."""
+    through its calibrated model) and a third of test 2's disagreement beyond a clean run's in quadrature
+    (:func:`_with_terms`)."""
     cov = np.asarray(covariance, float)
     if not np.all(np.isfinite(cov)):
         return float("inf")
     q = norm_quantile(point_covariance(cov, T_site_base, p_site), 1 - INTEGRITY_RISK)
     floor = (FLOOR_MM if floor_mm is None else float(floor_mm)) * 1e-3
-    return _with_terms(float(tests.get("inflation_chi2", 1.0)) * q, floor, tests, "relative_pose_mm", 1e-3)
+    return _with_terms(float(tests.get("inflation_chi2", 1.0)) * q, floor, tests, "relative_pose_excess_mm", 1e-3)
 
 
 def smallest_eigenvalue(covariance) -> float:
@@ -480,15 +510,16 @@ def _tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config,
         d_t, d_r = float(np.linalg.norm(d[3:])), float(np.linalg.norm(d[:3]))
         tests["relative_pose_mm"], tests["relative_pose_deg"] = d_t * 1e3, np.rad2deg(d_r)
         tests["relative_pose_chi2"] = m2
+        ex_mm, ex_deg = relative_pose_excess(d, m2)
+        tests["relative_pose_excess_mm"], tests["relative_pose_excess_deg"] = ex_mm, ex_deg
         raw = d_t * 1e3 > RELATIVE_REFUSE_MM or np.rad2deg(d_r) > RELATIVE_REFUSE_DEG
         what = (f"the locate views' relative pose from the images differs from the joint readings' by "
                 f"{d_t * 1e3:.1f} mm and {np.rad2deg(d_r):.2f} deg, Mahalanobis square {m2:.0f}")
         if raw and m2 > RELATIVE_CHI2_REFUSE:
             refuse.append(f"{what} (limits {RELATIVE_REFUSE_MM:g} mm, {RELATIVE_REFUSE_DEG:g} deg, "
                           f"{RELATIVE_CHI2_REFUSE:.0f})")
-        elif (d_t * 1e3 > RELATIVE_REFUSE_MM / 3 or np.rad2deg(d_r) > RELATIVE_REFUSE_DEG / 3
-              or m2 > RELATIVE_CHI2_WARN):
-            soft.append(what)
+        elif ex_mm > RELATIVE_REFUSE_MM / 3 or ex_deg > RELATIVE_REFUSE_DEG / 3 or m2 > RELATIVE_CHI2_WARN:
+            soft.append(f"{what}; beyond a clean run's {ex_mm:.1f} mm and {ex_deg:.2f} deg")
 
     # --- test 3: reprojection chi-square, locate views vs the survey's own noise -----------------------------------
     sigma_survey = _robust_rms(np.concatenate(survey_res)) if survey_res else float("nan")
@@ -559,12 +590,12 @@ def assess_regions(parts: list, result, focal_px: float, image_size, config: Map
     test-1 warnings (a view against the map), are its own: they refuse or warn the whole, and each region's level is
     in ``regions`` (a caller may leave a refused region out and solve again). The soft tests pool the regions, so
     that more regions do not mean more chances of a false alarm: test 2 on the root mean square of the regions'
-    relative-pose disagreements (an error common to their kinematics shows in every one, their noise averages) and
-    the sum of their Mahalanobis squares (against :data:`RELATIVE_OVERDISPERSION` x chi2 with 6 per region degrees
-    of freedom at 0.99), test 3 on every region's residuals pooled (the locate views' RMS against the survey
-    views'), test 5 on the inliers summed and the largest spread; test 6 on the common solution. The protection
-    levels come from the common covariance with the pooled tests 2 and 3. The statistics are reported per region
-    (``"<region>/<test>"``) and pooled.
+    relative-pose disagreements and of their parts beyond a clean run's (an error common to their kinematics shows
+    in every one, their noise averages) and the sum of their Mahalanobis squares (against
+    :data:`RELATIVE_OVERDISPERSION` x chi2 with 6 per region degrees of freedom at 0.99), test 3 on every region's
+    residuals pooled (the locate views' RMS against the survey views'), test 5 on the inliers summed and the largest
+    spread; test 6 on the common solution. The protection levels come from the common covariance with the pooled
+    tests 2 and 3. The statistics are reported per region (``"<region>/<test>"``) and pooled.
 
     Parameters
     ----------
@@ -578,7 +609,8 @@ def assess_regions(parts: list, result, focal_px: float, image_size, config: Map
         return Integrity("refused", [f"no localisation: {result.message}"],
                          regions={p[0]: "refused" for p in parts})
     refuse, warn, late, tests, regions, region_reasons = [], [], [], {}, {}, {}
-    keys = ("relative_pose_mm", "relative_pose_deg", "relative_pose_chi2", "survey_rms_px", "survey_residuals",
+    keys = ("relative_pose_mm", "relative_pose_deg", "relative_pose_chi2", "relative_pose_excess_mm",
+            "relative_pose_excess_deg", "survey_rms_px", "survey_residuals",
             "locate_rms_px", "locate_residuals", "spread_fraction")
     each = {k: [] for k in keys}
     n_in = n_match = 0
@@ -599,14 +631,18 @@ def assess_regions(parts: list, result, focal_px: float, image_size, config: Map
     # --- test 2 pooled
     ok = np.isfinite(e["relative_pose_mm"])
     if ok.any():
-        d_mm, d_deg = (float(np.sqrt(np.mean(e[k][ok] ** 2))) for k in ("relative_pose_mm", "relative_pose_deg"))
+        rms = {k: float(np.sqrt(np.mean(e[k][ok] ** 2))) for k in ("relative_pose_mm", "relative_pose_deg",
+                                                                    "relative_pose_excess_mm",
+                                                                    "relative_pose_excess_deg")}
         m2 = float(np.sum(e["relative_pose_chi2"][ok]))
-        tests.update(relative_pose_mm=d_mm, relative_pose_deg=d_deg, relative_pose_chi2=m2)
-        limit = RELATIVE_OVERDISPERSION * float(chi2.ppf(0.99, 6 * int(ok.sum())))
-        if d_mm > RELATIVE_REFUSE_MM / 3 or d_deg > RELATIVE_REFUSE_DEG / 3 or m2 > limit:
+        tests.update(rms, relative_pose_chi2=m2)
+        ex_mm, ex_deg = rms["relative_pose_excess_mm"], rms["relative_pose_excess_deg"]
+        limit = RELATIVE_OVERDISPERSION * float(chi2.ppf(0.99, RELATIVE_DOF * int(ok.sum())))
+        if ex_mm > RELATIVE_REFUSE_MM / 3 or ex_deg > RELATIVE_REFUSE_DEG / 3 or m2 > limit:
             soft.append(f"the locate views' relative poses from the images differ from the joint readings' by "
-                        f"{d_mm:.1f} mm and {d_deg:.2f} deg (RMS over {int(ok.sum())} regions), Mahalanobis square "
-                        f"{m2:.0f}")
+                        f"{rms['relative_pose_mm']:.1f} mm and {rms['relative_pose_deg']:.2f} deg (RMS over "
+                        f"{int(ok.sum())} regions), Mahalanobis square {m2:.0f}; beyond a clean run's {ex_mm:.1f} "
+                        f"mm and {ex_deg:.2f} deg")
     # --- test 3 pooled
     for k in ("survey", "locate"):
         rms, n = e[f"{k}_rms_px"], e[f"{k}_residuals"]

@@ -76,6 +76,9 @@ def test_two_regions_are_solved_together_and_tested_each(two_regions, tmp_path):
     assert t["inliers"] == t["r0/inliers"] + t["r1/inliers"] == rep["inliers"]
     assert t["relative_pose_mm"] == pytest.approx(np.hypot(t["r0/relative_pose_mm"], t["r1/relative_pose_mm"])
                                                   / np.sqrt(2), rel=1e-12)
+    for k in ("relative_pose_excess_mm", "relative_pose_excess_deg"):  # the part beyond a clean run's, pooled alike
+        assert t[k] == pytest.approx(np.hypot(t[f"r0/{k}"], t[f"r1/{k}"]) / np.sqrt(2), rel=1e-12)
+        assert 0 <= t[k] <= t[k.replace("excess_", "")]
     n = [t[f"{r}/locate_residuals"] for r in ("r0", "r1")]  # test 3 pooled over the regions
     rms = np.sqrt((n[0] * t["r0/locate_rms_px"] ** 2 + n[1] * t["r1/locate_rms_px"] ** 2) / sum(n))
     assert t["locate_rms_px"] == pytest.approx(rms, rel=1e-12)

@@ -53,11 +53,11 @@ def test_protection_levels_scale_with_kappa_and_the_inflations():
     assert pa1 == pytest.approx(1.5 * I.norm_quantile(cov[:3, :3], p), rel=1e-12)
     pr2, pa2 = I.protection_levels(cov, dict(tests), kappa=2.5, floor_mm=0.0, floor_deg=0.0)
     assert pr2 == pytest.approx(2.5 * pr1) and pa2 == pytest.approx(2.5 * pa1)
-    # the floor and a third of test 2's disagreement: in quadrature
+    # the floor and a third of test 2's disagreement beyond a clean run's: in quadrature (not the raw one)
     pr3, _ = I.protection_levels(cov, dict(tests), kappa=1.0, floor_mm=0.5, floor_deg=0.0)
     assert pr3 == pytest.approx(np.hypot(pr1, 0.5e-3))
-    pr4, pa4 = I.protection_levels(cov, {**tests, "relative_pose_mm": 30.0, "relative_pose_deg": 0.3}, kappa=1.0,
-                                   floor_mm=0.0, floor_deg=0.0)
+    pr4, pa4 = I.protection_levels(cov, {**tests, "relative_pose_excess_mm": 30.0, "relative_pose_excess_deg": 0.3,
+                                         "relative_pose_mm": 90.0}, kappa=1.0, floor_mm=0.0, floor_deg=0.0)
     assert pr4 == pytest.approx(np.hypot(pr1, 0.01)) and pa4 == pytest.approx(np.hypot(pa1, np.deg2rad(0.1)))
     # whiteness is reported, not applied
     pr5, _ = I.protection_levels(cov, {**tests, "whiteness_rho": 0.0}, kappa=1.0, floor_mm=0.0, floor_deg=0.0)
@@ -66,6 +66,33 @@ def test_protection_levels_scale_with_kappa_and_the_inflations():
     I.protection_levels(cov, t)
     assert t["kappa"] == 1.0 and 1.0 < t["q_factor_pos"] < np.sqrt(chi2.ppf(p, 3))
     assert I.protection_levels(np.full((6, 6), np.nan), {}) == (np.inf, np.inf)
+
+
+def test_relative_pose_excess_is_the_james_stein_shrinkage_of_the_disagreement():
+    """Test 2's disagreement beyond a clean run's: nothing at a clean run's significance, nearly all of a far larger
+    one; and, as James-Stein's estimate, closer to the true kinematic error than the raw disagreement in the metric
+    of its covariance (a Monte Carlo over correlated noise, the overdispersion its scale)."""
+    d = np.r_[np.deg2rad([0.3, 0.0, 0.4]), [0.003, 0.0, 0.004]]  # 0.5 deg and 5 mm
+    s2, p = I.RELATIVE_OVERDISPERSION, I.RELATIVE_DOF
+    assert I.relative_pose_excess(d, (p - 2) * s2) == (0.0, 0.0)  # as significant as noise: nothing beyond it
+    assert I.relative_pose_excess(d, 0.5 * (p - 2) * s2) == (0.0, 0.0)
+    mm, deg = I.relative_pose_excess(d, 4 * (p - 2) * s2)
+    assert mm == pytest.approx(0.75 * 5.0, rel=1e-12) and deg == pytest.approx(0.75 * 0.5, rel=1e-12)
+    assert I.relative_pose_excess(d, np.inf) == pytest.approx((5.0, 0.5), rel=1e-12)
+    assert I.relative_pose_excess(d, np.nan) == (0.0, 0.0)
+    rng = np.random.default_rng(7)
+    A = rng.normal(size=(6, 6))
+    C = A @ A.T * 1e-6 + np.diag([1e-6] * 3 + [1e-4] * 3)
+    Ci, L = np.linalg.inv(C), np.linalg.cholesky(s2 * C)
+    for D in (np.zeros(6), L @ rng.normal(size=6), 4 * L @ rng.normal(size=6)):
+        n = rng.normal(size=(4000, 6)) @ L.T
+        d = D + n
+        m2 = np.einsum("ni,ij,nj->n", d, Ci, d)
+        scale = np.clip(1 - (p - 2) * s2 / m2, 0, None)
+        assert np.allclose([I.relative_pose_excess(x, m)[0] for x, m in zip(d[:50], m2[:50], strict=True)],
+                           scale[:50] * np.linalg.norm(d[:50, 3:], axis=1) * 1e3, rtol=1e-12)
+        loss = lambda e: np.mean(np.einsum("ni,ij,nj->n", e, Ci, e))  # noqa: E731
+        assert loss(scale[:, None] * d - D) < loss(d - D)
 
 
 def test_smallest_eigenvalue_flags_a_covariance_that_is_not_positive_definite():
@@ -308,7 +335,7 @@ def test_point_protection_radius_carries_the_base_covariance_to_the_point():
     assert I.point_protection_radius(no_rot, {}, T, p_site, floor_mm=0.0) == pytest.approx(
         I.protection_levels(no_rot, {}, floor_mm=0.0, floor_deg=0.0)[0], rel=1e-12)
     assert r > 1.1 * I.point_protection_radius(no_rot, {}, T, p_site, floor_mm=0.0)
-    assert I.point_protection_radius(cov, {"relative_pose_mm": 3.0}, T, p_site, floor_mm=0.5) == pytest.approx(
+    assert I.point_protection_radius(cov, {"relative_pose_excess_mm": 3.0}, T, p_site, floor_mm=0.5) == pytest.approx(
         np.sqrt(r**2 + 0.5e-3**2 + 1e-3**2), rel=1e-9)
     assert I.point_protection_radius(np.full((6, 6), np.nan), {}, T, p_site) == float("inf")
 
