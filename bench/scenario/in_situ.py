@@ -65,6 +65,7 @@ from bench.robot.kinematics import ee_position, forward_kinematics
 from bench.robot.model import load_robot, random_errors
 from bench.robot.orientation import link5_frame
 from bench.scenario.in_situ_lab import calibrate_lab
+from bench.scenario.plan_memo import memoized
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
 from bench.sim.imaging import draw_true_lens, rig_errors, rig_target_yaml
@@ -426,6 +427,7 @@ def _valve_targets(panel, T_world_panel, cfg) -> list:
             for k in names]
 
 
+@memoized
 def _teach(robot, eps, T_wb1, T_wb2, valves, q_seed, rolls: int = 12):
     """The operator puts the tool on a valve handle at parking 1 (true arm): tool tip O6 on the handle centre, tool
     axis along the valve stem into the panel. Returns the first valve (in ``valves`` order) reachable so at parking 1
@@ -504,6 +506,7 @@ def _rig_views(robot, rig_centre, distance, n, prefix, mount_nominal, role="rig"
     return views, unreachable
 
 
+@memoized
 def _plan(robot, T_world_base, eye_w, target_w, mount, q_seed):
     from bench.sim.views import look_at_configuration
 
