@@ -118,7 +118,7 @@ def relevel(r, kappa: float) -> dict:
     outcomes as the run reported them; only the alert-limit warning depends on the protection levels)."""
     if r.get("integrity") in ("refused", "failed") or not r.get("success"):
         return {"integrity": r.get("integrity"), "pr_mm": r.get("pr_mm"), "pa_deg": r.get("pa_deg")}
-    tests = dict(r["tests"])
+    tests = I.with_relative_pose_excess(r["tests"])  # a locate.json of an earlier version: from its statistics
     pr, pa = I.protection_levels(r["cov"], tests, kappa=kappa)
     other = [x for x in r["reasons"] if "exceeds the alert limit" not in x]
     alert = pr * 1e3 > I.ALERT_MM or np.rad2deg(pa) > I.ALERT_DEG

@@ -268,6 +268,27 @@ def relative_pose_excess(d, m2: float) -> tuple:
     return scale * float(np.linalg.norm(d[3:])) * 1e3, scale * float(np.rad2deg(np.linalg.norm(d[:3])))
 
 
+def with_relative_pose_excess(tests: dict) -> dict:
+    """``tests`` with :func:`relative_pose_excess`'s statistics filled in from the stored disagreement and its
+    Mahalanobis square where a locate.json of an earlier version lacks them (per region, then their root mean
+    square, as :func:`assess_regions` pools them); a copy."""
+    out = dict(tests)
+    regions = sorted({k.split("/")[0] for k in out if k.endswith("/relative_pose_chi2")})
+    for pre in [f"{r}/" for r in regions] or [""]:
+        if f"{pre}relative_pose_excess_mm" in out or not np.isfinite(out.get(f"{pre}relative_pose_chi2", np.nan)):
+            continue
+        m2 = float(out[f"{pre}relative_pose_chi2"])
+        scale = max(0.0, 1.0 - (RELATIVE_DOF - 2) * RELATIVE_OVERDISPERSION / m2) if m2 > 0 else 0.0
+        for u in ("mm", "deg"):
+            out[f"{pre}relative_pose_excess_{u}"] = scale * float(out[f"{pre}relative_pose_{u}"])
+    if regions and "relative_pose_excess_mm" not in out:
+        for u in ("mm", "deg"):
+            v = [out[f"{r}/relative_pose_excess_{u}"] for r in regions if f"{r}/relative_pose_excess_{u}" in out]
+            if v:
+                out[f"relative_pose_excess_{u}"] = float(np.sqrt(np.mean(np.square(v))))
+    return out
+
+
 def free_pose(kmap: KeypointMap, view: ViewObservation, idx_map, idx_view, focal_px: float, seed: int = 0):
     """Single-view pose of ``view`` from its map matches alone (PnP + RANSAC + LM, gate :data:`GATE_PX`).
 

@@ -95,6 +95,33 @@ def test_relative_pose_excess_is_the_james_stein_shrinkage_of_the_disagreement()
         assert loss(scale[:, None] * d - D) < loss(d - D)
 
 
+def test_an_earlier_locate_json_gets_the_excess_from_its_own_statistics():
+    """A locate.json written before relative_pose_excess: its raw disagreement and Mahalanobis square give the same
+    figures (one region, and several pooled by their root mean square); nothing is overwritten."""
+    rng = np.random.default_rng(11)
+    one, pooled = {}, {}
+    for name in ("r0", "r1", "r2"):
+        d = rng.normal(size=6) * np.r_[[0.005] * 3, [0.004] * 3]
+        m2 = float(rng.uniform(20, 400))
+        mm, deg = I.relative_pose_excess(d, m2)
+        pooled.update({f"{name}/relative_pose_mm": np.linalg.norm(d[3:]) * 1e3,
+                       f"{name}/relative_pose_deg": np.rad2deg(np.linalg.norm(d[:3])),
+                       f"{name}/relative_pose_chi2": m2, f"{name}/excess": (mm, deg)})
+        one = {"relative_pose_mm": np.linalg.norm(d[3:]) * 1e3, "relative_pose_deg": np.rad2deg(np.linalg.norm(
+            d[:3])), "relative_pose_chi2": m2}
+    got = I.with_relative_pose_excess(one)
+    assert (got["relative_pose_excess_mm"], got["relative_pose_excess_deg"]) == pytest.approx((mm, deg), rel=1e-12)
+    assert "relative_pose_excess_mm" not in one  # a copy
+    old = {k: v for k, v in pooled.items() if not k.endswith("/excess")}
+    got = I.with_relative_pose_excess(old)
+    for i, u in enumerate(("mm", "deg")):
+        e = [pooled[f"{r}/excess"][i] for r in ("r0", "r1", "r2")]
+        assert got[f"relative_pose_excess_{u}"] == pytest.approx(np.sqrt(np.mean(np.square(e))), rel=1e-12)
+    kept = I.with_relative_pose_excess({**one, "relative_pose_excess_mm": 7.0, "relative_pose_excess_deg": 0.1})
+    assert kept["relative_pose_excess_mm"] == 7.0
+    assert I.with_relative_pose_excess({"chi2_ratio": 1.0}) == {"chi2_ratio": 1.0}  # test 2 did not run
+
+
 def test_smallest_eigenvalue_flags_a_covariance_that_is_not_positive_definite():
     rng = np.random.default_rng(2)
     cov = _cov(rng, 1e-3, 1e-4)
