@@ -41,9 +41,9 @@ by the estimator's measured optimism :data:`KAPPA`), inflated by the chi-square 
 ``1 - INTEGRITY_RISK`` quantile of the error's norm (:func:`norm_quantile`: the exact quantile of a Gaussian's norm,
 not ``k`` times its largest standard deviation); the part of test 2's disagreement beyond a clean run's (a
 kinematic relative pose off by ``d`` moves the solution by about ``d``; a third of it) and a floor for the model
-errors no test here resolves
-(:data:`FLOOR_MM`, :data:`FLOOR_DEG`) are added in quadrature. Residual whiteness (test 4) is reported, not applied:
-over 20 clean seeds it did not predict the covariance's misfit (docs/integrity.md).
+errors no test here resolves (:data:`FLOOR_MM`, :data:`FLOOR_DEG`) are added in quadrature. Residual whiteness
+(test 4) is reported, not applied: over 20 clean seeds it did not predict the covariance's misfit
+(docs/integrity.md).
 """
 
 from __future__ import annotations
@@ -264,8 +264,13 @@ def relative_pose_excess(d, m2: float) -> tuple:
         Its Mahalanobis square (``inf`` counts it whole, NaN not at all).
     """
     d = np.asarray(d, float)
-    scale = max(0.0, 1.0 - (RELATIVE_DOF - 2) * RELATIVE_OVERDISPERSION / m2) if m2 > 0 else 0.0
+    scale = _shrinkage(m2)
     return scale * float(np.linalg.norm(d[3:])) * 1e3, scale * float(np.rad2deg(np.linalg.norm(d[:3])))
+
+
+def _shrinkage(m2: float) -> float:
+    """The positive-part James-Stein factor of :func:`relative_pose_excess` (0 for a NaN square)."""
+    return max(0.0, 1.0 - (RELATIVE_DOF - 2) * RELATIVE_OVERDISPERSION / m2) if m2 > 0 else 0.0
 
 
 def with_relative_pose_excess(tests: dict) -> dict:
@@ -277,8 +282,7 @@ def with_relative_pose_excess(tests: dict) -> dict:
     for pre in [f"{r}/" for r in regions] or [""]:
         if f"{pre}relative_pose_excess_mm" in out or not np.isfinite(out.get(f"{pre}relative_pose_chi2", np.nan)):
             continue
-        m2 = float(out[f"{pre}relative_pose_chi2"])
-        scale = max(0.0, 1.0 - (RELATIVE_DOF - 2) * RELATIVE_OVERDISPERSION / m2) if m2 > 0 else 0.0
+        scale = _shrinkage(float(out[f"{pre}relative_pose_chi2"]))
         for u in ("mm", "deg"):
             out[f"{pre}relative_pose_excess_{u}"] = scale * float(out[f"{pre}relative_pose_{u}"])
     if regions and "relative_pose_excess_mm" not in out:
@@ -652,16 +656,16 @@ def assess_regions(parts: list, result, focal_px: float, image_size, config: Map
     # --- test 2 pooled
     ok = np.isfinite(e["relative_pose_mm"])
     if ok.any():
-        rms = {k: float(np.sqrt(np.mean(e[k][ok] ** 2))) for k in ("relative_pose_mm", "relative_pose_deg",
-                                                                    "relative_pose_excess_mm",
-                                                                    "relative_pose_excess_deg")}
+        pooled = {k: float(np.sqrt(np.mean(e[k][ok] ** 2))) for k in ("relative_pose_mm", "relative_pose_deg",
+                                                                       "relative_pose_excess_mm",
+                                                                       "relative_pose_excess_deg")}
         m2 = float(np.sum(e["relative_pose_chi2"][ok]))
-        tests.update(rms, relative_pose_chi2=m2)
-        ex_mm, ex_deg = rms["relative_pose_excess_mm"], rms["relative_pose_excess_deg"]
+        tests.update(pooled, relative_pose_chi2=m2)
+        ex_mm, ex_deg = pooled["relative_pose_excess_mm"], pooled["relative_pose_excess_deg"]
         limit = RELATIVE_OVERDISPERSION * float(chi2.ppf(0.99, RELATIVE_DOF * int(ok.sum())))
         if ex_mm > RELATIVE_REFUSE_MM / 3 or ex_deg > RELATIVE_REFUSE_DEG / 3 or m2 > limit:
             soft.append(f"the locate views' relative poses from the images differ from the joint readings' by "
-                        f"{rms['relative_pose_mm']:.1f} mm and {rms['relative_pose_deg']:.2f} deg (RMS over "
+                        f"{pooled['relative_pose_mm']:.1f} mm and {pooled['relative_pose_deg']:.2f} deg (RMS over "
                         f"{int(ok.sum())} regions), Mahalanobis square {m2:.0f}; beyond a clean run's {ex_mm:.1f} "
                         f"mm and {ex_deg:.2f} deg")
     # --- test 3 pooled
