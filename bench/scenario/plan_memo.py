@@ -5,7 +5,8 @@ for the taught valve) takes tens of seconds, and runs that differ only in what t
 the imaging, the water, the panel's texture, a budget's switched-off source, a smoke test's second preset - plan the
 same views from the same inputs. Both functions are deterministic (their random starts come from a fixed seed), so a
 result can be reused whenever every input is equal to the bit: the key is the exact bytes of every array argument,
-the robot's every field, and every other argument's ``repr``. A hit returns a deep copy; nothing is approximated.
+the robot's every field, every float's ``hex`` and every other scalar's ``repr``. A hit returns a deep copy; nothing
+is approximated.
 """
 
 from __future__ import annotations
@@ -55,6 +56,10 @@ def memoized(fn):
         memo[key] = copy.deepcopy(out)
         return out
 
+    def memo_clear():
+        memo.clear()
+        stats[:] = [0, 0]
+
     wrapper.memo_info = lambda: tuple(stats)
-    wrapper.memo_clear = lambda: (memo.clear(), stats.__setitem__(slice(None), [0, 0]))
+    wrapper.memo_clear = memo_clear
     return wrapper
