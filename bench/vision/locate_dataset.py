@@ -467,16 +467,17 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     if isinstance(camera, RefractiveCamera):
         res = replace(res, message=f"{res.message}; refractive camera: {passes} pass(es)")
 
-    def calibrated(res, refined):
+    def calibrated(res, refined, n_regions):
         """The estimator's first-order covariance, calibrated by its measured optimism
         (:data:`~bench.vision.integrity.KAPPA`) - of the estimate returned: 'joints' falls back to the thesis's
         'bundle' when the joint bundle fails or is skipped; 'joints' was measured with the lab priors (without them
-        it is unmeasured). Returns ``(result, kappa)``."""
+        it is unmeasured), over one region and over several (``n_regions`` solved together). Returns ``(result,
+        kappa)``."""
         used = ("joints" if refined else "bundle") if refine == "joints" else refine
-        kappa = kappa_of(used, pnp) if used != "joints" or priors is not None else KAPPA_UNMEASURED
+        kappa = kappa_of(used, pnp, n_regions) if used != "joints" or priors is not None else KAPPA_UNMEASURED
         return (replace(res, covariance=kappa**2 * np.asarray(res.covariance, float)) if res.success else res), kappa
 
-    res, kappa = calibrated(res, refined)
+    res, kappa = calibrated(res, refined, len(include))
     t_int = time.perf_counter()
     if len(regions) == 1:
         _, roles = regions[0]
@@ -491,7 +492,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
             held = []
             for k in include:
                 again = combine(per, maps, obs, [i for i in include if i != k])
-                res2, kappa2 = calibrated(again[1], again[2])
+                res2, kappa2 = calibrated(again[1], again[2], len(again[0]))
                 integ2 = _assess_regions(res2, per, again[0], maps, regions, obs, camera, config, seed)
                 if res2.success and integ2.level != "refused":
                     held.append((k, again, res2, kappa2, integ2))

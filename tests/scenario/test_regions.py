@@ -166,3 +166,30 @@ def test_regions_are_checked_before_anything_is_rendered(override, key):
     base = [o for o in TWO if not o.startswith(override.split("=")[0] + "=")]
     with pytest.raises(ConfigError, match=key):  # load_scenario runs the kind's validate
         load_scenario(SCENARIO, seed=3, overrides=[*base, override])
+
+
+def test_the_covariance_of_several_regions_has_its_own_kappa(two_regions, tmp_path):
+    """With the lab priors the joint bundle's covariance is calibrated by its measured optimism: over two regions by
+    KAPPA['joints_regions'] (their feature errors do not average out), over one region by KAPPA['joints'] - also
+    when the second region of a two-region dataset is left out of the solve."""
+    from bench.vision import integrity as I
+    from bench.vision.joint_bundle import priors_yaml_text
+
+    tmp, camera, robot, _ = two_regions
+    priors = tmp_path / "calibration_priors.yaml"  # loose lab covariances: 10 px, 10 mrad, 10 mm
+    priors.write_text(priors_yaml_text(np.eye(4) * 100.0, np.diag([1e-4] * 3 + [1e-4] * 3)))
+    kw = dict(verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3, priors_path=priors)
+    res, rep = locate_dataset(tmp / "ds", None, **kw)
+    assert res.success and "14 views' joints" in res.message
+    assert rep["covariance_kappa"] == I.KAPPA["joints_regions"]
+    _, rep1 = locate_dataset(_only(tmp / "ds", tmp_path / "r0", "r0"), None, **kw)
+    assert rep1["covariance_kappa"] == I.KAPPA["joints"]
+    ds = tmp_path / "ds"  # r1's images swapped: its estimator finds no pose, r0 is solved alone
+    shutil.copytree(tmp / "ds", ds)
+    a, b = ds / "images" / "r1_locate0.png", ds / "images" / "r1_survey02.png"
+    a_bytes = a.read_bytes()
+    a.write_bytes(b.read_bytes())
+    b.write_bytes(a_bytes)
+    res2, rep2 = locate_dataset(ds, None, **kw)
+    assert rep2["regions"]["r1"]["solved"] is False and "7 views' joints" in res2.message
+    assert rep2["covariance_kappa"] == I.KAPPA["joints"]

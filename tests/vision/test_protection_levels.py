@@ -136,6 +136,11 @@ def test_kappa_of_the_estimators():
     assert I.kappa_of("joints") == I.KAPPA["joints"]
     assert I.kappa_of("bundle") == I.KAPPA["bundle"]
     assert I.kappa_of("pose") == I.kappa_of("joints", pnp=True) == I.KAPPA_UNMEASURED == max(I.KAPPA.values())
+    # the joint bundle over several regions has its own (their feature errors do not average out); one is "joints"
+    assert I.kappa_of("joints", regions=4) == I.KAPPA["joints_regions"] > I.KAPPA["joints"]
+    assert I.kappa_of("joints", regions=1) == I.KAPPA["joints"]
+    assert I.kappa_of("bundle", regions=4) == I.KAPPA["bundle"]
+    assert I.kappa_of("joints", pnp=True, regions=4) == I.KAPPA_UNMEASURED
 
 
 def _fake_sweep(tmp_path, rng, n=40, optimism=3.0):
