@@ -41,6 +41,16 @@ def _only(src, dst, region):
     return dst
 
 
+def _r1_images_swapped(src, dst):
+    """A copy of the dataset with the images of region r1's first locate view and its second survey view swapped."""
+    shutil.copytree(src, dst)
+    a, b = dst / "images" / "r1_locate0.png", dst / "images" / "r1_survey02.png"
+    a_bytes = a.read_bytes()
+    a.write_bytes(b.read_bytes())
+    b.write_bytes(a_bytes)
+    return dst
+
+
 def _errors(res, T_true):
     T = res.T_world_base
     return (np.linalg.norm(T[:3, 3] - T_true[:3, 3]) * 1e3,
@@ -101,12 +111,7 @@ def test_a_region_with_swapped_images_adds_nothing(two_regions, tmp_path):
     """An image swapped between two views of region r1: r1's thesis estimator finds no pose (or its tests refuse
     it), and region r0 alone answers, inside its protection radius."""
     tmp, camera, robot, T_true = two_regions
-    ds = tmp_path / "ds"
-    shutil.copytree(tmp / "ds", ds)
-    a, b = ds / "images" / "r1_locate0.png", ds / "images" / "r1_survey02.png"
-    a_bytes = a.read_bytes()
-    a.write_bytes(b.read_bytes())
-    b.write_bytes(a_bytes)
+    ds = _r1_images_swapped(tmp / "ds", tmp_path / "ds")
     res, rep = locate_dataset(ds, None, verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3)
     assert rep["integrity"] != "refused", rep["integrity_reasons"]
     assert rep["integrity_regions"]["r1"] in ("not localised", "left out"), rep["integrity_regions"]
@@ -184,12 +189,7 @@ def test_the_covariance_of_several_regions_has_its_own_kappa(two_regions, tmp_pa
     assert rep["covariance_kappa"] == I.KAPPA["joints_regions"]
     _, rep1 = locate_dataset(_only(tmp / "ds", tmp_path / "r0", "r0"), None, **kw)
     assert rep1["covariance_kappa"] == I.KAPPA["joints"]
-    ds = tmp_path / "ds"  # r1's images swapped: its estimator finds no pose, r0 is solved alone
-    shutil.copytree(tmp / "ds", ds)
-    a, b = ds / "images" / "r1_locate0.png", ds / "images" / "r1_survey02.png"
-    a_bytes = a.read_bytes()
-    a.write_bytes(b.read_bytes())
-    b.write_bytes(a_bytes)
+    ds = _r1_images_swapped(tmp / "ds", tmp_path / "ds")  # r1's estimator finds no pose, r0 is solved alone
     res2, rep2 = locate_dataset(ds, None, **kw)
     assert rep2["regions"]["r1"]["solved"] is False and "7 views' joints" in res2.message
     assert rep2["covariance_kappa"] == I.KAPPA["joints"]
