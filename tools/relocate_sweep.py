@@ -65,7 +65,7 @@ def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None) -> 
                               priors_path=priors if priors.is_file() and pipeline["refine"] == "joints" else None,
                               guided=pipeline.get("guided", False),
                               loss=None if pipeline.get("loss", "none") == "none" else pipeline["loss"],
-                              map_points=pipeline.get("map_points", "all"),
+                              map_points=pipeline.get("map_points", "all"), keypoints=pipeline.get("keypoints", "sift"),
                               pnp=pipeline.get("locate", "two_view") == "pnp", details=details)
 
 

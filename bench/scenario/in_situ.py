@@ -199,6 +199,10 @@ class Pipeline(Section):
         "the map points the joint bundle weighs (refine 'joints'): all of them, or only those both locate views "
         "matched; the others hold the survey views' joints and the shared lens and mount (docs/bounds.md measures "
         "it)")] = "all"
+    keypoints: Annotated[Literal["sift", "aligned"], about(
+        "the keypoints the localisation uses: SIFT's (the thesis's) or aligned - every keypoint matched to its "
+        "region's reference keypoint moved onto the reference's image patch (bench.vision.patch_align; "
+        "docs/integrity.md measures it)")] = "sift"
 
     @model_validator(mode="after")
     def _needs_joints(self):
@@ -1050,7 +1054,7 @@ def run(cfg, out_dir, verbose=True):
                                  robot_path=robot_path, refine=p["refine"], ransac=ransac, details=details,
                                  features_fn=features_fn, priors_path=priors_path, guided=p["guided"],
                                  loss=None if p["loss"] == "none" else p["loss"], map_points=p["map_points"],
-                                 pnp=p["locate"] == "pnp")
+                                 pnp=p["locate"] == "pnp", keypoints=p["keypoints"])
 
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
     T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])

@@ -215,6 +215,36 @@ def _guided_used(kmap, view_a, view_b, used, T_ref_a, T_ref_b, K, dist, camera) 
     return (np.array(both, int), x_a, x_b), radii
 
 
+def _align_keypoints(obs, regions, camera, config) -> tuple:
+    """The observations with every keypoint matched to its region's reference keypoint moved onto the reference's
+    image patch (:mod:`bench.vision.patch_align`), re-normalised through ``camera``; the reference views keep SIFT's
+    keypoints (the anchors). Returns ``(obs, stats)``: ``keypoints_matched`` (view keypoints matched to a reference
+    keypoint), ``keypoints_aligned`` and ``keypoint_shift_median_px`` (the aligned keypoints' move)."""
+    from bench.vision.insitu import view_matches
+    from bench.vision.patch_align import align_view, grey
+
+    out, n_matched, shifts = dict(obs), 0, []
+    cfg = config or MapConfig()
+    for _, roles in regions:
+        ref_view = roles["reference"][0]
+        ref = obs[ref_view.name]
+        img_ref = grey(ref_view.image(expected_size=camera.size))
+        for v in roles["surround"] + roles["locate"]:
+            o = obs[v.name]
+            m = view_matches(ref.features, o.features, cfg)
+            if len(m) < 4:
+                continue
+            uv, al = align_view(img_ref, grey(v.image(expected_size=camera.size)), ref.features.uv, o.features.uv,
+                                m.i1, m.i2, m.distance)
+            n_matched += len(al.ok)
+            shifts.append(al.shift_px[al.ok])
+            f, x_n = normalised(replace(o.features, uv=uv), camera)
+            out[v.name] = replace(o, features=f, x_n=x_n)
+    shift = np.concatenate(shifts) if shifts else np.empty(0)
+    return out, {"keypoints_matched": n_matched, "keypoints_aligned": len(shift),
+                 "keypoint_shift_median_px": float(np.median(shift)) if len(shift) else float("nan")}
+
+
 def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None, guided: bool = False,
                    loss: str | None = None, map_points: str = "all"):
     """The thesis estimator's pose refined by :func:`~bench.vision.joint_bundle.joint_bundle` (joints under the
@@ -378,7 +408,7 @@ def _assess_regions(res, per, include, maps, regions, obs, camera, config, seed)
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
                    seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine="bundle",
                    ransac: dict | None = None, details: dict | None = None, features_fn=None, priors_path=None,
-                   guided: bool = False, loss: str | None = None, map_points: str = "all"):
+                   guided: bool = False, loss: str | None = None, map_points: str = "all", keypoints: str = "sift"):
     """Build the map from the survey views and locate the base from the two ``locate`` views.
 
     ``camera_path`` / ``robot_path`` replace the dataset's own files (e.g. the results of an earlier calibration);
@@ -393,11 +423,16 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     :func:`observe`). ``loss`` (``refine: joints``): the joint bundle's, None (least squares) or ``"huber"``;
     ``map_points`` (``refine: joints``): ``"all"`` (every map point; those the locate views do not see hold the
     survey's joints and the shared camera) or ``"located"`` (only the points both locate views matched).
+    ``keypoints``: ``"sift"`` (SIFT's keypoints, the thesis's) or ``"aligned"`` (every keypoint matched to its
+    region's reference keypoint moved onto the reference's image patch: :func:`_align_keypoints`; not with
+    ``features_fn``, whose keypoints are an oracle's).
     Returns ``(LocateResult, report dict)``; writes ``out/locate.json`` when ``out`` is given.
     """
     t0 = time.perf_counter()
     if map_points not in ("all", "located"):
         raise ConfigError("locate_dataset", "map_points", f"expected 'all' or 'located', got {map_points!r}")
+    if keypoints not in ("sift", "aligned"):
+        raise ConfigError("locate_dataset", "keypoints", f"expected 'sift' or 'aligned', got {keypoints!r}")
     ds = load_dataset(root)
     camera_path = Path(camera_path) if camera_path else ds.camera_path
     robot_path = Path(robot_path) if robot_path else ds.robot_path
@@ -420,6 +455,11 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     obs = {v.name: observe(v, camera, robot, eps, T_link5_cam, features_fn=features_fn)
            for _, roles in regions for r in roles.values() for v in r}
     t_detect = time.perf_counter() - t0
+    align_stats = {}
+    if keypoints == "aligned" and features_fn is None:
+        t = time.perf_counter()
+        obs, align_stats = _align_keypoints(obs, regions, camera, config)
+        align_stats["keypoint_align_s"] = time.perf_counter() - t
     # the joint bundle works in pixels: a refractive camera's coordinates go to it through its virtual pinhole
     pixels_camera = camera.virtual_camera() if isinstance(camera, RefractiveCamera) else camera
 
@@ -510,6 +550,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
             integ.regions.setdefault(name, "not localised")
     if details is not None and thesis is not None:
         details["thesis_result"] = thesis
+    if align_stats:
+        res.timings_s["keypoint_align_s"] = align_stats.pop("keypoint_align_s")
     res.timings_s.update({"detect_s": t_detect, "map_s": t_map, "integrity_s": time.perf_counter() - t_int,
                           "pipeline_total_s": time.perf_counter() - t0})
     kmap, roles = maps[include[0] if include else 0], regions[include[0] if include else 0][1]
@@ -520,7 +562,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     report = {"dataset": str(ds.root), "success": res.success, "message": res.message,
               "map_points": sum(len(m) for m in maps), "map_stats": kmap.stats, "n_matches": res.n_matches,
               "inliers": res.n_inliers, "condition": res.condition, "method": "pnp" if pnp else method,
-              "covariance_kappa": kappa, **integ.report(),
+              "covariance_kappa": kappa, **align_stats, **integ.report(),
               "timings_s": res.timings_s, "tasks": {}}  # no task is offered without a pose
     if len(regions) > 1:
         report["regions"] = {name: {"map_points": len(m), "matches": r.n_matches, "inliers": r.n_inliers,

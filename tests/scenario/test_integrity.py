@@ -283,3 +283,31 @@ def test_map_points_located_against_all_on_a_rendered_dataset(rendered):
     scenario = Path(__file__).resolve().parents[2] / "scenarios" / "ta40_in_situ_manifold.yaml"
     with pytest.raises(BenchError, match=r"pipeline\.map_points: used only by refine 'joints'"):
         load_scenario(scenario, overrides=["pipeline.map_points=located", "pipeline.refine=bundle"])
+
+
+def test_aligned_keypoints_on_a_rendered_dataset(rendered):
+    """pipeline.keypoints: aligned - the survey's and locate views' keypoints moved onto the reference's patches. On
+    a rendered dataset most matched keypoints align, by a fraction of a pixel; the joint bundle's residuals shrink
+    (the views' keypoints then image the same surface points); the pose differs from SIFT's and lies inside its
+    protection radius; an unknown value is refused in one line."""
+    from bench.errors import BenchError
+
+    tmp, camera, robot = rendered
+    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
+    T_true = np.linalg.inv(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
+    kw = dict(verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3)
+    sift, rep_s = locate_dataset(tmp / "ds", None, **kw)
+    aligned, rep_a = locate_dataset(tmp / "ds", None, keypoints="aligned", **kw)
+    assert sift.success and aligned.success and "keypoints_aligned" not in rep_s
+    assert rep_a["keypoints_aligned"] >= 0.5 * rep_a["keypoints_matched"] > 0
+    assert 0 < rep_a["keypoint_shift_median_px"] < 1.0 and rep_a["timings_s"]["keypoint_align_s"] > 0
+    sigma = [float(re.search(r"sigma ([\d.e-]+) px", r.message).group(1)) for r in (sift, aligned)]
+    assert sigma[1] < sigma[0]
+    assert not np.allclose(aligned.T_world_base, sift.T_world_base, rtol=0, atol=1e-9)
+    assert rep_a["integrity"] != "refused", rep_a["integrity_reasons"]
+    assert np.linalg.norm(aligned.T_world_base[:3, 3] - T_true[:3, 3]) * 1e3 <= rep_a["protection_radius_mm"]
+    with pytest.raises(ConfigError, match="keypoints: expected 'sift' or 'aligned'"):
+        locate_dataset(tmp / "ds", None, keypoints="orb", **kw)
+    scenario = Path(__file__).resolve().parents[2] / "scenarios" / "ta40_in_situ_manifold.yaml"
+    with pytest.raises(BenchError, match=r"pipeline\.keypoints"):
+        load_scenario(scenario, overrides=["pipeline.keypoints=orb"])
