@@ -63,6 +63,9 @@ def _parser() -> argparse.ArgumentParser:
                      "bundle's loss, least squares (none) or Huber's M-estimate")
     loc.add_argument("--map-points", choices=("all", "located"), default="all", help="with --refine joints: the "
                      "map points the joint bundle weighs, all or only those both locate views matched")
+    loc.add_argument("--keypoints", choices=("sift", "aligned"), default="sift", help="SIFT's keypoints (the "
+                     "thesis's) or aligned: each matched keypoint moved onto its reference keypoint's image patch "
+                     "(bench.vision.patch_align)")
     loc.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     loc.add_argument("--robot", default=None, help="calibrated robot file (default: the dataset's robot.yaml)")
     loc.add_argument("--camera", default=None, help="calibrated camera file (default: the dataset's camera.yaml)")
@@ -78,6 +81,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="the estimator (as bench locate --refine; default joints, the in-situ scenario's)")
     fa.add_argument("--priors", default=None, help="with --refine joints: the lab's calibration_priors.yaml (default: "
                     "the one calibrated from the dataset; none when --camera / --robot are given without it)")
+    fa.add_argument("--keypoints", choices=("sift", "aligned"), default="sift",
+                    help="the keypoints (as bench locate --keypoints)")
     fa.add_argument("--force", action="store_true", help="replace an earlier output of bench faults in --out")
     cc = sub.add_parser("calibrate-camera", help="corners + calibration (+ OpenCV reference) on a rig dataset or a "
                                                  "plain folder of photos")
@@ -356,13 +361,15 @@ def main(argv=None) -> int:
             res, rep = locate_dataset(args.dataset, args.out, method=args.method, pnp=args.pnp, seed=args.seed,
                                       camera_path=args.camera, robot_path=args.robot, refine=args.refine,
                                       priors_path=args.priors, guided=args.guided,
-                                      loss=None if args.loss == "none" else args.loss, map_points=args.map_points)
+                                      loss=None if args.loss == "none" else args.loss, map_points=args.map_points,
+                                      keypoints=args.keypoints)
             return 0 if res.success and rep["integrity"] != "refused" else 1  # refused: do not use the pose
         elif args.command == "faults":
             from bench.scenario.faults import run_faults
 
             rows = run_faults(args.dataset, args.out, faults=args.fault, seed=args.seed, camera=args.camera,
-                              robot=args.robot, force=args.force, refine=args.refine, priors=args.priors)
+                              robot=args.robot, force=args.force, refine=args.refine, priors=args.priors,
+                              keypoints=args.keypoints)
             return 1 if any(r["silent"] for r in rows) else 0
         elif args.command in _INTERCHANGE:
             return _interchange(args)

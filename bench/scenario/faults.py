@@ -297,13 +297,14 @@ def is_silent(row) -> bool:
 
 
 def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None, force: bool = False,
-               verbose: bool = True, refine: str = "joints", priors=None) -> list:
+               verbose: bool = True, refine: str = "joints", priors=None, keypoints: str = "sift") -> list:
     """Inject each fault into a copy of ``dataset``, localise, score; writes ``out/faults.csv`` and ``faults.json``.
 
     Returns the rows (dicts). ``camera`` / ``robot``: the lab calibration's files (default: calibrated here from the
     dataset's rig views and tracker points, with their ``calibration_priors.yaml``). ``refine`` is the estimator
     (:func:`~bench.vision.locate_dataset.locate_dataset`; default ``joints``, the in-situ kind's, under ``priors``:
-    the lab's priors file, default the one calibrated here; none when the lab files are given without it).
+    the lab's priors file, default the one calibrated here; none when the lab files are given without it);
+    ``keypoints`` SIFT's or aligned ones (as :func:`~bench.vision.locate_dataset.locate_dataset`'s).
     ``out`` is claimed as ``bench faults``' output
     (:func:`bench.fileio.claimed_output_dir`): a foreign folder is refused; ``force`` replaces only an earlier output
     of ``bench faults``.
@@ -326,11 +327,11 @@ def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None
             read_priors(priors)
     # --out: claimed as bench faults' output before any work (bench.fileio); removed again if the run fails
     with claimed_output_dir(out, "faults", force=force, identity=str(dataset.resolve())) as out:
-        rows = _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors)
+        rows = _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors, keypoints)
     return rows
 
 
-def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors) -> list:
+def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors, keypoints) -> list:
     from bench.vision.locate_dataset import locate_dataset
 
     if camera is None or robot is None:
@@ -349,7 +350,7 @@ def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine
         try:
             res, report = locate_dataset(work / "dataset", work, verbose=False, camera_path=cal["camera"],
                                          robot_path=cal["robot"], seed=seed, refine=refine,
-                                         priors_path=priors if refine == "joints" else None)
+                                         priors_path=priors if refine == "joints" else None, keypoints=keypoints)
             T = res.T_world_base
         except ConfigError as exc:  # a fault the dataset loader catches is a refusal with its reason
             report = {"integrity": "refused", "integrity_reasons": [str(exc)], "protection_radius_mm": None,

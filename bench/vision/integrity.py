@@ -101,8 +101,12 @@ REFUSE_CONDITION = 1e8
 #: independent but whose feature errors are not (docs/integrity.md, "The covariance with several regions") - on the
 #: 40 four-region runs of the availability cells (clear and coastal water, 0.5-1.0 m, 2x renders): 1.32 x 1.26, the
 #: further factor two-fold cross-validated at 1.20 / 1.27; ``pose`` / ``none`` / ``pnp`` were not measured and take
-#: the largest measured value.
-KAPPA = {"joints": 1.32, "joints_regions": 1.66, "bundle": 2.89}
+#: the largest measured value. On aligned keypoints (``pipeline.keypoints: aligned``,
+#: :mod:`bench.vision.patch_align`) the joint bundle's pixel noise halves but its error does not, so the same
+#: estimators have their own (docs/integrity.md, "Aligned keypoints"): ``joints_aligned`` on the same 20 seeds,
+#: ``joints_regions_aligned`` on the same 40 runs.
+KAPPA = {"joints": 1.32, "joints_regions": 1.66, "bundle": 2.89, "joints_aligned": 1.81,
+         "joints_regions_aligned": 2.14}
 KAPPA_UNMEASURED = max(KAPPA.values())
 #: Model floor of the protection levels (the residual kinematic calibration error, see the module docstring).
 FLOOR_MM = 0.5
@@ -453,13 +457,14 @@ def smallest_eigenvalue(covariance) -> float:
     return float(np.linalg.eigvalsh(0.5 * (cov + cov.T)).min()) if np.all(np.isfinite(cov)) else float("nan")
 
 
-def kappa_of(refine: str, pnp: bool = False, regions: int = 1) -> float:
+def kappa_of(refine: str, pnp: bool = False, regions: int = 1, keypoints: str = "sift") -> float:
     """The measured covariance optimism :data:`KAPPA` of an estimator (``refine`` mode; PnP: unmeasured); the joint
-    bundle over more than one region of the scene (``regions`` solved together) has its own."""
+    bundle over more than one region of the scene (``regions`` solved together) has its own, and so has each on
+    ``keypoints`` ``"aligned"`` (:mod:`bench.vision.patch_align`; the key's suffix ``_aligned``)."""
     if pnp:
         return KAPPA_UNMEASURED
     key = "joints_regions" if str(refine) == "joints" and int(regions) > 1 else str(refine)
-    return KAPPA.get(key, KAPPA_UNMEASURED)
+    return KAPPA.get(key if keypoints == "sift" else f"{key}_{keypoints}", KAPPA_UNMEASURED)
 
 
 def assess(kmap: KeypointMap, surround: list, view_a: ViewObservation, view_b: ViewObservation, result,

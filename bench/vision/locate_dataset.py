@@ -514,7 +514,9 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         it is unmeasured), over one region and over several (``n_regions`` solved together). Returns ``(result,
         kappa)``."""
         used = ("joints" if refined else "bundle") if refine == "joints" else refine
-        kappa = kappa_of(used, pnp, n_regions) if used != "joints" or priors is not None else KAPPA_UNMEASURED
+        aligned = "aligned" if keypoints == "aligned" and features_fn is None else "sift"
+        kappa = (kappa_of(used, pnp, n_regions, aligned) if used != "joints" or priors is not None else
+                 KAPPA_UNMEASURED)
         return (replace(res, covariance=kappa**2 * np.asarray(res.covariance, float)) if res.success else res), kappa
 
     res, kappa = calibrated(res, refined, len(include))

@@ -285,11 +285,12 @@ def test_map_points_located_against_all_on_a_rendered_dataset(rendered):
         load_scenario(scenario, overrides=["pipeline.map_points=located", "pipeline.refine=bundle"])
 
 
-def test_aligned_keypoints_on_a_rendered_dataset(rendered):
+def test_aligned_keypoints_on_a_rendered_dataset(rendered, capsys, tmp_path):
     """pipeline.keypoints: aligned - the survey's and locate views' keypoints moved onto the reference's patches. On
     a rendered dataset most matched keypoints align, by a fraction of a pixel; the joint bundle's residuals shrink
     (the views' keypoints then image the same surface points); the pose differs from SIFT's and lies inside its
-    protection radius; an unknown value is refused in one line."""
+    protection radius; a duplicated frame is still refused (bench locate --keypoints aligned exits 1); an unknown
+    value is refused in one line."""
     from bench.errors import BenchError
 
     tmp, camera, robot = rendered
@@ -308,6 +309,17 @@ def test_aligned_keypoints_on_a_rendered_dataset(rendered):
     assert np.linalg.norm(aligned.T_world_base[:3, 3] - T_true[:3, 3]) * 1e3 <= rep_a["protection_radius_mm"]
     with pytest.raises(ConfigError, match="keypoints: expected 'sift' or 'aligned'"):
         locate_dataset(tmp / "ds", None, keypoints="orb", **kw)
+    ds = tmp / "dup"
+    if not ds.exists():
+        shutil.copytree(tmp / "ds", ds)
+        F.duplicate_frame(ds, F._site_views(load_dataset(ds)), {}, np.random.default_rng(0))
+    rc = main(["locate", str(ds), "--camera", str(camera), "--robot", str(robot), "--refine", "joints",
+               "--keypoints", "aligned", "--out", str(tmp_path / "loc")])
+    assert rc == 1 and "integrity: REFUSED" in capsys.readouterr().out
+    rows = {r["fault"]: r for r in F.run_faults(tmp / "ds", tmp_path / "faults", faults=["clean", "swap_images"],
+                                                seed=0, camera=camera, robot=robot, verbose=False,
+                                                keypoints="aligned")}
+    assert rows["swap_images"]["integrity"] == "refused" and not any(r["silent"] for r in rows.values())
     scenario = Path(__file__).resolve().parents[2] / "scenarios" / "ta40_in_situ_manifold.yaml"
     with pytest.raises(BenchError, match=r"pipeline\.keypoints"):
         load_scenario(scenario, overrides=["pipeline.keypoints=orb"])

@@ -141,6 +141,10 @@ def test_kappa_of_the_estimators():
     assert I.kappa_of("joints", regions=1) == I.KAPPA["joints"]
     assert I.kappa_of("bundle", regions=4) == I.KAPPA["bundle"]
     assert I.kappa_of("joints", pnp=True, regions=4) == I.KAPPA_UNMEASURED
+    # aligned keypoints (bench.vision.patch_align): their own, measured for the joint bundle; unmeasured otherwise
+    assert I.kappa_of("joints", keypoints="aligned") == I.KAPPA["joints_aligned"]
+    assert I.kappa_of("joints", regions=4, keypoints="aligned") == I.KAPPA["joints_regions_aligned"]
+    assert I.kappa_of("bundle", keypoints="aligned") == I.KAPPA_UNMEASURED
 
 
 def _fake_sweep(tmp_path, rng, n=40, optimism=3.0):
