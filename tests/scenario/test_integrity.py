@@ -110,10 +110,7 @@ def test_guided_matching_grows_the_verified_set_and_stays_inside_its_radius(rend
     """pipeline.guided: the map searched again in both locate views at the joint bundle's poses. The verified
     matches stay (same keypoints), points are added, the message says how many and at what radius, and on this clean
     dataset the estimate is not refused and lies inside its protection radius."""
-    tmp, camera, robot = rendered
-    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
-    T_true = np.linalg.inv(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
-    kw = dict(verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3)
+    tmp, camera, robot, T_true, kw = _joints_setup(rendered)
     plain, _ = locate_dataset(tmp / "ds", None, **kw)
     res, rep = locate_dataset(tmp / "ds", None, guided=True, **kw)
     assert plain.success and res.success and "guided matching (radius" in res.message
@@ -235,6 +232,16 @@ def test_fault_out_uses_the_shared_output_claim(rendered, tmp_path, capsys):
     assert (tmp / "faults" / OUTPUT_MARKER).is_file() and output_marker(tmp / "faults")["command"] == "faults"
 
 
+def _joints_setup(rendered):
+    """``(tmp, camera, robot, T_true, kw)``: the rendered dataset, its oracle files, the true located base (survey
+    base frame) and the keywords of a ``refine: joints`` localisation of it."""
+    tmp, camera, robot = rendered
+    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
+    T_true = np.linalg.inv(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
+    return tmp, camera, robot, T_true, dict(verbose=False, camera_path=camera, robot_path=robot, refine="joints",
+                                            seed=3)
+
+
 def test_huber_loss_on_a_rendered_dataset(rendered):
     """pipeline.loss: huber - the joint bundle's M-estimate on a rendered dataset: a different estimate from least
     squares (the weights act), not refused, inside its protection radius; asked of an estimator without the joint
@@ -242,10 +249,7 @@ def test_huber_loss_on_a_rendered_dataset(rendered):
     from bench.errors import BenchError
     from bench.scenario.runner import load_scenario
 
-    tmp, camera, robot = rendered
-    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
-    T_true = np.linalg.inv(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
-    kw = dict(verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3)
+    tmp, camera, robot, T_true, kw = _joints_setup(rendered)
     plain, _ = locate_dataset(tmp / "ds", None, **kw)
     res, rep = locate_dataset(tmp / "ds", None, loss="huber", **kw)
     assert plain.success and res.success and "joint bundle" in res.message
@@ -264,10 +268,7 @@ def test_map_points_located_against_all_on_a_rendered_dataset(rendered):
     an estimator without the joint bundle, or with an unknown value, refused in one line."""
     from bench.errors import BenchError
 
-    tmp, camera, robot = rendered
-    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
-    T_true = np.linalg.inv(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
-    kw = dict(verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3)
+    tmp, camera, robot, T_true, kw = _joints_setup(rendered)
     located, rep_l = locate_dataset(tmp / "ds", None, map_points="located", **kw)
     every, rep_a = locate_dataset(tmp / "ds", None, **kw)
     assert located.success and every.success
@@ -293,10 +294,7 @@ def test_aligned_keypoints_on_a_rendered_dataset(rendered, capsys, tmp_path):
     value is refused in one line."""
     from bench.errors import BenchError
 
-    tmp, camera, robot = rendered
-    truth = yaml.safe_load((tmp / "ds" / "truth" / "truth.yaml").read_text())
-    T_true = np.linalg.inv(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
-    kw = dict(verbose=False, camera_path=camera, robot_path=robot, refine="joints", seed=3)
+    tmp, camera, robot, T_true, kw = _joints_setup(rendered)
     sift, rep_s = locate_dataset(tmp / "ds", None, **kw)
     aligned, rep_a = locate_dataset(tmp / "ds", None, keypoints="aligned", **kw)
     assert sift.success and aligned.success and "keypoints_aligned" not in rep_s
