@@ -31,8 +31,9 @@ from bench.scenario import faults as F  # noqa: E402
 from bench.vision.locate_dataset import locate_dataset  # noqa: E402
 
 
-def probe(dataset: Path, lab: Path, offsets, seed: int = 0, verbose: bool = True) -> list:
-    """One row per (view, joint, offset): the true errors, the integrity, the protection levels, ``silent``."""
+def probe(dataset: Path, lab: Path, offsets, seed: int = 0, verbose: bool = True, keypoints: str = "sift") -> list:
+    """One row per (view, joint, offset): the true errors, the integrity, the protection levels, ``silent``
+    (``keypoints``: as :func:`~bench.vision.locate_dataset.locate_dataset`'s)."""
     roles = F._site_views(load_dataset(dataset))
     header, rows0 = F._joints(dataset)
     views = [*roles["locate"][:2], roles["surround"][(len(roles["surround"]) - 1) // 2]]
@@ -47,7 +48,7 @@ def probe(dataset: Path, lab: Path, offsets, seed: int = 0, verbose: bool = True
                     F._offset_joint(work, view, j, dq)
                     res, rep = locate_dataset(work, None, verbose=False, camera_path=lab / "camera.yaml",
                                               robot_path=lab / "robot.yaml", seed=seed, refine="joints",
-                                              priors_path=lab / "calibration_priors.yaml")
+                                              priors_path=lab / "calibration_priors.yaml", keypoints=keypoints)
                     row = {"case": f"{view} {header[j]} {dq:+g} deg", **F.score(dataset, rep, res.T_world_base),
                            "integrity": rep["integrity"],
                            "protection_radius_mm": rep["protection_radius_mm"] or float("inf"),
@@ -70,13 +71,14 @@ def main(argv=None) -> int:
     ap.add_argument("--offsets", type=float, nargs="+", default=[0.05, 0.2], help="joint offsets (deg)")
     ap.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     ap.add_argument("--json", type=Path, default=None, help="write the rows here")
+    ap.add_argument("--keypoints", choices=("sift", "aligned"), default="sift", help="as bench locate --keypoints")
     args = ap.parse_args(argv)
     for p in (args.dataset / "truth" / "truth.yaml", *(args.lab / f for f in ("camera.yaml", "robot.yaml",
                                                                                "calibration_priors.yaml"))):
         if not p.is_file():
             print(f"error: {p}: missing", file=sys.stderr)
             return 2
-    rows = probe(args.dataset, args.lab, args.offsets, args.seed)
+    rows = probe(args.dataset, args.lab, args.offsets, args.seed, keypoints=args.keypoints)
     n = sum(r["silent"] for r in rows)
     print(f"{n} silent failures in {len(rows)} cases; worst error among ok: "
           f"{max([r['pos_err_mm'] for r in rows if r['integrity'] == 'ok'] or [np.nan]):.2f} mm")
