@@ -147,6 +147,10 @@ class Pipeline(Section):
         "median (robust) | mean (the thesis's average, Eq. 197 search)")] = "median"
     features: Annotated[Literal[FEATURE_CHOICES], about(
         "sift | corners (rig) | true_projection (INJECTED)")] = "sift"
+    keypoints: Annotated[Literal["sift", "aligned"], about(
+        "features = sift: SIFT's keypoints (the thesis's) or aligned - every view's keypoint matched to a reference "
+        "keypoint moved onto the reference's image patch (bench.vision.patch_align; docs/bounds.md measures it)")] = \
+        "sift"
     corner_extractor: Annotated[Literal[EXTRACTORS], about(
         "features = corners: opencv | thesis | thesis_printed (edge pixels)")] = "opencv"
     calibration_corner_extractor: Annotated[Literal[EXTRACTORS], about(
@@ -174,6 +178,8 @@ class Pipeline(Section):
     @model_validator(mode="after")
     def _bundle(self):
         bad = [x for x in self.bundle_intraocular_mm if not any(abs(x - y) < 1e-9 for y in self.intraocular_mm)]
+        if self.keypoints != "sift" and self.features != "sift":
+            raise KeyProblem("keypoints", f"used only by features 'sift', got features {self.features!r}")
         if self.bundle and bad:
             raise KeyProblem("bundle_intraocular_mm", f"{bad[0]!r} is not among pipeline.intraocular_mm "
                                                       f"({', '.join(f'{y:g}' for y in self.intraocular_mm)})")
@@ -897,6 +903,20 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose, cov_K=None, co
 # ------------------------------------------------------------------------------------------------ run
 
 
+def _aligned(feats, images, ref, p) -> dict:
+    """``pipeline.keypoints: aligned`` - every view's keypoints matched to the reference view's moved onto its
+    patches (:func:`bench.vision.patch_align.align_to_reference`, matched as the experiment's map matches them)."""
+    from bench.vision.insitu import view_matches
+    from bench.vision.patch_align import align_to_reference, grey
+
+    if ref not in feats:
+        return feats
+    cfg = MapConfig(orientation_tol_deg=p["orientation_tol_deg"], gap_max_m=p["gap_mm"] * 1e-3)
+    others = {n: (grey(images[n]), f) for n, f in feats.items() if n != ref}
+    out, _, _ = align_to_reference(grey(images[ref]), feats[ref], others, lambda a, b: view_matches(a, b, cfg))
+    return {ref: feats[ref], **out}
+
+
 def run(cfg, out_dir, verbose=True):
     """Render (cached), calibrate the camera, run the positioning pipeline, score against the truth."""
     out_dir = Path(out_dir)
@@ -946,7 +966,10 @@ def run(cfg, out_dir, verbose=True):
         feats = true_projection_features(truth, names, s["true_projection_points"],
                                          np.random.default_rng((cfg["seed"], 7)), imaging(cfg), reference)
     elif p["features"] == "sift":
-        feats = {v.name: detect_sift(v.image(expected_size=camera.size), channel_order="rgb") for v in views}
+        images = {v.name: v.image(expected_size=camera.size) for v in views}
+        feats = {n: detect_sift(img, channel_order="rgb") for n, img in images.items()}
+        if p["keypoints"] == "aligned":
+            feats = _aligned(feats, images, view_name(p["reference_view"]), p)
     else:
         geometry = load_target(ds.root / "target.yaml")
         feats, lost = {}, []

@@ -217,32 +217,25 @@ def _guided_used(kmap, view_a, view_b, used, T_ref_a, T_ref_b, K, dist, camera) 
 
 def _align_keypoints(obs, regions, camera, config) -> tuple:
     """The observations with every keypoint matched to its region's reference keypoint moved onto the reference's
-    image patch (:mod:`bench.vision.patch_align`), re-normalised through ``camera``; the reference views keep SIFT's
-    keypoints (the anchors). Returns ``(obs, stats)``: ``keypoints_matched`` (view keypoints matched to a reference
-    keypoint), ``keypoints_aligned`` and ``keypoint_shift_median_px`` (the aligned keypoints' move)."""
+    image patch (:func:`bench.vision.patch_align.align_to_reference`), re-normalised through ``camera``; the reference
+    views keep SIFT's keypoints (the anchors). Returns ``(obs, stats)``: ``keypoints_matched`` (view keypoints matched
+    to a reference keypoint), ``keypoints_aligned`` and ``keypoint_shift_median_px`` (the aligned keypoints' move)."""
     from bench.vision.insitu import view_matches
-    from bench.vision.patch_align import align_view, grey
+    from bench.vision.patch_align import align_to_reference, alignment_stats, grey
 
-    out, n_matched, shifts = dict(obs), 0, []
     cfg = config or MapConfig()
+    out, matched, shifts = dict(obs), 0, []
     for _, roles in regions:
-        ref_view = roles["reference"][0]
-        ref = obs[ref_view.name]
-        img_ref = grey(ref_view.image(expected_size=camera.size))
-        for v in roles["surround"] + roles["locate"]:
-            o = obs[v.name]
-            m = view_matches(ref.features, o.features, cfg)
-            if len(m) < 4:
-                continue
-            uv, al = align_view(img_ref, grey(v.image(expected_size=camera.size)), ref.features.uv, o.features.uv,
-                                m.i1, m.i2, m.distance)
-            n_matched += len(al.ok)
-            shifts.append(al.shift_px[al.ok])
-            f, x_n = normalised(replace(o.features, uv=uv), camera)
-            out[v.name] = replace(o, features=f, x_n=x_n)
-    shift = np.concatenate(shifts) if shifts else np.empty(0)
-    return out, {"keypoints_matched": n_matched, "keypoints_aligned": len(shift),
-                 "keypoint_shift_median_px": float(np.median(shift)) if len(shift) else float("nan")}
+        ref = roles["reference"][0]
+        views = {v.name: (grey(v.image(expected_size=camera.size)), obs[v.name].features)
+                 for v in roles["surround"] + roles["locate"]}
+        feats, n, shift = align_to_reference(grey(ref.image(expected_size=camera.size)), obs[ref.name].features,
+                                             views, lambda a, b: view_matches(a, b, cfg))
+        for name, f in feats.items():
+            f, x_n = normalised(f, camera)
+            out[name] = replace(obs[name], features=f, x_n=x_n)
+        matched, shifts = matched + n, [*shifts, shift]
+    return out, alignment_stats(matched, np.concatenate(shifts) if shifts else [])
 
 
 def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None, guided: bool = False,

@@ -233,3 +233,48 @@ def align_view(img_ref, img_view, uv_ref, uv_view, i_ref, i_view, distance=None)
     al = Alignment(np.where(ok[:, None], al.uv, uv[i_view]), ok, al.ncc, al.shift_px, al.iterations, al.sigma_px)
     uv[i_view[ok]] = al.uv[ok]
     return uv, al
+
+
+def align_to_reference(img_ref, f_ref, views: dict, match) -> tuple:
+    """Every view's keypoints matched to the reference's moved onto the reference's patches (:func:`align_view`).
+
+    Parameters
+    ----------
+    img_ref : ndarray (H, W) float32
+        The reference image (:func:`grey`); ``f_ref`` its :class:`~bench.vision.features.Features`.
+    views : dict {name: (image, Features)}
+        The other views: grey image and keypoints.
+    match : callable
+        ``match(f_ref, f_view) -> Matches`` (the caller's matching: ratio test, orientation filter).
+
+    Returns
+    -------
+    features : dict {name: Features}
+        Each view's keypoints, aligned where accepted (the same keypoints, in the same order; a view with fewer
+        than 4 matches as it was).
+    matched : int
+        View keypoints matched to a reference keypoint.
+    shift_px : ndarray (n,)
+        The aligned keypoints' moves (px).
+    """
+    from dataclasses import replace
+
+    out, matched, shifts = {}, 0, []
+    for name, (img, f) in views.items():
+        m = match(f_ref, f)
+        if len(m) < 4:
+            out[name] = f
+            continue
+        uv, al = align_view(img_ref, img, f_ref.uv, f.uv, m.i1, m.i2, m.distance)
+        matched += len(al.ok)
+        shifts.append(al.shift_px[al.ok])
+        out[name] = replace(f, uv=uv)
+    return out, matched, np.concatenate(shifts) if shifts else np.empty(0)
+
+
+def alignment_stats(matched: int, shift_px) -> dict:
+    """``keypoints_matched``, ``keypoints_aligned`` and ``keypoint_shift_median_px`` (the aligned keypoints' median
+    move) of :func:`align_to_reference`'s ``matched`` and ``shift_px``."""
+    shift = np.asarray(shift_px, float)
+    return {"keypoints_matched": int(matched), "keypoints_aligned": len(shift),
+            "keypoint_shift_median_px": float(np.median(shift)) if len(shift) else float("nan")}

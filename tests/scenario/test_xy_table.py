@@ -183,11 +183,19 @@ def test_truth_injection_is_labelled(tmp_path):
     ("pipeline.bundle_distortion_sigma=[0.3, 0.3]", r"pipeline.bundle_distortion_sigma: expected \[\], four"),
     ("pipeline.bundle_intraocular_mm=[55]", r"pipeline.bundle_intraocular_mm: 55 is not among pipeline.intraocular_mm"),
     ("pipeline.bundle_intraocular_mm=[-50]", "pipeline.bundle_intraocular_mm: -50 is not among"),
+    ("pipeline.keypoints=dense", "pipeline.keypoints: expected sift or aligned, got 'dense'"),
 ])
 def test_bad_scenario_keys_are_one_line_errors(override, message, tmp_path):
     """Schema and value checks (the kind's validate()) fail before anything is rendered or created."""
     with pytest.raises(ConfigError, match=message) as exc:
         run_scenario_file(WEBCAM, out=tmp_path / "run", overrides=[override], verbose=False, quiet=True)
+    assert "\n" not in str(exc.value) and not (tmp_path / "run").exists()
+
+
+def test_aligned_keypoints_need_sift(tmp_path):
+    over = ["pipeline.keypoints=aligned", "pipeline.features=true_projection"]
+    with pytest.raises(ConfigError, match="pipeline.keypoints: used only by features 'sift'") as exc:
+        run_scenario_file(WEBCAM, out=tmp_path / "run", overrides=over, verbose=False, quiet=True)
     assert "\n" not in str(exc.value) and not (tmp_path / "run").exists()
 
 
