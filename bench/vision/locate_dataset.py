@@ -504,8 +504,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         """The estimator's first-order covariance, calibrated by its measured optimism
         (:data:`~bench.vision.integrity.KAPPA`) - of the estimate returned: 'joints' falls back to the thesis's
         'bundle' when the joint bundle fails or is skipped; 'joints' was measured with the lab priors (without them
-        it is unmeasured), over one region and over several (``n_regions`` solved together). Returns ``(result,
-        kappa)``."""
+        it is unmeasured), over one region and over several (``n_regions`` solved together), on SIFT's keypoints or
+        aligned ones. Returns ``(result, kappa)``."""
         used = ("joints" if refined else "bundle") if refine == "joints" else refine
         aligned = "aligned" if keypoints == "aligned" and features_fn is None else "sift"
         kappa = (kappa_of(used, pnp, n_regions, aligned) if used != "joints" or priors is not None else
