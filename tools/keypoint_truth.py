@@ -11,7 +11,8 @@ error of a view's keypoint is against the surface point its reference keypoint i
 a map point must agree on. Prints, over the matches whose SIFT error is below 1.5 px (the others are wrong matches,
 which no alignment makes right): the median and RMS error of SIFT's keypoints and of the keypoints the pipeline
 then uses (aligned where the alignment was accepted, SIFT's elsewhere), the share aligned, and how many of the
-keypoints SIFT placed within 0.25 px the alignment moved beyond 0.5 px.
+keypoints SIFT placed within 0.25 px the alignment moved beyond 0.5 px - over every view, the surrounding (survey)
+views and the locate views.
 """
 
 from __future__ import annotations
@@ -30,7 +31,8 @@ sys.path.insert(0, str(ROOT))
 
 
 def errors(sweep: Path, run_id: str, scenario: Path) -> dict:
-    """Per accepted match: ``sift`` and ``used`` errors (px), ``aligned`` (bool) - every region's views pooled."""
+    """Per accepted match: ``sift`` and ``used`` errors (px), ``aligned`` (bool), ``locate`` (bool: a locate view's,
+    else a surrounding view's) - every region's views pooled."""
     from bench.camera.flatport import trace_rays
     from bench.dataset import load_dataset
     from bench.geometry.transforms import invert, transform_points
@@ -59,7 +61,7 @@ def errors(sweep: Path, run_id: str, scenario: Path) -> dict:
     poses = _true_camera_poses(load_robot(Path(cfg["_file"]).parent / cfg["robot"]), truth)
     surface = SceneRays(replay_panel(cfg), np.array(truth["T_world_panel"], float))
     ds = load_dataset(run / "dataset")
-    out = {"sift": [], "used": [], "aligned": []}
+    out = {"sift": [], "used": [], "aligned": [], "locate": []}
     for region in dict.fromkeys(v.region for v in ds.views if v.role == "reference"):
         ref = next(v for v in ds.views if v.role == "reference" and v.region == region)
         img = ref.image()
@@ -84,6 +86,7 @@ def errors(sweep: Path, run_id: str, scenario: Path) -> dict:
             out["sift"].append(np.linalg.norm(f.uv[m.i2[keep]][hit] - true, axis=1))
             out["used"].append(np.linalg.norm(al.uv[hit] - true, axis=1))
             out["aligned"].append(al.ok[hit])
+            out["locate"].append(np.full(int(hit.sum()), v.role == "locate"))
     return {k: np.concatenate(v) if v else np.empty(0) for k, v in out.items()}
 
 
@@ -94,18 +97,21 @@ def main(argv=None) -> int:
     ap.add_argument("scenario", type=Path, nargs="?", default=ROOT / "scenarios" / "ta40_envelope.yaml")
     a = ap.parse_args(argv)
     e = errors(a.sweep, a.run_id, a.scenario)
-    s = e["sift"] < 1.5  # SIFT's inliers; beyond, a wrong match
-    if not s.any():
-        raise SystemExit(f"{a.run_id}: no match within 1.5 px of the truth")
-    sift, used, aligned = e["sift"][s], e["used"][s], e["aligned"][s]
-    print(f"{a.run_id}: {s.sum()} matches within 1.5 px of the truth (of {len(s)}), {aligned.mean() * 100:.0f} % "
-          f"aligned")
-    for name, x in (("SIFT", sift), ("used (aligned where accepted)", used)):
-        print(f"  {name}: median {np.median(x):.3f} px, RMS {np.sqrt(np.mean(x ** 2)):.3f} px, beyond 0.5 px "
-              f"{np.mean(x > 0.5) * 100:.1f} %")
-    good = sift < 0.25
-    print(f"  of the {good.sum()} SIFT placed within 0.25 px, moved beyond 0.5 px: "
-          f"{np.mean(aligned[good] & (used[good] > 0.5)) * 100:.2f} %")
+    for role, sel in (("survey and locate views", np.ones(len(e["sift"]), bool)), ("survey views", ~e["locate"]),
+                      ("locate views", e["locate"])):
+        s = sel & (e["sift"] < 1.5)  # SIFT's inliers; beyond, a wrong match
+        if not s.any():
+            print(f"{a.run_id}, {role}: no match within 1.5 px of the truth")
+            continue
+        sift, used, aligned = e["sift"][s], e["used"][s], e["aligned"][s]
+        print(f"{a.run_id}, {role}: {s.sum()} matches within 1.5 px of the truth (of {sel.sum()}), "
+              f"{aligned.mean() * 100:.0f} % aligned")
+        for name, x in (("SIFT", sift), ("used (aligned where accepted)", used)):
+            print(f"  {name}: median {np.median(x):.3f} px, RMS {np.sqrt(np.mean(x ** 2)):.3f} px, beyond 0.5 px "
+                  f"{np.mean(x > 0.5) * 100:.1f} %")
+        good = sift < 0.25
+        print(f"  of the {good.sum()} SIFT placed within 0.25 px, moved beyond 0.5 px: "
+              f"{np.mean(aligned[good] & (used[good] > 0.5)) * 100:.2f} %")
     return 0
 
 
