@@ -43,9 +43,10 @@ ITERATIONS = 30
 CONVERGED_PX = 1e-3
 #: accepted alignments: normalised cross-correlation of the aligned patches, the aligned position's largest standard
 #: deviation (px) and the largest move from SIFT's keypoint. Measured against the truth on a 0.5 m envelope run
-#: (docs/integrity.md): of the keypoints SIFT placed within 0.25 px, 1.6 % were moved beyond 0.5 px with the
-#: correlation alone (>= 0.8), 0.2 % with these; such moves correlate at 0.95 (median) against 0.99 and have a
-#: standard deviation of 0.12 px (median) against 0.035 px - an edge or a repeated texture the patch slides along.
+#: (docs/integrity.md): 1.6 % of the matches were keypoints SIFT placed within 0.25 px that the alignment moved beyond
+#: 0.5 px with the correlation alone (>= 0.8), 0.2 % with these; such moves correlate at 0.95 (median) against 0.99
+#: and have a standard deviation of 0.12 px (median) against 0.035 px - an edge or a repeated texture the patch
+#: slides along.
 MIN_NCC = 0.9
 MAX_SIGMA_PX = 0.08
 MAX_SHIFT_PX = 2.0
