@@ -903,15 +903,14 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose, cov_K=None, co
 # ------------------------------------------------------------------------------------------------ run
 
 
-def _aligned(feats, images, ref, p) -> dict:
+def _aligned(feats, images, ref, cfg: MapConfig) -> dict:
     """``pipeline.keypoints: aligned`` - every view's keypoints matched to the reference view's moved onto its
-    patches (:func:`bench.vision.patch_align.align_to_reference`, matched as the experiment's map matches them)."""
+    patches (:func:`bench.vision.patch_align.align_to_reference`, matched as the experiment's map ``cfg``)."""
     from bench.vision.insitu import view_matches
     from bench.vision.patch_align import align_to_reference, grey
 
     if ref not in feats:
         return feats
-    cfg = MapConfig(orientation_tol_deg=p["orientation_tol_deg"], gap_max_m=p["gap_mm"] * 1e-3)
     others = {n: (grey(images[n]), f) for n, f in feats.items() if n != ref}
     out, _, _ = align_to_reference(grey(images[ref]), feats[ref], others, lambda a, b: view_matches(a, b, cfg))
     return {ref: feats[ref], **out}
@@ -956,6 +955,7 @@ def run(cfg, out_dir, verbose=True):
     t1 = time.perf_counter()
     views = table_views(ds)
     names = [v.name for v in views]
+    map_cfg = MapConfig(orientation_tol_deg=p["orientation_tol_deg"], gap_max_m=p["gap_mm"] * 1e-3)
     if p["features"] == "true_projection":
         injected.append("features")
         reference = replay_reference_object(cfg, truth) if s["reference_object"] == "robot" else None
@@ -969,7 +969,7 @@ def run(cfg, out_dir, verbose=True):
         images = {v.name: v.image(expected_size=camera.size) for v in views}
         feats = {n: detect_sift(img, channel_order="rgb") for n, img in images.items()}
         if p["keypoints"] == "aligned":
-            feats = _aligned(feats, images, view_name(p["reference_view"]), p)
+            feats = _aligned(feats, images, view_name(p["reference_view"]), map_cfg)
     else:
         geometry = load_target(ds.root / "target.yaml")
         feats, lost = {}, []
@@ -997,7 +997,7 @@ def run(cfg, out_dir, verbose=True):
         reference=ref, intraocular_mm=tuple(float(d) for d in p["intraocular_mm"]),
         map_min_baseline_m=p["map_min_baseline_mm"] * 1e-3,
         map_exclude=tuple(view_name(n) for n in cfg["pipeline"]["map_exclude"]),
-        map=MapConfig(orientation_tol_deg=p["orientation_tol_deg"], gap_max_m=p["gap_mm"] * 1e-3),
+        map=map_cfg,
         ransac_iterations=p["ransac_iterations"], d_r_m=p["d_r_mm"] * 1e-3, r_lim=p["r_lim"],
         bias_refine=p["bias_refine"], bias_depth_statistic=p["bias_depth_statistic"], seed=cfg["seed"],
         methods=THESIS_METHODS + (("bundle",) if p["bundle"] else ()),

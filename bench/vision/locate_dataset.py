@@ -219,12 +219,13 @@ def _align_keypoints(obs, regions, camera, config) -> tuple:
     """The observations with every keypoint matched to its region's reference keypoint moved onto the reference's
     image patch (:func:`bench.vision.patch_align.align_to_reference`), re-normalised through ``camera``; the reference
     views keep SIFT's keypoints (the anchors). Returns ``(obs, stats)``: ``keypoints_matched`` (view keypoints matched
-    to a reference keypoint), ``keypoints_aligned`` and ``keypoint_shift_median_px`` (the aligned keypoints' move)."""
+    to a reference keypoint), ``keypoints_aligned`` and ``keypoint_shift_median_px`` (the aligned keypoints' median
+    move)."""
     from bench.vision.insitu import view_matches
-    from bench.vision.patch_align import align_to_reference, alignment_stats, grey
+    from bench.vision.patch_align import align_to_reference, grey
 
     cfg = config or MapConfig()
-    out, matched, shifts = dict(obs), 0, []
+    out, matched, shifts = dict(obs), 0, [np.empty(0)]
     for _, roles in regions:
         ref = roles["reference"][0]
         views = {v.name: (grey(v.image(expected_size=camera.size)), obs[v.name].features)
@@ -235,7 +236,9 @@ def _align_keypoints(obs, regions, camera, config) -> tuple:
             f, x_n = normalised(f, camera)
             out[name] = replace(obs[name], features=f, x_n=x_n)
         matched, shifts = matched + n, [*shifts, shift]
-    return out, alignment_stats(matched, np.concatenate(shifts) if shifts else [])
+    shift = np.concatenate(shifts)
+    return out, {"keypoints_matched": matched, "keypoints_aligned": len(shift),
+                 "keypoint_shift_median_px": float(np.median(shift)) if len(shift) else float("nan")}
 
 
 def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None, guided: bool = False,
@@ -448,11 +451,11 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     obs = {v.name: observe(v, camera, robot, eps, T_link5_cam, features_fn=features_fn)
            for _, roles in regions for r in roles.values() for v in r}
     t_detect = time.perf_counter() - t0
-    align_stats = {}
-    if keypoints == "aligned" and features_fn is None:
-        t = time.perf_counter()
+    aligned = keypoints == "aligned" and features_fn is None  # an oracle's features are where they belong
+    align_stats, timing = {}, {}
+    if aligned:
         obs, align_stats = _align_keypoints(obs, regions, camera, config)
-        align_stats["keypoint_align_s"] = time.perf_counter() - t
+        timing["keypoint_align_s"] = time.perf_counter() - t0 - t_detect
     # the joint bundle works in pixels: a refractive camera's coordinates go to it through its virtual pinhole
     pixels_camera = camera.virtual_camera() if isinstance(camera, RefractiveCamera) else camera
 
@@ -507,9 +510,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         it is unmeasured), over one region and over several (``n_regions`` solved together), on SIFT's keypoints or
         aligned ones. Returns ``(result, kappa)``."""
         used = ("joints" if refined else "bundle") if refine == "joints" else refine
-        aligned = "aligned" if keypoints == "aligned" and features_fn is None else "sift"
-        kappa = (kappa_of(used, pnp, n_regions, aligned) if used != "joints" or priors is not None else
-                 KAPPA_UNMEASURED)
+        kappa = (kappa_of(used, pnp, n_regions, "aligned" if aligned else "sift")
+                 if used != "joints" or priors is not None else KAPPA_UNMEASURED)
         return (replace(res, covariance=kappa**2 * np.asarray(res.covariance, float)) if res.success else res), kappa
 
     res, kappa = calibrated(res, refined, len(include))
@@ -545,9 +547,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
             integ.regions.setdefault(name, "not localised")
     if details is not None and thesis is not None:
         details["thesis_result"] = thesis
-    if align_stats:
-        res.timings_s["keypoint_align_s"] = align_stats.pop("keypoint_align_s")
-    res.timings_s.update({"detect_s": t_detect, "map_s": t_map, "integrity_s": time.perf_counter() - t_int,
+    res.timings_s.update({"detect_s": t_detect, **timing, "map_s": t_map, "integrity_s": time.perf_counter() - t_int,
                           "pipeline_total_s": time.perf_counter() - t0})
     kmap, roles = maps[include[0] if include else 0], regions[include[0] if include else 0][1]
     if details is not None:

@@ -24,11 +24,13 @@ image keeps SIFT's position (a wrong match does not correlate: it is left to RAN
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
+
+from bench.vision.features import _grey
 
 #: the patch's half size (px, in the reference image)
 HALF_PX = 8
@@ -68,12 +70,9 @@ class Alignment:
 
 
 def grey(image) -> np.ndarray:
-    """``float32 (H, W)`` intensities of an RGB ``(H, W, 3)`` or grey ``(H, W)`` image, as the SIFT detector sees
-    it."""
-    img = np.asarray(image)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-    return img.astype(np.float32)
+    """``float32 (H, W)`` intensities of an RGB(A) or grey image as :func:`~bench.vision.features.detect_sift` sees
+    it (the same conversion)."""
+    return _grey(image, channel_order="rgb").astype(np.float32)
 
 
 def local_affines(uv_ref, uv_view, neighbours: int = NEIGHBOURS, gate_px: float = AFFINE_GATE_PX) -> tuple:
@@ -258,8 +257,6 @@ def align_to_reference(img_ref, f_ref, views: dict, match) -> tuple:
     shift_px : ndarray (n,)
         The aligned keypoints' moves (px).
     """
-    from dataclasses import replace
-
     out, matched, shifts = {}, 0, []
     for name, (img, f) in views.items():
         m = match(f_ref, f)
@@ -272,10 +269,3 @@ def align_to_reference(img_ref, f_ref, views: dict, match) -> tuple:
         out[name] = replace(f, uv=uv)
     return out, matched, np.concatenate(shifts) if shifts else np.empty(0)
 
-
-def alignment_stats(matched: int, shift_px) -> dict:
-    """``keypoints_matched``, ``keypoints_aligned`` and ``keypoint_shift_median_px`` (the aligned keypoints' median
-    move) of :func:`align_to_reference`'s ``matched`` and ``shift_px``."""
-    shift = np.asarray(shift_px, float)
-    return {"keypoints_matched": int(matched), "keypoints_aligned": len(shift),
-            "keypoint_shift_median_px": float(np.median(shift)) if len(shift) else float("nan")}
