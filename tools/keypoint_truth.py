@@ -43,7 +43,7 @@ def errors(sweep: Path, run_id: str, scenario: Path) -> dict:
     from bench.scenario.scene_points import SceneRays
     from bench.vision.features import detect_sift
     from bench.vision.insitu import MapConfig, view_matches
-    from bench.vision.patch_align import align_view, grey
+    from bench.vision.patch_align import align_view, grey, unique_matches
 
     con = sqlite3.connect(sweep / "sweep.sqlite")
     try:
@@ -73,8 +73,7 @@ def errors(sweep: Path, run_id: str, scenario: Path) -> dict:
             if len(m) < 4:
                 continue
             uv, al = align_view(g_ref, grey(img), f_ref.uv, f.uv, m.i1, m.i2, m.distance)
-            order = np.argsort(m.distance, kind="stable")  # the matches align_view kept, in its order
-            keep = np.sort(order[np.unique(m.i2[order], return_index=True)[1]])
+            keep = unique_matches(m.i2, m.distance)  # the matches align_view kept, in its order
             dirs = lens.unproject(f_ref.uv[m.i1[keep]])
             origins = np.zeros_like(dirs)
             if port is not None:

@@ -214,6 +214,14 @@ def _weighted_ncc(a, b, w) -> np.ndarray:
         return np.where(den > 0, (w * da * db).sum(axis=1) / den, 0.0)
 
 
+def unique_matches(i_view, distance=None) -> np.ndarray:
+    """Indices (in their order) of the matches :func:`align_view` keeps: per view keypoint ``i_view`` the match of the
+    smallest descriptor ``distance`` (the first one without it)."""
+    i_view = np.asarray(i_view, int)
+    order = np.argsort(distance, kind="stable") if distance is not None else np.arange(len(i_view))
+    return np.sort(order[np.unique(i_view[order], return_index=True)[1]])
+
+
 def align_view(img_ref, img_view, uv_ref, uv_view, i_ref, i_view, distance=None) -> tuple:
     """The view's keypoints ``uv_view`` (N, 2) with those matched to reference keypoints moved onto them.
 
@@ -221,11 +229,8 @@ def align_view(img_ref, img_view, uv_ref, uv_view, i_ref, i_view, distance=None)
     the match of the smaller descriptor ``distance`` (the first one without it). Returns ``(uv, alignment)``: the
     keypoints (a copy) and the :class:`Alignment` of the matches kept (in their order).
     """
-    i_ref, i_view = np.asarray(i_ref, int), np.asarray(i_view, int)
-    order = np.argsort(distance, kind="stable") if distance is not None else np.arange(len(i_view))
-    _, first = np.unique(i_view[order], return_index=True)
-    keep = np.sort(order[first])
-    i_ref, i_view = i_ref[keep], i_view[keep]
+    keep = unique_matches(i_view, distance)
+    i_ref, i_view = np.asarray(i_ref, int)[keep], np.asarray(i_view, int)[keep]
     uv = np.array(uv_view, float, copy=True).reshape(-1, 2)
     A, fit = local_affines(np.asarray(uv_ref, float)[i_ref], uv[i_view])
     al = align(img_ref, img_view, np.asarray(uv_ref, float)[i_ref], uv[i_view], A)
