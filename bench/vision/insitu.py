@@ -247,6 +247,10 @@ class LocateResult:
         Condition number of the final alignment (large = ill-conditioned; reported, and warned in ``message``).
     n_matches, n_inliers : int
     timings_s : dict
+    pose_condition : float
+        When the joint bundle refined the pose (``locate_dataset``, refine ``joints``): the condition of the pose it
+        solved, where its points are (:func:`bench.vision.integrity.pose_condition`); NaN otherwise. ``condition``
+        then stays the thesis estimate's that started it.
     """
 
     success: bool
@@ -265,6 +269,7 @@ class LocateResult:
     #: observed (normalized keypoints), after RANSAC and the reprojection gate; :func:`locate_pnp`: its inliers in
     #: view a, ``x_b`` None
     used: tuple | None = None
+    pose_condition: float = float("nan")
 
 
 def baseline_check(baseline_m: float, depth_m: float, focal_px: float, resolution_m: float) -> tuple:

@@ -257,6 +257,7 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
     estimate used (the result's own ``used`` is the first region's)."""
     from bench.camera.model import distort, to_pixels
     from bench.geometry.transforms import invert, transform_points
+    from bench.vision.integrity import pose_condition
     from bench.vision.joint_bundle import joint_bundle, observations_of
 
     useds = [u for _, _, u in parts]
@@ -276,12 +277,13 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
             point.append(pt + sum(len(p) for p in X))
             uv.append(to_pixels(distort(x, camera.dist), camera.K))  # the keypoints as detected (x: undistorted)
             X.append(transform_points(kmap.T_world_ref, kmap.p_ref[idx]))
+        X = np.concatenate(X)
         return joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, T_start, np.concatenate(view),
-                            np.concatenate(point), np.concatenate(uv), np.concatenate(X), sigma_enc, 0.1, camera.K,
-                            camera.dist, **(priors or {}), loss=loss)  # 0.1 px: a start
+                            np.concatenate(point), np.concatenate(uv), X, sigma_enc, 0.1, camera.K, camera.dist,
+                            **(priors or {}), loss=loss), X  # 0.1 px: a start
 
     try:
-        jb = bundle(useds, res.T_world_base)
+        jb, X = bundle(useds, res.T_world_base)
     except (ValueError, np.linalg.LinAlgError) as exc:
         return replace(res, message=f"{res.message}; joint bundle skipped ({exc})"), False, useds
     res.timings_s["joint_bundle_s"] = time.perf_counter() - t0
@@ -310,18 +312,20 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
                 f"both locate views (verified {n_used})")
         if n_grown > n_used:
             try:
-                jb2 = bundle(grown, jb.T_site_base)
+                jb2, X2 = bundle(grown, jb.T_site_base)
             except (ValueError, np.linalg.LinAlgError) as exc:
                 jb2, note = None, f"{note}, bundle skipped ({exc})"
             if jb2 is not None and not jb2.success:
                 note = f"{note}, bundle skipped ({jb2.message})"
             elif jb2 is not None:
-                jb, useds = jb2, grown
+                jb, useds, X = jb2, grown, X2
         res.timings_s["guided_s"] = time.perf_counter() - t1
     kmap, roles, _ = parts[0]
     T_ref_a = invert(kmap.T_world_ref) @ jb.T_site_base @ obs[roles["locate"][0].name].T_base_cam
+    # test 6 then weighs the geometry of the pose the joint bundle solved, not the condition of the start's system
+    cond = pose_condition(jb.covariance, jb.T_site_base, X)
     return replace(res, message=f"{res.message}; {jb.message[4:]}{note}", T_world_base=jb.T_site_base,
-                   T_ref_cam=T_ref_a, covariance=jb.covariance, used=useds[0]), True, useds
+                   T_ref_cam=T_ref_a, covariance=jb.covariance, pose_condition=cond, used=useds[0]), True, useds
 
 
 def _regions(ds, pnp: bool, refine: str) -> list:

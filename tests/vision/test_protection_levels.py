@@ -132,6 +132,53 @@ def test_smallest_eigenvalue_flags_a_covariance_that_is_not_positive_definite():
     assert np.isnan(I.smallest_eigenvalue(np.full((6, 6), np.nan)))
 
 
+def _points_pose_covariance(p, t_base, sigma_m=1e-4):
+    """The first-order covariance of a base pose (rotation vector, origin) that the points ``p`` (N, 3) fix, each
+    seen with isotropic noise ``sigma_m``: a pose error ``(w, v)`` moves a point by ``w x (p - t) + v``."""
+    from bench.geometry.transforms import skew
+
+    info = np.zeros((6, 6))
+    for x in p:
+        J = np.hstack([-skew(x - t_base), np.eye(3)])
+        info += J.T @ J / sigma_m**2
+    return np.linalg.inv(info)
+
+
+def test_pose_condition_is_the_geometry_of_the_points_not_the_lever_arm_or_units():
+    rng = np.random.default_rng(5)
+    spread = rng.normal(size=(200, 3)) * [0.2, 0.2, 0.2] + [0.3, -0.1, 1.4]  # a cloud 1.4 m ahead
+    T_near, T_far = np.eye(4), homogeneous(rotation_vector_to_matrix([0.1, -0.2, 0.3]), [-2.0, 1.0, -1.5])
+    c_near = I.pose_condition(_points_pose_covariance(spread, T_near[:3, 3]), T_near, spread)
+    c_far = I.pose_condition(_points_pose_covariance(spread, T_far[:3, 3]), T_far, spread)
+    assert c_near == pytest.approx(c_far, rel=1e-9)  # the same geometry seen from another base origin
+    assert c_near < 10  # an isotropic cloud fixes every direction alike (the rotation at its RMS radius)
+    # noise and units: a uniform scale of the covariance changes nothing
+    assert I.pose_condition(4 * _points_pose_covariance(spread, T_near[:3, 3]), T_near, spread) == pytest.approx(c_near)
+    # degenerate geometry: points nearly collinear give a condition in the thousands and beyond
+    line = np.outer(rng.uniform(-0.3, 0.3, 50), [1.0, 0.2, 0.0]) + [0.3, -0.1, 1.4] + rng.normal(size=(50, 3)) * 1e-4
+    assert I.pose_condition(_points_pose_covariance(line, T_near[:3, 3]), T_near, line) > 1e4 * c_near
+    assert np.isnan(I.pose_condition(np.full((6, 6), np.nan), T_near, spread))
+    assert np.isnan(I.pose_condition(np.eye(6), T_near, spread[:2]))
+
+
+def test_conditioning_weighs_the_joint_bundles_pose_not_its_start():
+    from types import SimpleNamespace
+
+    def run(condition, pose_condition):
+        tests, refuse = {}, []
+        warn = I._conditioning(SimpleNamespace(condition=condition, pose_condition=pose_condition), tests, refuse)
+        return warn, refuse, tests
+
+    # the joint bundle refined the pose: its own condition decides, the start's (2e4, beyond the thesis's limit) not
+    assert run(2e4, 50.0)[:2] == ([], [])
+    warn, refuse, tests = run(10.0, 5e4)
+    assert refuse == [] and len(warn) == 1 and "joint bundle" in warn[0] and tests["pose_condition"] == 5e4
+    assert run(10.0, 1e9)[1] and run(10.0, float("inf"))[1]  # points collinear, or a singular covariance
+    # the thesis estimator alone (no joint bundle): its own condition, with its own limits
+    assert run(2e4, float("nan"))[0] and not run(2e4, float("nan"))[1]
+    assert run(2e8, float("nan"))[1]
+    assert run(50.0, float("nan"))[:2] == ([], []) and "pose_condition" not in run(50.0, float("nan"))[2]
+
 def test_kappa_of_the_estimators():
     assert I.kappa_of("joints") == I.KAPPA["joints"]
     assert I.kappa_of("bundle") == I.KAPPA["bundle"]
