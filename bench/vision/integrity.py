@@ -93,8 +93,9 @@ WARN_INLIERS = 30
 WARN_INLIER_FRACTION = 0.3
 WARN_SPREAD = 0.05
 #: Conditioning (test 6): warning / refused beyond - the thesis estimator's condition number, or the joint bundle's
-#: :func:`pose_condition` (15-461 over 180 clean runs: one region and four, 0.5-1.0 m; docs/integrity.md, "The
-#: conditioning test"; it grows as (depth / spread)^2, so 1e4 is a point spread ~5x narrower than any of theirs)
+#: :func:`pose_condition` (15-633 over 263 clean localisations: one region and four, 0.5-1.0 m; docs/integrity.md,
+#: "The conditioning test of the joint bundle"; it grows as (depth / spread)^2, so 1e4 is a point spread ~4x
+#: narrower than any of theirs)
 WARN_CONDITION = 1e4
 REFUSE_CONDITION = 1e8
 #: Optimism of each estimator's first-order covariance (``refine`` mode: its standard deviations times this), fitted
