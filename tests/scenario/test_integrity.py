@@ -21,7 +21,7 @@ from bench.geometry.transforms import rotation_angle  # noqa: E402
 from bench.robot.calibration_file import load_calibrated_robot, write_calibrated_robot  # noqa: E402
 from bench.scenario import faults as F  # noqa: E402
 from bench.scenario.runner import kind_module, load_scenario  # noqa: E402
-from bench.vision.integrity import _whiteness  # noqa: E402
+from bench.vision.integrity import WARN_CONDITION, _whiteness  # noqa: E402
 from bench.vision.locate_dataset import locate_dataset  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -104,6 +104,7 @@ def test_protection_levels_need_no_truth(rendered, tmp_path):
     _, b = locate_dataset(tmp_path / "ds", None, verbose=False, camera_path=camera, robot_path=robot)
     for k in ("integrity", "integrity_reasons", "protection_radius_mm", "protection_angle_deg", "integrity_tests"):
         assert a[k] == b[k], k
+    assert "pose_condition" not in a["integrity_tests"]  # no joint bundle: test 6 weighs the thesis estimate's
 
 
 def test_guided_matching_grows_the_verified_set_and_stays_inside_its_radius(rendered):
@@ -278,6 +279,9 @@ def test_map_points_located_against_all_on_a_rendered_dataset(rendered):
     assert np.trace(every.covariance[3:, 3:]) < np.trace(located.covariance[3:, 3:])
     for res, rep in ((located, rep_l), (every, rep_a)):
         assert rep["integrity"] != "refused", rep["integrity_reasons"]
+        # test 6 weighs the joint bundle's own solution: a clean dataset is far from ill-conditioned
+        pc = rep["integrity_tests"]["pose_condition"]
+        assert pc == res.pose_condition and 1.0 <= pc < WARN_CONDITION / 10
         assert np.linalg.norm(res.T_world_base[:3, 3] - T_true[:3, 3]) * 1e3 <= rep["protection_radius_mm"]
     with pytest.raises(ConfigError, match="map_points: expected 'all' or 'located'"):
         locate_dataset(tmp / "ds", None, map_points="some", **kw)
