@@ -431,9 +431,14 @@ def _with_terms(level: float, floor: float, tests: dict, key: str, unit: float) 
 def point_covariance(covariance, T_site_base, p_site) -> np.ndarray:
     """The covariance (3, 3) of a point ``p_site`` the located base ``T_site_base`` carries: a base pose error
     ``(w, v)`` (left perturbation: rotation vector, then the base origin; the order of ``covariance`` (6, 6)) moves
-    it by ``w x (p - t) + v``, so ``J C J^T`` with ``J = [-[p - t]x, I]``."""
-    J = np.hstack([-skew(np.asarray(p_site, float) - np.asarray(T_site_base, float)[:3, 3]), np.eye(3)])
+    it by ``w x (p - t) + v``, so ``J C J^T`` with ``J = [-[p - t]x, I]`` (:func:`_point_jacobian`)."""
+    J = _point_jacobian(T_site_base, p_site)
     return J @ np.asarray(covariance, float) @ J.T
+
+
+def _point_jacobian(T_site_base, p_site) -> np.ndarray:
+    """``J = [-[p - t]x, I]`` (3, 6): how a base pose error ``(w, v)`` moves the point ``p_site`` it carries."""
+    return np.hstack([-skew(np.asarray(p_site, float) - np.asarray(T_site_base, float)[:3, 3]), np.eye(3)])
 
 
 def point_protection_radius(covariance, tests: dict, T_site_base, p_site, floor_mm: float | None = None) -> float:
@@ -468,8 +473,7 @@ def pose_condition(covariance, T_site_base, p_site) -> float:
         return float("nan")
     c = p.mean(axis=0)
     spread = float(np.sqrt(np.mean(np.sum((p - c) ** 2, axis=1))))
-    J = np.eye(6)
-    J[3:, :3] = -skew(c - np.asarray(T_site_base, float)[:3, 3])
+    J = np.vstack([np.eye(3, 6), _point_jacobian(T_site_base, c)])  # the rotation kept, the origin moved to c
     D = np.diag([spread] * 3 + [1.0] * 3)
     ev = np.linalg.eigvalsh(D @ J @ (0.5 * (cov + cov.T)) @ J.T @ D)
     return float(ev.max() / ev.min()) if ev.min() > 0 else float("inf")
