@@ -753,7 +753,6 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
 
     # --- outputs ----------------------------------------------------------------------------------------------------
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     write_camera_yaml(out_dir / "camera.yaml", cal.camera.replace(pixel_pitch=pitch) if pitch else cal.camera)
     for name, t in tables.items():
         write_table_csv(out_dir / f"{name}.csv", t)
