@@ -421,6 +421,10 @@ class MmDeg(Section):
     angle: Literal["deg"] = "deg"
 
 
+class PlotOutputs(Section):  # ``outputs`` of a kind that only plots
+    plots: bool = True
+
+
 class RenderOutputs(Section):  # ``outputs`` of a kind that renders: the render cache, the plots, the recording
     cache: bool = True
     plots: bool = True

@@ -182,7 +182,6 @@ def main(argv=None) -> int:
             print(f"{out} is out of date: run make docs", file=sys.stderr)
             return 1
         return 0
-    out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out, text)
     print(f"wrote {out}")
     return 0

@@ -263,9 +263,7 @@ def plot(runs, path: Path) -> None:
     ax.set_ylabel("true base position error (mm)")
     ax.set_title("In-situ localisation integrity (Stanford plot)")
     ax.legend(fontsize=8, loc="upper left")
-    path.parent.mkdir(parents=True, exist_ok=True)
     atomic_save_figure(fig, path, dpi=110)
-    plt.close(fig)
 
 
 def main(argv=None) -> int:

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import io
 import json
 import sys
 from pathlib import Path
@@ -73,20 +74,11 @@ def ijg_table(quality: int) -> np.ndarray:
 
 
 def jpeg_luma_table(data: bytes) -> np.ndarray | None:
-    """The first 8-bit quantisation table (64,) of a JPEG file's DQT segments (zig-zag order), or None."""
-    i = 2
-    while i + 4 <= len(data):
-        if data[i] != 0xFF:
-            return None
-        marker, length = data[i + 1], int.from_bytes(data[i + 2:i + 4], "big")
-        if marker == 0xDB:
-            pq_tq = data[i + 4]
-            if pq_tq >> 4 == 0:
-                return np.frombuffer(data[i + 5:i + 5 + 64], dtype=np.uint8).astype(int)
-        if marker == 0xDA:  # start of scan: no more tables
-            return None
-        i += 2 + length
-    return None
+    """The luminance quantisation table (64,) of a JPEG file (table 0 of its DQT segments, read by Pillow), or None."""
+    from PIL import Image
+
+    tables = getattr(Image.open(io.BytesIO(data)), "quantization", None) or {}
+    return np.array(tables[0], dtype=int) if 0 in tables else None
 
 
 def estimate_jpeg_quality(data: bytes) -> tuple:

@@ -98,11 +98,9 @@ def _stats(values):
 def bound_plot(runs, path, title) -> bool:
     """Per seed, the base error beside its limit (CRB + floor in quadrature), the CRB and the model floor, position
     and rotation, seeds ordered by error; PNG at ``path``. False (nothing written) when the runs lack the metrics."""
-    import matplotlib
+    from bench.fileio import atomic_save_figure, headless_pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = headless_pyplot()
     panels = (("pos", "mm", "base position"), ("rot", "deg", "base rotation"))
     data = {}
     for q, unit, _ in panels:
@@ -128,9 +126,7 @@ def bound_plot(runs, path, title) -> bool:
     axes[0].legend(fontsize=8)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    atomic_save_figure(fig, path, dpi=110)
     return True
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from bench.fileio import atomic_save_figure, headless_pyplot
@@ -64,7 +62,4 @@ def plot_residual_vectors(path, image_points, residuals_px, image=None, image_si
     ax.set_title(text)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_save_figure(fig, path)
-    return path
+    return atomic_save_figure(fig, path)

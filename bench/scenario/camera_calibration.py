@@ -87,7 +87,7 @@ from bench.fileio import atomic_write_text, csv_number, read_csv_table
 from bench.geometry.transforms import homogeneous, invert, rot_z, transform_points
 from bench.scenario.results import write_result, write_table_csv
 from bench.sim.campaign import CachedCamera
-from bench.sim.imaging import draw_true_lens, rig_errors, rig_target_yaml
+from bench.sim.imaging import draw_true_lens, profile_from_config, rig_errors, rig_target_yaml
 
 MAGNITUDE_PCT = Annotated[float, Field(ge=0, le=50)]
 MEDIA = {"air": ("air",), "water": ("water",), "both": ("air", "water")}
@@ -171,9 +171,7 @@ PLACEMENTS = ((0, 0), (-1, -1), (1, 1), (1, -1), (-1, 1), (0, -1), (0, 1), (-1, 
 
 def imaging(cfg):
     """The scenario's imaging profile (``camera.imaging``, ``camera.imaging_off``: :mod:`bench.sim.imaging`)."""
-    from bench.sim.imaging import profile_from_config
-
-    return profile_from_config(cfg["camera"], cfg["_file"], "camera.imaging")
+    return profile_from_config(cfg, "camera")
 
 
 def validate(cfg) -> None:
@@ -755,7 +753,6 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
 
     # --- outputs ----------------------------------------------------------------------------------------------------
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     write_camera_yaml(out_dir / "camera.yaml", cal.camera.replace(pixel_pitch=pitch) if pitch else cal.camera)
     for name, t in tables.items():
         write_table_csv(out_dir / f"{name}.csv", t)

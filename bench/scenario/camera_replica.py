@@ -44,6 +44,7 @@ from bench.config import ScenarioBase, Section, about, at_least, at_most, sectio
 from bench.errors import BenchError, ConfigError
 from bench.fileio import atomic_save_figure, atomic_write_bytes, headless_pyplot
 from bench.scenario.results import write_result, write_table_csv
+from bench.sim.imaging import profile_from_config
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 #: the residual statistics compared, real beside simulated (``residual_statistics``, ``measure_sift_precision``)
@@ -86,9 +87,7 @@ class Scenario(ScenarioBase):
 
 def imaging(cfg):
     """The scenario's imaging profile (``camera.imaging``, ``camera.imaging_off``)."""
-    from bench.sim.imaging import profile_from_config
-
-    return profile_from_config(cfg["camera"], cfg["_file"], "camera.imaging")
+    return profile_from_config(cfg, "camera")
 
 
 def photo_files(cfg) -> list:

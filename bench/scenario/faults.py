@@ -163,7 +163,6 @@ def mount_bent(root, roles, cal, rng):
     axis, direction = _random_unit(rng), _random_unit(rng)
     bend = homogeneous(rotation_vector_to_matrix(axis * np.deg2rad(1.0)), direction * 0.005)
     path = root.parent / "calibrated_bent" / "robot.yaml"
-    path.parent.mkdir(parents=True, exist_ok=True)
     # the pipeline keeps the lab mount while the true one is bent: the same as believing the bent-back one
     write_calibrated_robot(path, cal["robot"], robot, eps, T_mount @ invert(bend),
                            notes="FAULT: the lab mount; the camera was bent by 1 deg, 5 mm since")
@@ -179,7 +178,6 @@ def air_calibration(root, roles, cal, rng):
     K[0, 0] /= N_WATER
     K[1, 1] /= N_WATER
     path = root.parent / "calibrated_air" / "camera.yaml"
-    path.parent.mkdir(parents=True, exist_ok=True)
     write_camera_yaml(path, cam.replace(K=K, name="FAULT: air calibration"))
     cal["camera"] = path
     return f"camera focal length {cam.K[0, 0]:.1f} -> {K[0, 0]:.1f} px (air calibration)"
@@ -195,7 +193,6 @@ def focal_drift(root, roles, cal, rng):
     phi = float(rng.uniform(0, 2 * np.pi))
     K[:2, 2] += 3.0 * np.array([np.cos(phi), np.sin(phi)])
     path = root.parent / "calibrated_drift" / "camera.yaml"
-    path.parent.mkdir(parents=True, exist_ok=True)
     write_camera_yaml(path, cam.replace(K=K, name="FAULT: focal drift"))
     cal["camera"] = path
     return (f"camera file's focal length {cam.K[0, 0]:.1f} -> {K[0, 0]:.1f} px, principal point moved "

@@ -87,6 +87,7 @@ from bench.config import (
     KeyProblem,
     NonNegFloat,
     Number,
+    PlotOutputs,
     PositiveFloat,
     ScenarioBase,
     Section,
@@ -167,10 +168,6 @@ class Refractive(Section):
     start_offset_mm: Annotated[float, Field(ge=-10, le=10)] = 3.0
 
 
-class Outputs(Section):
-    plots: bool = True
-
-
 class Scenario(ScenarioBase):
     """A ``flatport_study`` scenario file."""
 
@@ -180,7 +177,7 @@ class Scenario(ScenarioBase):
     evaluation: Evaluation = section(Evaluation)
     threshold: Threshold = section(Threshold)
     refractive: Refractive = section(Refractive)
-    outputs: Outputs = section(Outputs)
+    outputs: PlotOutputs = section(PlotOutputs)
 
 
 TABLE = "flatport_error_vs_distance"

@@ -68,7 +68,7 @@ from bench.scenario.in_situ_lab import calibrate_lab
 from bench.scenario.plan_memo import memoized
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
-from bench.sim.imaging import draw_true_lens, rig_errors, rig_target_yaml
+from bench.sim.imaging import draw_true_lens, profile_from_config, rig_errors, rig_target_yaml
 from bench.sim.optics_presets import optics_preset
 from bench.vision.handeye import hand_eye_axxb
 from bench.vision.insitu import MapConfig
@@ -273,9 +273,7 @@ Q_HOME = np.deg2rad([28.0, 37.0, 49.0, 82.0, 29.0, 0.0])
 
 def imaging(cfg):
     """The scenario's imaging profile (``camera.imaging``, ``camera.imaging_off``: :mod:`bench.sim.imaging`)."""
-    from bench.sim.imaging import profile_from_config
-
-    return profile_from_config(cfg["camera"], cfg["_file"], "camera.imaging")
+    return profile_from_config(cfg, "camera")
 
 
 def site_optics(cfg):

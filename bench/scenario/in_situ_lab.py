@@ -215,7 +215,6 @@ def calibrate_lab(ds, robot, cfg, out):
     if not he.success:
         raise ConfigError(ds.root, "rig views", f"mount calibration failed: {he.message}")
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     write_camera_yaml(out / "camera.yaml", cal.camera if refr is None else refr.camera)
     # the calibrations' covariances, refine 'joints' refines intrinsics, mount (and distortion) under them
     notes = (f"camera calibration covariance (fx fy cx cy [k1 k2 p1 p2], px^2); mount: AX = XB residuals^2 / "

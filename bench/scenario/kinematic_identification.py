@@ -22,7 +22,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field
 
-from bench.config import NonNegInt, PositiveInt, ScenarioBase, Section, Vec3, at_most, section
+from bench.config import NonNegInt, PlotOutputs, PositiveInt, ScenarioBase, Section, Vec3, at_most, section
 from bench.errors import ConfigError
 from bench.fileio import csv_number, read_csv_table
 from bench.robot.identifiability import closed_form_reduction, numeric_identifiability
@@ -69,10 +69,6 @@ class Identifiability(Section):
     off_axis_point_mm: Vec3 = [50.0, 0.0, 100.0]
 
 
-class Outputs(Section):
-    plots: bool = True
-
-
 class Scenario(ScenarioBase):
     """A ``kinematic_identification`` scenario file."""
 
@@ -84,7 +80,7 @@ class Scenario(ScenarioBase):
     pose_selection: PoseSelection = section(PoseSelection)
     orientation: Orientation = section(Orientation)
     identifiability: Identifiability = section(Identifiability)
-    outputs: Outputs = section(Outputs)
+    outputs: PlotOutputs = section(PlotOutputs)
 
 
 _MM = np.array([1e3, 1e3, 1e3, 1.0, 1.0, 1.0])  # SI -> thesis units (mm, rad) per kind x y z s r p

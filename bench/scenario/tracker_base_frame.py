@@ -28,6 +28,7 @@ from pydantic import Field
 from bench.config import (
     NonNegFloat,
     Number,
+    PlotOutputs,
     PositiveFloat,
     PositiveNumber,
     ScenarioBase,
@@ -77,10 +78,6 @@ class MonteCarlo(Section):
     trials: Annotated[int, Field(ge=2)] = 200
 
 
-class Outputs(Section):
-    plots: bool = True
-
-
 class Scenario(ScenarioBase):
     """A ``tracker_base_frame`` scenario file."""
 
@@ -90,7 +87,7 @@ class Scenario(ScenarioBase):
     arcs: Arcs = section(Arcs)
     noise: Noise = section(Noise)
     monte_carlo: MonteCarlo = section(MonteCarlo)
-    outputs: Outputs = section(Outputs)
+    outputs: PlotOutputs = section(PlotOutputs)
 
 
 def _check_values(cfg, robot):

@@ -74,7 +74,7 @@ from bench.scenario.bounds import true_projector
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
 from bench.sim.campaign import CachedCamera
-from bench.sim.imaging import draw_true_lens, rig_errors, rig_target_yaml
+from bench.sim.imaging import draw_true_lens, profile_from_config, rig_errors, rig_target_yaml
 from bench.vision.features import Features, detect_sift
 from bench.vision.insitu import MapConfig
 from bench.vision.triangulation import required_baseline
@@ -232,9 +232,7 @@ BUDGET_FIXED = {"outputs.plots": False, "outputs.rerun": False, "bound.enabled":
 
 def imaging(cfg):
     """The scenario's imaging profile (``sim.imaging``, ``sim.imaging_off``: :mod:`bench.sim.imaging`)."""
-    from bench.sim.imaging import profile_from_config
-
-    return profile_from_config(cfg["sim"], cfg["_file"], "sim.imaging")
+    return profile_from_config(cfg, "sim")
 
 
 def _positions(cfg, n_rows: int) -> list:

@@ -192,9 +192,10 @@ def imaging_profile(name: str = "realistic", off=(), source: str = "imaging", fi
     return ImagingProfile("realistic", {k: v for k, v in stages.items() if k not in off})
 
 
-def profile_from_config(section: dict, source: str, field: str) -> ImagingProfile:
-    """The profile of a scenario section holding ``imaging`` and ``imaging_off`` (``camera`` or ``sim``)."""
-    return imaging_profile(section.get("imaging", "realistic"), section.get("imaging_off", []), source, field)
+def profile_from_config(cfg: dict, section: str) -> ImagingProfile:
+    """The profile of a loaded scenario's ``section`` (``camera`` or ``sim``): its ``imaging`` and ``imaging_off``."""
+    s = cfg[section]
+    return imaging_profile(s.get("imaging", "realistic"), s.get("imaging_off", []), cfg["_file"], f"{section}.imaging")
 
 
 # ------------------------------------------------------------------------------------------------ target geometry

@@ -581,9 +581,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                            _retarget_tasks(ds, robot, eps, res.T_world_base, roles["locate"][0].q, res.covariance,
                                            integ.tests))
     if out is not None:
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(out / "locate.json", json.dumps(report, indent=2) + "\n")
+        atomic_write_text(Path(out) / "locate.json", json.dumps(report, indent=2) + "\n")
     if verbose:
         print(f"{ds.name}: {report['map_points']} map points ({kmap.stats}), {res.n_matches} matches, "
               f"{res.n_inliers} inliers")
