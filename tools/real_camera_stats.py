@@ -44,11 +44,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.camera.photo_stats import (  # noqa: E402 - detection, calibration, residual statistics, SIFT precision
+from bench.camera.photo_stats import (  # noqa: E402 - detection, calibration, residual and image statistics
     apply_homography,
     board_homography,
     calibrate_views,
     detect_views,
+    measure_blur,
+    measure_edge_profile,
+    measure_noise,
     measure_sift_precision,
     residual_statistics,
 )
@@ -96,87 +99,6 @@ def estimate_jpeg_quality(data: bytes) -> tuple:
         if d < best_d:
             best, best_d = q, d
     return best, False
-
-
-def measure_noise(views, pattern) -> dict:
-    """Std (DN, grey) inside square interiors after a plane fit; white and black squares; JPEG leaves what it keeps.
-
-    The squares fully inside the inner-corner grid are used (grid cells (i, j) .. (i+1, j+1)); the central 40 % of
-    each square's width is sampled; the colour of a cell is decided by its mean (the board's parity is unknown)."""
-    stats = {"white": [], "black": []}
-    means = {"white": [], "black": []}
-    cols, rows = pattern
-    for _, _, grey, c in views:
-        H = board_homography(c, pattern)
-        for i in range(rows - 1):
-            for j in range(cols - 1):
-                s = np.linspace(0.3, 0.7, 9)
-                gx, gy = np.meshgrid(j + s, i + s)
-                p = apply_homography(H, np.c_[gx.ravel(), gy.ravel()])
-                u0, v0 = np.floor(p.min(0)).astype(int)
-                u1, v1 = np.ceil(p.max(0)).astype(int)
-                if u1 - u0 < 4 or v1 - v0 < 4:
-                    continue
-                # pixels inside the central quadrilateral
-                quad = apply_homography(H, [[j + 0.3, i + 0.3], [j + 0.7, i + 0.3], [j + 0.7, i + 0.7],
-                                            [j + 0.3, i + 0.7]])
-                mask = np.zeros(grey.shape, np.uint8)
-                cv2.fillConvexPoly(mask, np.round(quad).astype(np.int32), 1)
-                vv, uu = np.nonzero(mask)
-                if len(vv) < 20:
-                    continue
-                val = grey[vv, uu].astype(float)
-                A = np.c_[uu, vv, np.ones_like(uu)].astype(float)
-                res = val - A @ np.linalg.lstsq(A, val, rcond=None)[0]
-                kind = "white" if val.mean() > 128 else "black"
-                stats[kind].append(res.std(ddof=3))
-                means[kind].append(val.mean())
-    return {f"noise_{k}_dn": float(np.median(v)) for k, v in stats.items() if v} | \
-           {f"level_{k}_dn": float(np.median(v)) for k, v in means.items() if v}
-
-
-def _erf_fit(x, y):
-    """Fit ``a + b erf((x - x0) / (sqrt(2) sigma))``; returns sigma (px) or None."""
-    from scipy.optimize import least_squares
-    from scipy.special import erf
-
-    a0, b0 = (y.max() + y.min()) / 2, (y[-1] - y[0]) / 2
-    if abs(b0) < 20:
-        return None
-
-    def f(p):
-        return p[0] + p[1] * erf((x - p[2]) / (np.sqrt(2) * abs(p[3]) + 1e-9)) - y
-
-    r = least_squares(f, [a0, b0, 0.0, 1.0])
-    if not r.success or abs(r.x[2]) > 2 or not 0.1 < abs(r.x[3]) < 5:
-        return None
-    return abs(r.x[3])
-
-
-def measure_blur(views, pattern) -> dict:
-    """Edge spread: erf sigma (px) of profiles across the square edges between neighbouring inner corners (their
-    middle half), sampled perpendicular to the edge over +-5 px at 0.25 px (bilinear)."""
-    cols, rows = pattern
-    sig = []
-    for _, _, grey, c in views:
-        g = grey.astype(np.float32)
-        C = c.reshape(rows, cols, 2)
-        pairs = [(C[i, j], C[i, j + 1]) for i in range(rows) for j in range(cols - 1)] + \
-                [(C[i, j], C[i + 1, j]) for i in range(rows - 1) for j in range(cols)]
-        t = np.arange(-5, 5.01, 0.25)
-        for a, b in pairs:
-            d = b - a
-            n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
-            for s in (0.35, 0.5, 0.65):
-                m = a + s * d
-                p = (m + t[:, None] * n).astype(np.float32)
-                y = cv2.remap(g, p[:, :1], p[:, 1:], cv2.INTER_LINEAR).ravel().astype(float)
-                r = _erf_fit(t, y)
-                if r is not None:
-                    sig.append(r)
-    sig = np.array(sig)
-    return {"edge_sigma_px": float(np.median(sig)), "edge_sigma_p25_px": float(np.percentile(sig, 25)),
-            "edge_sigma_p75_px": float(np.percentile(sig, 75)), "edge_profiles": len(sig)}
 
 
 def measure_vignetting(views, pattern) -> dict:
@@ -480,6 +402,7 @@ def measure(data_dir, pattern=(7, 7), square_mm: float = 25.0) -> dict:
     out.update(measure_noise(views, pattern))
     out.update(measure_sift_precision(views, pattern, res.K, res.dist))
     out.update(measure_blur(views, pattern))
+    out.update(measure_edge_profile(views, pattern))
     out.update(measure_vignetting(views, pattern))
     out.update(measure_chromatic(views, pattern))
     return out

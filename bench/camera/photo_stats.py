@@ -7,7 +7,9 @@ One piece of code for real photos and for their simulation (the ``camera_replica
 * :func:`calibrate_views` - the bench's calibration (Heikkilä by default) on unit squares;
 * :func:`residual_statistics` - RMS, per-view spread, and the correlation of residual vectors along a board row or
   column (the statistic issue 12 compares);
-* :func:`measure_sift_precision` - SIFT's localisation noise on the board plane.
+* :func:`measure_sift_precision` - SIFT's localisation noise on the board plane;
+* :func:`measure_noise`, :func:`measure_blur`, :func:`measure_edge_profile` - the images themselves: noise and
+  level in the squares, the edge spread, and the shape of an edge (a sharpening halo).
 
 Reads only images; no simulator truth.
 """
@@ -181,3 +183,124 @@ def measure_sift_precision(views, pattern, K, dist, ratio: float = 0.8, inlier_p
     mad = 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)
     return {"sift_plane_px": float(np.mean(mad) / np.sqrt(2)), "sift_plane_pairs": pairs,
             "sift_plane_matches": int(len(r))}
+
+
+def measure_noise(views, pattern) -> dict:
+    """Std (DN, grey) inside square interiors after a plane fit; white and black squares; JPEG leaves what it keeps.
+
+    The squares fully inside the inner-corner grid are used (grid cells (i, j) .. (i+1, j+1)); the central 40 % of
+    each square's width is sampled; the colour of a cell is decided by its mean (the board's parity is unknown)."""
+    stats = {"white": [], "black": []}
+    means = {"white": [], "black": []}
+    cols, rows = pattern
+    for _, _, grey, c in views:
+        H = board_homography(c, pattern)
+        for i in range(rows - 1):
+            for j in range(cols - 1):
+                s = np.linspace(0.3, 0.7, 9)
+                gx, gy = np.meshgrid(j + s, i + s)
+                p = apply_homography(H, np.c_[gx.ravel(), gy.ravel()])
+                u0, v0 = np.floor(p.min(0)).astype(int)
+                u1, v1 = np.ceil(p.max(0)).astype(int)
+                if u1 - u0 < 4 or v1 - v0 < 4:
+                    continue
+                # pixels inside the central quadrilateral
+                quad = apply_homography(H, [[j + 0.3, i + 0.3], [j + 0.7, i + 0.3], [j + 0.7, i + 0.7],
+                                            [j + 0.3, i + 0.7]])
+                mask = np.zeros(grey.shape, np.uint8)
+                cv2.fillConvexPoly(mask, np.round(quad).astype(np.int32), 1)
+                vv, uu = np.nonzero(mask)
+                if len(vv) < 20:
+                    continue
+                val = grey[vv, uu].astype(float)
+                A = np.c_[uu, vv, np.ones_like(uu)].astype(float)
+                res = val - A @ np.linalg.lstsq(A, val, rcond=None)[0]
+                kind = "white" if val.mean() > 128 else "black"
+                stats[kind].append(res.std(ddof=3))
+                means[kind].append(val.mean())
+    return {f"noise_{k}_dn": float(np.median(v)) for k, v in stats.items() if v} | \
+           {f"level_{k}_dn": float(np.median(v)) for k, v in means.items() if v}
+
+
+def _erf_fit(x, y):
+    """Fit ``a + b erf((x - x0) / (sqrt(2) sigma))``; returns sigma (px) or None."""
+    from scipy.optimize import least_squares
+    from scipy.special import erf
+
+    a0, b0 = (y.max() + y.min()) / 2, (y[-1] - y[0]) / 2
+    if abs(b0) < 20:
+        return None
+
+    def f(p):
+        return p[0] + p[1] * erf((x - p[2]) / (np.sqrt(2) * abs(p[3]) + 1e-9)) - y
+
+    r = least_squares(f, [a0, b0, 0.0, 1.0])
+    if not r.success or abs(r.x[2]) > 2 or not 0.1 < abs(r.x[3]) < 5:
+        return None
+    return abs(r.x[3])
+
+
+def measure_blur(views, pattern) -> dict:
+    """Edge spread: erf sigma (px) of profiles across the square edges between neighbouring inner corners (their
+    middle half), sampled perpendicular to the edge over +-5 px at 0.25 px (bilinear)."""
+    cols, rows = pattern
+    sig = []
+    for _, _, grey, c in views:
+        g = grey.astype(np.float32)
+        C = c.reshape(rows, cols, 2)
+        pairs = [(C[i, j], C[i, j + 1]) for i in range(rows) for j in range(cols - 1)] + \
+                [(C[i, j], C[i + 1, j]) for i in range(rows - 1) for j in range(cols)]
+        t = np.arange(-5, 5.01, 0.25)
+        for a, b in pairs:
+            d = b - a
+            n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
+            for s in (0.35, 0.5, 0.65):
+                m = a + s * d
+                p = (m + t[:, None] * n).astype(np.float32)
+                y = cv2.remap(g, p[:, :1], p[:, 1:], cv2.INTER_LINEAR).ravel().astype(float)
+                r = _erf_fit(t, y)
+                if r is not None:
+                    sig.append(r)
+    sig = np.array(sig)
+    return {"edge_sigma_px": float(np.median(sig)), "edge_sigma_p25_px": float(np.percentile(sig, 25)),
+            "edge_sigma_p75_px": float(np.percentile(sig, 75)), "edge_profiles": len(sig)}
+
+def measure_edge_profile(views, pattern, half_width_px: float = 10.0) -> dict:
+    """The median edge profile across the square edges (dark -> bright, DN), each profile aligned at its
+    mid-level crossing: how a camera's processing shapes an edge. ``edge_undershoot_dn``: how far the profile dips
+    below the black squares' level beside the edge (a sharpening halo; 0 for an unsharpened camera);
+    ``edge_width_10_90_px``: the 10-90 % rise distance. Profiles sampled bilinearly every 0.25 px across the middle
+    of each edge between neighbouring inner corners (at 0.4, 0.5 and 0.6 of it)."""
+    cols, rows = pattern
+    t = np.arange(-half_width_px - 2, half_width_px + 2.01, 0.25)
+    tt = np.arange(-half_width_px, half_width_px + 0.01, 0.5)
+    profiles = []
+    for _, _, grey, c in views:
+        g = grey.astype(np.float32)
+        C = c.reshape(rows, cols, 2)
+        pairs = [(C[i, j], C[i, j + 1]) for i in range(rows) for j in range(cols - 1)] + \
+                [(C[i, j], C[i + 1, j]) for i in range(rows - 1) for j in range(cols)]
+        for a, b in pairs:
+            d = b - a
+            n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
+            for s in (0.4, 0.5, 0.6):
+                p = (a + s * d + t[:, None] * n).astype(np.float32)
+                y = cv2.remap(g, p[:, :1], p[:, 1:], cv2.INTER_LINEAR).ravel().astype(float)
+                if y[-1] < y[0]:
+                    y = y[::-1]
+                lo, hi = np.median(y[:5]), np.median(y[-5:])
+                if hi - lo < 60:
+                    continue
+                mid = (lo + hi) / 2
+                k = np.nonzero((y[:-1] < mid) & (y[1:] >= mid))[0]
+                if len(k) != 1:  # noise or a neighbouring edge: not one clean crossing
+                    continue
+                k = k[0]
+                x0 = t[k] + (mid - y[k]) / (y[k + 1] - y[k]) * (t[1] - t[0])
+                profiles.append(np.interp(tt + x0, t, y))
+    med = np.median(np.array(profiles), axis=0)
+    lo, hi = med[0], med[-1]
+    rise = (med - lo) / (hi - lo)
+    width = np.interp(0.9, rise, tt) - np.interp(0.1, rise, tt)  # the median profile rises monotonically in between
+    return {"edge_undershoot_dn": float(lo - med[:len(tt) // 2].min()), "edge_width_10_90_px": float(width),
+            "edge_profiles_used": len(profiles)}

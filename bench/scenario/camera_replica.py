@@ -15,8 +15,11 @@ chessboard (``photos.dir``, ``photos.inner_corners``); by default the project's 
    own calibration, so the realistic profile's ``distortion`` stage (the project webcam's lens) is not applied.
 3. **The same code** detects and calibrates the renders and summarises both calibrations'
    residuals (:func:`bench.camera.photo_stats.residual_statistics`): RMS, per-view spread, and the correlation of
-   residual vectors 1-3 corners apart along a board row and a column; and SIFT's localisation noise on the board
-   plane (:func:`bench.camera.photo_stats.measure_sift_precision`).
+   residual vectors 1-3 corners apart along a board row and a column; SIFT's localisation noise on the board
+   plane (:func:`bench.camera.photo_stats.measure_sift_precision`); and the images themselves - the edge spread,
+   the sharpening halo beside an edge, and the noise and level of the black squares
+   (:func:`~bench.camera.photo_stats.measure_blur`, :func:`~bench.camera.photo_stats.measure_edge_profile`,
+   :func:`~bench.camera.photo_stats.measure_noise`).
 
 Issue 12's acceptance reads the ratio ``rms_ratio`` (simulated / real calibration RMS, target 0.7-1.3) and the
 correlations at lag 1. Outputs: ``result.json``, ``per_view.csv``, ``correlation.csv``, ``replica.png`` (per-view
@@ -37,6 +40,9 @@ from bench.camera.photo_stats import (
     calibrate_views,
     detect_board,
     detect_views,
+    measure_blur,
+    measure_edge_profile,
+    measure_noise,
     measure_sift_precision,
     residual_statistics,
 )
@@ -47,9 +53,11 @@ from bench.scenario.results import write_result, write_table_csv
 from bench.sim.imaging import profile_from_config
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
-#: the residual statistics compared, real beside simulated (``residual_statistics``, ``measure_sift_precision``)
+#: the statistics compared, real beside simulated (``residual_statistics``, ``measure_sift_precision``, and the
+#: image statistics ``measure_blur``, ``measure_edge_profile``, ``measure_noise``)
 STATS = ("rms_px", "per_view_rms_cv", "row_corr_lag1", "row_corr_lag2", "row_corr_lag3", "col_corr_lag1",
-         "col_corr_lag2", "col_corr_lag3", "sift_plane_px")
+         "col_corr_lag2", "col_corr_lag3", "sift_plane_px", "edge_sigma_px", "edge_undershoot_dn", "noise_black_dn",
+         "level_black_dn")
 
 
 class Photos(Section):
@@ -160,7 +168,8 @@ def board_errors(profile, pattern, seed: int, square_m: float) -> dict | None:
                         square_m)
     xs, ys = e["line_offsets_m"]["a"]
     return {"line_offsets_m": (xs[:cols + 1], ys[:rows + 1]), "scale": e["scale"],
-            "bow_sagitta_m": e["bow_sagitta_m"]["a"], "dz_m": e["dz_m"]["a"][:rows + 1, :cols + 1]}
+            "bow_sagitta_m": e["bow_sagitta_m"]["a"], "dz_m": e["dz_m"]["a"][:rows + 1, :cols + 1],
+            "black_reflectance": e["black_reflectance"]}
 
 
 def render_replica(cfg, res, views, out_dir, verbose=False) -> list:
@@ -244,6 +253,9 @@ def calibrate_replica(cfg, greys, real_views):
 def statistics(views, res, pattern) -> dict:
     out = residual_statistics(res.residuals_px, pattern)
     out.update(measure_sift_precision(views, pattern, res.K, res.dist))
+    out.update(measure_blur(views, pattern))
+    out.update(measure_edge_profile(views, pattern))
+    out.update(measure_noise(views, pattern))
     return out
 
 

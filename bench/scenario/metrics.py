@@ -300,6 +300,11 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("<src>_col_corr_lag<lag>", "1", "the same along a board column"),
         Metric("<src>_sift_plane_px", "px", "SIFT's localisation noise on the board plane (homography transfer "
                "between views, robust σ / √2)"),
+        Metric("<src>_edge_sigma_px", "px", "edge spread: median erf sigma of profiles across the square edges"),
+        Metric("<src>_edge_undershoot_dn", "DN", "how far the median edge profile dips below the black level beside "
+               "the edge (a camera's sharpening halo)"),
+        Metric("<src>_noise_black_dn", "DN", "noise inside the black squares (std after a plane fit, grey)"),
+        Metric("<src>_level_black_dn", "DN", "grey level of the black squares (median)"),
         Metric("rms_ratio", "1", "simulated / real calibration RMS (issue 12: 0.7-1.3)"),
         Metric("sift_ratio", "1", "simulated / real SIFT noise on the plane"),
         Metric("sim_focal_error_pct", "%", "the replica's calibrated fx against its true one (the photos' fx)"),

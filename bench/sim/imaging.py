@@ -77,8 +77,8 @@ import numpy as np
 from bench.errors import ConfigError
 
 #: the stages of the realistic profile, in the order they are applied (each can be switched off alone)
-STAGES = ("print_lines", "print_scale", "flatness", "cockle", "handling", "fold", "distortion", "chromatic",
-          "defocus", "motion", "rolling_shutter", "vignetting", "bayer", "prnu_dsnu", "jpeg")
+STAGES = ("print_lines", "print_scale", "toner", "flatness", "cockle", "handling", "fold", "distortion", "chromatic",
+          "defocus", "motion", "rolling_shutter", "vignetting", "bayer", "prnu_dsnu", "tone", "sharpen", "jpeg")
 IMAGING_NAMES = ("realistic", "ideal")
 #: version of this module's algorithms, part of the render cache key of realistic images (bump when a code change
 #: alters them): 2 = bilinear warp (was bicubic); 3 = the lens Gaussian once after the defocus levels; 4 = a sheet
@@ -95,6 +95,7 @@ REALISTIC = {
     # shape, for a 25 mm square; bow: per-view quadratic fit, median, an upper bound)
     "print_lines": {"feed_rms_mm": 0.09, "scan_rms_mm": 0.05},
     "print_scale": {"scale_rms_pct": 0.2},
+    "toner": {"black_reflectance": 0.018},
     "flatness": {"bow_sagitta_mm": 0.6},
     "cockle": {"rms_mm": 0.42, "length_along_rows_mm": 25.0, "length_across_rows_mm": 17.0},
     "handling": {"rms_mm": 0.25, "length_along_rows_mm": 22.0, "length_across_rows_mm": 19.0},
@@ -110,10 +111,13 @@ REALISTIC = {
     # sensor
     "bayer": {"pattern": "RGGB", "demosaic": "edge_aware"},
     "prnu_dsnu": {"prnu_pct": 0.8, "dsnu_e": 3.0, "pattern_seed": 12},
+    "tone": {"adc_bits": 10, "exposure_scale": 1.12},
+    "sharpen": {"amount": 1.97, "sigma_px": 1.66, "coring_dn": 0.7},
     "jpeg": {"quality": 90},
 }
 
 _KEYS = {"print_lines": ("feed_rms_mm", "scan_rms_mm"), "print_scale": ("scale_rms_pct",),
+         "toner": ("black_reflectance",),
          "flatness": ("bow_sagitta_mm",), "cockle": ("rms_mm", "length_along_rows_mm", "length_across_rows_mm"),
          "handling": ("rms_mm", "length_along_rows_mm", "length_across_rows_mm"),
          "fold": ("fold_error_rms_deg",), "distortion": ("dist", "thin_prism"),
@@ -121,13 +125,17 @@ _KEYS = {"print_lines": ("feed_rms_mm", "scan_rms_mm"), "print_scale": ("scale_r
          "defocus": ("pixel_pitch_um", "f_number", "focus_distance_m", "lens_sigma_px"),
          "motion": ("angular_rate_rms_deg_per_s", "exposure_s"), "rolling_shutter": ("readout_s",),
          "vignetting": ("falloff_at_corner",), "bayer": ("pattern", "demosaic"),
-         "prnu_dsnu": ("prnu_pct", "dsnu_e", "pattern_seed"), "jpeg": ("quality",)}
+         "prnu_dsnu": ("prnu_pct", "dsnu_e", "pattern_seed"), "tone": ("adc_bits", "exposure_scale"),
+         "sharpen": ("amount", "sigma_px", "coring_dn"),
+         "jpeg": ("quality",)}
 _BOUNDS = {"feed_rms_mm": (0, 5), "scan_rms_mm": (0, 5), "scale_rms_pct": (0, 5), "bow_sagitta_mm": (0, 20),
            "rms_mm": (0, 10), "length_along_rows_mm": (1, 1000), "length_across_rows_mm": (1, 1000),
            "fold_error_rms_deg": (0, 10), "lateral_ca_r": (-0.01, 0.01), "lateral_ca_b": (-0.01, 0.01),
            "pixel_pitch_um": (0.5, 50), "f_number": (0.7, 64), "focus_distance_m": (0.05, 1e3),
            "lens_sigma_px": (0, 5), "angular_rate_rms_deg_per_s": (0, 100), "exposure_s": (0, 1), "readout_s": (0, 1),
-           "falloff_at_corner": (0, 0.9), "prnu_pct": (0, 20), "dsnu_e": (0, 1e3)}
+           "falloff_at_corner": (0, 0.9), "prnu_pct": (0, 20), "dsnu_e": (0, 1e3), "adc_bits": (8, 16),
+           "exposure_scale": (0.01, 100), "black_reflectance": (0, 0.5), "amount": (0, 10), "sigma_px": (0.1, 10),
+           "coring_dn": (0, 50)}
 _DEMOSAIC = {"bilinear": cv2.COLOR_BayerBG2RGB, "edge_aware": cv2.COLOR_BayerBG2RGB_EA,
              "vng": cv2.COLOR_BayerBG2RGB_VNG}
 
@@ -213,7 +221,7 @@ def target_geometry(profile: ImagingProfile, squares: int, rng: np.random.Genera
     stage is on (the others do not change when one is switched off; the cockle's come last, so the draws of the
     stages before it are those of the profile without it).
     """
-    from bench.sim.scenes.rig import SQUARE_M
+    from bench.sim.scenes.rig import BLACK_REFLECTANCE, SQUARE_M
 
     n = squares + 1
     z = {b: (rng.standard_normal(n), rng.standard_normal(n)) for b in ("a", "b")}
@@ -221,12 +229,14 @@ def target_geometry(profile: ImagingProfile, squares: int, rng: np.random.Genera
     w = {b: rng.standard_normal(n * n) for b in ("a", "b")}
     out = {"line_offsets_m": {b: (np.zeros(n), np.zeros(n)) for b in ("a", "b")}, "scale": 1.0,
            "bow_sagitta_m": {"a": 0.0, "b": 0.0}, "dz_m": {"a": np.zeros((n, n)), "b": np.zeros((n, n))},
-           "fold_error_rad": 0.0}
+           "fold_error_rad": 0.0, "black_reflectance": BLACK_REFLECTANCE}
     if profile.on("print_lines"):
         p = profile["print_lines"]
         # the rows (y) run along the paper feed, the columns (x) across it
         out["line_offsets_m"] = {b: (z[b][0] * p["scan_rms_mm"] * 1e-3, z[b][1] * p["feed_rms_mm"] * 1e-3)
                                  for b in ("a", "b")}
+    if profile.on("toner"):
+        out["black_reflectance"] = float(profile["toner"]["black_reflectance"])
     if profile.on("print_scale"):
         out["scale"] = 1.0 + s * profile["print_scale"]["scale_rms_pct"] / 100
     if profile.on("flatness"):
@@ -377,6 +387,24 @@ def line_kernel(dx_px: float, dy_px: float, sub: int = 16) -> np.ndarray:
     return (k / k.sum()).astype(np.float32)
 
 
+def srgb_oetf(x) -> np.ndarray:
+    """The sRGB transfer function (IEC 61966-2-1): linear ``x`` in [0, 1] -> encoded value in [0, 1]."""
+    x = np.clip(np.asarray(x, float), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+
+
+def unsharp_luma(rgb, amount: float, sigma_px: float, coring_dn: float = 0.0) -> np.ndarray:
+    """A camera's sharpening: the unsharp mask of the luma (Rec. 601 weights) with coring, ``out = rgb + amount
+    core(Y - G_sigma * Y)`` added to every channel, ``core(d) = sign(d) max(|d| - coring_dn, 0)`` (the threshold
+    that keeps an ISP from sharpening its own noise). Float32 ``(H, W, 3)`` in DN, not clipped."""
+    img = np.asarray(rgb, np.float32)
+    y = img @ np.array([0.299, 0.587, 0.114], np.float32)
+    detail = y - cv2.GaussianBlur(y, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
+    if coring_dn > 0:
+        detail = np.sign(detail) * np.maximum(np.abs(detail) - np.float32(coring_dn), 0)
+    return img + np.float32(amount) * detail[..., None]
+
+
 def mosaic(rgb) -> np.ndarray:
     """RGGB colour-filter-array samples ``(H, W)`` of an RGB image ``(H, W, 3)``: R at even rows and columns."""
     img = np.asarray(rgb)
@@ -506,16 +534,20 @@ class ImagingChain:
         return out
 
     def sensor(self, img, rng: np.random.Generator, spec) -> np.ndarray:
-        """Colour-filter-array sensor: mosaic, electrons (PRNU), shot + read noise and DSNU, gain, 8 bit,
-        demosaicing, JPEG. ``spec`` is the preset's :class:`bench.sim.medium.Sensor` (None: noise-free 8 bit)."""
+        """Colour-filter-array sensor and the camera's processing: mosaic, electrons (PRNU), shot + read noise and
+        DSNU, gain, ADC, demosaicing, tone curve, sharpening, JPEG. ``spec`` is the preset's
+        :class:`bench.sim.medium.Sensor` (None: noise-free)."""
         from bench.sim.medium import SHOT_NOISE_NORMAL_ABOVE_E, jpeg
 
-        bayer = self.profile.on("bayer")
+        bayer, tone = self.profile.on("bayer"), self.profile.on("tone")
+        full = 2 ** int(self.profile["tone"]["adc_bits"]) - 1 if tone else 255
         raw = mosaic(img) if bayer else img
         if spec is None:
-            dn = np.clip(np.rint(raw * 255.0), 0, 255).astype(np.uint8)
+            codes = np.clip(np.rint(raw * float(full)), 0, full)
         else:
             scale = spec.exposure_for(img) * spec.full_well_e
+            if tone and spec.auto_exposure_target == 0:  # the webcam's own exposure of its scene (measured)
+                scale *= self.profile["tone"]["exposure_scale"]
             lam = np.minimum(raw * np.float32(scale), spec.full_well_e).astype(np.float32)
             prnu = self._prnu if bayer or self._prnu is None else self._prnu[..., None]
             dsnu = self._dsnu if bayer or self._dsnu is None else self._dsnu[..., None]
@@ -529,8 +561,17 @@ class ImagingChain:
                 e[low] = rng.poisson(lam[low]).astype(np.float32) + read * zn[low]
             if dsnu is not None:
                 e = e + dsnu
-            dn = np.clip(np.rint(e * np.float32(spec.gain_dn_per_e)), 0, 255).astype(np.uint8)
-        rgb = demosaic(dn, self.profile["bayer"]["demosaic"]) if bayer else dn
+            gain = spec.gain_dn_per_e * full / 255.0 if tone else spec.gain_dn_per_e  # DN per electron at the ADC
+            codes = np.clip(np.rint(e * np.float32(gain)), 0, full)
+        codes = codes.astype(np.uint16 if tone else np.uint8)
+        rgb = demosaic(codes, self.profile["bayer"]["demosaic"]) if bayer else codes
+        if tone:  # the sRGB transfer function (IEC 61966-2-1) as a look-up table from the ADC codes
+            rgb = (255.0 * srgb_oetf(np.arange(full + 1) / full)).astype(np.float32)[rgb]
+        if self.profile.on("sharpen"):
+            sh = self.profile["sharpen"]
+            rgb = unsharp_luma(rgb, sh["amount"], sh["sigma_px"], sh["coring_dn"])
+        if rgb.dtype != np.uint8:
+            rgb = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
         q = self.profile["jpeg"]["quality"] if self.profile.on("jpeg") else 0
         if spec is not None and spec.jpeg_quality and not q:
             q = spec.jpeg_quality

@@ -88,6 +88,15 @@ def test_the_replica_errs_like_the_real_photos(tmp_path):
     # in-situ localisation rest on errs like the real webcam's keypoints
     assert m["real_sift_plane_px"] == pytest.approx(0.232, abs=0.01)
     assert 0.5 < m["sift_ratio"] < 1.5, m["sift_ratio"]
+    # the images themselves (docs/realistic_imaging.md, "The camera's processing"): the webcam sharpens - its edges
+    # are crisper than a perfect pixel-integrating camera's and dip below the black level beside them - and the
+    # black squares' level and noise follow its tone curve. Real: 0.46 px, 37 DN, 1.47 DN, 38 DN.
+    assert m["real_edge_sigma_px"] == pytest.approx(0.459, abs=0.01)
+    assert m["real_edge_undershoot_dn"] == pytest.approx(37.2, abs=1.0)
+    assert 0.75 < m["sim_edge_sigma_px"] / m["real_edge_sigma_px"] < 1.33, m["sim_edge_sigma_px"]
+    assert 0.5 < m["sim_edge_undershoot_dn"] / m["real_edge_undershoot_dn"] < 2, m["sim_edge_undershoot_dn"]
+    assert 0.5 < m["sim_noise_black_dn"] / m["real_noise_black_dn"] < 2, m["sim_noise_black_dn"]
+    assert abs(m["sim_level_black_dn"] - m["real_level_black_dn"]) < 15, m["sim_level_black_dn"]
     assert len(doc["tables"]["per_view"]["photo"]) == 19 and len(list((out / "renders").glob("*.png"))) == 19
     assert doc["tables"]["correlation"]["lag"] == [1, 2, 3]
 

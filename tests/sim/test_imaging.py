@@ -229,3 +229,78 @@ def test_target_geometry_moves_the_printed_corners():
     bow = calibration_rig(errors=im.target_geometry(only("flatness"), 7, np.random.default_rng(0)))
     dz = bow.features["corners_board_a"] - exact.features["corners_board_a"]
     assert 0.2e-3 < np.abs(dz[:, 1]).max() <= 0.6e-3 + 1e-12  # board A's normal is the rig's y
+
+
+def test_srgb_transfer_is_the_standards():
+    """IEC 61966-2-1: linear segment 12.92 x up to 0.0031308, 1.055 x^(1/2.4) - 0.055 above; the standard's own
+    inverse (decoding) takes every encoded value back."""
+    assert im.srgb_oetf(0.0) == 0.0 and im.srgb_oetf(1.0) == pytest.approx(1.0, abs=1e-12)
+    assert im.srgb_oetf(0.0031308) == pytest.approx(0.0031308 * 12.92, rel=1e-12)
+    assert im.srgb_oetf(0.18) == pytest.approx(0.461356, abs=1e-6)  # 18 % grey: 117.6 DN
+    x = np.linspace(0, 1, 1001)
+    v = im.srgb_oetf(x)
+    back = np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+    assert np.abs(back - x).max() < 1e-6  # the standard rounds its breakpoint (0.04045 vs 0.0404482)
+    assert np.all(np.diff(v) > 0)
+
+
+def test_tone_stage_codes_through_the_adc_and_the_transfer_function():
+    """A flat linear field through the ADC (10 bit), the transfer function and 8 bits; the exposure scale acts on
+    a manual-exposure camera only (the automatic exposure meters the scene itself)."""
+    prof = only("tone")
+    chain = im.ImagingChain(prof, K, SIZE)
+    img = np.full((SIZE[1], SIZE[0], 3), 0.18, np.float32)
+    out = chain.sensor(img, np.random.default_rng(0), None)
+    code = np.rint(0.18 * 1023)
+    assert np.all(out == np.rint(255 * im.srgb_oetf(code / 1023)))  # 118 DN
+    quiet = Sensor(read_noise_e=0.0, full_well_e=1e8, gain_dn_per_e=255.0 / 1e8)  # shot noise ~1e-4 of the signal
+    k = prof["tone"]["exposure_scale"]
+    manual = chain.sensor(img, np.random.default_rng(1), quiet).astype(float).mean()
+    assert manual == pytest.approx(255 * im.srgb_oetf(0.18 * k), abs=0.6)
+    auto = Sensor(read_noise_e=0.0, full_well_e=1e8, gain_dn_per_e=255.0 / 1e8, auto_exposure_target=0.4)
+    assert chain.sensor(img, np.random.default_rng(1), auto).astype(float).mean() == \
+        pytest.approx(255 * im.srgb_oetf(0.4), abs=0.6)
+
+
+def test_unsharp_mask_closed_forms():
+    """Flat and linear-ramp luma are left alone (the Gaussian reproduces both); a step gets the undershoot
+    ``amount h (Phi(x / sigma) - H(x))`` (continuous closed form, here at the pixel beside the edge within the
+    pixel sampling); a pure chroma change is not sharpened; coring removes detail below its threshold."""
+    from scipy.special import ndtr
+
+    H, W = 40, 200
+    ramp = np.tile(np.linspace(40, 200, W, dtype=np.float32), (H, 1))[..., None].repeat(3, 2)
+    out = im.unsharp_luma(ramp, 2.0, 1.5)
+    assert np.abs(out - ramp)[:, 20:-20].max() < 1e-3
+    flat = np.full((H, W, 3), 90, np.float32)
+    assert np.abs(im.unsharp_luma(flat, 2.0, 1.5) - flat).max() < 1e-4
+    # a step of h DN between pixels 99 and 100 (edge at x = 99.5)
+    h, a, s = 100.0, 1.5, 2.0
+    step = np.zeros((H, W, 3), np.float32)
+    step[:, 100:] = h
+    out = im.unsharp_luma(step, a, s)[H // 2, :, 0]
+    x = np.arange(W) - 99.5
+    # the sampled Gaussian of OpenCV against the continuous one: within 1 % of the step at every pixel
+    expected = h * (x > 0) + a * (h * (x > 0) - h * ndtr(x / s))
+    assert np.abs(out - expected)[20:-20].max() < 0.01 * a * h
+    assert out[99] == pytest.approx(-a * h * ndtr(-0.5 / s), rel=0.05)
+    # equal luma, different colour: no detail to sharpen
+    chroma = np.zeros((H, W, 3), np.float32)
+    chroma[:, :100] = (100.0, 100.0, 100.0)
+    chroma[:, 100:] = (100.0 + 0.587 / 0.299 * 20, 80.0, 100.0)  # 0.299 dR + 0.587 dG = 0
+    assert np.abs(im.unsharp_luma(chroma, a, s) - chroma).max() < 1e-3
+    # coring: noise of 0.3 DN rms under a 1 DN threshold is not amplified
+    rng = np.random.default_rng(0)
+    noisy = flat + rng.normal(0, 0.3, (H, W, 1)).astype(np.float32).repeat(3, 2)
+    sharpened = im.unsharp_luma(noisy, a, s, coring_dn=1.0)
+    assert np.abs(sharpened - noisy).max() < 0.5 and np.std(im.unsharp_luma(noisy, a, s) - noisy) > 0.2
+
+
+def test_toner_black_reaches_the_rendered_board():
+    """The ``toner`` stage states the printed black's reflectance; ideal imaging keeps the scene's default."""
+    from bench.sim.scenes.rig import BLACK_REFLECTANCE
+
+    g = im.target_geometry(im.imaging_profile("realistic"), 7, np.random.default_rng(0))
+    assert g["black_reflectance"] == im.REALISTIC["toner"]["black_reflectance"] != BLACK_REFLECTANCE
+    g = im.target_geometry(im.imaging_profile("realistic", ["toner"]), 7, np.random.default_rng(0))
+    assert g["black_reflectance"] == BLACK_REFLECTANCE

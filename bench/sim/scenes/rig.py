@@ -142,11 +142,15 @@ def bow_z(x, width_m: float, bow_m: float):
     return bow_m * (1 - u ** 2)
 
 
-def _builder(name, boards):
+#: the printed black's reflectance (the white's is 0.92); a realistic target states its own (``black_reflectance``)
+BLACK_REFLECTANCE = 0.03
+
+
+def _builder(name, boards, black=BLACK_REFLECTANCE):
     """``build(spec, parent)`` of a target: its materials and meshes, a body ``name`` holding one body per
     ``(body name or None, pose or None, geoms, meshes)`` of ``boards`` (None: the geoms go in the body itself)."""
     def build(spec, parent):
-        add_color_material(spec, f"{name}_black", (0.03, 0.03, 0.03, 1), specular=0.0, shininess=0.0)
+        add_color_material(spec, f"{name}_black", (black, black, black, 1), specular=0.0, shininess=0.0)
         add_color_material(spec, f"{name}_white", (0.92, 0.92, 0.92, 1), specular=0.0, shininess=0.0)
         add_color_material(spec, f"{name}_back", (0.45, 0.35, 0.25, 1), specular=0.1, shininess=0.1)
         root = parent.add_body(name=name)
@@ -191,7 +195,8 @@ def planar_board(rows=BOARD_SQUARES, cols=BOARD_SQUARES, square_m=SQUARE_M, marg
     W, H = cols * square_m, rows * square_m
     features = {"corners": corners, "pattern_size": (cols - 1, rows - 1),
                 "square_m": float(square_m), "outline": np.array([[0, 0, 0], [W, 0, 0], [W, H, 0], [0, H, 0.0]])}
-    return SceneObject(name=name, build=_builder(name, [(None, None, geoms, meshes)]), features=features)
+    black = float((errors or {}).get("black_reflectance", BLACK_REFLECTANCE))
+    return SceneObject(name=name, build=_builder(name, [(None, None, geoms, meshes)], black), features=features)
 
 
 def _check_dz(dz, rows, cols):
@@ -280,4 +285,5 @@ def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M,
     features = {"corners": np.vstack([ca, cb]), "corners_board_a": ca, "corners_board_b": cb,
                 "T_rig_board_a": T_a, "T_rig_board_b": T_b, "pattern_size": (squares - 1, squares - 1),
                 "square_m": float(square_m)}
-    return SceneObject(name=name, build=_builder(name, boards), features=features)
+    return SceneObject(name=name, build=_builder(name, boards, float(e.get("black_reflectance", BLACK_REFLECTANCE))),
+                       features=features)
