@@ -265,15 +265,15 @@ def measure_blur(views, pattern) -> dict:
     return {"edge_sigma_px": float(np.median(sig)), "edge_sigma_p25_px": float(np.percentile(sig, 25)),
             "edge_sigma_p75_px": float(np.percentile(sig, 75)), "edge_profiles": len(sig)}
 
-def measure_edge_profile(views, pattern, half_width_px: float = 10.0) -> dict:
-    """The median edge profile across the square edges (dark -> bright, DN), each profile aligned at its
-    mid-level crossing: how a camera's processing shapes an edge. ``edge_undershoot_dn``: how far the profile dips
-    below the black squares' level beside the edge (a sharpening halo; 0 for an unsharpened camera);
-    ``edge_width_10_90_px``: the 10-90 % rise distance. Profiles sampled bilinearly every 0.25 px across the middle
-    of each edge between neighbouring inner corners (at 0.4, 0.5 and 0.6 of it)."""
+def median_edge_profile(views, pattern, half_width_px: float = 10.0, step_px: float = 0.5):
+    """The median edge profile across the square edges, dark -> bright: ``(t, profile, n)`` with ``t`` the
+    distance from the edge (px, every ``step_px`` within +-``half_width_px``), ``profile`` its grey level (DN) and
+    ``n`` the profiles used. Each profile is sampled bilinearly every 0.25 px across the middle of an edge between
+    neighbouring inner corners (at 0.4, 0.5 and 0.6 of it) and aligned at its mid-level crossing; profiles with
+    less than 60 DN of contrast or more than one crossing (noise, a neighbouring edge) are left out."""
     cols, rows = pattern
     t = np.arange(-half_width_px - 2, half_width_px + 2.01, 0.25)
-    tt = np.arange(-half_width_px, half_width_px + 0.01, 0.5)
+    tt = np.arange(-half_width_px, half_width_px + step_px / 2, step_px)
     profiles = []
     for _, _, grey, c in views:
         g = grey.astype(np.float32)
@@ -293,14 +293,21 @@ def measure_edge_profile(views, pattern, half_width_px: float = 10.0) -> dict:
                     continue
                 mid = (lo + hi) / 2
                 k = np.nonzero((y[:-1] < mid) & (y[1:] >= mid))[0]
-                if len(k) != 1:  # noise or a neighbouring edge: not one clean crossing
+                if len(k) != 1:
                     continue
                 k = k[0]
                 x0 = t[k] + (mid - y[k]) / (y[k + 1] - y[k]) * (t[1] - t[0])
                 profiles.append(np.interp(tt + x0, t, y))
-    med = np.median(np.array(profiles), axis=0)
+    return tt, np.median(np.array(profiles), axis=0), len(profiles)
+
+
+def measure_edge_profile(views, pattern) -> dict:
+    """How a camera's processing shapes an edge (:func:`median_edge_profile`): ``edge_undershoot_dn``, how far the
+    median profile dips below the black squares' level beside the edge (a sharpening halo; 0 for an unsharpened
+    camera), and ``edge_width_10_90_px``, its 10-90 % rise distance."""
+    tt, med, n = median_edge_profile(views, pattern)
     lo, hi = med[0], med[-1]
     rise = (med - lo) / (hi - lo)
     width = np.interp(0.9, rise, tt) - np.interp(0.1, rise, tt)  # the median profile rises monotonically in between
     return {"edge_undershoot_dn": float(lo - med[:len(tt) // 2].min()), "edge_width_10_90_px": float(width),
-            "edge_profiles_used": len(profiles)}
+            "edge_profiles_used": n}

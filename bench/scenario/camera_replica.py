@@ -74,6 +74,8 @@ class Photos(Section):
 class Camera(Section):
     imaging: Annotated[str, about("realistic | ideal (bench.sim.imaging)")] = "realistic"
     imaging_off: Annotated[list[str], about("stages of the profile switched off")] = []
+    imaging_params: Annotated[dict[str, dict], about(
+        "stage -> {parameter: value} replacing the realistic profile's (bench.sim.imaging.REALISTIC)")] = {}
     supersample: Annotated[int, Field(ge=1, le=8)] = 3
 
 

@@ -96,6 +96,8 @@ class Camera(Section):
     supersample: PositiveInt = 2
     imaging: str = "realistic"
     imaging_off: list[str] = []
+    imaging_params: Annotated[dict[str, dict], about(
+        "stage -> {parameter: value} replacing the realistic profile's (bench.sim.imaging.REALISTIC)")] = {}
     housing_tolerance_mm: Annotated[PositiveFloat, about(
         "the housing datasheet's tolerance (+-) on the lens-to-glass distance: housing.yaml states the true distance "
         "off by a draw within it (a drawing does not locate the lens's entrance pupil exactly)")] = 3.0

@@ -114,6 +114,8 @@ class Sim(Section):
     supersample: PositiveInt = 2
     imaging: Annotated[str, about("realistic | ideal (bench.sim.imaging)")] = "realistic"
     imaging_off: Annotated[list[str], about("stages of the realistic profile switched off (ablation)")] = []
+    imaging_params: Annotated[dict[str, dict], about(
+        "stage -> {parameter: value} replacing the realistic profile's (bench.sim.imaging.REALISTIC)")] = {}
     reference_object: Annotated[Literal["panel", "robot", "rig"], about(
         "panel (manifold panel) | robot (desk robot in a lab) | rig")] = "panel"
     textures: Annotated[dict, about("panel face -> image file (bench.scenario.scene_textures)")] = {}

@@ -14,6 +14,9 @@ Target (applied to the rig's geometry, :func:`target_geometry`, never to the ima
   ``shape_print_row_offsets_rms_mm`` 0.09 mm, ``shape_print_col_offsets_rms_mm`` 0.05 mm for a 25 mm square; the
   0.28 mm of an in-plane-only fit was mostly the cockle below seen from tilted views);
 * ``print_scale`` - the printout's scale differs from the file's (``scale_rms_pct``; office printers ~0.1-0.3 %);
+* ``toner`` - the printed black's reflectance (``black_reflectance``; the white's is 0.92): 0.018, fitted with the
+  tone stage below to the real photos' black squares (38 DN) and edge profiles (docs/realistic_imaging.md section
+  1.1); the ideal scene's is 0.03;
 * ``flatness`` - paper on a board is not flat: a cylindrical bow of sagitta ``bow_sagitta_mm`` (random sign) across
   each board (real photos: quadratic bow fit, median 0.6 mm, an upper bound);
 * ``cockle`` - printed paper is wavy on a smaller scale too (cockle): out-of-plane offsets at every line crossing,
@@ -51,7 +54,8 @@ Optics (applied to the image at the camera's resolution, in linear radiance):
 * ``vignetting`` - relative illumination ``1 - a r^2`` (r over the half diagonal; ``a`` from the real photos' white
   squares, which includes the lighting's fall-off);
 
-Sensor (replaces the three-channel sensor of :mod:`bench.sim.medium` by a colour-filter-array sensor):
+Sensor and processing (replaces the three-channel sensor of :mod:`bench.sim.medium` by a colour-filter-array
+sensor and a webcam's image processing):
 
 * ``bayer`` - an RGGB mosaic sampled from the linear image; noise per photosite; demosaiced by OpenCV's edge-aware
   ``cvtColor(COLOR_BayerBG2RGB_EA)`` (OpenCV's Bayer names count from the second row and column: ``BG`` is an RGGB
@@ -59,6 +63,15 @@ Sensor (replaces the three-channel sensor of :mod:`bench.sim.medium` by a colour
 * ``prnu_dsnu`` - fixed-pattern noise: photo-response non-uniformity (gain, rms ``prnu_pct``) and dark-signal
   non-uniformity (offset, rms ``dsnu_e``), drawn once per camera from ``pattern_seed`` (the same in every frame);
   EMVA 1288 datasheets of small CMOS sensors give PRNU ~0.5-1 % and DSNU ~1-5 e-;
+* ``tone`` - the camera's ADC (``adc_bits``) and its output encoding: demosaicing on the ADC codes, then the sRGB
+  transfer function (IEC 61966-2-1; a webcam's UVC stream is gamma-encoded) to 8 bits. A manual-exposure camera's
+  exposure is scaled by ``exposure_scale`` (the real webcam put the board's white 1.12x above its clip level: 70 %
+  of the white squares' centres read 254-255); an automatically exposing camera meters its own scene;
+* ``sharpen`` - the camera's sharpening: an unsharp mask of the luma (``amount``, Gaussian ``sigma_px``) with a
+  coring threshold (``coring_dn``) below which detail is left alone (:func:`unsharp_luma`). The real photos' edges
+  are crisper than a perfect pixel-integrating camera's (erf sigma 0.46 px against 0.51 px) and dip 37 DN below the
+  black level 1-3 px beside the edge; amount 1.97 and sigma 1.66 px are fitted to their median edge profile, coring
+  0.7 DN to their black squares' noise (1.47 DN);
 * ``jpeg`` - the camera's JPEG at ``quality`` (``cv2.imencode``; the real photos' quantisation tables are IJG
   quality 90 exactly).
 
@@ -179,31 +192,35 @@ def imaging_profile(name: str = "realistic", off=(), source: str = "imaging", fi
     stages = copy.deepcopy(REALISTIC)
     for stage, vals in (overrides or {}).items():
         if stage not in stages or not isinstance(vals, dict):
-            raise ConfigError(source, f"{field}.{stage}",
+            raise ConfigError(source, f"{field}_params.{stage}",
                               f"unknown stage or not a mapping (known: {', '.join(STAGES)})")
         for k, v in vals.items():
             if k not in _KEYS[stage]:
-                raise ConfigError(source, f"{field}.{stage}.{k}", f"unknown key (known: {', '.join(_KEYS[stage])})")
+                raise ConfigError(source, f"{field}_params.{stage}.{k}",
+                                  f"unknown key (known: {', '.join(_KEYS[stage])})")
             stages[stage][k] = v
     for stage, vals in stages.items():
         for k, v in vals.items():
             if k in _BOUNDS:
                 lo, hi = _BOUNDS[k]
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
-                    raise ConfigError(source, f"{field}.{stage}.{k}", f"expected a number in [{lo:g}, {hi:g}], "
+                    raise ConfigError(source, f"{field}_params.{stage}.{k}", f"expected a number in [{lo:g}, {hi:g}], "
                                                                       f"got {v!r}")
     q = stages["jpeg"]["quality"]
     if isinstance(q, bool) or not isinstance(q, int) or not 1 <= q <= 100:
-        raise ConfigError(source, f"{field}.jpeg.quality", f"expected an integer in 1..100, got {q!r}")
+        raise ConfigError(source, f"{field}_params.jpeg.quality", f"expected an integer in 1..100, got {q!r}")
     if stages["bayer"]["demosaic"] not in _DEMOSAIC or stages["bayer"]["pattern"] != "RGGB":
-        raise ConfigError(source, f"{field}.bayer", f"expected pattern RGGB and demosaic one of {', '.join(_DEMOSAIC)}")
+        raise ConfigError(source, f"{field}_params.bayer",
+                          f"expected pattern RGGB and demosaic one of {', '.join(_DEMOSAIC)}")
     return ImagingProfile("realistic", {k: v for k, v in stages.items() if k not in off})
 
 
 def profile_from_config(cfg: dict, section: str) -> ImagingProfile:
-    """The profile of a loaded scenario's ``section`` (``camera`` or ``sim``): its ``imaging`` and ``imaging_off``."""
+    """The profile of a loaded scenario's ``section`` (``camera`` or ``sim``): its ``imaging``, ``imaging_off`` and
+    ``imaging_params`` (a stage's parameters replaced, e.g. ``{sharpen: {amount: 1.5}}``)."""
     s = cfg[section]
-    return imaging_profile(s.get("imaging", "realistic"), s.get("imaging_off", []), cfg["_file"], f"{section}.imaging")
+    return imaging_profile(s.get("imaging", "realistic"), s.get("imaging_off", []), cfg["_file"], f"{section}.imaging",
+                           s.get("imaging_params") or None)
 
 
 # ------------------------------------------------------------------------------------------------ target geometry

@@ -29,9 +29,9 @@ def test_profiles_and_one_line_errors():
         im.imaging_profile("realistic", ["jpg"], source="s.yaml", field="camera.imaging")
     with pytest.raises(ConfigError, match="imaging_off.*list"):
         im.imaging_profile("realistic", "jpeg")
-    with pytest.raises(ConfigError, match="imaging.defocus.f_number"):
+    with pytest.raises(ConfigError, match="imaging_params.defocus.f_number"):
         im.imaging_profile("realistic", overrides={"defocus": {"f_number": 0.1}})
-    with pytest.raises(ConfigError, match="imaging.jpeg.quality"):
+    with pytest.raises(ConfigError, match="imaging_params.jpeg.quality"):
         im.imaging_profile("realistic", overrides={"jpeg": {"quality": 101}})
 
 
