@@ -187,9 +187,7 @@ def imaging_profile(name: str = "realistic", off=(), source: str = "imaging", fi
     bad = [s for s in off if s not in STAGES]
     if bad:
         raise ConfigError(source, f"{field}_off", f"unknown stage {bad[0]!r} (known: {', '.join(STAGES)})")
-    if name == "ideal":
-        return ImagingProfile("ideal", {})
-    stages = copy.deepcopy(REALISTIC)
+    stages = copy.deepcopy(REALISTIC)  # the overrides are checked under ideal imaging too (a typo is a typo)
     for stage, vals in (overrides or {}).items():
         if stage not in stages or not isinstance(vals, dict):
             raise ConfigError(source, f"{field}_params.{stage}",
@@ -212,6 +210,8 @@ def imaging_profile(name: str = "realistic", off=(), source: str = "imaging", fi
     if stages["bayer"]["demosaic"] not in _DEMOSAIC or stages["bayer"]["pattern"] != "RGGB":
         raise ConfigError(source, f"{field}_params.bayer",
                           f"expected pattern RGGB and demosaic one of {', '.join(_DEMOSAIC)}")
+    if name == "ideal":
+        return ImagingProfile("ideal", {})
     return ImagingProfile("realistic", {k: v for k, v in stages.items() if k not in off})
 
 

@@ -304,3 +304,19 @@ def test_toner_black_reaches_the_rendered_board():
     assert g["black_reflectance"] == im.REALISTIC["toner"]["black_reflectance"] != BLACK_REFLECTANCE
     g = im.target_geometry(im.imaging_profile("realistic", ["toner"]), 7, np.random.default_rng(0))
     assert g["black_reflectance"] == BLACK_REFLECTANCE
+
+
+def test_stage_parameters_from_the_scenario_are_checked_by_name():
+    """``camera.imaging_params`` replaces a stage's parameters; a wrong stage, key, type or range is a one-line error
+    naming it, under ideal imaging too."""
+    prof = im.imaging_profile("realistic", overrides={"sharpen": {"coring_dn": 1.5}}, field="camera.imaging")
+    assert prof["sharpen"]["coring_dn"] == 1.5 and prof["sharpen"]["amount"] == im.REALISTIC["sharpen"]["amount"]
+    assert im.REALISTIC["sharpen"]["coring_dn"] != 1.5  # the module's profile is not modified
+    for bad, match in (({"sharpn": {"amount": 1}}, r"camera\.imaging_params\.sharpn: unknown stage"),
+                       ({"sharpen": {"amt": 1}}, r"camera\.imaging_params\.sharpen\.amt: unknown key"),
+                       ({"sharpen": {"amount": "lots"}}, r"camera\.imaging_params\.sharpen\.amount: expected a number"),
+                       ({"tone": {"exposure_scale": -1}}, r"camera\.imaging_params\.tone\.exposure_scale"),
+                       ({"tone": 5}, r"camera\.imaging_params\.tone: unknown stage or not a mapping")):
+        for name in ("realistic", "ideal"):
+            with pytest.raises(ConfigError, match=match):
+                im.imaging_profile(name, overrides=bad, source="s.yaml", field="camera.imaging")
