@@ -38,7 +38,7 @@ from scipy.special import ndtr
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.camera.photo_stats import detect_views, median_edge_profile  # noqa: E402
+from bench.camera.photo_stats import detect_views, median_edge_profile, parse_pattern  # noqa: E402
 from bench.sim.imaging import srgb_oetf  # noqa: E402
 
 PHASES = np.linspace(0, 1, 16, endpoint=False)
@@ -116,11 +116,9 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default=None, help="also write the fit to this JSON file")
     args = ap.parse_args(argv)
     try:
-        pattern = tuple(int(v) for v in args.pattern.lower().split("x"))
-        if len(pattern) != 2 or min(pattern) < 2:
-            raise ValueError
-    except ValueError:
-        raise SystemExit(f"--pattern: expected e.g. 7x7 (inner corners), got {args.pattern!r}") from None
+        pattern = parse_pattern(args.pattern)
+    except ValueError as e:
+        raise SystemExit(f"--pattern: {e}") from None
     for name in ("data", "chain"):
         if not Path(getattr(args, name)).is_dir():
             raise SystemExit(f"--{name}: {getattr(args, name)}: not a folder")

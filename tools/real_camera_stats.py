@@ -53,6 +53,7 @@ from bench.camera.photo_stats import (  # noqa: E402 - detection, calibration, r
     measure_edge_profile,
     measure_noise,
     measure_sift_precision,
+    parse_pattern,
     residual_statistics,
 )
 
@@ -418,11 +419,9 @@ def main(argv=None):
     ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
     args = ap.parse_args(argv)
     try:
-        pattern = tuple(int(v) for v in args.pattern.lower().split("x"))
-        if len(pattern) != 2 or min(pattern) < 2:
-            raise ValueError
-    except ValueError:
-        raise SystemExit(f"--pattern: expected e.g. 7x7 (inner corners), got {args.pattern!r}") from None
+        pattern = parse_pattern(args.pattern)
+    except ValueError as e:
+        raise SystemExit(f"--pattern: {e}") from None
     out = measure(args.data, pattern, args.square_mm)
     for k, v in out.items():
         print(f"{k:34s} {v if not isinstance(v, float) else round(v, 4)}")

@@ -61,6 +61,17 @@ def detect_views(files, pattern, read=None) -> list:
     return out
 
 
+def parse_pattern(text: str) -> tuple:
+    """``"7x7"`` -> ``(7, 7)``: a board's inner corners per row x per column; ValueError naming the text otherwise."""
+    try:
+        pattern = tuple(int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        pattern = ()
+    if len(pattern) != 2 or min(pattern) < 2:
+        raise ValueError(f"expected e.g. 7x7 (inner corners), got {text!r}")
+    return pattern
+
+
 def board_points(pattern) -> np.ndarray:
     """The board's inner corners ``(cols * rows, 3)`` in unit squares, OpenCV's order (x along a row, z = 0)."""
     cols, rows = pattern
@@ -240,30 +251,33 @@ def _erf_fit(x, y):
     return abs(r.x[3])
 
 
-def measure_blur(views, pattern) -> dict:
-    """Edge spread: erf sigma (px) of profiles across the square edges between neighbouring inner corners (their
-    middle half), sampled perpendicular to the edge over +-5 px at 0.25 px (bilinear)."""
+def edge_profiles(views, pattern, t, fractions):
+    """Grey profiles (DN) across every square edge between neighbouring inner corners: for each edge and each
+    fraction of its length in ``fractions``, the image sampled bilinearly at distances ``t`` (px) along the edge's
+    normal. Yields ``(len(t),)`` arrays."""
     cols, rows = pattern
-    sig = []
     for _, _, grey, c in views:
         g = grey.astype(np.float32)
         C = c.reshape(rows, cols, 2)
         pairs = [(C[i, j], C[i, j + 1]) for i in range(rows) for j in range(cols - 1)] + \
                 [(C[i, j], C[i + 1, j]) for i in range(rows - 1) for j in range(cols)]
-        t = np.arange(-5, 5.01, 0.25)
         for a, b in pairs:
             d = b - a
             n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
-            for s in (0.35, 0.5, 0.65):
-                m = a + s * d
-                p = (m + t[:, None] * n).astype(np.float32)
-                y = cv2.remap(g, p[:, :1], p[:, 1:], cv2.INTER_LINEAR).ravel().astype(float)
-                r = _erf_fit(t, y)
-                if r is not None:
-                    sig.append(r)
+            for s in fractions:
+                p = (a + s * d + t[:, None] * n).astype(np.float32)
+                yield cv2.remap(g, p[:, :1], p[:, 1:], cv2.INTER_LINEAR).ravel().astype(float)
+
+
+def measure_blur(views, pattern) -> dict:
+    """Edge spread: erf sigma (px) of profiles across the square edges between neighbouring inner corners (their
+    middle half), sampled perpendicular to the edge over +-5 px at 0.25 px (bilinear)."""
+    t = np.arange(-5, 5.01, 0.25)
+    sig = [r for y in edge_profiles(views, pattern, t, (0.35, 0.5, 0.65)) if (r := _erf_fit(t, y)) is not None]
     sig = np.array(sig)
     return {"edge_sigma_px": float(np.median(sig)), "edge_sigma_p25_px": float(np.percentile(sig, 25)),
             "edge_sigma_p75_px": float(np.percentile(sig, 75)), "edge_profiles": len(sig)}
+
 
 def median_edge_profile(views, pattern, half_width_px: float = 10.0, step_px: float = 0.5):
     """The median edge profile across the square edges, dark -> bright: ``(t, profile, n)`` with ``t`` the
@@ -271,33 +285,22 @@ def median_edge_profile(views, pattern, half_width_px: float = 10.0, step_px: fl
     ``n`` the profiles used. Each profile is sampled bilinearly every 0.25 px across the middle of an edge between
     neighbouring inner corners (at 0.4, 0.5 and 0.6 of it) and aligned at its mid-level crossing; profiles with
     less than 60 DN of contrast or more than one crossing (noise, a neighbouring edge) are left out."""
-    cols, rows = pattern
     t = np.arange(-half_width_px - 2, half_width_px + 2.01, 0.25)
     tt = np.arange(-half_width_px, half_width_px + step_px / 2, step_px)
     profiles = []
-    for _, _, grey, c in views:
-        g = grey.astype(np.float32)
-        C = c.reshape(rows, cols, 2)
-        pairs = [(C[i, j], C[i, j + 1]) for i in range(rows) for j in range(cols - 1)] + \
-                [(C[i, j], C[i + 1, j]) for i in range(rows - 1) for j in range(cols)]
-        for a, b in pairs:
-            d = b - a
-            n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
-            for s in (0.4, 0.5, 0.6):
-                p = (a + s * d + t[:, None] * n).astype(np.float32)
-                y = cv2.remap(g, p[:, :1], p[:, 1:], cv2.INTER_LINEAR).ravel().astype(float)
-                if y[-1] < y[0]:
-                    y = y[::-1]
-                lo, hi = np.median(y[:5]), np.median(y[-5:])
-                if hi - lo < 60:
-                    continue
-                mid = (lo + hi) / 2
-                k = np.nonzero((y[:-1] < mid) & (y[1:] >= mid))[0]
-                if len(k) != 1:
-                    continue
-                k = k[0]
-                x0 = t[k] + (mid - y[k]) / (y[k + 1] - y[k]) * (t[1] - t[0])
-                profiles.append(np.interp(tt + x0, t, y))
+    for y in edge_profiles(views, pattern, t, (0.4, 0.5, 0.6)):
+        if y[-1] < y[0]:
+            y = y[::-1]
+        lo, hi = np.median(y[:5]), np.median(y[-5:])
+        if hi - lo < 60:
+            continue
+        mid = (lo + hi) / 2
+        k = np.nonzero((y[:-1] < mid) & (y[1:] >= mid))[0]
+        if len(k) != 1:
+            continue
+        k = k[0]
+        x0 = t[k] + (mid - y[k]) / (y[k + 1] - y[k]) * (t[1] - t[0])
+        profiles.append(np.interp(tt + x0, t, y))
     return tt, np.median(np.array(profiles), axis=0), len(profiles)
 
 
