@@ -204,6 +204,9 @@ def imaging_profile(name: str = "realistic", off=(), source: str = "imaging", fi
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
                     raise ConfigError(source, f"{field}_params.{stage}.{k}", f"expected a number in [{lo:g}, {hi:g}], "
                                                                       f"got {v!r}")
+    if not float(stages["tone"]["adc_bits"]).is_integer():
+        raise ConfigError(source, f"{field}_params.tone.adc_bits",
+                          f"expected whole bits, got {stages['tone']['adc_bits']!r}")
     q = stages["jpeg"]["quality"]
     if isinstance(q, bool) or not isinstance(q, int) or not 1 <= q <= 100:
         raise ConfigError(source, f"{field}_params.jpeg.quality", f"expected an integer in 1..100, got {q!r}")

@@ -316,7 +316,8 @@ def test_stage_parameters_from_the_scenario_are_checked_by_name():
                        ({"sharpen": {"amt": 1}}, r"camera\.imaging_params\.sharpen\.amt: unknown key"),
                        ({"sharpen": {"amount": "lots"}}, r"camera\.imaging_params\.sharpen\.amount: expected a number"),
                        ({"tone": {"exposure_scale": -1}}, r"camera\.imaging_params\.tone\.exposure_scale"),
-                       ({"tone": 5}, r"camera\.imaging_params\.tone: unknown stage or not a mapping")):
+                       ({"tone": 5}, r"camera\.imaging_params\.tone: unknown stage or not a mapping"),
+                       ({"tone": {"adc_bits": 10.5}}, r"camera\.imaging_params\.tone\.adc_bits: expected whole bits")):
         for name in ("realistic", "ideal"):
             with pytest.raises(ConfigError, match=match):
                 im.imaging_profile(name, overrides=bad, source="s.yaml", field="camera.imaging")
