@@ -169,8 +169,8 @@ def planar_board(rows=BOARD_SQUARES, cols=BOARD_SQUARES, square_m=SQUARE_M, marg
 
     ``errors`` (optional): the printed board's geometry errors as for one board of :func:`calibration_rig`
     (:func:`bench.sim.imaging.target_geometry`): ``line_offsets_m`` ``(xs, ys)`` (offsets of the ``cols + 1``
-    column and ``rows + 1`` row lines, m), ``scale`` (printout / file) and ``bow_sagitta_m`` (float, the cylindrical
-    bow of :func:`bow_z`); ``features["corners"]`` are then the true printed corners.
+    column and ``rows + 1`` row lines, m), ``scale`` (printout / file), ``bow_sagitta_m`` (float, the cylindrical
+    bow of :func:`bow_z`) and ``black_reflectance``; ``features["corners"]`` are then the true printed corners.
 
     ``features``: ``corners`` ((rows-1)(cols-1), 3) m, row-major; ``pattern_size`` (cols-1, rows-1) as OpenCV's
     ``patternSize`` (corners per row, per column); ``square_m`` (nominal); ``outline`` (4, 3) the pattern's outer
@@ -247,8 +247,9 @@ def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M,
         The printed and assembled rig's geometry errors (:func:`bench.sim.imaging.target_geometry`):
         ``line_offsets_m`` ``{"a": (xs, ys), "b": (xs, ys)}`` (offsets of the ``squares + 1`` column and row lines,
         m), ``scale`` (printout / file), ``bow_sagitta_m`` ``{"a", "b"}``, ``dz_m`` ``{"a", "b"}`` (out-of-plane
-        offsets at the ``(squares + 1)^2`` line crossings, m: the cockle) and ``fold_error_rad`` (board B turned
-        about the fold). ``features["corners"]`` are then the true printed corners; None: the exact rig.
+        offsets at the ``(squares + 1)^2`` line crossings, m: the cockle), ``fold_error_rad`` (board B turned
+        about the fold) and ``black_reflectance`` (the printed black's, default :data:`BLACK_REFLECTANCE`).
+        ``features["corners"]`` are then the true printed corners; None: the exact rig.
 
     Returns
     -------
