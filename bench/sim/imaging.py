@@ -66,7 +66,8 @@ sensor and a webcam's image processing):
 * ``tone`` - the camera's ADC (``adc_bits``) and its output encoding: demosaicing on the ADC codes, then the sRGB
   transfer function (IEC 61966-2-1; a webcam's UVC stream is gamma-encoded) to 8 bits. A manual-exposure camera's
   exposure is scaled by ``exposure_scale`` (the real webcam put the board's white 1.12x above its clip level: 70 %
-  of the white squares' centres read 254-255); an automatically exposing camera meters its own scene;
+  of the white squares' centres read 254-255); an automatically exposing camera meters its own scene, its target
+  a grey level of its encoded output (FLIR's "target grey value" is one), i.e. the linear level ``srgb_eotf(target)``;
 * ``sharpen`` - the camera's sharpening: an unsharp mask of the luma (``amount``, Gaussian ``sigma_px``) with a
   coring threshold (``coring_dn``) below which detail is left alone (:func:`unsharp_luma`). The real photos' edges
   are crisper than a perfect pixel-integrating camera's (erf sigma 0.46 px against 0.51 px) and dip 37 DN below the
@@ -413,6 +414,12 @@ def srgb_oetf(x) -> np.ndarray:
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
 
 
+def srgb_eotf(v) -> np.ndarray:
+    """The inverse of :func:`srgb_oetf` (IEC 61966-2-1's decoding): encoded ``v`` in [0, 1] -> linear."""
+    v = np.clip(np.asarray(v, float), 0.0, 1.0)
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
 def unsharp_luma(rgb, amount: float, sigma_px: float, coring_dn: float = 0.0) -> np.ndarray:
     """A camera's sharpening: the unsharp mask of the luma (Rec. 601 weights) with coring, ``out = rgb + amount
     core(Y - G_sigma * Y)`` added to every channel, ``core(d) = sign(d) max(|d| - coring_dn, 0)`` (the threshold
@@ -565,7 +572,10 @@ class ImagingChain:
         if spec is None:
             codes = np.clip(np.rint(raw * float(full)), 0, full)
         else:
-            scale = spec.exposure_for(img) * spec.full_well_e
+            if tone and spec.auto_exposure_target > 0:  # the target is a grey level of the (encoded) output
+                scale = spec.exposure_for(img, float(srgb_eotf(spec.auto_exposure_target))) * spec.full_well_e
+            else:
+                scale = spec.exposure_for(img) * spec.full_well_e
             if tone and spec.auto_exposure_target == 0:  # the webcam's own exposure of its scene (measured)
                 scale *= self.profile["tone"]["exposure_scale"]
             lam = np.minimum(raw * np.float32(scale), spec.full_well_e).astype(np.float32)

@@ -205,15 +205,18 @@ class Sensor:
         object.__setattr__(self, "auto_exposure_max",
                            _scalar("sensor", "auto_exposure_max", self.auto_exposure_max, 0.0, 1e6, True))
 
-    def exposure_for(self, image) -> float:
-        """The exposure used for linear radiance ``image (H, W, 3)``: ``exposure``, or the automatic exposure."""
+    def exposure_for(self, image, target: float | None = None) -> float:
+        """The exposure used for linear radiance ``image (H, W, 3)``: ``exposure``, or the automatic exposure that
+        brings the mean linear luma to ``target`` (default ``auto_exposure_target``; a camera whose output is
+        gamma-encoded passes the linear level of its output target)."""
         if self.auto_exposure_target == 0:
             return self.exposure
+        target = self.auto_exposure_target if target is None else target
         luma = float(np.tensordot(np.asarray(image), np.array([0.299, 0.587, 0.114], np.float32), axes=([-1], [0]))
                      .mean(dtype=np.float64))
-        if luma <= self.auto_exposure_target / self.auto_exposure_max:
+        if luma <= target / self.auto_exposure_max:
             return self.auto_exposure_max
-        return self.auto_exposure_target / luma
+        return target / luma
 
 
 # ----------------------------------------------------------------------------------------------------------------------
