@@ -424,8 +424,10 @@ def unsharp_luma(rgb, amount: float, sigma_px: float, coring_dn: float = 0.0) ->
     """A camera's sharpening: the unsharp mask of the luma (Rec. 601 weights) with coring, ``out = rgb + amount
     core(Y - G_sigma * Y)`` added to every channel, ``core(d) = sign(d) max(|d| - coring_dn, 0)`` (the threshold
     that keeps an ISP from sharpening its own noise). Float32 ``(H, W, 3)`` in DN, not clipped."""
+    from bench.sim.medium import REC601_LUMA
+
     img = np.asarray(rgb, np.float32)
-    y = img @ np.array([0.299, 0.587, 0.114], np.float32)
+    y = img @ REC601_LUMA
     detail = y - cv2.GaussianBlur(y, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
     if coring_dn > 0:
         detail = np.sign(detail) * np.maximum(np.abs(detail) - np.float32(coring_dn), 0)
@@ -488,6 +490,10 @@ class ImagingChain:
             self._dsnu = g.standard_normal((self.H, self.W), dtype=np.float32) * np.float32(p["dsnu_e"])
         self._row_t = row_times_s(self.H, profile["rolling_shutter"]["readout_s"]).astype(np.float32) \
             if profile.on("rolling_shutter") else None
+        self._tone_lut = None  # the sRGB transfer function (IEC 61966-2-1) as a look-up table from the ADC codes
+        if profile.on("tone"):
+            full = 2 ** int(profile["tone"]["adc_bits"]) - 1
+            self._tone_lut = (255.0 * srgb_oetf(np.arange(full + 1) / full)).astype(np.float32)
 
     # --- stages ------------------------------------------------------------------------------------------------------
     def image_velocity(self, rng: np.random.Generator) -> np.ndarray:
@@ -576,8 +582,8 @@ class ImagingChain:
                 scale = spec.exposure_for(img, float(srgb_eotf(spec.auto_exposure_target))) * spec.full_well_e
             else:
                 scale = spec.exposure_for(img) * spec.full_well_e
-            if tone and spec.auto_exposure_target == 0:  # the webcam's own exposure of its scene (measured)
-                scale *= self.profile["tone"]["exposure_scale"]
+                if tone:  # a manual exposure: the webcam's own exposure of its scene (measured)
+                    scale *= self.profile["tone"]["exposure_scale"]
             lam = np.minimum(raw * np.float32(scale), spec.full_well_e).astype(np.float32)
             prnu = self._prnu if bayer or self._prnu is None else self._prnu[..., None]
             dsnu = self._dsnu if bayer or self._dsnu is None else self._dsnu[..., None]
@@ -595,8 +601,8 @@ class ImagingChain:
             codes = np.clip(np.rint(e * np.float32(gain)), 0, full)
         codes = codes.astype(np.uint16 if tone else np.uint8)
         rgb = demosaic(codes, self.profile["bayer"]["demosaic"]) if bayer else codes
-        if tone:  # the sRGB transfer function (IEC 61966-2-1) as a look-up table from the ADC codes
-            rgb = (255.0 * srgb_oetf(np.arange(full + 1) / full)).astype(np.float32)[rgb]
+        if tone:
+            rgb = self._tone_lut[rgb]
         if self.profile.on("sharpen"):
             sh = self.profile["sharpen"]
             rgb = unsharp_luma(rgb, sh["amount"], sh["sigma_px"], sh["coring_dn"])

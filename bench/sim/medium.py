@@ -152,6 +152,10 @@ class Light:
         return bool(np.all(self.position_m == 0) and np.allclose(self.axis, (0.0, 0.0, 1.0), rtol=0, atol=1e-15))
 
 
+#: Rec. 601 luma weights of R, G, B (the metering of the automatic exposure, the luma a camera sharpens)
+REC601_LUMA = np.array([0.299, 0.587, 0.114], np.float32)
+
+
 @dataclass(frozen=True)
 class Sensor:
     """Image sensor: shot noise on electrons, read noise, gain, 8-bit output, optional JPEG.
@@ -212,8 +216,7 @@ class Sensor:
         if self.auto_exposure_target == 0:
             return self.exposure
         target = self.auto_exposure_target if target is None else target
-        luma = float(np.tensordot(np.asarray(image), np.array([0.299, 0.587, 0.114], np.float32), axes=([-1], [0]))
-                     .mean(dtype=np.float64))
+        luma = float(np.tensordot(np.asarray(image), REC601_LUMA, axes=([-1], [0])).mean(dtype=np.float64))
         if luma <= target / self.auto_exposure_max:
             return self.auto_exposure_max
         return target / luma
