@@ -10,7 +10,8 @@ camera could. A one-dimensional model of the chain reproduces that profile:
     linear = k (rho + (1 - rho) step)  ->  Gaussian optics sigma_o, pixel integration  ->  sRGB (IEC 61966-2-1)
     ->  unsharp mask  amount, sigma_u  ->  8 bits (clipped)
 
-sampled at 16 sub-pixel phases of the edge and aligned and summarised like the photos. ``sigma_o`` is the simulated
+sampled at 16 sub-pixel phases of the edge (the unsharp mask is the chain's own,
+:func:`bench.sim.imaging.unsharp_luma`) and aligned and summarised like the photos. ``sigma_o`` is the simulated
 chain's own optics: it is fitted first to the median profile of renders made *without* the processing stages
 (``--chain``: a ``camera_replica`` run with ``--set 'camera.imaging_off=[tone,sharpen,toner]'``, whose images are
 linear; their black is the ideal scene's). Then ``k`` (the exposure of the board's white over the clip level),
@@ -30,7 +31,6 @@ import json
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 from scipy.optimize import minimize
 from scipy.special import ndtr
@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.camera.photo_stats import detect_views, median_edge_profile, parse_pattern  # noqa: E402
-from bench.sim.imaging import srgb_oetf  # noqa: E402
+from bench.sim.imaging import srgb_oetf, unsharp_luma  # noqa: E402
 
 PHASES = np.linspace(0, 1, 16, endpoint=False)
 PIXELS = np.arange(-30, 31)
@@ -54,9 +54,8 @@ def model_profile(t, k, rho, sigma_o, amount, sigma_u, tone=True) -> np.ndarray:
         lin = ndtr((sub - (phase - 0.5)) / max(sigma_o, 1e-3)).mean(1)
         x = k * (rho + (1 - rho) * lin)
         enc = 255 * (srgb_oetf(x) if tone else np.clip(x, 0, 1))
-        if amount > 0:
-            blurred = cv2.GaussianBlur(enc.reshape(1, -1), (0, 0), sigma_u, borderType=cv2.BORDER_REPLICATE).ravel()
-            enc = enc + amount * (enc - blurred)
+        if amount > 0:  # the chain's own stage, on a one-row grey image
+            enc = unsharp_luma(np.repeat(enc[None, :, None], 3, axis=2), amount, sigma_u)[0, :, 0].astype(float)
         enc = np.clip(np.rint(enc), 0, 255)
         lo, hi = np.median(enc[:5]), np.median(enc[-5:])
         mid = (lo + hi) / 2
