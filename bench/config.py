@@ -80,6 +80,11 @@ def about(text: str):
     return Field(description=text)
 
 
+#: ``imaging_params`` of the rendering kinds: a stage's parameters replaced (checked by bench.sim.imaging)
+ImagingParams = Annotated[dict[str, dict], about(
+    "stage -> {parameter: value} replacing the realistic profile's (bench.sim.imaging.REALISTIC)")]
+
+
 def _plausible(limit, problem, op):
     ok = {"<=": lambda v: v <= limit, "<": lambda v: v < limit, ">=": lambda v: v >= limit, ">": lambda v: v > limit}
     test = ok[op]

@@ -80,7 +80,7 @@ from bench.camera.model import CameraModel, to_pixels
 from bench.camera.plots import plot_residual_vectors
 from bench.camera.presets import load_preset
 from bench.camera.target_tolerance import calibration_with_tolerance
-from bench.config import KeyProblem, PositiveInt, RenderOutputs, ScenarioBase, Section, about, section
+from bench.config import ImagingParams, KeyProblem, PositiveInt, RenderOutputs, ScenarioBase, Section, section
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text, csv_number, read_csv_table
@@ -100,8 +100,7 @@ class Camera(Section):
     housing: bool = True
     imaging: str = "realistic"
     imaging_off: list[str] = []
-    imaging_params: Annotated[dict[str, dict], about(
-        "stage -> {parameter: value} replacing the realistic profile's (bench.sim.imaging.REALISTIC)")] = {}
+    imaging_params: ImagingParams = {}
 
     @model_validator(mode="after")
     def _media(self):

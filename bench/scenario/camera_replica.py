@@ -46,7 +46,7 @@ from bench.camera.photo_stats import (
     measure_sift_precision,
     residual_statistics,
 )
-from bench.config import ScenarioBase, Section, about, at_least, at_most, section
+from bench.config import ImagingParams, ScenarioBase, Section, about, at_least, at_most, section
 from bench.errors import BenchError, ConfigError
 from bench.fileio import atomic_save_figure, atomic_write_bytes, headless_pyplot
 from bench.scenario.results import write_result, write_table_csv
@@ -74,8 +74,7 @@ class Photos(Section):
 class Camera(Section):
     imaging: Annotated[str, about("realistic | ideal (bench.sim.imaging)")] = "realistic"
     imaging_off: Annotated[list[str], about("stages of the profile switched off")] = []
-    imaging_params: Annotated[dict[str, dict], about(
-        "stage -> {parameter: value} replacing the realistic profile's (bench.sim.imaging.REALISTIC)")] = {}
+    imaging_params: ImagingParams = {}
     supersample: Annotated[int, Field(ge=1, le=8)] = 3
 
 

@@ -40,6 +40,7 @@ from bench.camera.io import camera_yaml_text, housing_yaml_text, read_camera_yam
 from bench.camera.model import CameraModel
 from bench.camera.presets import load_preset
 from bench.config import (
+    ImagingParams,
     KeyProblem,
     NonNegFloat,
     NonNegInt,
@@ -96,8 +97,7 @@ class Camera(Section):
     supersample: PositiveInt = 2
     imaging: str = "realistic"
     imaging_off: list[str] = []
-    imaging_params: Annotated[dict[str, dict], about(
-        "stage -> {parameter: value} replacing the realistic profile's (bench.sim.imaging.REALISTIC)")] = {}
+    imaging_params: ImagingParams = {}
     housing_tolerance_mm: Annotated[PositiveFloat, about(
         "the housing datasheet's tolerance (+-) on the lens-to-glass distance: housing.yaml states the true distance "
         "off by a draw within it (a drawing does not locate the lens's entrance pupil exactly)")] = 3.0

@@ -50,6 +50,7 @@ from bench.camera.io import camera_yaml_text
 from bench.camera.model import CameraModel
 from bench.camera.presets import load_preset
 from bench.config import (
+    ImagingParams,
     KeyProblem,
     NonNegFloat,
     NonNegInt,
@@ -114,8 +115,7 @@ class Sim(Section):
     supersample: PositiveInt = 2
     imaging: Annotated[str, about("realistic | ideal (bench.sim.imaging)")] = "realistic"
     imaging_off: Annotated[list[str], about("stages of the realistic profile switched off (ablation)")] = []
-    imaging_params: Annotated[dict[str, dict], about(
-        "stage -> {parameter: value} replacing the realistic profile's (bench.sim.imaging.REALISTIC)")] = {}
+    imaging_params: ImagingParams = {}
     reference_object: Annotated[Literal["panel", "robot", "rig"], about(
         "panel (manifold panel) | robot (desk robot in a lab) | rig")] = "panel"
     textures: Annotated[dict, about("panel face -> image file (bench.scenario.scene_textures)")] = {}
