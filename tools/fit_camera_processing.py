@@ -19,8 +19,10 @@ linear; their black is the ideal scene's). Then ``k`` (the exposure of the board
 photos (least squares over the profile, Nelder-Mead from several starts). The sharpening's coring threshold is not
 in this model: it is the black squares' noise, matched with the replica (docs/realistic_imaging.md section 1.1).
 
-The result feeds :data:`bench.sim.imaging.REALISTIC` (``tone.exposure_scale``, ``toner.black_reflectance`` = rho x
-0.92 / the scene's lighting ratio, ``sharpen.amount``, ``sharpen.sigma_px``).
+The result is printed as the chain's parameters for this camera, ready for ``--set camera.imaging_params.<stage>.<key>``
+(the defaults in :data:`bench.sim.imaging.REALISTIC` are the project webcam's): ``tone.exposure_scale`` = k over the
+renders' own white level, ``toner.black_reflectance`` = the ideal scene's black (0.03) x rho over the renders' black
+ratio, ``sharpen.amount`` and ``sharpen.sigma_px``.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench.camera.photo_stats import detect_views, median_edge_profile, parse_pattern  # noqa: E402
 from bench.sim.imaging import srgb_oetf, unsharp_luma  # noqa: E402
+from bench.sim.scenes.rig import BLACK_REFLECTANCE  # noqa: E402
 
 PHASES = np.linspace(0, 1, 16, endpoint=False)
 PIXELS = np.arange(-30, 31)
@@ -98,12 +101,19 @@ def fit(data, chain, pattern) -> dict:
     r = _best(cost, ([1.3, 0.02, 2.0, 1.5], [2.0, 0.01, 1.0, 2.0], [1.5, 0.02, 3.0, 1.0]))
     k, rho, a, su = (float(v) for v in r.x)
     plain = _best(lambda q: cost([q[0], q[1], 0.0, 1.0]), ([1.3, 0.02], [2.0, 0.01]))
+    chain_white = float(lin.x[1])
+    # the chain's parameters: its exposure scales the renders' own white (chain_white of the clip level), and the
+    # printed black's reflectance scales the black ratio its scene gives (the renders' black is the ideal scene's)
+    overrides = {"tone.exposure_scale": k / chain_white,
+                 "toner.black_reflectance": BLACK_REFLECTANCE * rho / float(rho_chain),
+                 "sharpen.amount": a, "sharpen.sigma_px": su}
     return {"profiles_real": n_real, "profiles_chain": n_raw, "chain_sigma_o_px": sigma_o,
-            "chain_fit_rms_dn": float(np.sqrt(lin.fun / len(t))), "exposure_scale": k, "black_over_white": rho,
+            "chain_fit_rms_dn": float(np.sqrt(lin.fun / len(t))), "chain_white": chain_white,
+            "chain_black_over_white": float(rho_chain), "exposure_scale": k, "black_over_white": rho,
             "sharpen_amount": a, "sharpen_sigma_px": su, "fit_rms_dn": float(np.sqrt(r.fun / len(t))),
             "without_sharpening_fit_rms_dn": float(np.sqrt(plain.fun / len(t))),
             "t_px": t.tolist(), "real_profile_dn": real.tolist(),
-            "model_profile_dn": model_profile(t, k, rho, sigma_o, a, su).tolist()}
+            "model_profile_dn": model_profile(t, k, rho, sigma_o, a, su).tolist(), "imaging_params": overrides}
 
 
 def main(argv=None) -> int:
@@ -123,10 +133,13 @@ def main(argv=None) -> int:
             raise SystemExit(f"--{name}: {getattr(args, name)}: not a folder")
     out = fit(args.data, args.chain, pattern)
     for key, v in out.items():
-        if not isinstance(v, list):
+        if not isinstance(v, (list, dict)):
             print(f"{key:32s} {v:.4g}" if isinstance(v, float) else f"{key:32s} {v}")
     print("profile (DN), every 1 px from the edge:\n  real  " + " ".join(f"{v:5.1f}" for v in out["real_profile_dn"])
           + "\n  model " + " ".join(f"{v:5.1f}" for v in out["model_profile_dn"]))
+    print("the chain's parameters for this camera (the sharpening's coring is matched to the black squares' noise "
+          "with the replica):\n  " + " ".join(f"--set camera.imaging_params.{key}={v:.4g}"
+                                              for key, v in out["imaging_params"].items()))
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
     return 0

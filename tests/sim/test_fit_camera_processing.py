@@ -43,3 +43,27 @@ def test_sharpening_dips_below_the_black_level_and_the_fit_recovers_it():
     assert np.sqrt(r.fun / len(T)) < 1.0
     assert r.x[0] == pytest.approx(truth[0], rel=0.1) and r.x[2] == pytest.approx(truth[3], rel=0.15)
     assert r.x[3] == pytest.approx(truth[4], rel=0.15)
+
+
+def test_fit_prints_the_chain_parameters_of_the_camera(monkeypatch, capsys, tmp_path):
+    """``fit`` turns the profile fit into the chain's own parameters: the exposure over the renders' white, the
+    printed black from the renders' black ratio (the ideal scene's 0.03), the sharpening as fitted; ``main`` prints
+    them as ``--set camera.imaging_params...`` overrides."""
+    chain = (0.98, 0.036, 0.6)  # the linear renders: white level, black ratio, optics sigma
+    truth = (1.15, 0.02, 2.0, 1.6)  # the camera: k, rho, amount, sigma_u
+    profiles = {"real": fcp.model_profile(T, truth[0], truth[1], chain[2], truth[2], truth[3]),
+                "chain": fcp.model_profile(T, chain[0], chain[1], chain[2], 0.0, 1.0, tone=False)}
+    monkeypatch.setattr(fcp, "profile_of", lambda folder, pattern: (T, profiles[Path(folder).name], 100))
+    out = fcp.fit("real", "chain", (7, 7))
+    p = out["imaging_params"]
+    assert out["chain_white"] == pytest.approx(chain[0], rel=0.02)
+    assert p["tone.exposure_scale"] == pytest.approx(truth[0] / chain[0], rel=0.1)
+    assert p["toner.black_reflectance"] == pytest.approx(fcp.BLACK_REFLECTANCE * truth[1] / chain[1], rel=0.15)
+    assert p["sharpen.amount"] == pytest.approx(truth[2], rel=0.15)
+    assert p["sharpen.sigma_px"] == pytest.approx(truth[3], rel=0.15)
+    for name in ("real", "chain"):
+        (tmp_path / name).mkdir()
+    assert fcp.main(["--data", str(tmp_path / "real"), "--chain", str(tmp_path / "chain")]) == 0
+    printed = capsys.readouterr().out
+    assert "--set camera.imaging_params.sharpen.sigma_px=" in printed
+    assert "--set camera.imaging_params.toner.black_reflectance=" in printed
