@@ -86,6 +86,10 @@ def profile_of(folder, pattern):
 def fit(data, chain, pattern) -> dict:
     t, real, n_real = profile_of(data, pattern)
     _, raw, n_raw = profile_of(chain, pattern)
+    dip = float(raw[0] - raw[: len(raw) // 2].min())
+    if dip > 3.0:  # a linear, unsharpened edge rises monotonically from its black level
+        raise SystemExit(f"--chain {chain}: the renders' edge dips {dip:.0f} DN below their black level, so they are "
+                         "sharpened; make them with --set 'camera.imaging_off=[tone,sharpen,toner]'")
     rho_chain = (raw[0] / raw[-1])
     # the chain's optics: sigma_o and the white level of the linear renders (k), its black ratio as measured
     lin = _best(lambda q: np.sum((model_profile(t, q[1], rho_chain, q[0], 0.0, 1.0, tone=False) - raw) ** 2)

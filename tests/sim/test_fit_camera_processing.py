@@ -67,3 +67,12 @@ def test_fit_prints_the_chain_parameters_of_the_camera(monkeypatch, capsys, tmp_
     printed = capsys.readouterr().out
     assert "--set camera.imaging_params.sharpen.sigma_px=" in printed
     assert "--set camera.imaging_params.toner.black_reflectance=" in printed
+
+
+def test_fit_refuses_a_chain_that_is_already_sharpened(monkeypatch):
+    """Renders made with the processing on (a user who forgot ``camera.imaging_off``) are a one-line error, not a fit
+    of the processing on top of itself."""
+    sharpened = fcp.model_profile(T, 1.15, 0.02, 0.6, 2.0, 1.6)
+    monkeypatch.setattr(fcp, "profile_of", lambda folder, pattern: (T, sharpened, 100))
+    with pytest.raises(SystemExit, match=r"--chain chain: the renders' edge dips \d+ DN below their black level"):
+        fcp.fit("real", "chain", (7, 7))
