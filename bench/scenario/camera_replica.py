@@ -338,4 +338,22 @@ def format_summary(m: dict) -> str:
     lines += [f"  {k:<18}{m[f'real_{k}']:>10.3f}{m[f'sim_{k}']:>12.3f}" for k in STATS]
     lines.append(f"  RMS simulated / real {m['rms_ratio']:.2f} (issue 12: 0.7-1.3); SIFT on the plane "
                  f"{m['sift_ratio']:.2f}; the replica's focal length off by {m['sim_focal_error_pct']:+.2f} %")
+    hint = processing_hint(m)
+    if hint:
+        lines.append(f"  {hint}")
     return "\n".join(lines)
+
+
+def processing_hint(m: dict) -> str:
+    """A pointer to the processing fit when the photos' pixels differ from the simulated camera's: edge spreads more
+    than 25 % apart, or halos more than 10 DN apart ("" when they agree, or were not measured)."""
+    try:
+        er, es = m["real_edge_sigma_px"], m["sim_edge_sigma_px"]
+        hr, hs = m["real_edge_undershoot_dn"], m["sim_edge_undershoot_dn"]
+    except KeyError:
+        return ""
+    if not all(np.isfinite([er, es, hr, hs])) or er <= 0 or (0.8 <= es / er <= 1.25 and abs(hs - hr) <= 10.0):
+        return ""
+    return (f"the photos' pixels differ from the simulated camera's (edge spread {er:.2f} against {es:.2f} px, halo "
+            f"{hr:.1f} against {hs:.1f} DN): fit its processing to them with tools/fit_camera_processing.py "
+            "(docs/realistic_imaging.md, section 3.3)")

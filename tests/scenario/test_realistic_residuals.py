@@ -201,3 +201,18 @@ def test_the_replica_of_rendered_photos_of_a_rectangular_board_finds_their_corne
     for a, b in zip(views, sim_views, strict=True):  # the detector may number a board from either end
         err = min(np.max(np.linalg.norm(a.uv - b.uv[::s], axis=1)) for s in (1, -1))
         assert err < 0.15, err
+
+
+def test_the_summary_points_to_the_processing_fit_when_the_pixels_differ():
+    """A camera whose edges and halo are not the simulated webcam's (the contrived second camera of
+    docs/realistic_imaging.md 3.3: 0.96 px and 45.6 DN against 1.53 px and 0.1 DN) gets a pointer to the fit tool;
+    a matching one, or one whose edges were not measured, does not."""
+    far = {"real_edge_sigma_px": 0.961, "sim_edge_sigma_px": 1.532, "real_edge_undershoot_dn": 45.6,
+           "sim_edge_undershoot_dn": 0.1}
+    assert "tools/fit_camera_processing.py" in cr.processing_hint(far)
+    assert "0.96 against 1.53 px" in cr.processing_hint(far)
+    near = dict(far, sim_edge_sigma_px=0.914, sim_edge_undershoot_dn=43.4)
+    assert cr.processing_hint(near) == ""
+    assert cr.processing_hint(dict(near, sim_edge_undershoot_dn=30.0)) != ""  # the halo alone, 15.6 DN apart
+    assert cr.processing_hint(dict(far, real_edge_sigma_px=float("nan"))) == ""
+    assert cr.processing_hint({}) == ""
