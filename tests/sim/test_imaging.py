@@ -240,8 +240,8 @@ def test_srgb_transfer_is_the_standards():
     x = np.linspace(0, 1, 1001)
     v = im.srgb_oetf(x)
     back = np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
-    assert np.abs(back - x).max() < 1e-6
-    assert np.abs(im.srgb_eotf(v) - back).max() < 1e-12  # the standard rounds its breakpoint (0.04045 vs 0.0404482)
+    assert np.abs(back - x).max() < 1e-6  # the standard rounds its breakpoint (0.04045 vs 0.0404482)
+    assert np.abs(im.srgb_eotf(v) - back).max() < 1e-12
     assert np.all(np.diff(v) > 0)
 
 
