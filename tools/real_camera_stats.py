@@ -11,7 +11,7 @@ kind computes the same statistics for the photos and their simulation, with the 
 Measured here:
 
 * calibration (``cv2.findChessboardCornersSB`` with the ACCURACY flag, the bench's Heikkilä calibration): RMS and
-  per-view RMS (px);
+  per-view RMS (px); and the radial-only (k1 k2) fit, the simulated webcam's true lens (``radial_*``);
 * residual correlation along a board row / column at lag k (:func:`residual_statistics`) and across views at
   image distance d (the part of the residual tied to the image, i.e. the lens, not the board);
 * JPEG quality: the file's quantisation tables (DQT) matched to the IJG tables scaled for quality 1..100;
@@ -392,6 +392,11 @@ def measure(data_dir, pattern=(7, 7), square_mm: float = 25.0) -> dict:
     out = {"images": len(files), "views": len(views), "image_size_px": list(views[0][2].shape[::-1]),
            "calibration_model": "heikkila (k1 k2 p1 p2)", "fx_px": float(res.camera.fx), "fy_px": float(res.camera.fy),
            "cx_px": float(res.camera.K[0, 2]), "cy_px": float(res.camera.K[1, 2])}
+    # the radial-only fit (k1 k2): the simulated webcam's true lens (bench.sim.imaging.WEBCAM_DISTORTION)
+    rad, _ = calibrate(views, pattern, "radial")
+    out.update({"radial_rms_px": float(rad.rms_px), "radial_k1": float(np.ravel(rad.dist)[0]),
+                "radial_k2": float(np.ravel(rad.dist)[1]), "radial_cx_px": float(rad.K[0, 2]),
+                "radial_cy_px": float(rad.K[1, 2])})
     out.update(residual_statistics(res.residuals_px, pattern, uvs))
     out.update(measure_board_bow(res, uvs, pattern, square_mm))
     out.update(measure_print_error(views, pattern, square_mm))

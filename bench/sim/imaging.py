@@ -39,8 +39,8 @@ Target (applied to the rig's geometry, :func:`target_geometry`, never to the ima
 Optics (applied to the image at the camera's resolution, in linear radiance):
 
 * ``distortion`` - lens distortion the ideal chain leaves out: the true lens gets the real webcam's measured radial
-  and decentering distortion (:data:`WEBCAM_DISTORTION`, its k1, k2, p1, p2 with a k3 term of the same order) plus a
-  thin prism (Weng, Cohen & Herniou, PAMI 14(10) 1992: ``s1 r^2, s3 r^2``) applied as an image warp;
+  distortion (:data:`WEBCAM_DISTORTION`, k1 and k2) plus a thin prism (Weng, Cohen & Herniou, PAMI 14(10) 1992:
+  ``s1 r^2, s3 r^2``) applied as an image warp;
 * ``chromatic`` - lateral chromatic aberration: R and B magnified by ``1 + c`` about the principal point (real
   photos: |c| < 1e-4, kept at the measured value);
 * ``defocus`` - thin-lens circle of confusion (:func:`coc_diameter_px`) from focal length, f-number and focus
@@ -99,9 +99,12 @@ IMAGING_NAMES = ("realistic", "ideal")
 #: that is not flat drawn as meshes through its crossings (was boxes tilted to the bow's slope)
 IMAGING_VERSION = 4
 
-#: the real webcam photos' calibration (tools/real_camera_stats.py, Heikkilä model, 19 views, RMS 0.557 px):
-#: k1, k2, p1, p2 in normalised coordinates; k3 = 0 (not fitted there: 7 x 7 corners cannot separate it)
-WEBCAM_DISTORTION = (0.0019, -0.153, -0.0056, -0.0158, 0.0)
+#: the real webcam photos' radial calibration (tools/real_camera_stats.py, ``radial_k1``/``radial_k2``: k1 k2, 19
+#: views, RMS 0.577 px), in normalised coordinates. No decentering: the photos' p1 -0.0056, p2 -0.0158 (Heikkilä,
+#: RMS 0.557 px) are what a hand-held, cockled board puts into those terms, since renders of such a board through a
+#: lens without decentering calibrate to p1 -0.026, p2 -0.012 (docs/realistic_imaging.md 3.1); as a true lens they
+#: shifted Table 3's principal point 37 px. k3 = 0 (7 x 7 corners cannot separate it).
+WEBCAM_DISTORTION = (-0.0262, -0.2066, 0.0, 0.0, 0.0)
 
 #: The realistic profile of a 640 x 480 USB webcam (the thesis's Logitech, the real photos' camera). Units in keys.
 REALISTIC = {

@@ -198,6 +198,21 @@ def test_converges_where_the_step_criterion_random_walks(monkeypatch):
     assert stuck.rms_px == pytest.approx(r.rms_px, rel=1e-10)
 
 
+def test_converges_along_a_flat_valley():
+    """Corners of camera_calibration_webcam seed 9 (realistic imaging, the radial-only webcam lens, thesis
+    extractor; ``bench sim render scenarios/camera_calibration_webcam.yaml --seed 9``): every Gauss-Newton step is
+    taken whole and lowers the cost as predicted, yet the estimate creeps along the principal point's valley, ~1e-8
+    of the cost per iteration. The old cap of 200 iterations failed the run ("not converged"); it needs 366."""
+    data = np.load(Path(__file__).resolve().parents[1] / "data" / "calibration" / "realistic_webcam_rig_seed9.npz")
+    arrays = [data[f"arr_{i}"] for i in range(len(data.files))]
+    Xs, uvs = arrays[: len(arrays) // 2], [u.astype(float) for u in arrays[len(arrays) // 2:]]
+    r = cal.calibrate_camera(Xs, uvs, SIZE, "heikkila")
+    assert r.success and "Gauss-Newton" in r.message and 200 < r.iterations < 1000, (r.message, r.iterations)
+    ref = cal.opencv_reference(Xs, uvs, SIZE, "heikkila")
+    assert r.rms_px == pytest.approx(ref.rms_px, rel=1e-7)  # OpenCV's optimum
+    assert not cal.calibrate_camera(Xs, uvs, SIZE, "heikkila", max_iterations=200).success
+
+
 def test_degenerate_inputs_fail_clearly():
     rng = np.random.default_rng(26)
     Xs, uvs, _ = random_views(rng, TRUE_K, TRUE_DIST, board_points(), 3)
