@@ -208,6 +208,11 @@ def imaging_profile(name: str = "realistic", off=(), source: str = "imaging", fi
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
                     raise ConfigError(source, f"{field}_params.{stage}.{k}", f"expected a number in [{lo:g}, {hi:g}], "
                                                                       f"got {v!r}")
+    for k, n in (("dist", 5), ("thin_prism", 4)):  # k1 k2 p1 p2 k3 (OpenCV's order); s1 s2 s3 s4
+        v = stages["distortion"][k]
+        if (not isinstance(v, (list, tuple)) or len(v) != n
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v)):
+            raise ConfigError(source, f"{field}_params.distortion.{k}", f"expected {n} finite numbers, got {v!r}")
     if not float(stages["tone"]["adc_bits"]).is_integer():
         raise ConfigError(source, f"{field}_params.tone.adc_bits",
                           f"expected whole bits, got {stages['tone']['adc_bits']!r}")

@@ -318,7 +318,11 @@ def test_stage_parameters_from_the_scenario_are_checked_by_name():
                        ({"sharpen": {"amount": "lots"}}, r"camera\.imaging_params\.sharpen\.amount: expected a number"),
                        ({"tone": {"exposure_scale": -1}}, r"camera\.imaging_params\.tone\.exposure_scale"),
                        ({"tone": 5}, r"camera\.imaging_params\.tone: unknown stage or not a mapping"),
-                       ({"tone": {"adc_bits": 10.5}}, r"camera\.imaging_params\.tone\.adc_bits: expected whole bits")):
+                       ({"tone": {"adc_bits": 10.5}}, r"camera\.imaging_params\.tone\.adc_bits: expected whole bits"),
+                       ({"distortion": {"dist": [-0.02, -0.2, 0.0]}},
+                        r"camera\.imaging_params\.distortion\.dist: expected 5 finite numbers"),
+                       ({"distortion": {"thin_prism": [float("nan"), 0, 0, 0]}},
+                        r"camera\.imaging_params\.distortion\.thin_prism: expected 4 finite numbers")):
         for name in ("realistic", "ideal"):
             with pytest.raises(ConfigError, match=match):
                 im.imaging_profile(name, overrides=bad, source="s.yaml", field="camera.imaging")
