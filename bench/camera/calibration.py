@@ -199,6 +199,8 @@ class _Problem:
 GN_DECREASE_TOL = 1e-12
 #: at most this many undamped Gauss-Newton steps polish the estimate once that holds
 GN_POLISH_STEPS = 5
+#: iterations after which an unconverged calibration goes on only if every point is in front of the camera
+STALL_CHECK = 200
 
 
 def gauss_newton_step(J, r):
@@ -535,7 +537,9 @@ def calibrate_camera(object_points, image_points, image_size, model: str = "heik
         Most calibrations converge in 5-40 iterations. A flat valley converges linearly: seed 9 of the webcam's
         Table 3 rig (realistic imaging) took 366 iterations (4 s), creeping ~1e-8 of the cost per iteration along
         the principal point with every Gauss-Newton step taken whole (the Jacobian checked against finite
-        differences at that point), so the cap is 1000, not 200.
+        differences at that point), so the cap is 1000, not 200. After :data:`STALL_CHECK` iterations LM goes on
+        only while every point lies in front of the camera; a start that stalled with points behind it (a flat
+        port over the whole image) restarts from the pinhole fit at once.
     initial : (K (3, 3), dist (5,), T_cam_target (V, 4, 4)), optional
         Start Levenberg-Marquardt here instead of the linear initialisation (DLT/Zhang and Eq. 67-73), e.g. from a
         calibration of more views (:func:`jackknife_views`); ``dist`` in OpenCV order, coefficients outside the model
@@ -580,7 +584,14 @@ def calibrate_camera(object_points, image_points, image_size, model: str = "heik
     s = _State(K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1], k.astype(float), T[:, :3, :3].copy(),
                T[:, :3, 3].copy())
     t1 = time.perf_counter()
-    s, iterations, converged, message = _levenberg_marquardt(problem, s, max_iterations, tol)
+    s, iterations, converged, message = _levenberg_marquardt(problem, s, min(max_iterations, STALL_CHECK), tol)
+    if not converged and iterations < max_iterations and _in_front(s, Xs):
+        # a flat valley converges linearly (see ``max_iterations``): go on; a stalled start with points behind the
+        # camera does not (it takes the pinhole restart below)
+        s, more, converged, message = _levenberg_marquardt(problem, s, max_iterations - iterations, tol)
+        iterations += more
+        if not converged:
+            message = f"not converged after {iterations} iterations"
     timings["levenberg_marquardt_s"] = time.perf_counter() - t1
     r, J = problem.residuals(s, jacobian=True)
     cost = 0.5 * float(r @ r)
@@ -597,7 +608,7 @@ def calibrate_camera(object_points, image_points, image_size, model: str = "heik
     cov = cov_full[: problem.n_intr, : problem.n_intr]
     rms, per_view, residuals, _ = _residual_summary(problem, s)
     T_out = homogeneous(s.R, s.t)
-    depth_ok = all(np.all(transform_points(T_out[v], Xs[v])[:, 2] > 0) for v in range(V))
+    depth_ok = _in_front(s, Xs)
     success = converged and np.isfinite(rms) and depth_ok and cond < COND_LIMIT
     if not depth_ok:
         message += "; some points lie behind the camera"
@@ -622,6 +633,11 @@ def calibrate_camera(object_points, image_points, image_size, model: str = "heik
     retry.timings_s["total_s"] = time.perf_counter() - t0
     return replace(retry, message=f"{retry.message} (from the pinhole fit: the radial alternation's start gave "
                                   f"'{message}')")
+
+
+def _in_front(s: _State, Xs) -> bool:
+    """Every target point lies in front of the camera (positive depth) at the views' poses."""
+    return all(np.all(Xs[v] @ s.R[v][2] + s.t[v][2] > 0) for v in range(len(Xs)))
 
 
 def reprojection_residuals(result: CalibrationResult, object_points, image_points):
