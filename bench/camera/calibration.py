@@ -535,7 +535,7 @@ def calibrate_camera(object_points, image_points, image_size, model: str = "heik
     max_iterations, tol : int, float
         Levenberg-Marquardt limits: converged when the largest step, relative to ``|parameter| + 1``, is below ``tol``.
         Most calibrations converge in 5-40 iterations. A flat valley converges linearly: seed 9 of the webcam's
-        Table 3 rig (realistic imaging) took 366 iterations (4 s), creeping ~1e-8 of the cost per iteration along
+        Table 3 rig (realistic imaging) takes ~370 iterations (4 s), creeping ~1e-8 of the cost per iteration along
         the principal point with every Gauss-Newton step taken whole (the Jacobian checked against finite
         differences at that point), so the cap is 1000, not 200. After :data:`STALL_CHECK` iterations LM goes on
         only while every point lies in front of the camera; a start that stalled with points behind it (a flat
