@@ -42,7 +42,7 @@ from bench.robot.orientation import link5_frame
 from bench.robot.task import retarget_taught_pose, taught_pose
 from bench.vision.features import detect_sift
 from bench.vision.insitu import LocateResult, MapConfig, ViewObservation, build_map, locate, locate_pnp
-from bench.vision.integrity import KAPPA_UNMEASURED, MIN_INLIERS, assess, kappa_of, point_protection_radius
+from bench.vision.integrity import KAPPA_UNMEASURED, MIN_INLIERS, LabPrior, assess, kappa_of, point_protection_radius
 
 
 def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0, features_fn=None) -> ViewObservation:
@@ -393,7 +393,7 @@ def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, 
     return include, out, refined, per[start], used
 
 
-def _assess_regions(res, per, include, maps, regions, obs, camera, config, seed):
+def _assess_regions(res, per, include, maps, regions, obs, camera, config, seed, lab):
     """:func:`~bench.vision.integrity.assess_regions` of the regions ``include`` at the common result ``res``."""
     from bench.vision.integrity import assess_regions
 
@@ -402,7 +402,7 @@ def _assess_regions(res, per, include, maps, regions, obs, camera, config, seed)
         name, roles = regions[i]
         parts.append((name, maps[i], [obs[v.name] for v in roles["surround"]], obs[roles["locate"][0].name],
                       obs[roles["locate"][1].name], per[i]))
-    return assess_regions(parts, res, camera.fx, camera.size, config, seed)
+    return assess_regions(parts, res, camera.fx, camera.size, config, seed, lab)
 
 
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
@@ -449,7 +449,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     sigma_enc = encoder_sigma_rad(ds.root) if refine == "joints" and not pnp else None  # checked before the work
     priors = None
     if priors_path is not None and refine == "joints" and not pnp:
-        from bench.vision.joint_bundle import read_priors
+        from bench.vision.joint_bundle import lab_prior, read_priors
 
         priors = read_priors(priors_path)
     obs = {v.name: observe(v, camera, robot, eps, T_link5_cam, features_fn=features_fn)
@@ -462,6 +462,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         timing["keypoint_align_s"] = time.perf_counter() - t0 - t_detect
     # the joint bundle works in pixels: a refractive camera's coordinates go to it through its virtual pinhole
     pixels_camera = camera.virtual_camera() if isinstance(camera, RefractiveCamera) else camera
+    lab = None if priors is None else LabPrior(lab_prior(**priors), pixels_camera.K, pixels_camera.dist)  # test 2
 
     def combine(per, maps, obs, include):
         """:func:`_combine` of the regions ``include`` with this call's robot, camera and settings."""
@@ -523,9 +524,9 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     if len(regions) == 1:
         _, roles = regions[0]
         integ = assess(maps[0], [obs[v.name] for v in roles["surround"]], obs[roles["locate"][0].name],
-                       None if pnp else obs[roles["locate"][1].name], res, camera.fx, camera.size, config, seed)
+                       None if pnp else obs[roles["locate"][1].name], res, camera.fx, camera.size, config, seed, lab)
     else:
-        integ = _assess_regions(res, per, include, maps, regions, obs, camera, config, seed)
+        integ = _assess_regions(res, per, include, maps, regions, obs, camera, config, seed, lab)
         if res.success and integ.level == "refused" and len(include) > 1:
             # fault exclusion (one faulty region at a time): every subset without one region solved again; when
             # exactly one of them holds, the region it leaves out is the faulty one. The result is then at best a
