@@ -78,10 +78,11 @@ MIN_FREE_INLIERS = 12
 RELATIVE_REFUSE_MM = 30.0
 RELATIVE_REFUSE_DEG = 1.5
 #: The Mahalanobis square's overdispersion on clean runs, with the lab calibrations' covariances in it
-#: (:class:`LabPrior`): its median over ta40_in_situ_manifold seeds 1-20, underwater and in air (realistic imaging),
-#: against chi2_6's 5.35. Thresholds: that factor times chi2_6 at 1 - 1e-3 (refused, with the raw limits) and at 0.99
-#: (a warning).
-RELATIVE_OVERDISPERSION = 1.0
+#: (:class:`LabPrior`): its median over ta40_in_situ_manifold seeds 1-20 is 3.18 underwater and 3.15 in air
+#: (realistic imaging), against chi2_6's 5.35 - below 1, as the map's spread and the poses' residuals also hold the
+#: lab's errors that its term counts again (a Monte Carlo in tests/vision/test_protection_levels.py). Thresholds: that
+#: factor times chi2_6 at 1 - 1e-3 (refused, with the raw limits) and at 0.99 (a warning).
+RELATIVE_OVERDISPERSION = 0.59
 #: The same without them (the keypoints' noise and the map's depth errors only): the lab's errors are then the
 #: unmodelled part - median 80 underwater (this factor, fitted there), 197 in air, where the keypoints are sharper
 #: and the same lab errors weigh more (docs/integrity.md, "Test 2 and the lab's errors").

@@ -535,7 +535,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
             for k in include:
                 again = combine(per, maps, obs, [i for i in include if i != k])
                 res2, kappa2 = calibrated(again[1], again[2], len(again[0]))
-                integ2 = _assess_regions(res2, per, again[0], maps, regions, obs, camera, config, seed)
+                integ2 = _assess_regions(res2, per, again[0], maps, regions, obs, camera, config, seed, lab)
                 if res2.success and integ2.level != "refused":
                     held.append((k, again, res2, kappa2, integ2))
             if len(held) == 1:
