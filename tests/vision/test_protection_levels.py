@@ -426,6 +426,8 @@ def test_relative_pose_disagreement_holds_the_lab_calibrations_errors(lens):
     assert 4.0 < np.mean(with_lab) < 6.6  # conservative by the double count, never optimistic
     assert 0.94 <= np.mean(with_lab <= chi2.ppf(0.95, 6)) <= 0.995
     assert np.median(without) > 100 * chi2.median(6)
+    with pytest.raises(ValueError, match="the map's survey"):  # a map without its survey has no lab term to give
+        I.relative_pose_disagreement(_panel_map(rng), *frees, T_a_b, lab)
 
 
 def test_joint_offset_probe_names_a_missing_file(tmp_path, capsys):
