@@ -178,6 +178,29 @@ def lever_arm(succ) -> list:
     return lines
 
 
+#: What a warning's sentence names (bench/vision/integrity.py's wording), in the order tested.
+REASONS = (("the alert limit", ("exceeds the alert limit",)), ("test 1 (consensus)", ("consensus", "is not where")),
+           ("test 2 (relative pose)", ("relative pose",)), ("test 3 (reprojection)", ("reprojection RMS",)),
+           ("support", ("inliers", "inlier fraction")), ("conditioning", ("condition",)),
+           ("single view", ("single-view",)))
+
+
+def warning_reasons(runs) -> str:
+    """One sentence: how many warned runs each test warned (a run may have several reasons), and how many the alert
+    limit alone did."""
+    warned = [r for r in runs if r.get("integrity") == "warning"]
+    if not warned:
+        return "No warnings."
+
+    def kinds(r):
+        return {name for x in r.get("reasons", []) for name, keys in REASONS if any(k in x for k in keys)}
+
+    count = {name: sum(name in kinds(r) for r in warned) for name, _ in REASONS}
+    alone = sum(kinds(r) == {"the alert limit"} for r in warned)
+    named = ", ".join(f"{name} {n}" for name, n in count.items() if n)
+    return f"The {len(warned)} warnings by reason (a run may have several): {named}; the alert limit alone: {alone}."
+
+
 def report(runs, figure: Path | None, locate: str = "locate.json") -> str:
     done = [r for r in runs if r.get("integrity") != "failed"]
     lines = [f"{len(runs)} runs ({len(done)} finished), run time median "
@@ -196,6 +219,7 @@ def report(runs, figure: Path | None, locate: str = "locate.json") -> str:
     env = [r for r in runs if r["water"] in ("clear_ocean", "coastal") and r["standoff_m"] <= 1.0]
     if env:
         lines += _stats(env, "clear + coastal, 0.5-1.0 m")
+    lines += ["", warning_reasons(runs)]
     succ = [r for r in runs if r.get("success") and r.get("integrity") != "refused"]
     if succ:
         nees = np.array([r["nees_pos"] for r in succ])

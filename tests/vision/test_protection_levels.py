@@ -265,6 +265,14 @@ def test_summary_measures_coverage_silent_failures_and_fits_kappa(tmp_path):
     (next((sweep / "runs").iterdir()) / "locate.json").unlink()  # the old file is not read
     again = S.report(S.load_runs(sweep, "relocated/locate.json"), None, "relocated/locate.json")
     assert "Localised again" in again and "| all | 60 |" in again
+    # the warnings by reason, in integrity.py's own words
+    alert = "protection radius 3.9 mm / 0.1 deg exceeds the alert limit 3 mm / 0.15 deg"
+    test2 = "the locate views' relative pose from the images differs from the joint readings' by 9 mm and 0.5 deg"
+    warned = [{"integrity": "warning", "reasons": [alert]}, {"integrity": "warning", "reasons": [test2, alert]},
+              {"integrity": "ok", "reasons": []}]
+    assert S.warning_reasons(warned) == ("The 2 warnings by reason (a run may have several): the alert limit 2, test 2 "
+                                         "(relative pose) 1; the alert limit alone: 1.")
+    assert S.warning_reasons(warned[2:]) == "No warnings."
 
 
 def test_relocate_sweep_refuses_what_it_cannot_redo(tmp_path, capsys):
