@@ -24,9 +24,10 @@ The tests (each one's statistic is reported in ``tests``):
    relative pose from the images alone; it must agree with the kinematic ``T_a_b``: refused beyond
    :data:`RELATIVE_REFUSE_MM` / :data:`RELATIVE_REFUSE_DEG` when its Mahalanobis square
    (:func:`relative_pose_disagreement`: the keypoints' noise, the map's depth errors and, given the lab's
-   covariances (:class:`LabPrior`), the intrinsics' and the mount's errors) also exceeds :data:`RELATIVE_Q_REFUSE`
-   times the overdispersion of clean runs; a warning when the part of it beyond a clean run's
-   (:func:`relative_pose_excess`) exceeds a third of those limits, or the square :data:`RELATIVE_Q_WARN` times it.
+   covariances (:class:`LabPrior`), the intrinsics', the lens's and the mount's errors) also exceeds
+   :data:`RELATIVE_Q_REFUSE` times the overdispersion of clean runs; a warning when the part of it beyond a clean
+   run's (:func:`relative_pose_excess`) exceeds a third of those limits, or the square :data:`RELATIVE_Q_WARN` times
+   it.
 3. **Reprojection chi-square.** The locate views' residual RMS at the solution against the survey views' residual
    RMS at their kinematic poses (the keypoint noise of this scene, this water, this camera): the ratio inflates the
    covariance, and refuses beyond :data:`CHI2_RATIO_REFUSE`.
