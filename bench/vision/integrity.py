@@ -59,9 +59,9 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from bench.camera.model import distort, distortion_jacobian, distortion_parameter_jacobian
-from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
-from bench.geometry.transforms import homogeneous, invert, skew, transform_points
-from bench.vision.insitu import KeypointMap, MapConfig, ViewObservation, _proj_jac, reference_matches
+from bench.geometry.quaternion import matrix_to_rotation_vector
+from bench.geometry.transforms import invert, skew, transform_points
+from bench.vision.insitu import KeypointMap, MapConfig, ViewObservation, _left_exp, _proj_jac, reference_matches
 from bench.vision.triangulation import triangulate_midpoint
 
 #: Probability that the true error exceeds the protection level when every test passes (the stated risk).
@@ -246,11 +246,6 @@ class LabPrior:
         return np.linalg.solve(distortion_jacobian(x_n, self.dist), dxd)
 
 
-def _left(xi):
-    """The left (or right) perturbation ``[[exp(w), v], [0, 1]]`` of ``xi = [w, v]`` (6,)."""
-    return homogeneous(rotation_vector_to_matrix(xi[:3]), xi[3:])
-
-
 def _log(T):
     """``[w, v]`` (6,) of a small transform (4, 4): its rotation vector and translation."""
     return np.r_[matrix_to_rotation_vector(T[:3, :3]), T[:3, 3]]
@@ -283,21 +278,22 @@ def _lab_jacobian(kmap: KeypointMap, frees: list, T_a_b, lab: LabPrior, gains: l
     x_obs = np.concatenate([np.asarray(o[1], float).reshape(-1, 2) for o in kmap.observations])
     p0 = _map_points(kmap, kmap.x_ref, x_obs, kmap.T_ref_views)
     D_ref, D_obs = lab.keypoint_jacobian(kmap.x_ref), lab.keypoint_jacobian(x_obs)
-    views = [(invert(fr["T_free"]), np.asarray(fr["map_idx"], int), lab.keypoint_jacobian(fr["x_n"]), G)
-             for fr, G in zip(frees, gains, strict=True)]
+    views = []
+    for fr, G in zip(frees, gains, strict=True):
+        T_view_ref, idx = invert(fr["T_free"]), np.asarray(fr["map_idx"], int)
+        u0 = _proj_jac(transform_points(T_view_ref, kmap.p_ref[idx]))[0]  # the projections at theta = 0
+        views.append((T_view_ref, idx, u0, lab.keypoint_jacobian(fr["x_n"]), G))
     n = len(lab.cov)
 
     def d_of(th):
-        M = _left(th[n - 6:])
+        M = _left_exp(th[n - 6:])
         Mi = invert(M)
         p = kmap.p_ref + _map_points(kmap, kmap.x_ref + D_ref @ th[:n - 6], x_obs + D_obs @ th[:n - 6],
                                      Mi @ kmap.T_ref_views @ M) - p0
         poses = []
-        for T_view_ref, idx, D, G in views:
-            r = (_proj_jac(transform_points(T_view_ref, p[idx]))[0] - _proj_jac(transform_points(T_view_ref,
-                                                                                                kmap.p_ref[idx]))[0]
-                 - D @ th[:n - 6])
-            poses.append(_left(-G @ r.ravel()) @ T_view_ref)
+        for T_view_ref, idx, u0, D, G in views:
+            r = _proj_jac(transform_points(T_view_ref, p[idx]))[0] - u0 - D @ th[:n - 6]
+            poses.append(_left_exp(-G @ r.ravel()) @ T_view_ref)
         return _log(invert(Mi @ T_a_b @ M) @ poses[0] @ invert(poses[1]))
 
     # 0.1 px, 1e-4 of a lens coefficient, 10 urad, 10 um: linear for the priors' 1-30 px, 1e-3-1, mrad and mm
@@ -330,7 +326,7 @@ def relative_pose_disagreement(kmap: KeypointMap, free_a: dict, free_b: dict, T_
     T_a_ref, T_b_ref = invert(free_a["T_free"]), invert(free_b["T_free"])
 
     def d_of(delta):
-        D = T_b_a @ _left(delta[:6]) @ T_a_ref @ invert(_left(delta[6:]) @ T_b_ref)
+        D = T_b_a @ _left_exp(delta[:6]) @ T_a_ref @ invert(_left_exp(delta[6:]) @ T_b_ref)
         return _log(D)
 
     d0 = d_of(np.zeros(12))
@@ -362,6 +358,11 @@ def relative_pose_disagreement(kmap: KeypointMap, free_a: dict, free_b: dict, T_
     except np.linalg.LinAlgError:
         m2 = float("inf")
     return d0, (m2 if np.isfinite(m2) else float("inf"))
+
+
+def _overdispersion(lab) -> float:
+    """Test 2's clean-run overdispersion for a covariance with the lab term (``lab`` given) or without it."""
+    return RELATIVE_OVERDISPERSION if lab is not None else RELATIVE_OVERDISPERSION_FEATURES
 
 
 def relative_pose_excess(d, m2: float, s2: float = RELATIVE_OVERDISPERSION) -> tuple:
@@ -689,7 +690,7 @@ def _tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config,
     d_t = d_r = float("nan")
     if "b" in loc and all(loc[k]["T_free"] is not None and loc[k]["free"] >= MIN_FREE_INLIERS for k in "ab"):
         d, m2 = relative_pose_disagreement(kmap, loc["a"], loc["b"], T_a_b, lab)
-        s2 = RELATIVE_OVERDISPERSION if lab is not None else RELATIVE_OVERDISPERSION_FEATURES
+        s2 = _overdispersion(lab)
         d_t, d_r = float(np.linalg.norm(d[3:])), float(np.linalg.norm(d[:3]))
         tests["relative_pose_mm"], tests["relative_pose_deg"] = d_t * 1e3, np.rad2deg(d_r)
         tests["relative_pose_chi2"], tests["relative_pose_overdispersion"] = m2, s2
@@ -838,7 +839,7 @@ def assess_regions(parts: list, result, focal_px: float, image_size, config: Map
         m2 = float(np.sum(e["relative_pose_chi2"][ok]))
         tests.update(pooled, relative_pose_chi2=m2)
         ex_mm, ex_deg = pooled["relative_pose_excess_mm"], pooled["relative_pose_excess_deg"]
-        s2 = RELATIVE_OVERDISPERSION if lab is not None else RELATIVE_OVERDISPERSION_FEATURES
+        s2 = _overdispersion(lab)
         tests["relative_pose_overdispersion"] = s2
         limit = s2 * float(chi2.ppf(0.99, RELATIVE_DOF * int(ok.sum())))
         if ex_mm > RELATIVE_REFUSE_MM / 3 or ex_deg > RELATIVE_REFUSE_DEG / 3 or m2 > limit:
