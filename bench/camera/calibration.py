@@ -551,9 +551,9 @@ def calibrate_camera(object_points, image_points, image_size, model: str = "heik
         Most calibrations converge in 5-40 iterations. Along a flat, curved valley LM creeps (the Jacobian checked
         against finite differences there): seed 9 of the webcam's Table 3 rig (realistic imaging) stops at 250
         iterations by :func:`_levenberg_marquardt`'s creep criterion (366 to the Gauss-Newton one), so the cap is
-        1000, not 200. After :data:`STALL_CHECK` iterations LM goes on
-        only while every point lies in front of the camera; a start that stalled with points behind it (a flat
-        port over the whole image) restarts from the pinhole fit at once.
+        1000, not 200. After :data:`STALL_CHECK` iterations LM goes on only while every point lies in front of the
+        camera; a start that stalled with points behind it (a flat port over the whole image) restarts from the
+        pinhole fit at once.
     initial : (K (3, 3), dist (5,), T_cam_target (V, 4, 4)), optional
         Start Levenberg-Marquardt here instead of the linear initialisation (DLT/Zhang and Eq. 67-73), e.g. from a
         calibration of more views (:func:`jackknife_views`); ``dist`` in OpenCV order, coefficients outside the model
