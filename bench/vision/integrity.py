@@ -59,6 +59,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from bench.camera.model import distort, distortion_jacobian, distortion_parameter_jacobian
+from bench.camera.refractive import RefractiveCamera, lens_parameters, with_lens_parameters
 from bench.geometry.quaternion import matrix_to_rotation_vector
 from bench.geometry.transforms import invert, skew, transform_points
 from bench.vision.insitu import KeypointMap, MapConfig, ViewObservation, _left_exp, _proj_jac, reference_matches
@@ -224,18 +225,24 @@ class LabPrior:
     of ``T_link5_cam``: rad, then m) - (10, 10) or (14, 14), the joint bundle's prior
     (:func:`bench.vision.joint_bundle.lab_prior` of ``calibration_priors.yaml``'s blocks, in its order) - with the
     calibrated intrinsics ``K`` (3, 3) and lens ``dist`` (5,) at which a change of them moves the normalized
-    keypoints. For a refractive camera these are its virtual pinhole's (no lens: the priors are written in its
-    terms), a paraxial view of the port: at the image corners the lens block's effect is 25-43 % low (an
-    independent check by finite differences through the refractive model), the intrinsics' within ~10 %."""
+    keypoints. A refractive camera's priors are written in its virtual pinhole's terms (``K``, no lens; the lens's
+    covariance scaled by the port's paraxial magnification, ``bench.scenario.in_situ_lab``); give the camera as
+    ``refractive`` and the keypoints move through the lens and the port themselves (:meth:`keypoint_jacobian`),
+    not through that paraxial view, whose lens block is 15-50 % low at the image corners."""
 
     cov: np.ndarray
     K: np.ndarray
     dist: np.ndarray
+    refractive: RefractiveCamera | None = None
 
     def keypoint_jacobian(self, x_n) -> np.ndarray:
         """``d x_n / d (fx fy cx cy [k1 k2 p1 p2])`` (N, 2, 4 or 8) of normalized undistorted keypoints ``x_n``
-        (N, 2): the pixel ``u = K distort(x_n)`` held, ``x_d = (u - c) / f`` and ``distort(x_n) = x_d`` moved."""
+        (N, 2): the pixel ``u = K distort(x_n)`` held, ``x_d = (u - c) / f`` and ``distort(x_n) = x_d`` moved; for a
+        ``refractive`` camera by central differences of :meth:`~bench.camera.refractive.RefractiveCamera.
+        central_coordinates` at its working range."""
         x_n = np.asarray(x_n, float).reshape(-1, 2)
+        if self.refractive is not None:
+            return self._refractive_jacobian(x_n)
         f = np.array([self.K[0, 0], self.K[1, 1]])
         x_d = distort(x_n, self.dist)
         dxd = np.zeros((len(x_n), 2, 4))  # d x_d / d (fx fy cx cy); the skew stays
@@ -244,6 +251,31 @@ class LabPrior:
         if len(self.cov) == 14:
             dxd = np.concatenate([dxd, -distortion_parameter_jacobian(x_n)], axis=2)
         return np.linalg.solve(distortion_jacobian(x_n, self.dist), dxd)
+
+    def _refractive_jacobian(self, x_n) -> np.ndarray:
+        """The refractive camera's :meth:`keypoint_jacobian`: each keypoint's pixel through lens and port (at the
+        working range ``z``), held while one lens parameter moves by a step of the prior's (virtual pinhole's)
+        parameter - the focal lengths by ``1 / m``, k1 by ``1 / m^2``, k2 by ``1 / m^4``, p1 and p2 by ``1 / m``,
+        ``m = n_water / n_air``, the scaling the prior was written with - and its coordinates at ``z`` again."""
+        cam = self.refractive
+        z, m = cam.working_range_m, cam.port.n_water / cam.port.n_air
+        uv = cam.project(np.c_[x_n * z, np.full(len(x_n), z)])
+        n = 8 if len(self.cov) == 14 else 4
+        per_step = np.array([1 / m, 1 / m, 1.0, 1.0, m**-2, m**-4, 1 / m, 1 / m])[:n]
+        steps = np.array([1e-2, 1e-2, 1e-2, 1e-2, 1e-5, 1e-5, 1e-6, 1e-6])[:n]  # px, then unitless
+        theta0, J = lens_parameters(cam.lens), np.empty((len(x_n), 2, n))
+        for i in range(n):
+            x = []
+            for sign in (1.0, -1.0):
+                theta = theta0.copy()
+                theta[i] += sign * steps[i] * per_step[i]
+                moved = replace(cam, lens=with_lens_parameters(cam.lens, theta))
+                x.append(moved.central_coordinates(uv, z))
+            J[:, :, i] = (x[0] - x[1]) / (2.0 * steps[i])
+        bad = ~np.all(np.isfinite(J), axis=(1, 2))  # a keypoint the port does not image at z: the paraxial view
+        if bad.any():
+            J[bad] = replace(self, refractive=None).keypoint_jacobian(x_n[bad])
+        return J
 
 
 def _log(T):

@@ -462,7 +462,9 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         timing["keypoint_align_s"] = time.perf_counter() - t0 - t_detect
     # the joint bundle works in pixels: a refractive camera's coordinates go to it through its virtual pinhole
     pixels_camera = camera.virtual_camera() if isinstance(camera, RefractiveCamera) else camera
-    lab = None if priors is None else LabPrior(lab_prior(**priors), pixels_camera.K, pixels_camera.dist)  # test 2
+    lab = None if priors is None else LabPrior(  # test 2
+        lab_prior(**priors), pixels_camera.K, pixels_camera.dist,
+        refractive=camera if isinstance(camera, RefractiveCamera) else None)
 
     def combine(per, maps, obs, include):
         """:func:`_combine` of the regions ``include`` with this call's robot, camera and settings."""
