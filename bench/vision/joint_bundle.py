@@ -33,6 +33,7 @@ import numpy as np
 
 from bench.camera.model import check_dist, distort, distortion_jacobian, distortion_parameter_jacobian, to_pixels
 from bench.geometry.quaternion import rotation_vector_to_matrix
+from bench.geometry.transforms import homogeneous
 from bench.robot.orientation import link5_frame
 from bench.vision.bundle import solve
 
@@ -60,12 +61,6 @@ class JointBundleResult:
     K: np.ndarray | None = None
     T_link5_cam: np.ndarray | None = None
     dist: np.ndarray | None = None
-
-
-def _se3(d) -> np.ndarray:
-    D = np.eye(4)
-    D[:3, :3], D[:3, 3] = rotation_vector_to_matrix(d[:3]), d[3:]
-    return D
 
 
 class _Problem:
@@ -104,6 +99,10 @@ class _Problem:
         """The distortion ``(5,)`` with ``k1, k2, p1, p2`` moved by ``d_dist`` (k3 as calibrated)."""
         return self.dist + np.r_[d_dist, 0.0]
 
+    def mounted(self, d_mount) -> np.ndarray:
+        """The mount ``T_link5_cam`` (4, 4) moved by ``d_mount`` (a right perturbation ``[w, v]``)."""
+        return self.mount @ homogeneous(rotation_vector_to_matrix(d_mount[:3]), d_mount[3:])
+
     def intrinsics(self, d_K) -> np.ndarray:
         K = self.K.copy()
         K[0, 0] += d_K[0]
@@ -117,7 +116,7 @@ class _Problem:
         T = np.array(T_b2, dtype=float)
         T[:3, :3] = rotation_vector_to_matrix(xi[:3]) @ T[:3, :3]
         T[:3, 3] += xi[3:]
-        T_site_cam = link5_frame(self.robot, q, self.eps) @ self.mount @ _se3(d_m)
+        T_site_cam = link5_frame(self.robot, q, self.eps) @ self.mounted(d_m)
         T_site_cam[self.is_locate] = T @ T_site_cam[self.is_locate]
         return np.linalg.inv(T_site_cam)
 
@@ -279,7 +278,7 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
              + (", mount" if cov_mount is not None else ""))
     return JointBundleResult(True, f"ok; joint bundle of {M} points, {len(r)} of {len(keep)} observations kept, {V} "
                              f"views' joints{extra}, sigma {s_px:.3g} px", T, cov, q, s_px, rms,
-                             len(r), sol.iterations, problem.intrinsics(d_K), problem.mount @ _se3(d_m),
+                             len(r), sol.iterations, problem.intrinsics(d_K), problem.mounted(d_m),
                              problem.distortion(d_d))
 
 
