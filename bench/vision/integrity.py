@@ -309,12 +309,14 @@ def _lab_jacobian(kmap: KeypointMap, frees: list, T_a_b, lab: LabPrior, gains: l
                          "build_map gives it")
     x_obs = np.concatenate([np.asarray(o[1], float).reshape(-1, 2) for o in kmap.observations])
     p0 = _map_points(kmap, kmap.x_ref, x_obs, kmap.T_ref_views)
-    D_ref, D_obs = lab.keypoint_jacobian(kmap.x_ref), lab.keypoint_jacobian(x_obs)
+    x_free = [np.asarray(fr["x_n"], float).reshape(-1, 2) for fr in frees]
+    D_all = lab.keypoint_jacobian(np.concatenate([kmap.x_ref, x_obs, *x_free]))  # one call: refractive ones cost
+    D_ref, D_obs, *D_free = np.split(D_all, np.cumsum([len(kmap.x_ref), len(x_obs), *map(len, x_free)])[:-1])
     views = []
-    for fr, G in zip(frees, gains, strict=True):
+    for fr, G, D in zip(frees, gains, D_free, strict=True):
         T_view_ref, idx = invert(fr["T_free"]), np.asarray(fr["map_idx"], int)
         u0 = _proj_jac(transform_points(T_view_ref, kmap.p_ref[idx]))[0]  # the projections at theta = 0
-        views.append((T_view_ref, idx, u0, lab.keypoint_jacobian(fr["x_n"]), G))
+        views.append((T_view_ref, idx, u0, D, G))
     n = len(lab.cov)
 
     def d_of(th):
