@@ -7,11 +7,12 @@ Each run of a ``bench sweep`` of an ``in_situ`` scenario keeps its dataset (``ru
 calibration of it (``runs/<id>/calibrated``: camera, arm + mount, and the calibration priors). This tool runs
 :func:`bench.vision.locate_dataset.locate_dataset` on them again, with the scenario's own pipeline settings (as the
 ``in_situ`` kind passes them: ``pipeline.method``, ``refine``, the RANSAC keys, the run's seed) and writes
-``runs/<id>/<name>/locate.json``; ``SCENARIO`` is the sweep's scenario file (a sweep over a ``pipeline.*`` key
-is refused: its runs would need that key's value each; so is one over ``sources.*``, whose runs used oracle files,
-and a scenario of another name than the runs'). Use: the integrity tests or the estimator changed after a
-long sweep whose renders and lab calibrations did not (``git diff`` of ``bench/sim`` and of the calibrations is
-empty): the re-localised runs are then what a new sweep would give, at ~3 s per run instead of ~25 s.
+``runs/<id>/<name>/locate.json``; ``SCENARIO`` is the sweep's scenario file (a run that set a ``pipeline.*`` key
+is redone only when ``--set`` gives the key the run's value, else the sweep is refused; so is one over
+``sources.*``, whose runs used oracle files, and a scenario of another name than the runs'). Use: the integrity
+tests or the estimator changed after a long sweep whose renders and lab calibrations did not (``git diff`` of
+``bench/sim`` and of the calibrations is empty): the re-localised runs are then what a new sweep would give, at ~3 s
+per run instead of ~25 s.
 ``tools/integrity_summary.py --locate <name>/locate.json`` summarises them. A run already re-localised is skipped
 (``--force`` redoes it, removing the old file first); a run that fails is reported and the others go on. The
 workers end with this process, whatever ends it (:func:`bench.scenario.sweep._end_with_parent`).
@@ -30,6 +31,13 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+
+def _dotted(cfg: dict, key: str):
+    """The value of a dotted ``key`` in the loaded scenario ``cfg`` (None where a level is missing)."""
+    for part in key.split("."):
+        cfg = cfg.get(part) if isinstance(cfg, dict) else None
+    return cfg
 
 
 def _runs(sweep: Path) -> list:
@@ -113,10 +121,12 @@ def main(argv=None) -> int:
         raise SystemExit(f"{args.scenario}: kind {cfg.get('kind')!r}, expected in_situ")
     todo = []
     for rid, seed, params in _runs(args.sweep):
-        swept = sorted(k for k in params if k.startswith(("pipeline.", "sources.")))
+        swept = sorted(k for k in params if k.startswith("sources.") or k.startswith("pipeline.")
+                       and _dotted(cfg, k) != params[k])  # a pipeline key --set to the run's own value is redone
         if swept:
-            raise SystemExit(f"{args.sweep}: run {rid} sets {', '.join(swept)}: its localisation cannot be redone "
-                             "from the scenario's settings and the lab's files")
+            raise SystemExit(f"{args.sweep}: run {rid} sets {', '.join(f'{k}={params[k]!r}' for k in swept)}: its "
+                             "localisation cannot be redone from the scenario's settings and the lab's files (a "
+                             "pipeline key: --set it to the run's value)")
         run = args.sweep / "runs" / rid
         res = run / "result.json"
         if not (run / "dataset").is_dir() or not res.is_file():
