@@ -35,7 +35,7 @@ import scipy.optimize
 from scipy.spatial.transform import Rotation
 
 from bench.camera.flatport import FlatPort, axis_crossing, check_port, project_flatport, trace_rays
-from bench.camera.model import CameraModel, distort, to_pixels
+from bench.camera.model import CameraModel, distort, to_pixels, unproject_pinhole
 from bench.geometry.transforms import homogeneous
 
 #: names of the lens parameters estimated by :func:`calibrate_refractive`, in order
@@ -138,9 +138,11 @@ class RefractiveCamera:
         """The water rays of pixels ``uv (..., 2)``: ``(origin (..., 3), direction (..., 3), ok (...))``, the origin
         on the outer glass surface (m, lens frame), the unit direction in water; NaN and ``ok`` False where the
         lens cannot be inverted or the ray misses the port."""
-        d = self.lens.unproject(np.asarray(uv, dtype=float))
-        bad = ~np.all(np.isfinite(d), axis=-1)
-        d = np.where(bad[..., None], np.array([0.0, 0.0, 1.0]), d)
+        uv = np.asarray(uv, dtype=float)
+        bad = ~np.all(np.isfinite(uv), axis=-1)
+        x = self.lens.undistort_pixels(np.where(bad[..., None], self.lens.K[:2, 2], uv))
+        bad |= ~np.all(np.isfinite(x), axis=-1)  # where the lens's inverse does not converge
+        d = unproject_pinhole(np.where(bad[..., None], 0.0, x))
         o, w, ok = trace_rays(d, self.port)
         ok = ok & ~bad
         return np.where(ok[..., None], o, np.nan), np.where(ok[..., None], w, np.nan), ok

@@ -70,6 +70,20 @@ def test_rays_project_round_trip_and_central_coordinates():
     assert 1e-7 < err < 5e-4
 
 
+def test_pixels_the_lens_cannot_invert_are_nan_rays_not_an_error():
+    """A pixel beyond the lens's fold (its inverse does not converge) or a NaN pixel gives a NaN ray with ``ok``
+    False, as the keypoints' normalisation expects (it drops them); it raised from deep inside before (a refractive
+    in-situ run, seed 12, stopped on one such keypoint)."""
+    folded = LENS.replace(dist=np.array([0.3, -1.5, 0.0, 0.0, 0.0]))
+    cam = RefractiveCamera(folded, PORT)
+    uv = np.array([[320.0, 240.0], [639.0, 479.0], [np.nan, 10.0]])
+    o, w, ok = cam.rays(uv)
+    assert ok.tolist() == [True, False, False]
+    assert np.all(np.isfinite(w[0])) and np.all(np.isnan(w[1:])) and np.all(np.isnan(o[1:]))
+    x = cam.normalised(uv)
+    assert np.all(np.isfinite(x[0])) and np.all(np.isnan(x[1:]))
+
+
 def test_without_a_port_it_is_the_lens():
     no_port = RefractiveCamera(LENS, FlatPort(d0=0.02, t=0.012, n_air=1.0, n_glass=1.0, n_water=1.0))
     rng = np.random.default_rng(2)
