@@ -68,13 +68,12 @@ class _Problem:
 
     Parameter vector: ``xi`` (6), the joints view by view (6 V), then ``d_K`` (``dfx, dfy, dcx, dcy`` px) if
     ``with_K``, ``d_dist`` (``dk1, dk2, dp1, dp2``) if ``with_dist`` and ``d_mount`` (6: ``T_link5_cam [[exp(w), v],
-    [0, 1]]``) if ``with_mount``. Given ``keypoint_jacobian`` (N, 2, 4 or 8), ``d_K`` and ``d_dist`` move the
-    observations instead of the camera ``K``, ``dist``: ``uv + K J d`` (:func:`joint_bundle`)."""
+    [0, 1]]``) if ``with_mount``."""
 
     step = 1e-7
 
     def __init__(self, robot, eps, T_link5_cam, is_locate, view, point, uv, K, dist=None, with_K=False,
-                 with_mount=False, with_dist=False, keypoint_jacobian=None):
+                 with_mount=False, with_dist=False):
         self.robot, self.eps, self.mount = robot, np.asarray(eps, float), np.asarray(T_link5_cam, float)
         self.is_locate = np.asarray(is_locate, bool)
         self.view, self.point, self.uv = np.asarray(view, int), np.asarray(point, int), np.asarray(uv, float)
@@ -83,16 +82,6 @@ class _Problem:
         self.with_K, self.with_mount, self.with_dist = bool(with_K), bool(with_mount), bool(with_dist)
         self.V = len(self.is_locate)
         self.n = 6 + 6 * self.V + 4 * self.with_K + 4 * self.with_dist + 6 * self.with_mount
-        self.kp_jac = None
-        if keypoint_jacobian is not None:
-            if not self.with_K:
-                raise ValueError("keypoint_jacobian: the observations move with the intrinsics' prior (cov_K)")
-            J = np.asarray(keypoint_jacobian, float)
-            need = 8 if self.with_dist else 4
-            if J.ndim != 3 or J.shape[:2] != self.uv.shape or J.shape[2] < need or not np.all(np.isfinite(J)):
-                raise ValueError(f"keypoint_jacobian: expected finite ({len(self.uv)}, 2, {need}), got shape "
-                                 f"{J.shape}")
-            self.kp_jac = np.einsum("ij,njk->nik", self.K[:2, :2], J[:, :, :need])  # d uv / d (d_K, d_dist)
 
     def split(self, theta):
         """``theta (n,)`` -> ``xi (6,), q (V, 6), d_K (4,), d_dist (4,), d_mount (6,)`` (zeros for a block not
@@ -107,25 +96,15 @@ class _Problem:
         return xi, q, d_K, d_d, d_m
 
     def distortion(self, d_dist) -> np.ndarray:
-        """The distortion ``(5,)`` with ``k1, k2, p1, p2`` moved by ``d_dist`` (k3 as calibrated); as calibrated when
-        ``d_dist`` moves the observations."""
-        return self.dist + (0.0 if self.kp_jac is not None else np.r_[d_dist, 0.0])
-
-    def shift(self, d_K, d_dist) -> np.ndarray:
-        """How far ``d_K``, ``d_dist`` move the observations (N, 2) px: ``K J d`` with ``keypoint_jacobian``, else 0."""
-        if self.kp_jac is None:
-            return np.zeros_like(self.uv)
-        return self.kp_jac @ np.r_[d_K, d_dist][:self.kp_jac.shape[2]]
+        """The distortion ``(5,)`` with ``k1, k2, p1, p2`` moved by ``d_dist`` (k3 as calibrated)."""
+        return self.dist + np.r_[d_dist, 0.0]
 
     def mounted(self, d_mount) -> np.ndarray:
         """The mount ``T_link5_cam`` (4, 4) moved by ``d_mount`` (a right perturbation ``[w, v]``)."""
         return self.mount @ homogeneous(rotation_vector_to_matrix(d_mount[:3]), d_mount[3:])
 
     def intrinsics(self, d_K) -> np.ndarray:
-        """``K`` (3, 3) with ``fx fy cx cy`` moved by ``d_K``; as calibrated when ``d_K`` moves the observations."""
         K = self.K.copy()
-        if self.kp_jac is not None:
-            return K
         K[0, 0] += d_K[0]
         K[1, 1] += d_K[1]
         K[:2, 2] += d_K[2:]
@@ -146,9 +125,7 @@ class _Problem:
         return np.einsum("nij,nj->ni", R, X[self.point]) + t
 
     def pixels(self, p, d_K, d_dist) -> np.ndarray:
-        """The model's pixels (N, 2) of camera-frame points ``p`` (N, 3), less the observations' :meth:`shift`."""
-        uv = to_pixels(distort(p[:, :2] / p[:, 2:3], self.distortion(d_dist)), self.intrinsics(d_K))
-        return uv - self.shift(d_K, d_dist)
+        return to_pixels(distort(p[:, :2] / p[:, 2:3], self.distortion(d_dist)), self.intrinsics(d_K))
 
 
 def residuals(problem: _Problem, theta, T_b2, X) -> np.ndarray:
@@ -188,14 +165,10 @@ def residuals_and_jacobian(problem: _Problem, theta, T_b2, X) -> tuple:
         e[6 + c:6 + 6 * V:6] = h
         J[np.arange(N), :, 6 + 6 * problem.view + c] = -np.einsum("nij,nj->ni", A, dp(e))
     k = 6 + 6 * V
-    if problem.kp_jac is not None:  # the observations move: uv + K J d
-        m = problem.kp_jac.shape[2]
-        J[:, :, k:k + m] = problem.kp_jac
-        k += m
-    if problem.with_K and problem.kp_jac is None:  # u = fx x_d + s y_d + cx, v = fy y_d + cy
+    if problem.with_K:  # u = fx x_d + s y_d + cx, v = fy y_d + cy
         J[:, 0, k], J[:, 1, k + 1], J[:, 0, k + 2], J[:, 1, k + 3] = -x_d[:, 0], -x_d[:, 1], -1.0, -1.0
         k += 4
-    if problem.with_dist and problem.kp_jac is None:
+    if problem.with_dist:
         J[:, :, k:k + 4] = -K[:2, :2] @ distortion_parameter_jacobian(x_n)
         k += 4
     if problem.with_mount:
@@ -204,7 +177,7 @@ def residuals_and_jacobian(problem: _Problem, theta, T_b2, X) -> tuple:
             e[k + c] = h
             J[:, :, k + c] = -np.einsum("nij,nj->ni", A, dp(e))
     J_pt = -A @ T_cs[problem.view, :3, :3]
-    uv = to_pixels(x_d, K) - problem.shift(d_K, d_d)
+    uv = to_pixels(x_d, K)
     return problem.uv - uv, J, J_pt, float(z.min())
 
 
@@ -224,7 +197,7 @@ class _Bound:
 def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, point, uv, X, sigma_enc: float,
                  sigma_px: float, K, dist=None, cov_K=None, cov_mount=None, iterations: int = 10, rounds: int = 3,
                  gate: float | None = 3.5, cov_K_mount=None, cov_dist=None, cov_K_dist=None,
-                 cov_dist_mount=None, loss: str | None = None, keypoint_jacobian=None) -> JointBundleResult:
+                 cov_dist_mount=None, loss: str | None = None) -> JointBundleResult:
     """Base pose, joints of every view, map points (and the intrinsics and mount under their lab priors) by maximum
     likelihood (see the module docstring).
 
@@ -267,13 +240,6 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     loss : {None, "huber"}
         None: least squares on the observations the gate keeps; ``"huber"``: Huber's M-estimate by iteratively
         re-weighted least squares (:func:`bench.vision.bundle.solve`): the tail below the gate weighs less.
-    keypoint_jacobian : ndarray (N, 2, 4 or 8), optional
-        For a camera whose pixels are not ``K distort(x)`` - a refractive one, whose normalised coordinates reach the
-        bundle through its virtual pinhole ``K`` (no lens): each observation's ``d x_n / d (fx fy cx cy k1 k2 p1
-        p2)`` in the priors' terms, its pixel held (:meth:`bench.vision.integrity.LabPrior.keypoint_jacobian`). The
-        intrinsics' and lens's corrections then move the observations, ``uv + K J d`` (first order in ``d``),
-        through the lens and the port, instead of moving a pinhole's ``K`` and distortion, a paraxial view whose
-        lens block is 15-50 % low at the image corners; the result's ``K`` and ``dist`` are the given ones.
     """
     q_read = np.asarray(q_read, float)
     X = np.array(X, dtype=float)
@@ -285,7 +251,7 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     if np.any(counts < 2):
         raise ValueError(f"{int(np.sum(counts < 2))} points observed in fewer than two views")
     problem = _Problem(robot, eps, T_link5_cam, is_locate, view, point, uv, K, dist, cov_K is not None,
-                       cov_mount is not None, cov_dist is not None, keypoint_jacobian)
+                       cov_mount is not None, cov_dist is not None)
     n = problem.n
     info0 = np.zeros((n, n))  # the priors' information (rad^-2, px^-2, m^-2)
     info0[6:6 + 6 * V, 6:6 + 6 * V] = np.eye(6 * V) / sigma_enc**2

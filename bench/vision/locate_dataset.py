@@ -242,7 +242,7 @@ def _align_keypoints(obs, regions, camera, config) -> tuple:
 
 
 def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None, guided: bool = False,
-                   loss: str | None = None, map_points: str = "all", keypoint_jacobian=None):
+                   loss: str | None = None, map_points: str = "all"):
     """The thesis estimator's pose refined by :func:`~bench.vision.joint_bundle.joint_bundle` (joints under the
     encoder prior); on failure the thesis estimate is kept and the message says why.
 
@@ -252,11 +252,9 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
     estimate to start from. With ``guided`` each region's map is then searched again in its locate views at the
     refined poses and camera (:mod:`bench.vision.guided`) and the joint bundle re-run on the grown sets; ``loss``:
     the joint bundle's (``joint_bundle``); ``map_points``: which map points it weighs
-    (:func:`~bench.vision.joint_bundle.observations_of`); ``keypoint_jacobian``: for a refractive camera, its lab
-    prior's :meth:`~bench.vision.integrity.LabPrior.keypoint_jacobian` (the lab's corrections move the keypoints
-    through lens and port: ``joint_bundle``'s ``keypoint_jacobian``). Returns ``(result, refined, used)``:
-    ``refined`` False when the thesis's estimate (and covariance) is what comes back; ``used`` the points of every
-    region the returned estimate used (the result's own ``used`` is the first region's)."""
+    (:func:`~bench.vision.joint_bundle.observations_of`). Returns ``(result, refined, used)``: ``refined`` False
+    when the thesis's estimate (and covariance) is what comes back; ``used`` the points of every region the returned
+    estimate used (the result's own ``used`` is the first region's)."""
     from bench.camera.model import distort, to_pixels
     from bench.geometry.transforms import invert, transform_points
     from bench.vision.integrity import pose_condition
@@ -272,19 +270,17 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
     first = np.cumsum([0] + [1 + len(roles["surround"]) + 2 for _, roles, _ in parts])  # each region's first view
 
     def bundle(useds, T_start):
-        view, point, uv, X, xs = [], [], [], [], []
+        view, point, uv, X = [], [], [], []
         for (kmap, roles, _), used, v0 in zip(parts, useds, first, strict=False):
             vw, pt, x, idx = observations_of(kmap, used, len(roles["surround"]), map_points)
             view.append(vw + v0)
             point.append(pt + sum(len(p) for p in X))
             uv.append(to_pixels(distort(x, camera.dist), camera.K))  # the keypoints as detected (x: undistorted)
             X.append(transform_points(kmap.T_world_ref, kmap.p_ref[idx]))
-            xs.append(x)
         X = np.concatenate(X)
-        kj = None if keypoint_jacobian is None else keypoint_jacobian(np.concatenate(xs))
         return joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, T_start, np.concatenate(view),
                             np.concatenate(point), np.concatenate(uv), X, sigma_enc, 0.1, camera.K, camera.dist,
-                            **(priors or {}), loss=loss, keypoint_jacobian=kj), X  # 0.1 px: a start
+                            **(priors or {}), loss=loss), X  # 0.1 px: a start
 
     try:
         jb, X = bundle(useds, res.T_world_base)
@@ -364,19 +360,19 @@ def _regions(ds, pnp: bool, refine: str) -> list:
 
 
 def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, camera, sigma_enc, priors, guided,
-             loss, map_points, keypoint_jacobian=None) -> tuple:
+             loss, map_points) -> tuple:
     """The estimate of the regions ``include`` (indices) from their thesis estimates ``per``: with one region its
     own, refined by the joint bundle with refine 'joints'; with several the joint bundle over all of them together,
     started from the region with the most inliers (which then comes first in ``include``; regions whose thesis
     estimator found no pose, or one on fewer than :data:`~bench.vision.integrity.MIN_INLIERS` inliers, are left
     out). Returns ``(include, result, refined, thesis, used)`` (see
-    :func:`_refine_joints`, which also takes ``keypoint_jacobian``; ``thesis`` the start's thesis estimate)."""
+    :func:`_refine_joints`; ``thesis`` the start's thesis estimate)."""
     if len(regions) == 1:
         res = per[0]
         if sigma_enc is None or not res.success:  # refine 'joints' and two views: sigma_enc is given
             return [0], res, False, None, [res.used]
         out, refined, used = _refine_joints(res, [(maps[0], regions[0][1], res.used)], obs, robot, eps, T_link5_cam,
-                                            camera, sigma_enc, priors, guided, loss, map_points, keypoint_jacobian)
+                                            camera, sigma_enc, priors, guided, loss, map_points)
         return [0], out, refined, res, used
     # a region with fewer inliers than test 5 accepts has too little to add (not a fault: left out like a failure)
     include = [i for i in include if per[i].success and per[i].used is not None and len(per[i].used[0]) >= 3
@@ -393,8 +389,7 @@ def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, 
                   n_matches=sum(per[i].n_matches for i in include), n_inliers=sum(per[i].n_inliers for i in include),
                   timings_s=dict(per[start].timings_s))
     out, refined, used = _refine_joints(res, [(maps[i], regions[i][1], per[i].used) for i in include], obs, robot,
-                                        eps, T_link5_cam, camera, sigma_enc, priors, guided, loss, map_points,
-                                        keypoint_jacobian)
+                                        eps, T_link5_cam, camera, sigma_enc, priors, guided, loss, map_points)
     return include, out, refined, per[start], used
 
 
@@ -474,8 +469,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     def combine(per, maps, obs, include):
         """:func:`_combine` of the regions ``include`` with this call's robot, camera and settings."""
         return _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, pixels_camera, sigma_enc,
-                        priors, guided, loss, map_points, None if lab is None or lab.refractive is None else
-                        lab.keypoint_jacobian)  # a refractive camera's lab corrections through lens and port
+                        priors, guided, loss, map_points)
 
     def solve(obs):
         """Every region's map and thesis estimate, then their estimate together (:func:`_combine`: the joint

@@ -54,38 +54,6 @@ def test_jacobian_equals_difference_quotient():
         assert np.allclose(d, J_pt[:, :, c], rtol=1e-5, atol=1e-3)
 
 
-def test_keypoint_jacobian_moves_the_observations_not_the_camera():
-    """With ``keypoint_jacobian`` (a refractive camera's lab corrections through lens and port) the intrinsics' and
-    lens's corrections move the observations, ``uv + K J d``: the residuals against a difference quotient, the
-    camera left as given, and a wrong shape or no intrinsics' prior a one-line error."""
-    rng = np.random.default_rng(83)
-    robot, eps, T_b2, X, view, point, x = _scene(rng, 8)
-    Jk = rng.normal(0, 1e-3, (len(view), 2, 8))
-    problem = _Problem(robot, eps, MOUNT, LOC, view, point, x, K, None, with_K=True, with_mount=True,
-                       with_dist=True, keypoint_jacobian=Jk)
-    theta = np.r_[rng.normal(0, 1e-3, 6), (Q + rng.normal(0, 1e-4, Q.shape)).ravel(), rng.normal(0, 1, 4),
-                  rng.normal(0, 1e-2, 4), rng.normal(0, 1e-3, 6)]
-    r, J, _, _ = residuals_and_jacobian(problem, theta, T_b2, X)
-    assert np.allclose(r, residuals(problem, theta, T_b2, X), atol=1e-12)
-    k = 6 + 6 * len(Q)
-    d = theta[k:k + 8]
-    plain = _Problem(robot, eps, MOUNT, LOC, view, point, x, K, None, with_K=True, with_mount=True, with_dist=True)
-    at_lab = np.r_[theta[:k], np.zeros(8), theta[k + 8:]]
-    assert np.allclose(r, residuals(plain, at_lab, T_b2, X) + np.einsum("ij,njk,k->ni", K[:2, :2], Jk, d),
-                       atol=1e-9)
-    for c in range(len(theta)):
-        e = np.zeros_like(theta)
-        e[c] = 1e-6 * (1e3 if k <= c < k + 4 else 1)
-        dq = (residuals(problem, theta + e, T_b2, X) - residuals(problem, theta - e, T_b2, X)) / (2 * e[c])
-        assert np.allclose(dq, J[:, :, c], atol=1e-5 * max(1, np.abs(J[:, :, c]).max())), c
-    assert np.array_equal(problem.intrinsics(d[:4]), K) and np.array_equal(problem.distortion(d[4:]), np.zeros(5))
-    with pytest.raises(ValueError, match="keypoint_jacobian: expected finite"):
-        _Problem(robot, eps, MOUNT, LOC, view, point, x, K, None, with_K=True, with_dist=True,
-                 keypoint_jacobian=Jk[:, :, :4])
-    with pytest.raises(ValueError, match="intrinsics' prior"):
-        _Problem(robot, eps, MOUNT, LOC, view, point, x, K, None, keypoint_jacobian=Jk)
-
-
 def test_recovers_the_base_under_encoder_noise():
     rng = np.random.default_rng(82)
     robot, eps, T_b2, X, view, point, x = _scene(rng)
