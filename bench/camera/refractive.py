@@ -230,6 +230,15 @@ def _vector_to_poses(v):
     return T
 
 
+def virtual_scale(port: FlatPort) -> np.ndarray:
+    """``(8,)``: how :data:`LENS_NAMES` (fx fy cx cy k1 k2 p1 p2) scale into the virtual pinhole's equivalents,
+    paraxially, ``m = n_water / n_air``: ``m, m, 1, 1, m^2, m^4, m, m`` (the lens's distortion acts on in-air
+    coordinates, ``m`` times the water ones: ``k1 r_a^2 = k1 m^2 r_w^2`` etc.) - the terms a refractive camera's lab
+    priors are written in."""
+    m = port.n_water / port.n_air
+    return np.array([m, m, 1.0, 1.0, m**2, m**4, m, m])
+
+
 def lens_parameters(lens: CameraModel) -> np.ndarray:
     """The lens's :data:`LENS_NAMES` values (8,): ``fx fy cx cy`` (px), ``k1 k2 p1 p2``."""
     return np.array([lens.fx, lens.fy, lens.cx, lens.cy, *lens.dist[:4]])

@@ -46,13 +46,12 @@ class _VirtualCalibration:
 
     @classmethod
     def of(cls, r):
+        from bench.camera.refractive import virtual_scale
+
         cam = r.camera.virtual_camera()
-        mag = r.camera.port.n_water / r.camera.port.n_air
         names = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
         idx = [r.parameter_names.index(n) for n in names]
-        # the lens's distortion acts on in-air coordinates, mag times the water ones paraxially: k1 r_a^2 = k1 mag^2
-        # r_w^2 etc. - the covariance of the pinhole's equivalent (first-order) distortion
-        S = np.diag([mag, mag, 1.0, 1.0, mag**2, mag**4, mag, mag])
+        S = np.diag(virtual_scale(r.camera.port))  # the pinhole's equivalent (first-order) intrinsics and distortion
         C = S @ r.covariance[np.ix_(idx, idx)] @ S
         C = 0.5 * (C + C.T)
         return cls(cam.K, cam.dist, r.T_cam_target, names, C, np.diag(S)[4:] * r.camera.lens.dist[:4])

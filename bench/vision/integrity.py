@@ -59,7 +59,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from bench.camera.model import distort, distortion_jacobian, distortion_parameter_jacobian
-from bench.camera.refractive import RefractiveCamera, lens_parameters, with_lens_parameters
+from bench.camera.refractive import RefractiveCamera, lens_parameters, virtual_scale, with_lens_parameters
 from bench.geometry.quaternion import matrix_to_rotation_vector
 from bench.geometry.transforms import invert, skew, transform_points
 from bench.vision.insitu import KeypointMap, MapConfig, ViewObservation, _left_exp, _proj_jac, reference_matches
@@ -255,13 +255,13 @@ class LabPrior:
     def _refractive_jacobian(self, x_n) -> np.ndarray:
         """The refractive camera's :meth:`keypoint_jacobian`: each keypoint's pixel through lens and port (at the
         working range ``z``), held while one lens parameter moves by a step of the prior's (virtual pinhole's)
-        parameter - the focal lengths by ``1 / m``, k1 by ``1 / m^2``, k2 by ``1 / m^4``, p1 and p2 by ``1 / m``,
-        ``m = n_water / n_air``, the scaling the prior was written with - and its coordinates at ``z`` again."""
+        parameter, scaled back by :func:`~bench.camera.refractive.virtual_scale` (the scaling the prior was written
+        with) - and its coordinates at ``z`` again."""
         cam = self.refractive
-        z, m = cam.working_range_m, cam.port.n_water / cam.port.n_air
+        z = cam.working_range_m
         uv = cam.project(np.c_[x_n * z, np.full(len(x_n), z)])
         n = 8 if len(self.cov) == 14 else 4
-        per_step = np.array([1 / m, 1 / m, 1.0, 1.0, m**-2, m**-4, 1 / m, 1 / m])[:n]
+        per_step = 1.0 / virtual_scale(cam.port)[:n]
         steps = np.array([1e-2, 1e-2, 1e-2, 1e-2, 1e-5, 1e-5, 1e-6, 1e-6])[:n]  # px, then unitless
         theta0, J = lens_parameters(cam.lens), np.empty((len(x_n), 2, n))
         for i in range(n):
