@@ -15,6 +15,9 @@ error, with nothing fitted to hide any of it. Per run:
 * ``locate``: the robust sigma of the locate views' errors about the same survey mean, less the mean's own noise -
   what a locate view adds when it sees the point from the other parking
   (:func:`bench.scenario.in_situ_bound.track_noise_on_surface`, which the ``in_situ`` kind's bound uses too);
+* ``F survey``, ``F locate``: how much less each pixel tells than its robust sigma says, sigma of the Fisher
+  information of the errors' density (a Gaussian scale mixture fitted to them) over the robust sigma
+  (:func:`bench.scenario.in_situ_bound.fisher_factor`; the bound multiplies its sigmas by them);
 * beside them the run's ``keypoint_sigma_px`` (the survey's, from epipolar distances) and
   ``keypoint_sigma_locate_px`` (the bound's locate noise), when the run has them.
 
@@ -64,7 +67,8 @@ def measure(cfg, run: Path) -> dict:
                                 true_projector(lens, port, imaging(cfg)), surface)
     m = result["metrics"]
     return {"run": run.name, "seed": result["seed"], "points": tn["points"], "survey_px": tn["survey_px"],
-            "locate_px": tn["locate_px"], "ratio": tn["ratio"], "bound_survey_px": m.get("keypoint_sigma_px"),
+            "locate_px": tn["locate_px"], "ratio": tn["ratio"], "survey_fisher": tn["survey_fisher"],
+            "locate_fisher": tn["locate_fisher"], "bound_survey_px": m.get("keypoint_sigma_px"),
             "bound_locate_px": m.get("keypoint_sigma_locate_px")}
 
 
@@ -78,7 +82,7 @@ def main(argv=None) -> int:
     from bench.scenario.runner import load_scenario
 
     rows = []
-    print("run               seed points  survey  locate  ratio | bound's survey  locate")
+    print("run               seed points  survey  locate  ratio  F survey  F locate | bound's survey  locate")
     for run in args.runs:
         try:
             result = json.loads((run / "result.json").read_text())
@@ -93,11 +97,13 @@ def main(argv=None) -> int:
         rows.append(row)
         b = "  ".join("   -  " if row[k] is None else f"{row[k]:.3f}" for k in ("bound_survey_px", "bound_locate_px"))
         print(f"{row['run']:<17} {row['seed']:>4} {row['points']:>6}  {row['survey_px']:.3f}   {row['locate_px']:.3f}"
-              f"   {row['ratio']:.2f} | {b}", flush=True)
+              f"   {row['ratio']:.2f}   {row['survey_fisher']:.3f}     {row['locate_fisher']:.3f}    | {b}", flush=True)
     if rows:
-        med = {k: float(np.median([r[k] for r in rows])) for k in ("survey_px", "locate_px", "ratio")}
+        keys = ("survey_px", "locate_px", "ratio", "survey_fisher", "locate_fisher")
+        med = {k: float(np.median([r[k] for r in rows])) for k in keys}
         print(f"median over {len(rows)} runs: survey {med['survey_px']:.3f} px, locate {med['locate_px']:.3f} px, "
-              f"ratio {med['ratio']:.2f}")
+              f"ratio {med['ratio']:.2f}, Fisher factors {med['survey_fisher']:.3f} (survey) "
+              f"{med['locate_fisher']:.3f} (locate)")
     return 0 if rows else 1
 
 

@@ -922,8 +922,9 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     if not np.isfinite(sigma_px) or sigma_px <= 0:
         return out
     # the locate views' own noise (the other parking's viewpoint), relative to the survey's on the same tracks, on the
-    # panel's true surfaces; without a pose (no tracks), the survey's
-    ratio = points = float("nan")
+    # panel's true surfaces; without a pose (no tracks), the survey's. Both as the Fisher information of the measured
+    # errors' density has them (fisher_factor: the tails take a little from the core the robust sigma describes)
+    ratio = points = f_survey = f_locate = float("nan")
     if res.success and res.used is not None:
         from bench.scenario.scene_points import SceneRays
 
@@ -931,16 +932,18 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
         tn = track_noise_on_surface(*track_pixels(kmap, res.used, obs, ref, surround, loc), poses[ref],
                                     np.stack([poses[n] for n in surround]), np.stack([poses[n] for n in loc]), lens,
                                     port, project, surface)
-        ratio, points = tn["ratio"], float(tn["points"])
-    sigma_loc = sigma_px * ratio if np.isfinite(ratio) and ratio > 0 else sigma_px
-    out.update({"keypoint_sigma_locate_px": sigma_loc, "keypoint_locate_ratio": ratio,
-                "keypoint_locate_points": points})
+        ratio, points, f_survey, f_locate = tn["ratio"], float(tn["points"]), tn["survey_fisher"], tn["locate_fisher"]
+    sigma_bound = sigma_px * (f_survey if np.isfinite(f_survey) else 1.0)
+    sigma_loc = sigma_px * (ratio * f_locate if np.isfinite(ratio * f_locate) and ratio > 0 else 1.0)
+    out.update({"keypoint_sigma_bound_px": sigma_bound, "keypoint_sigma_locate_px": sigma_loc,
+                "keypoint_locate_ratio": ratio, "keypoint_locate_points": points, "keypoint_fisher_factor": f_survey,
+                "keypoint_locate_fisher_factor": f_locate})
     T_wb1 = np.array(truth["T_world_base_survey"])
     T_site_b2 = invert(T_wb1) @ np.array(truth["T_world_base_locate"])
     X_site = transform_points(kmap.T_world_ref, kmap.p_ref)  # the features the pipeline found (linearisation)
     names = [ref, *surround, *loc]
     views = [(np.array(truth["views"][n]["q_true"]), n in loc) for n in names]
-    sigma_views = np.array([sigma_loc if n in loc else sigma_px for n in names])
+    sigma_views = np.array([sigma_loc if n in loc else sigma_bound for n in names])
     enc = truth["encoders"]
     sigma_enc = float(np.sqrt(enc["noise_std_rad"] ** 2 + enc["resolution_rad"] ** 2 / 12)) or 1e-9
     ident = lab["identification"]

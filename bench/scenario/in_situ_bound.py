@@ -131,6 +131,39 @@ def _robust_sd(a) -> float:
     return float(1.4826 * np.median(np.abs(a - np.median(a))))
 
 
+def fisher_factor(errors, components: int = 3, iterations: int = 200) -> float:
+    """How much less a pixel tells than the robust sigma says: ``sigma_F / sigma_robust`` of 2-D errors (N, 2).
+
+    The Cramér-Rao bound of a location under noise of density ``f`` has the per-axis Fisher information
+    ``I = E[(d log f / dx)^2]`` where a Gaussian of sigma ``s`` has ``1 / s^2``; ``sigma_F = I^(-1/2)`` is the sigma of
+    the Gaussian that carries as much. ``f`` is a zero-mean isotropic Gaussian scale mixture ``sum pi_k N(0, s_k^2 I)``
+    fitted by EM (the keypoints' errors: a core and heavier tails), ``I`` its integral in the radius; the robust sigma
+    is 1.4826 MAD over both axes, the bound's statistic (:func:`track_noise_on_surface`). 1 for Gaussian errors; above 1
+    when the tails take information from the core; NaN for fewer than 20 errors or exact ones."""
+    e = np.asarray(errors, float).reshape(-1, 2)
+    r2 = np.sum(e**2, axis=1)
+    s_rob = _robust_sd(e) if len(e) >= 20 else 0.0
+    if not s_rob > 1e-6:  # px: exact pixels to rounding, no shape to measure
+        return float("nan")
+    s2 = (s_rob * np.geomspace(1.0, 6.0, components)) ** 2
+    pi = np.full(components, 1.0 / components)
+
+    def density(r2_, pi_, s2_):  # (N, K) pi_k N_k(r), 2-D
+        return pi_ / (2 * np.pi * s2_) * np.exp(-np.asarray(r2_)[:, None] / (2 * s2_))
+
+    for _ in range(iterations):  # EM
+        post = density(r2, pi, s2)
+        post /= np.maximum(post.sum(axis=1, keepdims=True), 1e-300)
+        pi = np.maximum(post.mean(axis=0), 1e-12)
+        s2 = np.maximum((post * r2[:, None]).sum(axis=0) / (2 * np.maximum(post.sum(axis=0), 1e-12)), 1e-6 * s_rob**2)
+    r = np.linspace(0.0, 12.0 * np.sqrt(s2.max()), 20001)[1:]
+    N = density(r**2, pi, s2)
+    f = N.sum(axis=1)
+    score = r * (N / s2).sum(axis=1) / f  # |grad log f|
+    information = 0.5 * np.trapezoid(2 * np.pi * r * f * score**2, r)  # per axis: half of E|grad log f|^2
+    return float(1.0 / np.sqrt(information) / s_rob)
+
+
 def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_survey, T_world_locate, lens: CameraModel,
                            port, project, surface) -> dict:
     """The survey's and the locate views' own keypoint noise, measured on the scene's true surfaces (evaluator side).
@@ -147,7 +180,10 @@ def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_surve
     * ``locate_px``: robust sigma of the locate views' errors about the same mean, less the mean's own variance
       ``survey_px^2 / n``;
     * ``ratio`` = ``locate_px / survey_px``; ``points``: the tracks measured (a ray that misses the surface, or a
-      track seen in fewer than two survey views, is left out).
+      track seen in fewer than two survey views, is left out);
+    * ``survey_fisher``, ``locate_fisher``: :func:`fisher_factor` of the survey's and the locate views' errors (within
+      5 px, the gross mismatches left out), what the bound's robust sigmas take for the information lost to the
+      tails.
 
     Parameters
     ----------
@@ -186,12 +222,15 @@ def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_surve
         n_views.append(len(e))
         dev_locate += [error(T, x, P[j]) - mean for T, x in zip(T_world_locate, uv_locate[j], strict=True)]
     if not n_views:
-        return {"survey_px": float("nan"), "locate_px": float("nan"), "ratio": float("nan"), "points": 0}
+        return {"survey_px": float("nan"), "locate_px": float("nan"), "ratio": float("nan"), "points": 0,
+                "survey_fisher": float("nan"), "locate_fisher": float("nan")}
     n = float(np.mean(n_views))
     s_survey = _robust_sd(np.concatenate(dev_survey)) * np.sqrt(n / (n - 1))
     s_locate = float(np.sqrt(max(_robust_sd(dev_locate) ** 2 - s_survey**2 / n, 0.0)))
+    dev_survey, dev_locate = np.concatenate(dev_survey), np.asarray(dev_locate, float)
+    fisher = [fisher_factor(d[np.linalg.norm(d, axis=1) < 5.0]) for d in (dev_survey, dev_locate)]
     return {"survey_px": s_survey, "locate_px": s_locate, "ratio": s_locate / s_survey if s_survey > 0 else np.nan,
-            "points": len(n_views)}
+            "points": len(n_views), "survey_fisher": fisher[0], "locate_fisher": fisher[1]}
 
 
 def track_pixels(kmap, used, observations: dict, reference: str, survey: list, locate: list) -> tuple:

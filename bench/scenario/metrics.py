@@ -172,9 +172,15 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("keypoint_sigma_px", "px", "SIFT keypoint noise of the survey views, measured against the true "
                "epipolar curves (robust σ)", "`bound.enabled`"),
         Metric("keypoint_sigma_matches", "count", "matches behind that σ", "`bound.enabled`"),
+        Metric("keypoint_sigma_bound_px", "px", "the bound's noise in the reference and survey views: "
+               "`keypoint_sigma_px` × `keypoint_fisher_factor`", "`bound.enabled`"),
         Metric("keypoint_sigma_locate_px", "px", "the locate views' own keypoint noise (the other parking's "
-               "viewpoint): `keypoint_sigma_px` × `keypoint_locate_ratio`; the bound's noise there",
-               "`bound.enabled`"),
+               "viewpoint): `keypoint_sigma_px` × `keypoint_locate_ratio` × `keypoint_locate_fisher_factor`; the "
+               "bound's noise there", "`bound.enabled`"),
+        Metric("keypoint_fisher_factor", "1", "σ of the Fisher information of the survey views' keypoint errors "
+               "(a Gaussian scale mixture fitted to them on the panel's true surfaces) over their robust σ: what "
+               "the heavy tails take from the information", "`bound.enabled`, a pose"),
+        Metric("keypoint_locate_fisher_factor", "1", "the same for the locate views' errors", "`bound.enabled`, a pose"),
         Metric("keypoint_locate_ratio", "1", "the locate views' keypoint noise over the survey's, on the same "
                "tracks, measured on the panel's true surfaces (robust σ)", "`bound.enabled`, a pose"),
         Metric("keypoint_locate_points", "count", "tracks behind that ratio", "`bound.enabled`, a pose"),

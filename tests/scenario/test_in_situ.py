@@ -51,7 +51,11 @@ def test_smoke_accuracy(smoke_run):
     assert 0.005 < m["keypoint_sigma_px"] < 1.0 and m["keypoint_sigma_matches"] > 100
     # the locate views' own noise: the survey's times their ratio on the same tracks, on the panel's true surfaces
     assert 0 < m["keypoint_locate_ratio"] < 5 and m["keypoint_locate_points"] > 20
-    assert m["keypoint_sigma_locate_px"] == pytest.approx(m["keypoint_sigma_px"] * m["keypoint_locate_ratio"])
+    # each as the Fisher information of the errors' measured density has it (a few per cent from the robust sigma)
+    assert 0.7 < m["keypoint_fisher_factor"] < 1.5 and 0.7 < m["keypoint_locate_fisher_factor"] < 1.5
+    assert m["keypoint_sigma_bound_px"] == pytest.approx(m["keypoint_sigma_px"] * m["keypoint_fisher_factor"])
+    assert m["keypoint_sigma_locate_px"] == pytest.approx(m["keypoint_sigma_px"] * m["keypoint_locate_ratio"]
+                                                          * m["keypoint_locate_fisher_factor"])
     # the Cramér-Rao bound against a Monte Carlo of refine 'joints' under the bound's model (4 draws: loose)
     assert 0.4 < m["base_pos_crb_mm"] / m["base_pos_crb_mc_mm"] < 2.5 and 0 < m["base_rot_bound_deg"]
     assert m["base_pos_bound_mm"] == pytest.approx(np.hypot(m["base_pos_crb_mm"], m["base_pos_floor_mm"]))
