@@ -180,7 +180,8 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("keypoint_fisher_factor", "1", "σ of the Fisher information of the survey views' keypoint errors "
                "(a Gaussian scale mixture fitted to them on the panel's true surfaces) over their robust σ: what "
                "the heavy tails take from the information", "`bound.enabled`, a pose"),
-        Metric("keypoint_locate_fisher_factor", "1", "the same for the locate views' errors", "`bound.enabled`, a pose"),
+        Metric("keypoint_locate_fisher_factor", "1", "the same for the locate views' errors",
+               "`bound.enabled`, a pose"),
         Metric("keypoint_locate_ratio", "1", "the locate views' keypoint noise over the survey's, on the same "
                "tracks, measured on the panel's true surfaces (robust σ)", "`bound.enabled`, a pose"),
         Metric("keypoint_locate_points", "count", "tracks behind that ratio", "`bound.enabled`, a pose"),
