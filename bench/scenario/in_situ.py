@@ -933,8 +933,8 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
                                     np.stack([poses[n] for n in surround]), np.stack([poses[n] for n in loc]), lens,
                                     port, project, surface)
         ratio, points, f_survey, f_locate = tn["ratio"], float(tn["points"]), tn["survey_fisher"], tn["locate_fisher"]
-    sigma_bound = sigma_px * (f_survey if np.isfinite(f_survey) else 1.0)
-    sigma_loc = sigma_px * (ratio * f_locate if np.isfinite(ratio * f_locate) and ratio > 0 else 1.0)
+    sigma_bound = sigma_px * _or_one(f_survey)
+    sigma_loc = sigma_px * _or_one(ratio) * _or_one(f_locate)
     out.update({"keypoint_sigma_bound_px": sigma_bound, "keypoint_sigma_locate_px": sigma_loc,
                 "keypoint_locate_ratio": ratio, "keypoint_locate_points": points, "keypoint_fisher_factor": f_survey,
                 "keypoint_locate_fisher_factor": f_locate})
@@ -991,6 +991,11 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
                 "base_pos_bound_mc_mm": mc["pos_rms_m"] * 1e3, "base_rot_bound_mc_deg": np.rad2deg(mc["rot_rms_rad"]),
                 "bound_observations": float(crb["observations"])})
     return out
+
+
+def _or_one(factor: float) -> float:
+    """A measured factor, or 1 where it could not be measured (NaN, or not positive)."""
+    return factor if np.isfinite(factor) and factor > 0 else 1.0
 
 
 def _score_task(cfg, ds, truth, report, robot):
