@@ -15,6 +15,9 @@ would (the lab calibration is done before the dive, on the clean dataset, unless
                         what the images alone show at once)
 ``mount_bent``          the camera mount bent after the lab calibration: 1 deg about a drawn axis, 5 mm along a drawn
                         direction (applied to the calibrated mount the pipeline uses: the same relative error)
+``mount_knocked``       the camera turned on its mount *between* the survey and the localisation (a knock at the
+                        structure): both locate images as the camera turned by 0.2 deg about a drawn axis sees the
+                        scene (remapped through the calibrated camera model, its distortion included)
 ``air_calibration``     the camera file of an air calibration used underwater: focal length / 1.333 (n_water / n_air)
 ``focal_drift``         the housing's optics drifted since the lab: the camera file's focal length 1 % off, its
                         principal point 3 px off (temperature, pressure, a refocused lens)
@@ -52,6 +55,8 @@ from bench.geometry.transforms import homogeneous, invert, rotation_angle
 #: A position error above this is a failure whatever the protection radius (the alert limit of the issue, mm).
 SILENT_MM = 3.0
 N_WATER = 1.333
+#: the camera's turn on its mount between the survey and the localisation in ``mount_knocked`` (deg)
+KNOCK_DEG = 0.2
 
 
 def _site_views(ds):
@@ -170,6 +175,22 @@ def mount_bent(root, roles, cal, rng):
     return f"mount bent by 1 deg about {np.round(axis, 2).tolist()} and 5 mm along {np.round(direction, 2).tolist()}"
 
 
+def mount_knocked(root, roles, cal, rng):
+    from bench.camera.io import read_camera_yaml
+
+    cam = read_camera_yaml(cal["camera"])
+    axis = _random_unit(rng)
+    R = rotation_vector_to_matrix(axis * np.deg2rad(KNOCK_DEG))  # the turned camera's axes in the old camera frame
+    for name in roles["locate"][:2]:
+        img = _read(root, name)
+        h, w = img.shape[:2]
+        u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+        # pixel uv of the turned camera sees direction d' (its frame) = R d' in the old frame: fetched from there
+        src = cam.project(cam.unproject(np.c_[u.ravel(), v.ravel()]) @ R.T).reshape(h, w, 2).astype(np.float32)
+        _write(root, name, cv2.remap(img, src[..., 0], src[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT))
+    return f"camera turned on its mount by {KNOCK_DEG:g} deg about {np.round(axis, 2).tolist()} after the survey"
+
+
 def air_calibration(root, roles, cal, rng):
     from bench.camera.io import read_camera_yaml, write_camera_yaml
 
@@ -256,8 +277,8 @@ def new_growth(root, roles, cal, rng):
 
 
 FAULTS = {f.__name__: f for f in (clean, swap_images, duplicate_frame, joint_log_shift, joint_offset,
-                                  joint_offset_small, mount_bent, air_calibration, focal_drift, fouled_lens,
-                                  motion_blur, turbid, new_growth)}
+                                  joint_offset_small, mount_bent, mount_knocked, air_calibration, focal_drift,
+                                  fouled_lens, motion_blur, turbid, new_growth)}
 
 
 # --------------------------------------------------------------------------------------------------------- running

@@ -7,6 +7,7 @@ import re
 import shutil
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -123,7 +124,7 @@ def test_guided_matching_grows_the_verified_set_and_stays_inside_its_radius(rend
     assert err_mm <= rep["protection_radius_mm"]
 
 
-def test_every_fault_damages_its_copy(rendered, tmp_path):
+def test_every_fault_damages_its_copy(rendered, tmp_path, monkeypatch):
     tmp, camera, robot = rendered
     src = tmp / "ds"
     roles = F._site_views(load_dataset(src))
@@ -143,6 +144,7 @@ def test_every_fault_damages_its_copy(rendered, tmp_path):
                     "duplicate_frame": ({f"{b}.png"}, False, False), "joint_log_shift": (set(), True, False),
                     "joint_offset": (set(), True, False), "joint_offset_small": (set(), True, False),
                     "mount_bent": (set(), False, True), "focal_drift": (set(), False, True),
+                    "mount_knocked": ({f"{a}.png", f"{b}.png"}, False, False),
                     "air_calibration": (set(), False, True), "fouled_lens": ({f"{a}.png", f"{b}.png"}, False, False),
                     "motion_blur": ({f"{a}.png"}, False, False), "turbid": ({f"{a}.png", f"{b}.png"}, False, False),
                     "new_growth": ({f"{a}.png", f"{b}.png"}, False, False)}[name]
@@ -158,6 +160,22 @@ def test_every_fault_damages_its_copy(rendered, tmp_path):
     cam0 = read_camera_yaml(camera)
     assert abs(drift.fx / cam0.fx - 1) == pytest.approx(0.01)
     assert np.linalg.norm(drift.K[:2, 2] - cam0.K[:2, 2]) == pytest.approx(3.0)
+    # the knock: the turn about (a_x, a_y, a_z) moves the image by about f x 0.2 deg x (-a_y, a_x) (phase
+    # correlation), and no turn leaves the locate images as they were (the remap through the camera model is exact)
+    k = list(F.FAULTS).index("mount_knocked")
+    axis = F._random_unit(np.random.default_rng([0, k]))
+    a_img, b_img = (cv2.imread(str(d / "images" / f"{a}.png"), cv2.IMREAD_GRAYSCALE).astype(np.float32)
+                    for d in (src, tmp_path / "mount_knocked" / "dataset"))
+    expected = read_camera_yaml(camera).fx * np.deg2rad(F.KNOCK_DEG) * np.array([-axis[1], axis[0]])
+    shift = np.array(cv2.phaseCorrelate(a_img, b_img)[0])
+    assert np.linalg.norm(shift - expected) < 0.3 * np.linalg.norm(expected) + 0.3, (shift, expected)
+    work = tmp_path / "knock0" / "dataset"
+    shutil.copytree(src, work)
+    monkeypatch.setattr(F, "KNOCK_DEG", 0.0)
+    F.mount_knocked(work, roles, {"camera": Path(camera), "robot": Path(robot)}, np.random.default_rng(0))
+    for name in (a, b):
+        same = [cv2.imread(str(d / "images" / f"{name}.png")).astype(int) for d in (src, work)]
+        assert np.abs(same[0] - same[1]).max() <= 1
     # the small offset: 0.1 deg on one of joints 1-5 of a locate view, nothing else
     _, rows0 = F._joints(src)
     _, rows1 = F._joints(tmp_path / "joint_offset_small" / "dataset")
