@@ -62,10 +62,6 @@ class Reduction:
         all_names = error_names(self.M.shape[1] // 6)
         return [all_names[k] for k in self.kept]
 
-    @property
-    def eliminated(self) -> np.ndarray:
-        return np.setdiff1d(np.arange(self.M.shape[1]), self.kept)
-
     def reduce(self, eps) -> np.ndarray:
         """Reduced errors ``eps_dot = M eps`` (Eq. 21, 167)."""
         return self.M @ np.asarray(eps, dtype=float)

@@ -46,7 +46,6 @@ from bench.robot.kinematics import link_frames
 from bench.robot.orientation import link5_frame
 from bench.scenario.recording import GREEN, RED, Recording, arm_strip, nice_factor, run_name
 
-BLUE = (60, 120, 230)
 ORANGE = (240, 150, 30)
 YELLOW = (220, 200, 60)
 #: The base-error view shows the error exaggerated so that it (or the 1-sigma ellipsoid) spans about this (m).

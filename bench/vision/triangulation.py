@@ -264,14 +264,6 @@ def triangulate_linear(T_ref_cams, x_n) -> Triangulation:
     return _result("linear", T, x, p, valid)
 
 
-def reprojection_residuals(T_ref_cams, x_n, p_ref):
-    """Normalized-coordinate residuals ``x_n - proj(p)``, shape (V, N, 2)."""
-    T, x = _parse(T_ref_cams, x_n)
-    P = _projections(T)
-    pc = np.einsum("vij,nj->vni", P[..., :3], p_ref) + P[:, None, :, 3]
-    return x - pc[..., :2] / pc[..., 2:3]
-
-
 def reprojection_jacobian(T_ref_cams, p_ref):
     """Projections ``proj(p) (V, N, 2)`` of points ``p_ref (N, 3)`` and their Jacobian ``d proj / d p (V, N, 2, 3)``.
 
