@@ -139,7 +139,8 @@ def fisher_factor(errors, components: int = 3, iterations: int = 200) -> float:
     the Gaussian that carries as much. ``f`` is a zero-mean isotropic Gaussian scale mixture ``sum pi_k N(0, s_k^2 I)``
     fitted by EM (the keypoints' errors: a core and heavier tails), ``I`` its integral in the radius; the robust sigma
     is 1.4826 MAD over both axes, the bound's statistic (:func:`track_noise_on_surface`). 1 for Gaussian errors; above 1
-    when the tails take information from the core; NaN for fewer than 20 errors or exact ones."""
+    when the tails take information from the core, below 1 when rare, far tails widen the robust sigma beyond the
+    core's; NaN for fewer than 20 errors or exact ones."""
     e = np.asarray(errors, float).reshape(-1, 2)
     r2 = np.sum(e**2, axis=1)
     s_rob = _robust_sd(e) if len(e) >= 20 else 0.0
