@@ -2,8 +2,9 @@
 
 import importlib.util
 import json
-import sqlite3
 from pathlib import Path
+
+from bench.scenario.sweep import SweepStore
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -16,13 +17,11 @@ def _tool():
 
 
 def _sweep(folder: Path, metrics: list) -> None:
-    folder.mkdir(parents=True)
-    db = sqlite3.connect(folder / "sweep.sqlite")
-    db.execute("CREATE TABLE runs (params TEXT, seed INT, status TEXT, metrics TEXT, result_path TEXT)")
+    store = SweepStore(folder / "sweep.sqlite")  # the sweep's own writer, so the schema is the real one
     for seed, m in enumerate(metrics):
-        db.execute("INSERT INTO runs VALUES (?, ?, 'done', ?, NULL)", ("{}", seed, json.dumps(m)))
-    db.commit()
-    db.close()
+        store.add(f"r{seed}", {}, seed, {"status": "done", "message": "", "metrics": m, "timings": {},
+                                         "versions": {}, "result_path": None})
+    store.close()
 
 
 def _insitu(err, scale=1.0, integrity=None):

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sqlite3
 import sys
 from pathlib import Path
 
@@ -69,16 +68,16 @@ def _at_panel_centre(truth, T, T_true, cov) -> dict:
 def load_runs(sweep: Path, locate: str = "locate.json") -> list:
     """One dict per finished run: params, integrity, protection levels, true errors, NEES (``locate``: the
     localisation's file in the run's folder)."""
-    db = sqlite3.connect(sweep / "sweep.sqlite")
-    rows = db.execute("SELECT run_id, params, seed, status, message, metrics, timings FROM runs").fetchall()
-    db.close()
+    from bench.scenario.sweep import read_runs
+
     out = []
-    for rid, params, seed, status, message, _metrics, timings in rows:
-        params = json.loads(params)
+    for row in read_runs(sweep, finished_only=False):
+        rid, params, seed, status, message, timings = (row[k] for k in ("run_id", "params", "seed", "status",
+                                                                          "message", "timings"))
         run = {"run_id": rid, "seed": seed, "status": status, "message": message,
                "texture": _texture_label(params.get("site.textures", {})), "water": params.get("site.water", "?"),
                "standoff_m": float(params.get("site.standoff_m", float("nan"))),
-               "total_s": json.loads(timings or "{}").get("total_s", float("nan"))}
+               "total_s": (timings or {}).get("total_s", float("nan"))}
         loc_path, truth_path = sweep / "runs" / rid / locate, sweep / "runs" / rid / "dataset" / "truth" / \
             "truth.yaml"
         if status != "done" or not loc_path.is_file():

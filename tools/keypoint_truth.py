@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sqlite3
 import sys
 from pathlib import Path
 
@@ -41,18 +40,15 @@ def errors(sweep: Path, run_id: str, scenario: Path) -> dict:
     from bench.scenario.in_situ import _true_camera_poses, _true_optics, imaging, replay_panel
     from bench.scenario.runner import load_scenario
     from bench.scenario.scene_points import SceneRays
+    from bench.scenario.sweep import read_runs
     from bench.vision.features import detect_sift
     from bench.vision.insitu import MapConfig, view_matches
     from bench.vision.patch_align import align_view, grey, unique_matches
 
-    con = sqlite3.connect(sweep / "sweep.sqlite")
-    try:
-        row = con.execute("SELECT params, seed FROM runs WHERE run_id = ? AND status = 'done'", (run_id,)).fetchone()
-    finally:
-        con.close()
+    row = next((r for r in read_runs(sweep) if r["run_id"] == run_id), None)
     if row is None:
         raise SystemExit(f"{sweep}: no finished run {run_id!r}")
-    params, seed = json.loads(row[0] or "{}"), int(row[1])
+    params, seed = row["params"], int(row["seed"])
     cfg = load_scenario(scenario, seed=seed, overrides=[f"{k}={json.dumps(v)}" for k, v in params.items()])
     run = sweep / "runs" / run_id
     truth = yaml.safe_load((run / "dataset" / "truth" / "truth.yaml").read_text())

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sqlite3
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -42,15 +41,11 @@ def _dotted(cfg: dict, key: str):
 
 def _runs(sweep: Path) -> list:
     """``[(run_id, seed, params)]`` of the finished runs."""
-    db = sweep / "sweep.sqlite"
-    if not db.is_file():
+    from bench.scenario.sweep import read_runs
+
+    if not (sweep / "sweep.sqlite").is_file():
         raise SystemExit(f"{sweep}: not a bench sweep folder (no sweep.sqlite)")
-    con = sqlite3.connect(db)
-    try:
-        rows = con.execute("SELECT run_id, seed, params FROM runs WHERE status = 'done'").fetchall()
-    finally:
-        con.close()
-    return [(rid, int(seed), json.loads(params or "{}")) for rid, seed, params in rows]
+    return [(r["run_id"], int(r["seed"]), r["params"]) for r in read_runs(sweep)]
 
 
 def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None) -> tuple:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import sqlite3
 import sys
 from pathlib import Path
 
@@ -43,15 +42,9 @@ def _table(header, rows) -> str:
 
 def _sweep_runs(folder) -> list:
     """Metrics and result paths of the finished runs of a sweep folder."""
-    db = Path(folder) / "sweep.sqlite"
-    if not db.is_file():
-        return []
-    con = sqlite3.connect(db)
-    try:
-        rows = con.execute("SELECT params, seed, metrics, result_path FROM runs WHERE status = 'done'").fetchall()
-    finally:
-        con.close()
-    return [{"params": json.loads(p), "seed": s, "metrics": json.loads(m or "{}"), "result": r} for p, s, m, r in rows]
+    from bench.scenario.sweep import read_runs
+
+    return [{**r, "result": r["result_path"]} for r in read_runs(folder)]
 
 
 def _xy_errors(runs) -> dict:

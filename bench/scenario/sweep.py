@@ -200,13 +200,32 @@ class SweepStore:
                  row["result_path"], time.time()))
 
     def rows(self) -> list:
-        cur = self.db.execute("SELECT run_id, params, seed, status, message, metrics, timings FROM runs "
-                              "ORDER BY run_id")
-        return [{"run_id": r[0], "params": json.loads(r[1]), "seed": r[2], "status": r[3], "message": r[4],
-                 "metrics": json.loads(r[5] or "{}"), "timings": json.loads(r[6] or "{}")} for r in cur]
+        return _row_dicts(self.db, "")
 
     def close(self) -> None:
         self.db.close()
+
+
+def _row_dicts(db, where: str) -> list:
+    cur = db.execute("SELECT run_id, params, seed, status, message, metrics, timings, result_path FROM runs "
+                     f"{where} ORDER BY run_id")
+    return [{"run_id": r[0], "params": json.loads(r[1]), "seed": r[2], "status": r[3], "message": r[4],
+             "metrics": json.loads(r[5] or "{}"), "timings": json.loads(r[6] or "{}"), "result_path": r[7]}
+            for r in cur]
+
+
+def read_runs(folder, finished_only: bool = True) -> list:
+    """The runs of the sweep in ``folder`` as :meth:`SweepStore.rows` gives them, from its database opened read-only
+    (tools that read a sweep must not change its rows); [] when the folder holds no ``sweep.sqlite``.
+    ``finished_only``: only the runs whose status is ``done``."""
+    path = Path(folder) / "sweep.sqlite"
+    if not path.is_file():
+        return []
+    db = sqlite3.connect(f"file:{path.resolve()}?mode=ro", uri=True)
+    try:
+        return _row_dicts(db, "WHERE status = 'done'" if finished_only else "")
+    finally:
+        db.close()
 
 
 class _Progress:

@@ -187,3 +187,19 @@ def test_rows_name_the_code_and_a_resume_over_other_code_says_so(tmp_path, capsy
     con = sqlite3.connect(out / "sweep.sqlite")
     assert con.execute("SELECT COUNT(*) FROM runs WHERE status = 'done'").fetchone()[0] == 3  # kept, not re-run
     con.close()
+
+
+def test_read_runs_reads_a_sweep_without_its_writer(tmp_path):
+    """The tools' read-only view of a sweep: the finished runs (or all), as the store's own rows (with their result
+    files); nothing for a folder without a database."""
+    from bench.scenario.sweep import SweepStore, read_runs
+
+    store = SweepStore(tmp_path / "sweep.sqlite")
+    for rid, status in (("b", "done"), ("a", "failed"), ("c", "done")):
+        store.add(rid, {"x": 1}, 3, {"status": status, "message": "", "metrics": {"m": 1.0}, "timings": {"total_s": 2},
+                                     "versions": {}, "result_path": f"runs/{rid}/result.json"})
+    rows = store.rows()
+    store.close()
+    assert [r["run_id"] for r in read_runs(tmp_path)] == ["b", "c"]
+    assert read_runs(tmp_path, finished_only=False) == rows
+    assert read_runs(tmp_path)[0]["result_path"] == "runs/b/result.json" and read_runs(tmp_path / "none") == []
