@@ -72,12 +72,11 @@ def load_runs(sweep: Path, locate: str = "locate.json") -> list:
 
     out = []
     for row in read_runs(sweep, finished_only=False):
-        rid, params, seed, status, message, timings = (row[k] for k in ("run_id", "params", "seed", "status",
-                                                                          "message", "timings"))
-        run = {"run_id": rid, "seed": seed, "status": status, "message": message,
+        rid, params, status = row["run_id"], row["params"], row["status"]
+        run = {"run_id": rid, "seed": row["seed"], "status": status, "message": row["message"],
                "texture": _texture_label(params.get("site.textures", {})), "water": params.get("site.water", "?"),
                "standoff_m": float(params.get("site.standoff_m", float("nan"))),
-               "total_s": (timings or {}).get("total_s", float("nan"))}
+               "total_s": row["timings"].get("total_s", float("nan"))}
         loc_path, truth_path = sweep / "runs" / rid / locate, sweep / "runs" / rid / "dataset" / "truth" / \
             "truth.yaml"
         if status != "done" or not loc_path.is_file():

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.scenario.sweep import read_runs
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -40,19 +42,12 @@ def _table(header, rows) -> str:
     return "\n".join(out)
 
 
-def _sweep_runs(folder) -> list:
-    """Metrics and result paths of the finished runs of a sweep folder."""
-    from bench.scenario.sweep import read_runs
-
-    return [{**r, "result": r["result_path"]} for r in read_runs(folder)]
-
-
 def _xy_errors(runs) -> dict:
     """``{(method, d_mm, axis): [per-seed RMS error]}`` and ``{(method, d_mm, "thesis"): [x, y, z]}`` from the
     seeds' ``position_error_vs_intraocular`` tables (RMS over the pair combinations)."""
     per = {}
     for r in runs:
-        res = _load(r["result"]) if r["result"] else None
+        res = _load(r["result_path"]) if r["result_path"] else None
         if not res:
             continue
         t = res["tables"]["position_error_vs_intraocular"]
@@ -66,7 +61,7 @@ def _xy_errors(runs) -> dict:
 def _xy_efficiency(runs) -> dict:
     """The x-y table's efficiency at d_o = 100 mm over the seeds, RMS limit / RMS 3D error, per estimator (``LMS +
     ratio``, ``bundle``), and the seeds used ``n``; ``{}`` without the bound's metrics."""
-    ms = [r["metrics"] for r in (_load(x["result"]) if x["result"] else None for x in runs) if r]
+    ms = [r["metrics"] for r in (_load(x["result_path"]) if x["result_path"] else None for x in runs) if r]
     ms = [m for m in ms if np.isfinite(m.get("lms_ratio_bound_pos_at_100_mm", np.nan))]
     if not ms:
         return {}
@@ -191,8 +186,8 @@ class Report:
 
     def insitu(self, folder="sweep-insitu", title="TA-40 in situ, underwater camera (`make demo`'s scenario)",
                ideal=None):
-        runs = _sweep_runs(self.runs / folder)
-        twin = _sweep_runs(self.runs / ideal) if ideal else []
+        runs = read_runs(self.runs / folder)
+        twin = read_runs(self.runs / ideal) if ideal else []
         if not runs:
             self.missing.append(f"{title} (`runs/{folder}`)")
             return
@@ -299,13 +294,13 @@ class Report:
 
     def xy_table(self, name, thesis_tables):
         run = _load(self.runs / name / "result.json")
-        runs = _sweep_runs(self.runs / f"sweep-{name}")
+        runs = read_runs(self.runs / f"sweep-{name}")
         if run is None and not runs:
             self.missing.append(f"{name} (`runs/{name}`, `runs/sweep-{name}`)")
             return
         self.md.append(f"## {name}: thesis Tables {thesis_tables}\n")
         per = _xy_errors(runs)
-        twin_runs = _sweep_runs(self.runs / f"sweep-{name}-ideal")
+        twin_runs = read_runs(self.runs / f"sweep-{name}-ideal")
         twin = _xy_errors(twin_runs)
         if name == "xy_table_webcam" and not twin_runs:
             self.missing.append(f"{name}, ideal imaging (`runs/sweep-{name}-ideal`)")
@@ -396,11 +391,11 @@ class Report:
 
     def table3(self, name="camera_calibration_webcam"):
         """Table 3's protocol over seeds: χ and the spread of α, β over the seven pictures, realistic beside ideal."""
-        runs = _sweep_runs(self.runs / f"sweep-{name}")
+        runs = read_runs(self.runs / f"sweep-{name}")
         if not runs:
             self.missing.append(f"Table 3 over seeds (`runs/sweep-{name}`)")
             return
-        twin = _sweep_runs(self.runs / f"sweep-{name}-ideal")
+        twin = read_runs(self.runs / f"sweep-{name}-ideal")
         if not twin:
             self.missing.append(f"Table 3 over seeds, ideal imaging (`runs/sweep-{name}-ideal`)")
         keys = ("table3_chi_mean_px", "table3_chi_subpixel_mean_px", "table3_alpha_std_px", "table3_beta_std_px",
@@ -431,7 +426,7 @@ class Report:
 
     def real_webcam(self, name="real_webcam_replica"):
         """The real webcam photos simulated (a ``camera_replica`` sweep): calibration residuals, sim beside real."""
-        runs = _sweep_runs(self.runs / f"sweep-{name}")
+        runs = read_runs(self.runs / f"sweep-{name}")
         if not runs:
             self.missing.append(f"the real webcam photos simulated (`runs/sweep-{name}`)")
             return
