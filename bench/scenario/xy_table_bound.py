@@ -428,7 +428,7 @@ def experiment_bounds(result, kin: TableKinematics, config: PositioningConfig, X
 
 def mc_ideal_positions(kin: TableKinematics, X, seen: dict, camera, spec: TableSpec, R0, config: PositioningConfig,
                        sigma_px: float, rng: np.random.Generator, trials: int, table_errors: bool = True,
-                       project=None, T_lens_camera=None) -> dict:
+                       project=None) -> dict:
     """Errors of the scenario's estimator on ideal features (module docstring) over ``trials`` draws.
 
     Each draw: the table's errors as the simulator draws them (none if ``table_errors`` is false), the true camera
@@ -436,8 +436,8 @@ def mc_ideal_positions(kin: TableKinematics, X, seen: dict, camera, spec: TableS
     ``sigma_px`` through ``camera`` (a central camera: the true lens, which also undistorts the keypoints), the true
     camera centre on the support (``spec``) and rotation ``R0``. Returns ``{d_mm: (K, 3) errors (m)}`` of the
     successful estimates of ``config.methods`` pooled over the draws, and ``"failures"``. ``project``: the pixels
-    through other optics than ``camera`` (the model floor, :func:`floor_positions`), from the true lens poses;
-    ``T_lens_camera`` (4, 4): ``camera``'s pose in the lens frame (its centre is the one estimated and scored).
+    through other optics than ``camera`` (the model floor, :func:`floor_positions`), from the true lens poses. The
+    errors are of the true lens centres, as :func:`bench.scenario.xy_table.score` scores the run's estimates.
     """
     from bench.sim.scenes.xy_table import NO_ERRORS, TableModel, random_table_errors
 
@@ -451,13 +451,12 @@ def mc_ideal_positions(kin: TableKinematics, X, seen: dict, camera, spec: TableS
         feats = {n: ideal_features(np.where(seen[n][:, None], X, np.nan), T[n], project or camera.project,
                                    camera.size, sigma_px, rng) for n in read}
         res = estimate_positions(feats, read, camera, spec, config, R0=R0)
-        Tc = T if T_lens_camera is None else {n: T[n] @ T_lens_camera for n in T}
-        c_ref = Tc[config.reference][:3, 3]
+        c_ref = T[config.reference][:3, 3]
         for c in res.combinations:
             if not c.success:
                 fails += 1
                 continue
-            out.setdefault(round(c.d_m * 1e3, 6), []).append(c.p_table - (Tc[c.a][:3, 3] - c_ref))
+            out.setdefault(round(c.d_m * 1e3, 6), []).append(c.p_table - (T[c.a][:3, 3] - c_ref))
     return {**{d: np.array(e) for d, e in out.items()}, "failures": fails}
 
 
@@ -468,8 +467,11 @@ def floor_positions(kin: TableKinematics, X, seen: dict, lens, port, profile, sp
     errors: its readings are the carriage's positions), and as the pipeline's camera the best central camera over
     the points' depths (:func:`~bench.scenario.bounds.best_central_camera`) with its pose in the lens frame: its
     centre on the stage and its rotation there are the true lens's (``spec``, ``R0``) moved onto it, as the in-situ
-    floor moves the mount, and its centre is what is scored. ~0 without a port and warp (a central model is exact);
-    with them, what no central camera model removes.
+    floor moves the mount. Scored, as the run is, against the true *lens* centres: a central camera's centre is
+    the port's virtual one (a flat glass plate moves it ~``t (1 - 1/n)`` along the axis, 4.5 mm for the underwater
+    preset), so its estimate of camera ``a``'s displacement differs from the lens's by ``(R_a - R_ref) t``, which no
+    image tells a central model. ~0 without a port and warp (a central model is exact); with them, what no central
+    camera model removes.
 
     Returns ``({d_mm: (K, 3) errors (m)}, failures, misfit_px)``: the estimates' errors as
     :func:`mc_ideal_positions` gives them, and the central camera's RMS pixel misfit over the observations.
@@ -482,7 +484,7 @@ def floor_positions(kin: TableKinematics, X, seen: dict, lens, port, profile, sp
     spec_c = TableSpec(np.asarray(spec.camera_offset_m, float) + R0 @ T_lc[:3, 3], spec.travel_m, spec.resolution_m,
                        spec.resolution_rad)  # the central camera's centre on the stage
     out = mc_ideal_positions(kin, X, seen, central, spec_c, R0 @ T_lc[:3, :3], config, 0.0,
-                             np.random.default_rng(0), 1, table_errors=False, project=project, T_lens_camera=T_lc)
+                             np.random.default_rng(0), 1, table_errors=False, project=project)
     fails = out.pop("failures")
     T_cl = invert(T_lc)
     miss = np.concatenate([np.linalg.norm(central.project(transform_points(T_cl, p)) - project(p), axis=1)
