@@ -108,6 +108,15 @@ class Manifest(Section):
         return self
 
 
+#: the file suffixes a plain folder of photos is read by (any case)
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def photo_files(folder: Path) -> list:
+    """The photos of ``folder`` (files with an :data:`IMAGE_SUFFIXES` suffix, any case), sorted by name."""
+    return sorted(p for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+
+
 def _open_header(path: Path, formats=_HEADER_FORMATS):
     """``PIL.Image.open`` (lazy: reads the header, not the image data) without Pillow's own pixel limit.
 

@@ -36,13 +36,21 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.dataset import JOINT_COLUMNS, KINDS, POSED_ROLES, DatasetWriter, check_image_file, image_header
+from bench.dataset import (
+    IMAGE_SUFFIXES,
+    JOINT_COLUMNS,
+    KINDS,
+    POSED_ROLES,
+    DatasetWriter,
+    check_image_file,
+    image_header,
+    photo_files,
+)
 from bench.errors import BenchError, ConfigError
 
 ROLES = ("rig", *POSED_ROLES)
 #: roles of frames that have joint readings but no photo
 READINGS_ONLY_ROLES = ("task",)
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
 @dataclass
@@ -113,7 +121,7 @@ def _photos(folder: Path) -> dict:
     """``{view name: file}`` of the photos in ``folder`` (sorted by name); checks headers and equal sizes."""
     if not folder.is_dir():
         raise ConfigError(folder, "<folder>", "not found (--images: the folder of photos)")
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    files = photo_files(folder)
     if not files:
         raise ConfigError(folder, "<folder>", f"no photos ({', '.join(IMAGE_SUFFIXES)})")
     out, size = {}, None

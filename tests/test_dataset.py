@@ -117,3 +117,14 @@ def test_frame_of_readings_only(tmp_path, rng):
     (tmp_path / "ds" / "manifest.yaml").write_text(man.replace("name: teach", "name: teach\n  image: 7"))
     with pytest.raises(ConfigError, match=r"views\[1\].image: expected a file name"):
         load_dataset(tmp_path / "ds")
+
+
+def test_photo_files_lists_every_photo_suffix_in_any_case(tmp_path):
+    """The one listing of a plain folder of photos (the calibration's, the dataset initialiser's and the replica's):
+    .png / .jpg / .jpeg in any case, sorted by name; other files and folders left out."""
+    from bench.dataset import photo_files
+
+    for name in ("b.JPG", "a.png", "c.jpeg", "notes.txt", "d.tif"):
+        (tmp_path / name).write_bytes(b"")
+    (tmp_path / "e.png").mkdir()
+    assert [p.name for p in photo_files(tmp_path)] == ["a.png", "b.JPG", "c.jpeg"]

@@ -51,7 +51,7 @@ from bench.camera.io import write_camera_yaml
 from bench.camera.plots import plot_residual_vectors
 from bench.camera.target_tolerance import calibration_with_tolerance, parse_tolerance
 from bench.config import NonNegFloat, PositiveFloat, Section, at_least, parse
-from bench.dataset import View, load_dataset
+from bench.dataset import IMAGE_SUFFIXES, View, load_dataset, photo_files
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text, prepare_output_dir, read_yaml, write_table_csv
 from bench.geometry.transforms import homogeneous, rot_z
@@ -87,7 +87,6 @@ class TwoPlaneRig(Section):
 TARGETS = {"chessboard": Chessboard, "two_plane_rig": TwoPlaneRig}
 _TARGET_SYNONYMS = {"planar": "chessboard"}
 #: image files of a plain folder of photos
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 #: calibrations against targets drawn from target.yaml's tolerances behind the reported standard errors
 TOLERANCE_DRAWS = 48
 
@@ -204,7 +203,7 @@ def photo_views(folder) -> list:
     folder = Path(folder)
     if not folder.is_dir():
         raise ConfigError(folder, "<folder>", "not found")
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    files = photo_files(folder)
     if not files:
         other = sorted(p.name for p in folder.iterdir())[:3]
         raise ConfigError(folder, "<folder>", f"no photos ({', '.join(IMAGE_SUFFIXES)}) and no manifest.yaml"

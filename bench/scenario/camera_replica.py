@@ -47,12 +47,12 @@ from bench.camera.photo_stats import (
     residual_statistics,
 )
 from bench.config import ImagingParams, ScenarioBase, Section, about, at_least, at_most, section
+from bench.dataset import photo_files as folder_photos
 from bench.errors import BenchError, ConfigError
 from bench.fileio import atomic_save_figure, atomic_write_bytes, headless_pyplot
 from bench.scenario.results import write_result, write_table_csv
 from bench.sim.imaging import profile_from_config
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 #: the statistics compared, real beside simulated (``residual_statistics``, ``measure_sift_precision``, and the
 #: image statistics ``measure_blur``, ``measure_edge_profile``, ``measure_noise``)
 STATS = ("rms_px", "per_view_rms_cv", "row_corr_lag1", "row_corr_lag2", "row_corr_lag3", "col_corr_lag1",
@@ -105,7 +105,7 @@ def photo_files(cfg) -> list:
     folder = Path(cfg["_file"]).parent / given
     if not folder.is_dir():
         raise ConfigError(cfg["_file"], "photos.dir", f"{given}: not a folder (relative to the scenario file's)")
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    files = folder_photos(folder)
     if len(files) < 3:
         raise ConfigError(cfg["_file"], "photos.dir", f"{given}: {len(files)} photos (.jpg, .jpeg, .png); a "
                                                       "calibration needs at least 3")
