@@ -70,10 +70,12 @@ from bench.scenario.plan_memo import memoized
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
 from bench.sim.imaging import draw_true_lens, profile_from_config, rig_errors, rig_target_yaml
+from bench.sim.ins import vehicle_yaml_text
 from bench.sim.optics_presets import optics_preset
 from bench.vision.handeye import hand_eye_axxb
 from bench.vision.insitu import MapConfig
 from bench.vision.locate_dataset import locate_dataset
+from bench.vision.tilt import VEHICLE_FILE
 from bench.vision.triangulation import required_baseline
 
 SOURCES = {"kinematics": ("calibrated", "perfect"), "camera": ("calibrated", "perfect"),
@@ -142,6 +144,16 @@ class Site(Section):
         "[x, y] of each region's aim point from the panel centre in the panel's plane (x to the right as the arm "
         "sees it, y up): each region has its own reference, surrounding and locate views (regions after the "
         "first: views rK_ref, rK_surveyNN, rK_locateN), solved together by pipeline.refine=joints")] = [[0.0, 0.0]]
+
+
+class Vehicle(Section):
+    ins: Annotated[bool, about(
+        "the vehicle's INS writes gravity's direction in the base frame at both parkings (vehicle.yaml): the "
+        "localisation's tilt check (bench.vision.tilt)")] = True
+    tilt_sigma_deg: Annotated[PositiveFloat, at_most(5, "{v} deg is implausible for an INS"), about(
+        "its roll / pitch accuracy, 1 sigma per axis (a fibre-optic gyrocompass: 0.01)")] = 0.01
+    alignment_sigma_deg: Annotated[PositiveFloat, at_most(5, "{v} deg is implausible for a lab alignment"), about(
+        "the lab's INS-to-base alignment, 1 sigma per axis")] = 0.05
 
 
 class Survey(Section):
@@ -252,6 +264,7 @@ class Scenario(ScenarioBase):
     encoders: Encoders = section(Encoders)
     lab: Lab = section(Lab)
     site: Site = section(Site)
+    vehicle: Vehicle = section(Vehicle)
     survey: Survey = section(Survey)
     task: Task = section(Task)
     locate: Locate = section(Locate)
@@ -725,6 +738,11 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         # the encoders' datasheet (the configured specification, not the draws): refine 'joints' weighs the readings
         w.write_text("encoders.yaml", f"noise_deg: {cfg['encoders']['noise_deg']}\n"
                                       f"resolution_deg: {cfg['encoders']['resolution_deg']}\n")
+        veh = cfg["vehicle"]
+        if veh["ins"]:  # the INS at the two parkings (a stream of its own: the renders and readings do not move)
+            w.write_text(VEHICLE_FILE, vehicle_yaml_text(T_wb1, T_wb2, veh["tilt_sigma_deg"],
+                                                         veh["alignment_sigma_deg"],
+                                                         np.random.default_rng([cfg["seed"], 313])))
         truth = {
             "units": "SI (m, rad)",
             "errors": eps.tolist(),

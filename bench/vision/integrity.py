@@ -39,6 +39,10 @@ The tests (each one's statistic is reported in ``tests``):
 6. **Conditioning** of the final least-squares problem (``LocateResult.condition``: the thesis estimator's alignment
    or reprojection system; for the joint bundle :func:`pose_condition`, the geometry of the pose it solved); a pose
    covariance that is not positive definite is refused.
+7. **The base's tilt against the vehicle's INS** (:mod:`bench.vision.tilt`, when the dataset has ``vehicle.yaml``;
+   applied by ``locate_dataset`` after the others): gravity's direction at the two parkings, carried by the located
+   rotation, against the covariance; refused beyond its chi-square quantile. The one test that sees the camera
+   turned on its mount between the survey and the localisation (about a horizontal axis).
 
 Protection levels: the base-pose covariance (position block, rotation block; ``locate_dataset`` has calibrated it
 by the estimator's measured optimism :data:`KAPPA`), inflated by the chi-square factor of test 3, gives the

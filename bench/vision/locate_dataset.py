@@ -43,6 +43,8 @@ from bench.robot.task import retarget_taught_pose, taught_pose
 from bench.vision.features import detect_sift
 from bench.vision.insitu import LocateResult, MapConfig, ViewObservation, build_map, locate, locate_pnp
 from bench.vision.integrity import KAPPA_UNMEASURED, MIN_INLIERS, LabPrior, assess, kappa_of, point_protection_radius
+from bench.vision.tilt import VEHICLE_FILE, read_vehicle_yaml
+from bench.vision.tilt import check as check_tilt
 
 
 def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0, features_fn=None) -> ViewObservation:
@@ -447,6 +449,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         T_link5_cam = np.eye(4)
     regions = _regions(ds, pnp, refine)
     sigma_enc = encoder_sigma_rad(ds.root) if refine == "joints" and not pnp else None  # checked before the work
+    tilt = read_vehicle_yaml(ds.root / VEHICLE_FILE) if (ds.root / VEHICLE_FILE).is_file() else None  # test 7
     priors = None
     if priors_path is not None and refine == "joints" and not pnp:
         from bench.vision.joint_bundle import lab_prior, read_priors
@@ -552,6 +555,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                                      "gives a pose that holds: the faulty one is not known")
         for name, _ in regions:  # a region the thesis estimator found no pose in adds nothing (its message says why)
             integ.regions.setdefault(name, "not localised")
+    if tilt is not None and res.success:  # test 7: the located base's tilt against the vehicle's INS
+        integ = check_tilt(integ, res.T_world_base, res.covariance, tilt)
     if details is not None and thesis is not None:
         details["thesis_result"] = thesis
     res.timings_s.update({"detect_s": t_detect, **timing, "map_s": t_map, "integrity_s": time.perf_counter() - t_int,

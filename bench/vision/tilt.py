@@ -1,0 +1,128 @@
+"""The located base's tilt against the vehicle's inertial sensor: a check no image can make (issue 13).
+
+A work-class ROV carries a fibre-optic gyrocompass / INS whose roll and pitch are good to ~0.01° (1 sigma; the
+class of the iXblue Octans that work-class vehicles carry). The arm's base is bolted to the vehicle, so at every
+parking the INS gives the direction of gravity in the base frame, ``d`` (a unit vector, through the lab's
+INS-to-base alignment). The localisation gives the rotation ``R`` of the base at the localisation in the survey base
+frame, so ``R d_locate`` must be ``d_survey``.
+
+The check is what the vision tests cannot see: a camera knocked on its mount between the survey and the
+localisation turns the located base by the knock, while both locate views stay consistent with each other and the
+map (docs/integrity.md, "A fault the tests do not see"). The tilt sees the part of that turn about a horizontal
+axis; a turn about the vertical (heading) stays invisible to it.
+
+The statistic is the tilt disagreement ``e = d_survey x (R d_locate)`` (rad, horizontal) and its Mahalanobis
+square over the covariance a consistent localisation gives it: the pose's rotation covariance (as calibrated, and
+inflated by test 3) with the protection levels' floor (:data:`~bench.vision.integrity.FLOOR_DEG`) seen in the
+horizontal plane, the INS's noise at both parkings (``tilt_sigma_deg`` per axis, each), and the alignment's error
+turned through the base's rotation between the parkings (``(R - I) a``). Beyond the chi-square (2 degrees of
+freedom) quantile at ``1 - INTEGRITY_RISK`` the pose or the INS is not what it claims: :func:`check` refuses.
+Measured (docs/integrity.md): clean runs 0.1-4.0 against the limit 13.8; cameras knocked by 0.2° 7-165.
+
+The file (``vehicle.yaml`` in the dataset, optional)::
+
+    tilt_sigma_deg: 0.01          # the INS's roll / pitch accuracy, 1 sigma per axis
+    alignment_sigma_deg: 0.05     # the lab's INS-to-base alignment, 1 sigma per axis
+    down_in_base:                 # gravity's direction in the arm's base frame at each parking (unit vectors)
+      survey: [x, y, z]
+      locate: [x, y, z]
+
+Units: rad inside; degrees in the file, as the datasheets give them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2
+
+from bench.errors import ConfigError
+from bench.fileio import read_yaml
+from bench.vision.integrity import FLOOR_DEG, INTEGRITY_RISK, Integrity
+
+VEHICLE_FILE = "vehicle.yaml"
+_KEYS = {"tilt_sigma_deg", "alignment_sigma_deg", "down_in_base"}
+
+
+@dataclass(frozen=True)
+class VehicleTilt:
+    """Gravity's direction in the base frame at the survey's and the localisation's parking (unit vectors (3,)), with
+    the INS's tilt accuracy and the INS-to-base alignment's (1 sigma per axis, rad)."""
+
+    down_survey: np.ndarray
+    down_locate: np.ndarray
+    tilt_sigma_rad: float
+    alignment_sigma_rad: float
+
+
+def read_vehicle_yaml(path) -> VehicleTilt:
+    """:class:`VehicleTilt` from a ``vehicle.yaml`` (module docstring); one-line errors naming the field."""
+    path = Path(path)
+    data = read_yaml(path)
+    if not isinstance(data, dict):
+        raise ConfigError(path, "<file>", "expected a mapping (tilt_sigma_deg, alignment_sigma_deg, down_in_base)")
+    unknown = sorted(set(data) - _KEYS)
+    if unknown:
+        raise ConfigError(path, unknown[0], f"unknown key (allowed: {', '.join(sorted(_KEYS))})")
+    sig = {}
+    for key in ("tilt_sigma_deg", "alignment_sigma_deg"):
+        v = data.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or not 0 < v <= 5:
+            raise ConfigError(path, key, f"expected a standard deviation in (0, 5] degrees, got {v!r}")
+        sig[key] = float(np.deg2rad(v))
+    down = data.get("down_in_base")
+    if not isinstance(down, dict) or set(down) != {"survey", "locate"}:
+        raise ConfigError(path, "down_in_base", "expected the two parkings 'survey' and 'locate'")
+    vec = {}
+    for k, v in down.items():
+        a = np.asarray(v, float) if isinstance(v, list) and len(v) == 3 and not any(isinstance(x, bool) for x in v) \
+            else None
+        if a is None or not np.all(np.isfinite(a)) or abs(np.linalg.norm(a) - 1) > 1e-3:
+            raise ConfigError(path, f"down_in_base.{k}", f"expected a unit vector [x, y, z], got {v!r}")
+        vec[k] = a / np.linalg.norm(a)
+    return VehicleTilt(vec["survey"], vec["locate"], sig["tilt_sigma_deg"], sig["alignment_sigma_deg"])
+
+
+def tilt_disagreement(R_survey_locate, tilt: VehicleTilt) -> np.ndarray:
+    """``e`` (3,) rad: the rotation, about a horizontal axis, that takes gravity as the located base carries it
+    (``R d_locate``) onto gravity at the survey (``d_survey``); small-angle, ``|e| = sin`` of the angle between them."""
+    return np.cross(tilt.down_survey, np.asarray(R_survey_locate, float) @ tilt.down_locate)
+
+
+def tilt_covariance(R_survey_locate, covariance_rot, tilt: VehicleTilt, floor_rad: float = 0.0) -> np.ndarray:
+    """The covariance (3, 3, rank 2: the horizontal plane) of :func:`tilt_disagreement` on a consistent
+    localisation: the pose's rotation covariance ``covariance_rot`` (3, 3; left perturbation, the survey base frame)
+    plus ``floor_rad`` per axis, the INS's noise at both parkings and its alignment turned through ``R - I``."""
+    d = tilt.down_survey
+    P = np.eye(3) - np.outer(d, d)  # the horizontal plane: e = P w for a rotation error w
+    A = np.asarray(R_survey_locate, float) - np.eye(3)  # a fixed misalignment a moves e by P (R - I) a
+    C = np.asarray(covariance_rot, float) + floor_rad**2 * np.eye(3) + 2 * tilt.tilt_sigma_rad**2 * np.eye(3)
+    return P @ (C + tilt.alignment_sigma_rad**2 * (A @ A.T)) @ P
+
+
+def check(integ: Integrity, T_survey_locate, covariance, tilt: VehicleTilt) -> Integrity:
+    """Test 7 on a localisation that was not refused (module docstring): ``covariance`` (6, 6) the pose's, as
+    calibrated (rotation first), inflated by test 3's factor in ``integ.tests``. Records ``tilt_disagreement_deg``,
+    ``tilt_mahalanobis_sq`` and ``tilt_limit_sq`` in ``integ.tests``; refused beyond the limit. Returns ``integ``
+    (changed in place)."""
+    if integ.level == "refused":
+        return integ
+    R = np.asarray(T_survey_locate, float)[:3, :3]
+    f = float(integ.tests.get("inflation_chi2", 1.0))
+    S = tilt_covariance(R, f**2 * np.asarray(covariance, float)[:3, :3], tilt, np.deg2rad(FLOOR_DEG))
+    e = tilt_disagreement(R, tilt)
+    d = tilt.down_survey
+    B = np.linalg.svd(np.eye(3) - np.outer(d, d))[0][:, :2]  # a basis of the horizontal plane
+    m2 = float((B.T @ e) @ np.linalg.solve(B.T @ S @ B, B.T @ e))
+    limit = float(chi2.ppf(1 - INTEGRITY_RISK, 2))
+    integ.tests.update(tilt_disagreement_deg=float(np.rad2deg(np.linalg.norm(e))), tilt_mahalanobis_sq=m2,
+                       tilt_limit_sq=limit)
+    if not m2 <= limit:
+        integ.reasons.insert(0, f"the located base's tilt disagrees with the vehicle's INS by "
+                                f"{np.rad2deg(np.linalg.norm(e)):.3f} deg (Mahalanobis square {m2:.1f} > {limit:.1f}): "
+                                "the camera's mount or the arm moved since the lab, or the INS is wrong")
+        integ.level = "refused"
+        integ.protection_radius_m = integ.protection_angle_rad = float("inf")
+    return integ
