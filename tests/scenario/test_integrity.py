@@ -20,6 +20,7 @@ from bench.dataset import load_dataset  # noqa: E402
 from bench.errors import ConfigError  # noqa: E402
 from bench.geometry.transforms import rotation_angle  # noqa: E402
 from bench.robot.calibration_file import load_calibrated_robot, write_calibrated_robot  # noqa: E402
+from bench.robot.orientation import link5_frame  # noqa: E402
 from bench.scenario import faults as F  # noqa: E402
 from bench.scenario.runner import kind_module, load_scenario  # noqa: E402
 from bench.vision.integrity import WARN_CONDITION, _whiteness  # noqa: E402
@@ -345,3 +346,34 @@ def test_aligned_keypoints_on_a_rendered_dataset(rendered, capsys, tmp_path):
     scenario = Path(__file__).resolve().parents[2] / "scenarios" / "ta40_in_situ_manifold.yaml"
     with pytest.raises(BenchError, match=r"pipeline\.keypoints"):
         load_scenario(scenario, overrides=["pipeline.keypoints=orb"])
+
+
+def test_the_vehicles_ins_sees_a_camera_knocked_on_its_mount(rendered, tmp_path, monkeypatch):
+    """Test 7 end to end on the small render: the clean dataset's tilt agrees with its INS (vehicle.yaml, written by
+    the simulator); a camera turned 0.5 deg on its mount after the survey, about an axis horizontal in the base (what
+    the tilt sees), shows as a tilt of 0.2-0.65 deg; the verdict refuses exactly when its Mahalanobis square exceeds
+    the limit (on this small render test 3 inflates the knocked pose's covariance to a ~0.3 m radius, which allows
+    it: a warning; the full-size runs of docs/integrity.md are refused); without vehicle.yaml test 7 does not run."""
+    tmp, camera, robot = rendered
+    clean = locate_dataset(tmp / "ds", camera_path=camera, robot_path=robot, verbose=False)[1]
+    t = clean["integrity_tests"]
+    assert (tmp / "ds" / "vehicle.yaml").is_file() and t["tilt_mahalanobis_sq"] < t["tilt_limit_sq"]
+    work = tmp_path / "knocked"
+    shutil.copytree(tmp / "ds", work)
+    monkeypatch.setattr(F, "KNOCK_DEG", 0.5)
+    # the turn's axis: horizontal in the base at locate0 (the base's y axis, in the camera frame of that view)
+    bot, eps, T_l5c = load_calibrated_robot(robot)
+    locate0 = next(v for v in load_dataset(work).views if v.role == "locate")
+    R_base_cam = (link5_frame(bot, locate0.q, eps) @ T_l5c)[:3, :3]
+    monkeypatch.setattr(F, "_random_unit", lambda rng: R_base_cam.T @ [0.0, 1.0, 0.0])
+    F.mount_knocked(work, F._site_views(load_dataset(work)), {"camera": Path(camera), "robot": Path(robot)},
+                    np.random.default_rng(0))
+    rep = locate_dataset(work, camera_path=camera, robot_path=robot, verbose=False)[1]
+    k = rep["integrity_tests"]
+    assert 0.2 < k["tilt_disagreement_deg"] < 0.65 and t["tilt_disagreement_deg"] < 0.1
+    by_tilt = any("vehicle's INS" in r for r in rep["integrity_reasons"])
+    assert by_tilt == (k["tilt_mahalanobis_sq"] > k["tilt_limit_sq"]) and rep["integrity"] != "ok"
+    (work / "vehicle.yaml").unlink()
+    rep = locate_dataset(work, camera_path=camera, robot_path=robot, verbose=False)[1]
+    assert "tilt_mahalanobis_sq" not in rep["integrity_tests"]
+    assert not any("INS" in r for r in rep["integrity_reasons"])
