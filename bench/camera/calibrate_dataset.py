@@ -86,7 +86,6 @@ class TwoPlaneRig(Section):
 #: target types and their models
 TARGETS = {"chessboard": Chessboard, "two_plane_rig": TwoPlaneRig}
 _TARGET_SYNONYMS = {"planar": "chessboard"}
-#: image files of a plain folder of photos
 #: calibrations against targets drawn from target.yaml's tolerances behind the reported standard errors
 TOLERANCE_DRAWS = 48
 

@@ -44,7 +44,7 @@ def test_the_simulators_file_reads_back(tmp_path):
     ("tilt_sigma_deg: 0.01\nalignment_sigma_deg: 0.05\ndown_in_base: {survey: [0,0,-9.81], locate: [0,0,-1]}",
      "down_in_base.survey"),
     ("tilt_sigma_deg: 0.01\nalignment_sigma_deg: 0.05\ndown_in_base: {survey: [0,0,-1]}", "down_in_base"),
-    ("- 1\n- 2\n", "<file>"),
+    ("- 1\n- 2\n", "<top>"),
 ])
 def test_bad_files_are_one_line_errors_naming_the_field(tmp_path, text, field):
     (tmp_path / "vehicle.yaml").write_text(text)
