@@ -1092,6 +1092,8 @@ def run(cfg, out_dir, verbose=True):
     metrics["integrity_refused"] = float(report["integrity"] == "refused")
     for k in ("protection_radius_mm", "protection_angle_deg"):
         metrics[k] = float("nan") if report[k] is None else float(report[k])
+    tilt = report["integrity_tests"].get("tilt_mahalanobis_sq")  # test 7 (bench.vision.tilt)
+    metrics["integrity_tilt_sq"] = float("nan") if tilt is None else float(tilt)
     metrics["insitu_solve_s"] = float(sum(res.timings_s.get(k, 0.0) for k in ("match_s", "triangulate_s", "align_s",
                                                                                  "refine_s")))
     if res.success:

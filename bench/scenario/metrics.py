@@ -154,6 +154,9 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("protection_radius_mm", "mm", "protection radius of the base position (covariance inflated by the "
                "integrity tests; null when refused)"),
         Metric("protection_angle_deg", "deg", "protection angle of the base rotation (null when refused)"),
+        Metric("integrity_tilt_sq", "1", "test 7: the Mahalanobis square of the located base's tilt against the "
+               "vehicle's INS (bench.vision.tilt; refused beyond 13.8)", "the dataset has vehicle.yaml (`vehicle.ins`) "
+               "and tests 1-6 did not refuse"),
         Metric("insitu_solve_s", "s", "two new views → base pose (match, triangulate, align, refine), map given"),
         Metric("base_pos_err_mm", "mm", "located base displacement vs the truth, position"),
         Metric("base_rot_err_deg", "deg", "located base displacement vs the truth, rotation"),

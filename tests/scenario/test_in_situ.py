@@ -64,6 +64,8 @@ def test_smoke_accuracy(smoke_run):
     assert m["valve_tool_err_mm"] < 3.0 and m["valve_tool_err_uncompensated_mm"] > 10 * m["valve_tool_err_mm"]
     # the tool tip's protection radius: the base covariance at the tip, at least the floor, and holding its error
     assert 0.5 <= m["valve_protection_radius_mm"] and m["valve_tool_err_mm"] < m["valve_protection_radius_mm"]
+    # test 7: the simulated INS (vehicle.yaml) agrees with the located tilt of a clean run, unless 1-6 refused it
+    assert (0 <= m["integrity_tilt_sq"] < 13.8) if not m["integrity_refused"] else np.isnan(m["integrity_tilt_sq"])
     assert set(res) == {"scenario", "seed", "metrics", "tables", "timings_s", "artifacts"}
 
 
