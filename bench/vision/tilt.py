@@ -95,12 +95,17 @@ def tilt_disagreement(R_survey_locate, tilt: VehicleTilt) -> np.ndarray:
     return np.cross(tilt.down_survey, np.asarray(R_survey_locate, float) @ tilt.down_locate)
 
 
+def _horizontal_basis(down) -> np.ndarray:
+    """An orthonormal basis (3, 2) of the plane perpendicular to ``down`` (the horizontal)."""
+    return np.linalg.svd(np.eye(3) - np.outer(down, down))[0][:, :2]
+
+
 def tilt_covariance(R_survey_locate, covariance_rot, tilt: VehicleTilt, floor_rad: float = 0.0) -> np.ndarray:
     """The covariance (3, 3, rank 2: the horizontal plane) of :func:`tilt_disagreement` on a consistent
     localisation: the pose's rotation covariance ``covariance_rot`` (3, 3; left perturbation, the survey base frame)
     plus ``floor_rad`` per axis, the INS's noise at both parkings and its alignment turned through ``R - I``."""
-    d = tilt.down_survey
-    P = np.eye(3) - np.outer(d, d)  # the horizontal plane: e = P w for a rotation error w
+    B = _horizontal_basis(tilt.down_survey)
+    P = B @ B.T  # the horizontal plane: e = P w for a rotation error w
     A = np.asarray(R_survey_locate, float) - np.eye(3)  # a fixed misalignment a moves e by P (R - I) a
     C = np.asarray(covariance_rot, float) + floor_rad**2 * np.eye(3) + 2 * tilt.tilt_sigma_rad**2 * np.eye(3)
     return P @ (C + tilt.alignment_sigma_rad**2 * (A @ A.T)) @ P
@@ -117,8 +122,7 @@ def check(integ: Integrity, T_survey_locate, covariance, tilt: VehicleTilt) -> I
     f = float(integ.tests.get("inflation_chi2", 1.0))
     S = tilt_covariance(R, f**2 * np.asarray(covariance, float)[:3, :3], tilt, np.deg2rad(FLOOR_DEG))
     e = tilt_disagreement(R, tilt)
-    d = tilt.down_survey
-    B = np.linalg.svd(np.eye(3) - np.outer(d, d))[0][:, :2]  # a basis of the horizontal plane
+    B = _horizontal_basis(tilt.down_survey)  # S has rank 2: solved in the plane
     m2 = float((B.T @ e) @ np.linalg.solve(B.T @ S @ B, B.T @ e))
     limit = float(chi2.ppf(1 - INTEGRITY_RISK, 2))
     integ.tests.update(tilt_disagreement_deg=float(np.rad2deg(np.linalg.norm(e))), tilt_mahalanobis_sq=m2,
