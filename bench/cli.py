@@ -66,6 +66,9 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--keypoints", choices=("sift", "aligned"), default="sift", help="SIFT's keypoints (the "
                      "thesis's) or aligned: each matched keypoint moved onto its reference keypoint's image patch "
                      "(bench.vision.patch_align)")
+    loc.add_argument("--ins-tilt", choices=("fuse", "check"), default="fuse", help="with the dataset's vehicle.yaml "
+                     "(the vehicle's INS): test 7, then the INS's tilt fused into the pose (fuse), or test 7 only "
+                     "(check) (bench.vision.tilt)")
     loc.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     loc.add_argument("--robot", default=None, help="calibrated robot file (default: the dataset's robot.yaml)")
     loc.add_argument("--camera", default=None, help="calibrated camera file (default: the dataset's camera.yaml)")
@@ -362,7 +365,7 @@ def main(argv=None) -> int:
                                       camera_path=args.camera, robot_path=args.robot, refine=args.refine,
                                       priors_path=args.priors, guided=args.guided,
                                       loss=None if args.loss == "none" else args.loss, map_points=args.map_points,
-                                      keypoints=args.keypoints)
+                                      keypoints=args.keypoints, ins_tilt=args.ins_tilt)
             return 0 if res.success and rep["integrity"] != "refused" else 1  # refused: do not use the pose
         elif args.command == "faults":
             from bench.scenario.faults import run_faults

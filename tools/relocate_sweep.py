@@ -69,7 +69,8 @@ def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None) -> 
                               guided=pipeline.get("guided", False),
                               loss=None if pipeline.get("loss", "none") == "none" else pipeline["loss"],
                               map_points=pipeline.get("map_points", "all"), keypoints=pipeline.get("keypoints", "sift"),
-                              pnp=pipeline.get("locate", "two_view") == "pnp", details=details)
+                              pnp=pipeline.get("locate", "two_view") == "pnp", details=details,
+                              ins_tilt=pipeline.get("ins_tilt", "fuse"))
 
 
 def relocate(run_dir: str, seed: int, pipeline: dict, name: str) -> tuple:

@@ -213,6 +213,10 @@ class Pipeline(Section):
         "the map points the joint bundle weighs (refine 'joints'): all of them, or only those both locate views "
         "matched; the others hold the survey views' joints and the shared lens and mount (docs/bounds.md measures "
         "it)")] = "all"
+    ins_tilt: Annotated[Literal["fuse", "check"], about(
+        "the vehicle's INS tilt (vehicle.ins): test 7 on the images' pose, then fused into the pose and its "
+        "protection levels (fuse), or test 7 only (check); the bound takes the INS when fused (bench.vision.tilt)")] = \
+        "fuse"
     keypoints: Annotated[Literal["sift", "aligned"], about(
         "the keypoints the localisation uses: SIFT's (the thesis's) or aligned - every keypoint matched to its "
         "region's reference keypoint moved onto the reference's image patch (bench.vision.patch_align; "
@@ -902,7 +906,7 @@ def _perfect_features(cfg, robot, truth, details, res):
     return lambda view: ideal_features(rows[view.name], poses[view.name], project, lens.size)
 
 
-def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
+def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> dict:
     """Measured keypoint noise, the complete Cramér-Rao bound of the base pose, the model floor, their
     root-sum-square (the limit) and the ideal estimator's Monte Carlo.
 
@@ -912,7 +916,11 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     camera calibration's covariance of ``fx, fy, cx, cy`` and the mount's (from the AX = XB residuals: ``rms^2 / n``
     per axis, rotation and translation). The floor (:func:`~bench.scenario.in_situ_bound.model_floor`) is the error on
     noise-free features through the true optics with the best central camera; ``base_*_bound_*`` is the limit
-    ``sqrt(crb^2 + floor^2)``, ``base_*_crb_*`` the bound alone."""
+    ``sqrt(crb^2 + floor^2)``, ``base_*_crb_*`` the bound alone. With ``ins`` (the pipeline fused the vehicle's
+    INS tilt) all of them take the INS's tilt at the vehicle section's accuracies by the same linear update
+    (:class:`~bench.vision.tilt.TiltUpdate`, its gain the bound's): the bound's covariance ``(I - K H) C``, the
+    floor's error ``(I - K H) e`` (a noise-free INS), each Monte Carlo draw's error with a draw of the INS;
+    ``base_*_bound_vision_*`` is the limit without it."""
     from bench.scenario.in_situ_bound import (
         crb_base_pose,
         keypoint_sigma_px,
@@ -974,7 +982,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     cam, cal = floor["camera"], lab["camera"]
     # what the lab's calibrated central camera leaves on the same noise-free features (its mount by AX = XB on the
     # true arm, so that only the camera model differs): the central fit through the port at the rig's range
-    nan = {"pos_m": float("nan"), "rot_rad": float("nan")}
+    nan = {"pos_m": float("nan"), "rot_rad": float("nan"), "xi": np.full(6, np.nan)}
     refractive = lab.get("refractive") is not None  # its floors are not a central camera's: not computed
     he_true = None if refractive else hand_eye_axxb(np.stack([link5_frame(robot, q, eps_true) for q in lab["rig_q"]]),
                                                     lab["T_cam_target"])
@@ -987,28 +995,59 @@ def _bound(cfg, robot, truth, lab, details, ransac, res) -> dict:
     crb = crb_base_pose(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam.project,
                         T_site_b2, views, X_site, cam.size, sigma_views, sigma_enc, K=cam.K, vis=vis, dist=cam.dist,
                         **priors)
+    limit_vision = _limit(crb["cov"], floor, refractive)
+    upd = _ins_update(cfg, truth, T_site_b2, crb["cov"]) if ins else None
+    if upd is not None:
+        crb = {**crb, "cov": upd.covariance(crb["cov"])}
+        floor, floor_cal = ({**f, "xi": upd.error(f["xi"])} for f in (floor, floor_cal))
+        for f in (floor, floor_cal):
+            f["pos_m"], f["rot_rad"] = float(np.linalg.norm(f["xi"][3:])), float(np.linalg.norm(f["xi"][:3]))
     mc = mc_ideal_estimator(robot, eps_true, kept, ident.covariance, mount, central, T_site_b2, views, names, X_site,
                             sigma_views, EncoderModel(**enc), np.random.default_rng([cfg["seed"], 13]),
-                            cfg["bound"]["mc_trials"], p["method"], ransac, thesis_refine)
+                            cfg["bound"]["mc_trials"], p["method"], ransac, thesis_refine, ins=upd)
     if cfg["bound"]["ml_trials"] > 0 and vis is not None and not pnp:  # the Monte Carlo of refine 'joints'
         from bench.scenario.in_situ_bound import mc_joint_bundle
 
         ml = mc_joint_bundle(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam, T_site_b2,
                              views, X_site, vis, sigma_views, sigma_enc, np.random.default_rng([cfg["seed"], 14]),
-                             cfg["bound"]["ml_trials"], **priors)
+                             cfg["bound"]["ml_trials"], ins=upd, **priors)
         out.update({"base_pos_crb_mc_mm": ml["pos_rms_m"] * 1e3, "base_rot_crb_mc_deg": np.rad2deg(ml["rot_rms_rad"])})
     if refractive:  # the floor above is the best central camera's (its camera and frame serve the CRB), not this one's
         floor = {**floor, **nan}
-    f_pos, f_rot = (0.0 if not np.isfinite(v) else v for v in (floor["pos_m"], floor["rot_rad"]))
-    out.update({"base_pos_crb_mm": crb["pos_bound_m"] * 1e3, "base_rot_crb_deg": np.rad2deg(crb["rot_bound_rad"]),
+    cov = crb["cov"]
+    limit = _limit(cov, floor, refractive)
+    out.update({"base_pos_crb_mm": np.sqrt(np.trace(cov[3:, 3:])) * 1e3,
+                "base_rot_crb_deg": np.rad2deg(np.sqrt(np.trace(cov[:3, :3]))),
                 "base_pos_floor_mm": floor["pos_m"] * 1e3, "base_rot_floor_deg": np.rad2deg(floor["rot_rad"]),
                 "floor_misfit_px": floor["misfit_px"], "base_pos_floor_calibrated_mm": floor_cal["pos_m"] * 1e3,
                 "base_rot_floor_calibrated_deg": np.rad2deg(floor_cal["rot_rad"]),
-                "base_pos_bound_mm": np.hypot(crb["pos_bound_m"], f_pos) * 1e3,
-                "base_rot_bound_deg": np.rad2deg(np.hypot(crb["rot_bound_rad"], f_rot)),
+                "base_pos_bound_mm": limit[0] * 1e3, "base_rot_bound_deg": np.rad2deg(limit[1]),
+                "base_pos_bound_vision_mm": limit_vision[0] * 1e3,
+                "base_rot_bound_vision_deg": np.rad2deg(limit_vision[1]),
                 "base_pos_bound_mc_mm": mc["pos_rms_m"] * 1e3, "base_rot_bound_mc_deg": np.rad2deg(mc["rot_rms_rad"]),
                 "bound_observations": float(crb["observations"])})
     return out
+
+
+def _limit(cov, floor: dict, refractive: bool) -> tuple:
+    """The limit ``(m, rad)``: the bound's covariance ``cov`` (6, 6) root-sum-squared with the floor's error
+    (none for the refractive camera, or when its solve failed)."""
+    f_pos, f_rot = (0.0 if refractive or not np.isfinite(v) else v for v in (floor["pos_m"], floor["rot_rad"]))
+    return float(np.hypot(np.sqrt(np.trace(cov[3:, 3:])), f_pos)), float(np.hypot(np.sqrt(np.trace(cov[:3, :3])),
+                                                                                  f_rot))
+
+
+def _ins_update(cfg, truth, T_site_b2, cov):
+    """The INS tilt's :class:`~bench.vision.tilt.TiltUpdate` of the bound's covariance ``cov`` (6, 6): gravity in the
+    true base frames at both parkings, the vehicle section's accuracies."""
+    from bench.sim.ins import DOWN_WORLD
+    from bench.vision.tilt import VehicleTilt, tilt_update
+
+    R1, R2 = (np.array(truth[k], float)[:3, :3] for k in ("T_world_base_survey", "T_world_base_locate"))
+    v = cfg["vehicle"]
+    tilt = VehicleTilt(R1.T @ DOWN_WORLD, R2.T @ DOWN_WORLD, float(np.deg2rad(v["tilt_sigma_deg"])),
+                       float(np.deg2rad(v["alignment_sigma_deg"])))
+    return tilt_update(T_site_b2[:3, :3], cov, tilt)
 
 
 def _or_one(factor: float) -> float:
@@ -1080,7 +1119,7 @@ def run(cfg, out_dir, verbose=True):
                                  robot_path=robot_path, refine=p["refine"], ransac=ransac, details=details,
                                  features_fn=features_fn, priors_path=priors_path, guided=p["guided"],
                                  loss=None if p["loss"] == "none" else p["loss"], map_points=p["map_points"],
-                                 pnp=p["locate"] == "pnp", keypoints=p["keypoints"])
+                                 pnp=p["locate"] == "pnp", keypoints=p["keypoints"], ins_tilt=p["ins_tilt"])
 
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
     T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
@@ -1100,11 +1139,15 @@ def run(cfg, out_dir, verbose=True):
         T = res.T_world_base
         metrics["base_pos_err_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
         metrics["base_rot_err_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
+        T = np.array(report.get("T_world_base_vision", T))  # the images' pose, before the INS's tilt was fused
+        metrics["base_pos_err_vision_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
+        metrics["base_rot_err_vision_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
         std = np.sqrt(np.clip(np.diag(res.covariance), 0, None))
         metrics["base_pos_std_mm"] = float(np.linalg.norm(std[3:]) * 1e3)
         metrics["base_rot_std_deg"] = float(np.rad2deg(np.linalg.norm(std[:3])))
     else:
         metrics["base_pos_err_mm"] = metrics["base_rot_err_deg"] = float("nan")
+        metrics["base_pos_err_vision_mm"] = metrics["base_rot_err_vision_deg"] = float("nan")
     thesis = details.get("thesis_result")  # pipeline.refine = joints: the thesis estimator (bundle) beside it
     if thesis is not None and thesis.success:
         T = thesis.T_world_base
@@ -1114,7 +1157,7 @@ def run(cfg, out_dir, verbose=True):
     metrics.update(task_metrics)
     if cfg["bound"]["enabled"] and "map" in details and len(details["map"]) >= 3:
         t_b = time.perf_counter()
-        metrics.update(_bound(cfg, robot, truth, lab, details, ransac, res))
+        metrics.update(_bound(cfg, robot, truth, lab, details, ransac, res, report.get("ins_tilt") == "fused"))
         metrics["bound_s"] = time.perf_counter() - t_b
         for q in ("pos", "rot"):  # efficiency of this run: bound / achieved (over seeds: RMS bound / RMS error)
             b, e = metrics.get(f"base_{q}_bound_{'mm' if q == 'pos' else 'deg'}"), metrics.get(

@@ -27,8 +27,8 @@ from __future__ import annotations
 import numpy as np
 
 from bench.camera.model import CameraModel, distort
-from bench.geometry.quaternion import rotation_vector_to_matrix
-from bench.geometry.transforms import rotation_angle, transform_points
+from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
+from bench.geometry.transforms import transform_points
 from bench.robot.orientation import link5_frame
 from bench.scenario.bounds import (  # noqa: F401 - the generic parts, re-exported for the in-situ scenario
     Block,
@@ -337,8 +337,9 @@ def model_floor(robot, eps_true, mount, lens: CameraModel, port, T_site_b2, view
 
     ``central = (camera, T_lens_central)`` replaces the best central camera (e.g. the lab's calibrated camera and
     its mount: what *that* model leaves on noise-free features). ``views``, ``names`` as :func:`mc_ideal_estimator`.
-    Returns ``pos_m``, ``rot_rad`` (NaN when the localisation fails), the central camera's RMS pixel misfit over
-    the observations, ``misfit_px``, the central ``camera`` and ``T_lens_central`` (4, 4).
+    Returns ``pos_m``, ``rot_rad`` (NaN when the localisation fails) and the error ``xi`` (6,: :func:`pose_error`),
+    the central camera's RMS pixel misfit over the observations, ``misfit_px``, the central ``camera`` and
+    ``T_lens_central`` (4, 4).
     """
     q_true = np.array([q for q, _ in views])
     is_loc = np.array([loc for _, loc in views], dtype=bool)
@@ -358,22 +359,30 @@ def model_floor(robot, eps_true, mount, lens: CameraModel, port, T_site_b2, view
     res = _estimate(obs, is_loc, method, rng if rng is not None else 0, refine, ransac, central.fx)
     m = np.concatenate(misfit)
     out = {"misfit_px": float(np.sqrt(np.nanmean(m**2))), "pos_m": float("nan"), "rot_rad": float("nan"),
-           "camera": central, "T_lens_central": T_lens_c}
+           "xi": np.full(6, np.nan), "camera": central, "T_lens_central": T_lens_c}
     if res.success:
-        out["pos_m"] = float(np.linalg.norm(res.T_world_base[:3, 3] - T_site_b2[:3, 3]))
-        out["rot_rad"] = float(rotation_angle(res.T_world_base[:3, :3].T @ T_site_b2[:3, :3]))
+        out["xi"] = pose_error(res.T_world_base, T_site_b2)
+        out["pos_m"], out["rot_rad"] = float(np.linalg.norm(out["xi"][3:])), float(np.linalg.norm(out["xi"][:3]))
     return out
+
+
+def pose_error(T_est, T_true) -> np.ndarray:
+    """The error (6,) of a base pose in the bound's convention (module docstring): ``R_est = exp(dphi) R_true``,
+    ``t_est = t_true + dt``; rotation vector (rad), then m."""
+    return np.r_[matrix_to_rotation_vector(np.asarray(T_est)[:3, :3] @ np.asarray(T_true)[:3, :3].T),
+                 np.asarray(T_est)[:3, 3] - np.asarray(T_true)[:3, 3]]
 
 
 def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraModel, T_site_b2, views, names,
                        X_site, sigma_px, encoders, rng: np.random.Generator, trials: int = 30, method: str = "svd",
-                       ransac: dict | None = None, refine="pose") -> dict:
+                       ransac: dict | None = None, refine="pose", ins=None) -> dict:
     """RMS base error of the pipeline's estimator on ideal features with the bound's noise, over ``trials`` draws.
 
     Each draw: pixel noise ``sigma_px`` on exact projections (``camera``: the true central camera), encoder readings
     drawn by ``encoders`` (an :class:`~bench.sim.encoders.EncoderModel`), arm errors drawn from the identification
     covariance; intrinsics and mount exact. ``views`` as for :func:`crb_base_pose` (``names``: reference first, then
-    the surrounding views, then the locate views: two for the two-view solve, one for PnP).
+    the surrounding views, then the locate views: two for the two-view solve, one for PnP). ``ins``, a
+    :class:`~bench.vision.tilt.TiltUpdate`: each draw's error fused with a draw of the INS's tilt.
     """
     q_true = np.array([q for q, _ in views])
     is_loc = np.array([loc for _, loc in views], dtype=bool)
@@ -381,7 +390,7 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
     T_site_cam_true = link5_frame(robot, q_true, eps_true) @ mount
     T_site_cam_true[is_loc] = T_site_b2 @ T_site_cam_true[is_loc]
     sigma = view_sigma(sigma_px, len(views))
-    pos, rot, fails = [], [], 0
+    errs, fails = [], 0
     for _ in range(trials):
         eps = np.array(eps_true, float)
         eps[kept] += L @ rng.normal(size=len(kept))
@@ -395,15 +404,14 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
         if not res.success:
             fails += 1
             continue
-        pos.append(np.linalg.norm(res.T_world_base[:3, 3] - T_site_b2[:3, 3]))
-        rot.append(rotation_angle(res.T_world_base[:3, :3].T @ T_site_b2[:3, :3]))
-    return _mc_summary(pos, rot, trials, fails)
+        errs.append(pose_error(res.T_world_base, T_site_b2))
+    return _mc_summary(errs, trials, fails, ins, rng)
 
 
 def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraModel, T_site_b2, views, X_site, vis,
                     sigma_px, sigma_enc, rng: np.random.Generator, trials: int = 20, cov_K=None,
                     cov_mount=None, refine: bool = True, cov_K_mount=None, cov_dist=None, cov_K_dist=None,
-                    cov_dist_mount=None) -> dict:
+                    cov_dist_mount=None, ins=None) -> dict:
     """RMS base error of ``refine: joints`` (:func:`bench.vision.joint_bundle.joint_bundle`) under exactly the
     bound's model, over ``trials`` draws: the check that the estimator reaches :func:`crb_base_pose`.
 
@@ -412,8 +420,8 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
     ``cov_K`` / ``cov_dist`` / ``cov_mount`` the intrinsics, the distortion and the mount, drawn jointly from their
     calibrations' covariances (with the cross-covariances given) and given to the estimator as its (wrong by that
     much) calibration, which it refines under those priors (``refine``) or keeps. Arguments as
-    :func:`crb_base_pose`. Returns
-    ``pos_rms_m``, ``rot_rms_rad``, ``trials``, ``failures``.
+    :func:`crb_base_pose`; ``ins`` as :func:`mc_ideal_estimator`'s. Returns ``pos_rms_m``, ``rot_rms_rad``,
+    ``trials``, ``failures``.
     """
     from bench.vision.joint_bundle import joint_bundle, lab_prior
 
@@ -435,7 +443,7 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
     L_lab = None if lab is None else np.linalg.cholesky(lab)
     priors = dict(cov_K=cov_K, cov_mount=cov_mount, cov_K_mount=cov_K_mount, cov_dist=cov_dist,
                   cov_K_dist=cov_K_dist, cov_dist_mount=cov_dist_mount) if refine else {}
-    pos, rot, fails = [], [], 0
+    errs, fails = [], 0
     for _ in range(trials):
         eps = np.array(eps_true, float)
         eps[kept] += L_eps @ rng.normal(size=len(kept))
@@ -460,14 +468,17 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
         if not jb.success:
             fails += 1
             continue
-        pos.append(np.linalg.norm(jb.T_site_base[:3, 3] - T_site_b2[:3, 3]))
-        rot.append(rotation_angle(jb.T_site_base[:3, :3].T @ T_site_b2[:3, :3]))
-    return _mc_summary(pos, rot, trials, fails)
+        errs.append(pose_error(jb.T_site_base, T_site_b2))
+    return _mc_summary(errs, trials, fails, ins, rng)
 
 
-def _mc_summary(pos, rot, trials: int, fails: int) -> dict:
-    """A Monte Carlo's RMS base position (m) and rotation (rad) errors over its successful draws."""
-    pos, rot = np.asarray(pos), np.asarray(rot)
-    return {"pos_rms_m": float(np.sqrt(np.mean(pos**2))) if len(pos) else float("nan"),
-            "rot_rms_rad": float(np.sqrt(np.mean(rot**2))) if len(rot) else float("nan"),
+def _mc_summary(errs, trials: int, fails: int, ins=None, rng=None) -> dict:
+    """A Monte Carlo's RMS base position (m) and rotation (rad) errors over its successful draws' errors ``errs``
+    (:func:`pose_error`), each fused with a draw of the INS's tilt by ``ins`` (a
+    :class:`~bench.vision.tilt.TiltUpdate`) when given."""
+    e = np.reshape(np.asarray(errs, float), (-1, 6))
+    if ins is not None and len(e):
+        e = ins.error(e, rng)
+    return {"pos_rms_m": float(np.sqrt(np.mean(np.sum(e[:, 3:] ** 2, axis=1)))) if len(e) else float("nan"),
+            "rot_rms_rad": float(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1)))) if len(e) else float("nan"),
             "trials": trials, "failures": fails}

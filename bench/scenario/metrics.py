@@ -160,6 +160,9 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("insitu_solve_s", "s", "two new views → base pose (match, triangulate, align, refine), map given"),
         Metric("base_pos_err_mm", "mm", "located base displacement vs the truth, position"),
         Metric("base_rot_err_deg", "deg", "located base displacement vs the truth, rotation"),
+        Metric("base_pos_err_vision_mm", "mm", "the images' pose before the INS's tilt was fused into it, position "
+               "(the pose itself when not fused)", "the localisation succeeded"),
+        Metric("base_rot_err_vision_deg", "deg", "the same, rotation", "the localisation succeeded"),
         Metric("base_pos_err_bundle_mm", "mm", "the thesis estimator (refine bundle) beside refine joints, position",
                "`pipeline.refine: joints`"),
         Metric("base_rot_err_bundle_deg", "deg", "the same, rotation", "`pipeline.refine: joints`"),
@@ -189,8 +192,11 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "tracks, measured on the panel's true surfaces (robust σ)", "`bound.enabled`, a pose"),
         Metric("keypoint_locate_points", "count", "tracks behind that ratio", "`bound.enabled`, a pose"),
         Metric("base_pos_bound_mm", "mm", "the limit of the base position: Cramér-Rao bound ⊕ model floor "
-               "(root-sum-square)", "`bound.enabled`"),
+               "(root-sum-square); with the INS's tilt when the pipeline fused it", "`bound.enabled`"),
         Metric("base_rot_bound_deg", "deg", "the limit of the base rotation: bound ⊕ floor", "`bound.enabled`"),
+        Metric("base_pos_bound_vision_mm", "mm", "the limit without the INS's tilt (the same as `base_pos_bound_mm` "
+               "when it was not fused)", "`bound.enabled`"),
+        Metric("base_rot_bound_vision_deg", "deg", "the same, rotation", "`bound.enabled`"),
         Metric("base_pos_crb_mm", "mm", "Cramér-Rao bound of the base position (pixels as matched, encoders, arm, "
                "intrinsics and mount covariances)", "`bound.enabled`"),
         Metric("base_rot_crb_deg", "deg", "Cramér-Rao bound of the base rotation", "`bound.enabled`"),

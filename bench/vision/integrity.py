@@ -811,10 +811,32 @@ def _verdict(refuse: list, warn: list, tests: dict, covariance) -> Integrity:
     pr, pa = protection_levels(covariance, tests)
     if refuse:
         return Integrity("refused", refuse + warn, float("inf"), float("inf"), tests)
-    if pr * 1e3 > ALERT_MM or np.rad2deg(pa) > ALERT_DEG:
-        warn.append(f"protection radius {pr * 1e3:.2f} mm / {np.rad2deg(pa):.3f} deg exceeds the alert limit "
-                    f"{ALERT_MM:g} mm / {ALERT_DEG:g} deg")
+    alert = _alert(pr, pa)
+    warn += [alert] if alert else []
     return Integrity("warning" if warn else "ok", warn, pr, pa, tests)
+
+
+def _alert(pr: float, pa: float) -> str | None:
+    """The warning for protection levels (m, rad) above the alert limits; None within them."""
+    if pr * 1e3 > ALERT_MM or np.rad2deg(pa) > ALERT_DEG:
+        return (f"protection radius {pr * 1e3:.2f} mm / {np.rad2deg(pa):.3f} deg exceeds the alert limit "
+                f"{ALERT_MM:g} mm / {ALERT_DEG:g} deg")
+    return None
+
+
+def relevel(integ: Integrity, covariance) -> Integrity:
+    """The protection levels of a localisation that was not refused again, from a new ``covariance`` of its pose
+    (as calibrated; e.g. with the INS's tilt fused: :func:`bench.vision.tilt.fuse`) with the same tests; the alert
+    limits' warning follows them, the other reasons stay. Returns ``integ`` (changed in place)."""
+    if integ.level == "refused":
+        return integ
+    old = _alert(integ.protection_radius_m, integ.protection_angle_rad)
+    integ.reasons = [r for r in integ.reasons if r != old]
+    integ.protection_radius_m, integ.protection_angle_rad = protection_levels(covariance, integ.tests)
+    alert = _alert(integ.protection_radius_m, integ.protection_angle_rad)
+    integ.reasons += [alert] if alert else []
+    integ.level = "warning" if integ.reasons else "ok"
+    return integ
 
 
 def assess_regions(parts: list, result, focal_px: float, image_size, config: MapConfig | None = None,

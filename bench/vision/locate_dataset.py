@@ -36,15 +36,24 @@ from bench.camera.refractive import RefractiveCamera
 from bench.dataset import load_dataset
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text
-from bench.geometry.transforms import rotation_angle, transform_points
+from bench.geometry.transforms import invert, rotation_angle, transform_points
 from bench.robot.calibration_file import load_calibrated_robot
 from bench.robot.orientation import link5_frame
 from bench.robot.task import retarget_taught_pose, taught_pose
 from bench.vision.features import detect_sift
 from bench.vision.insitu import LocateResult, MapConfig, ViewObservation, build_map, locate, locate_pnp
-from bench.vision.integrity import KAPPA_UNMEASURED, MIN_INLIERS, LabPrior, assess, kappa_of, point_protection_radius
+from bench.vision.integrity import (
+    KAPPA_UNMEASURED,
+    MIN_INLIERS,
+    LabPrior,
+    assess,
+    kappa_of,
+    point_protection_radius,
+    relevel,
+)
 from bench.vision.tilt import VEHICLE_FILE, read_vehicle_yaml
 from bench.vision.tilt import check as check_tilt
+from bench.vision.tilt import fuse as fuse_tilt
 
 
 def observe(view, camera, robot, eps, T_link5_cam, max_features: int = 0, features_fn=None) -> ViewObservation:
@@ -112,7 +121,6 @@ def _refract_again(obs, camera, maps, res, regions) -> dict:
     (:func:`keypoint_depths` from the map points of its region (``maps``, one per entry of ``regions``) in each
     view: the survey views through their kinematics, the locate views through the located base); a view without
     depths keeps its coordinates."""
-    from bench.geometry.transforms import invert, transform_points
 
     out = {}
     for kmap, (_, roles) in zip(maps, regions, strict=True):
@@ -193,7 +201,6 @@ def _guided_used(kmap, view_a, view_b, used, T_ref_a, T_ref_b, K, dist, camera) 
     ``used`` (the verified ones keep their keypoints), and the two radii (px). A point found in one view only is not
     added: measured on six envelope runs, such points lowered the protection radius but doubled the error on two."""
     from bench.camera.model import distort, project_pinhole, to_pixels
-    from bench.geometry.transforms import invert, transform_points
     from bench.vision.guided import RADIUS_FACTOR, RATIO, search_by_projection
 
     idx = np.asarray(used[0], int)
@@ -258,7 +265,6 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
     when the thesis's estimate (and covariance) is what comes back; ``used`` the points of every region the returned
     estimate used (the result's own ``used`` is the first region's)."""
     from bench.camera.model import distort, to_pixels
-    from bench.geometry.transforms import invert, transform_points
     from bench.vision.integrity import pose_condition
     from bench.vision.joint_bundle import joint_bundle, observations_of
 
@@ -410,7 +416,8 @@ def _assess_regions(res, per, include, maps, regions, obs, camera, config, seed,
 def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, config: MapConfig | None = None,
                    seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine="bundle",
                    ransac: dict | None = None, details: dict | None = None, features_fn=None, priors_path=None,
-                   guided: bool = False, loss: str | None = None, map_points: str = "all", keypoints: str = "sift"):
+                   guided: bool = False, loss: str | None = None, map_points: str = "all", keypoints: str = "sift",
+                   ins_tilt: str = "fuse"):
     """Build the map from the survey views and locate the base from the two ``locate`` views.
 
     ``camera_path`` / ``robot_path`` replace the dataset's own files (e.g. the results of an earlier calibration);
@@ -428,6 +435,10 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     ``keypoints``: ``"sift"`` (SIFT's keypoints, the thesis's) or ``"aligned"`` (every keypoint matched to its
     region's reference keypoint moved onto the reference's image patch: :func:`_align_keypoints`; not with
     ``features_fn``, whose keypoints are an oracle's).
+    ``ins_tilt`` (a dataset with the vehicle's ``vehicle.yaml``): ``"fuse"`` (test 7 on the images' pose, then the
+    INS's tilt fused into the pose and its covariance, and the protection levels again: :func:`bench.vision.tilt.fuse`)
+    or ``"check"`` (test 7 only; the images' pose is returned). The report keeps the images' pose beside the fused
+    one (``T_world_base_vision``).
     Returns ``(LocateResult, report dict)``; writes ``out/locate.json`` when ``out`` is given.
     """
     t0 = time.perf_counter()
@@ -435,6 +446,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         raise ConfigError("locate_dataset", "map_points", f"expected 'all' or 'located', got {map_points!r}")
     if keypoints not in ("sift", "aligned"):
         raise ConfigError("locate_dataset", "keypoints", f"expected 'sift' or 'aligned', got {keypoints!r}")
+    if ins_tilt not in ("fuse", "check"):
+        raise ConfigError("locate_dataset", "ins_tilt", f"expected 'fuse' or 'check', got {ins_tilt!r}")
     ds = load_dataset(root)
     camera_path = Path(camera_path) if camera_path else ds.camera_path
     robot_path = Path(robot_path) if robot_path else ds.robot_path
@@ -555,8 +568,16 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                                      "gives a pose that holds: the faulty one is not known")
         for name, _ in regions:  # a region the thesis estimator found no pose in adds nothing (its message says why)
             integ.regions.setdefault(name, "not localised")
+    T_vision, fused = res.T_world_base, None
     if tilt is not None and res.success:  # test 7: the located base's tilt against the vehicle's INS
         integ = check_tilt(integ, res.T_world_base, res.covariance, tilt)
+        if ins_tilt == "fuse" and integ.level != "refused":  # test 7 was the update's innovation test
+            T, C, fused = fuse_tilt(res.T_world_base, res.covariance, tilt, integ.tests.get("inflation_chi2", 1.0))
+            kmap0 = maps[include[0] if include else 0]
+            D = T @ invert(res.T_world_base)  # locate view a moves with the base
+            res = replace(res, T_world_base=T, covariance=C, T_ref_cam=invert(kmap0.T_world_ref) @ D
+                          @ kmap0.T_world_ref @ res.T_ref_cam, message=f"{res.message}; the INS's tilt fused")
+            integ = relevel(integ, C)
     if details is not None and thesis is not None:
         details["thesis_result"] = thesis
     res.timings_s.update({"detect_s": t_detect, **timing, "map_s": t_map, "integrity_s": time.perf_counter() - t_int,
@@ -583,7 +604,12 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         report.update({"T_world_base": T.tolist(), "position_mm": (T[:3, 3] * 1e3).tolist(),
                        "rotation_deg": float(np.rad2deg(rotation_angle(T[:3, :3]))),
                        "position_std_mm": (std[3:] * 1e3).tolist(), "rotation_std_deg": np.rad2deg(std[:3]).tolist(),
-                       "covariance": res.covariance.tolist()})
+                       "covariance": res.covariance.tolist(), "ins_tilt": "absent" if tilt is None else
+                       "fused" if fused is not None else "checked"})
+        if fused is not None:
+            report.update({"T_world_base_vision": T_vision.tolist(),
+                           "ins_correction_deg": float(np.rad2deg(np.linalg.norm(fused[:3]))),
+                           "ins_correction_mm": float(np.linalg.norm(fused[3:]) * 1e3)})
         # the compensated task is not offered on a refused localisation
         report["tasks"] = ({} if integ.level == "refused" else
                            _retarget_tasks(ds, robot, eps, res.T_world_base, roles["locate"][0].q, res.covariance,

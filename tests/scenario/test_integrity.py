@@ -377,3 +377,30 @@ def test_the_vehicles_ins_sees_a_camera_knocked_on_its_mount(rendered, tmp_path,
     rep = locate_dataset(work, camera_path=camera, robot_path=robot, verbose=False)[1]
     assert "tilt_mahalanobis_sq" not in rep["integrity_tests"]
     assert not any("INS" in r for r in rep["integrity_reasons"])
+    assert rep["ins_tilt"] == "absent" and "T_world_base_vision" not in rep
+
+
+def test_the_ins_tilt_is_fused_into_a_clean_pose(rendered, tmp_path):
+    """On the clean small render the INS's tilt is fused (the default): the fused pose's tilt agrees with the INS
+    better than the images' pose did, its rotation moved by about the disagreement (no more than 2x), its covariance
+    and protection levels no larger; ``ins_tilt: check`` returns the images' pose itself; the CLI takes the choice."""
+    from bench.vision.tilt import read_vehicle_yaml, tilt_disagreement
+
+    tmp, camera, robot = rendered
+    fused = locate_dataset(tmp / "ds", camera_path=camera, robot_path=robot, verbose=False)[1]
+    checked = locate_dataset(tmp / "ds", camera_path=camera, robot_path=robot, verbose=False, ins_tilt="check")[1]
+    assert fused["ins_tilt"] == "fused" and checked["ins_tilt"] == "checked" and "T_world_base_vision" not in checked
+    assert np.allclose(fused["T_world_base_vision"], checked["T_world_base"], atol=1e-12)
+    tilt = read_vehicle_yaml(tmp / "ds" / "vehicle.yaml")
+    e_v, e_f = (np.rad2deg(np.linalg.norm(tilt_disagreement(np.array(r["T_world_base"])[:3, :3], tilt)))
+                for r in (checked, fused))
+    assert e_f < 0.5 * e_v and e_v == pytest.approx(checked["integrity_tests"]["tilt_disagreement_deg"], rel=1e-9)
+    assert fused["ins_correction_deg"] <= 2 * e_v
+    assert np.all(np.diag(fused["covariance"]) <= np.diag(checked["covariance"]) * (1 + 1e-9))
+    assert fused["protection_radius_mm"] <= checked["protection_radius_mm"] * (1 + 1e-9)
+    assert fused["protection_angle_deg"] <= checked["protection_angle_deg"] * (1 + 1e-9)
+    assert main(["locate", str(tmp / "ds"), "--camera", str(camera), "--robot", str(robot), "--ins-tilt", "check",
+                 "--out", str(tmp_path)]) in (0, 1)
+    assert json.loads((tmp_path / "locate.json").read_text())["ins_tilt"] == "checked"
+    with pytest.raises(ConfigError, match="ins_tilt"):
+        locate_dataset(tmp / "ds", camera_path=camera, robot_path=robot, verbose=False, ins_tilt="yes")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bench.errors import ConfigError
-from bench.geometry.quaternion import rotation_vector_to_matrix
+from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, rot_x, rot_y, rot_z
 from bench.sim.ins import down_in_base, vehicle_yaml_text
 from bench.vision.integrity import Integrity
@@ -113,3 +113,102 @@ def test_check_refuses_a_tilt_the_covariance_and_the_ins_do_not_explain():
     assert wide.level == "ok"
     refused = Integrity("refused", ["r"], np.inf, np.inf, {})
     assert check(refused, knocked, cov, tilt) is refused and "tilt_disagreement_deg" not in refused.tests
+
+
+def _random_covariance(rng, rot_deg=0.02, pos_mm=1.0):
+    """A pose covariance (6, 6) with the size and correlation of a located base's: rotation and the origin tied
+    through a lever arm of ~1.7 m."""
+    w = rng.normal(0, rot_deg * DEG, (200, 3))
+    lever = rng.normal(0, 0.3, 3) + [1.7, 0, 0]
+    v = np.cross(w, lever) + rng.normal(0, pos_mm * 1e-3 / 3, (200, 3))
+    return np.cov(np.hstack([w, v]).T)
+
+
+def test_fuse_is_the_information_form_update():
+    """The gain form of the update equals its information form (1e-9 relative): the covariance
+    ``(C^-1 + H^T S^-1 H)^-1`` and the correction ``-(C^-1 + H^T S^-1 H)^-1 H^T S^-1 z``; the update touches
+    nothing the tilt does not see (a heading-only covariance is unchanged); test 3's inflation weighs the pose
+    but comes back out of the returned covariance."""
+    from bench.vision.tilt import fuse, tilt_update
+
+    rng = np.random.default_rng(5)
+    T1, T2 = _parkings(rng)
+    tilt = VehicleTilt(down_in_base(T1, 0.01 * DEG, np.eye(3), rng), down_in_base(T2, 0.01 * DEG, np.eye(3), rng),
+                       0.01 * DEG, 0.05 * DEG)
+    T = np.linalg.inv(T1) @ T2 @ homogeneous(rotation_vector_to_matrix(rng.normal(0, 0.02 * DEG, 3)),
+                                             rng.normal(0, 1e-3, 3))
+    C = _random_covariance(rng)
+    upd = tilt_update(T[:3, :3], C, tilt)
+    info = np.linalg.inv(C) + upd.H.T @ np.linalg.solve(upd.S, upd.H)
+    Cf = np.linalg.inv(info)
+    assert np.abs(upd.covariance(C) - Cf).max() < 1e-9 * np.abs(Cf).max()
+    T_f, C_f, dx = fuse(T, C, tilt)
+    B = np.linalg.svd(np.eye(3) - np.outer(tilt.down_survey, tilt.down_survey))[0][:, :2]
+    z = B.T @ tilt_disagreement(T[:3, :3], tilt)
+    assert np.allclose(dx, -Cf @ upd.H.T @ np.linalg.solve(upd.S, z), rtol=1e-9, atol=1e-15)
+    assert np.allclose(T_f[:3, 3], T[:3, 3] + dx[3:], atol=1e-15) and np.abs(C_f - Cf).max() < 1e-9 * np.abs(Cf).max()
+    # the fused pose's tilt agrees with the INS better than the images' did (most of z is the pose's error)
+    assert np.linalg.norm(tilt_disagreement(T_f[:3, :3], tilt)) < 0.5 * np.linalg.norm(z)
+    # inflation: the pose weighed by f^2 C, the covariance returned in C's scale
+    T_i, C_i, _ = fuse(T, C, tilt, inflation=3.0)
+    assert np.abs(C_i - tilt_update(T[:3, :3], 9 * C, tilt).covariance(9 * C) / 9).max() < 1e-12 * np.abs(C).max()
+    # a pose uncertain only about the vertical: the tilt adds nothing (exact: its information is horizontal)
+    d = tilt.down_survey
+    C_v = np.zeros((6, 6))
+    C_v[:3, :3], C_v[3:, 3:] = np.outer(d, d) * (0.05 * DEG) ** 2, np.eye(3) * 1e-6
+    assert np.abs(tilt_update(T[:3, :3], C_v, tilt).covariance(C_v) - C_v).max() < 1e-9 * np.abs(C_v).max()
+
+
+def test_fused_errors_follow_the_fused_covariance():
+    """4000 draws of the images' error from C and of the simulator's INS (noise, alignment afresh): the fused errors'
+    Mahalanobis squares over the fused covariance are chi-square with 6 degrees of freedom (1 % +- 0.4 % beyond its
+    0.99 quantile, mean 6 +- 5 %), and the horizontal rotation's RMS falls below both the images' and the INS's."""
+    from scipy.stats import chi2
+
+    from bench.vision.tilt import fuse
+
+    rng = np.random.default_rng(6)
+    T1, T2 = _parkings(rng)
+    T_true = np.linalg.inv(T1) @ T2
+    C = _random_covariance(rng, rot_deg=0.03)
+    L = np.linalg.cholesky(C)
+    sig, ali = 0.01 * DEG, 0.05 * DEG
+    m2, before, after = [], [], []
+    for _ in range(4000):
+        e = L @ rng.normal(size=6)
+        T = homogeneous(rotation_vector_to_matrix(e[:3]) @ T_true[:3, :3], T_true[:3, 3] + e[3:])
+        A = rotation_vector_to_matrix(rng.normal(0, ali, 3))
+        tilt = VehicleTilt(down_in_base(T1, sig, A, rng), down_in_base(T2, sig, A, rng), sig, ali)
+        T_f, C_f, _ = fuse(T, C, tilt)
+        w = matrix_to_rotation_vector(T_f[:3, :3] @ T_true[:3, :3].T)
+        ef = np.r_[w, T_f[:3, 3] - T_true[:3, 3]]
+        m2.append(ef @ np.linalg.solve(C_f, ef))
+        P = np.eye(3) - np.outer(tilt.down_survey, tilt.down_survey)
+        before.append(np.linalg.norm(P @ e[:3]))
+        after.append(np.linalg.norm(P @ w))
+    m2 = np.array(m2)
+    assert np.mean(m2 > chi2.ppf(0.99, 6)) == pytest.approx(0.01, abs=0.004)
+    assert np.mean(m2) == pytest.approx(6.0, rel=0.05)
+    rms = lambda a: float(np.sqrt(np.mean(np.square(a))))  # noqa: E731
+    assert rms(after) < 0.6 * rms(before) and rms(after) < np.sqrt(2) * sig * np.sqrt(2)
+
+
+def test_relevel_follows_the_new_covariance():
+    """The protection levels from a new covariance: the alert limits' warning goes when they fall within them, the
+    other reasons stay, a refusal is untouched."""
+    from bench.vision.integrity import ALERT_DEG, protection_levels, relevel
+
+    wide = np.diag(np.r_[np.full(3, (0.06 * DEG) ** 2), np.full(3, (1.2e-3) ** 2)])
+    narrow = wide / 9
+    tests = {"inflation_chi2": 1.0}
+    pr, pa = protection_levels(wide, dict(tests))
+    assert np.rad2deg(pa) > ALERT_DEG  # the wide covariance is beyond the alert limits
+    from bench.vision.integrity import _alert
+
+    integ = relevel(Integrity("warning", ["w", _alert(pr, pa)], pr, pa, dict(tests)), narrow)
+    assert integ.level == "warning" and integ.reasons == ["w"] and integ.protection_angle_rad < pa
+    assert relevel(Integrity("warning", [_alert(pr, pa)], pr, pa, dict(tests)), narrow).level == "ok"
+    back = relevel(Integrity("ok", [], *protection_levels(narrow, dict(tests)), dict(tests)), wide)
+    assert back.level == "warning" and "alert limit" in back.reasons[0]
+    refused = Integrity("refused", ["r"], np.inf, np.inf, dict(tests))
+    assert relevel(refused, narrow) is refused and refused.protection_radius_m == np.inf
