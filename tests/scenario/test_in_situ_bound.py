@@ -88,6 +88,43 @@ def test_per_view_noise_equals_brute_force(scene):
         crb_base_pose(*args, np.r_[np.full(4, 0.3), np.nan], sigma_enc)
 
 
+def test_the_ins_tilt_in_the_bound(scene):
+    """The INS's tilt measures only the base pose, so its update of the bound's 6 x 6 covariance
+    (:class:`~bench.vision.tilt.TiltUpdate`, as the in-situ kind applies it) equals the bound of the whole problem with
+    the tilt's information ``H^T S^-1 H`` on the pose block (1e-6 relative); it lowers the rotation's bound and
+    leaves the heading's and the origin's information alone; a Monte Carlo summary fused with it has its RMS near
+    that covariance's."""
+    from bench.scenario.bounds import crb
+    from bench.scenario.in_situ_bound import _mc_summary
+    from bench.sim.ins import DOWN_WORLD
+    from bench.vision.tilt import VehicleTilt, tilt_update
+
+    robot, eps, cam, T_site_b2, X, views, kept, cov_eps = scene
+    sigma_px, sigma_enc = 0.3, 1e-4
+    args = (robot, eps, kept, cov_eps, MOUNT, cam.project, T_site_b2, views, X, cam.size, sigma_px, sigma_enc)
+    vision = crb_base_pose(*args)["cov"]
+    R1 = np.eye(3)
+    tilt = VehicleTilt(R1.T @ DOWN_WORLD, T_site_b2[:3, :3].T @ DOWN_WORLD, np.deg2rad(0.01), np.deg2rad(0.05))
+    upd = tilt_update(T_site_b2[:3, :3], vision, tilt)
+    model = _Model(robot, eps, kept, MOUNT, cam.project, T_site_b2, views, X, cam.size)
+    priors = {"q": np.eye(6) / sigma_enc**2, "d_eps": np.linalg.inv(cov_eps), "xi": upd.H.T @ np.linalg.solve(
+        upd.S, upd.H)}
+    whole = crb(model, sigma_px, priors)["cov"][:6, :6]
+    assert np.allclose(upd.covariance(vision), whole, rtol=1e-6, atol=1e-6 * np.abs(whole).max())
+    assert np.trace(whole[:3, :3]) < 0.8 * np.trace(vision[:3, :3])
+    # the information it adds is of rank 2: none about the heading (a turn about gravity) or the origin
+    added = np.linalg.inv(whole) - np.linalg.inv(vision)
+    assert np.linalg.matrix_rank(added, tol=1e-6 * np.abs(added).max()) == 2
+    assert np.abs(added @ np.r_[tilt.down_survey, 0, 0, 0]).max() < 1e-6 * np.abs(added).max()
+    assert np.abs(added[3:]).max() < 1e-6 * np.abs(added).max()
+    rng = np.random.default_rng(73)
+    errs = rng.multivariate_normal(np.zeros(6), vision, size=4000)
+    mc = _mc_summary(errs, 4000, 0, upd, rng)
+    fused = upd.covariance(vision)
+    assert mc["rot_rms_rad"] == pytest.approx(np.sqrt(np.trace(fused[:3, :3])), rel=0.05)
+    assert mc["pos_rms_m"] == pytest.approx(np.sqrt(np.trace(fused[3:, 3:])), rel=0.05)
+
+
 def test_bound_equals_the_ml_estimator_spread(scene):
     """Bundle adjustment over base pose, joints, arm errors and points (the ML estimator,
     :func:`bench.scenario.bounds.ml_estimate`) on noisy pixels, readings and arm errors: its spread matches the bound
