@@ -58,6 +58,7 @@ from bench.config import (
 )
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
+from bench.geometry.quaternion import matrix_to_rotation_vector
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
 from bench.robot.calibration_file import write_calibrated_robot
 from bench.robot.identifiability import closed_form_reduction
@@ -996,6 +997,8 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
                         T_site_b2, views, X_site, cam.size, sigma_views, sigma_enc, K=cam.K, vis=vis, dist=cam.dist,
                         **priors)
     limit_vision = _limit(crb["cov"], floor, refractive)
+    tilt_sd, heading_sd = _tilt_heading(crb["cov"][:3, :3], truth)
+    out.update({"base_rot_crb_tilt_deg": np.rad2deg(tilt_sd), "base_rot_crb_heading_deg": np.rad2deg(heading_sd)})
     upd = _ins_update(cfg, truth, T_site_b2, crb["cov"]) if ins else None
     if upd is not None:
         crb = {**crb, "cov": upd.covariance(crb["cov"])}
@@ -1037,16 +1040,30 @@ def _limit(cov, floor: dict, refractive: bool) -> tuple:
                                                                                   f_rot))
 
 
+def _down_survey(truth) -> np.ndarray:
+    """Gravity's direction (3,) in the true survey base frame (the site frame)."""
+    from bench.sim.ins import DOWN_WORLD
+
+    return np.array(truth["T_world_base_survey"], float)[:3, :3].T @ DOWN_WORLD
+
+
+def _tilt_heading(cov_rot, truth) -> tuple:
+    """A rotation covariance (3, 3; site frame) split about gravity: the RMS of its tilt (about the two horizontal
+    axes together) and of its heading (about the vertical), rad."""
+    d = _down_survey(truth)
+    C = np.asarray(cov_rot, float)
+    heading = float(d @ C @ d)
+    return float(np.sqrt(max(np.trace(C) - heading, 0.0))), float(np.sqrt(max(heading, 0.0)))
+
+
 def _ins_update(cfg, truth, T_site_b2, cov):
     """The INS tilt's :class:`~bench.vision.tilt.TiltUpdate` of the bound's covariance ``cov`` (6, 6): gravity in the
     true base frames at both parkings, the vehicle section's accuracies."""
-    from bench.sim.ins import DOWN_WORLD
     from bench.vision.tilt import VehicleTilt, tilt_update
 
-    R1, R2 = (np.array(truth[k], float)[:3, :3] for k in ("T_world_base_survey", "T_world_base_locate"))
-    v = cfg["vehicle"]
-    tilt = VehicleTilt(R1.T @ DOWN_WORLD, R2.T @ DOWN_WORLD, float(np.deg2rad(v["tilt_sigma_deg"])),
-                       float(np.deg2rad(v["alignment_sigma_deg"])))
+    v = cfg["vehicle"]  # gravity at the locate parking: the survey's carried by the true base motion
+    tilt = VehicleTilt(_down_survey(truth), T_site_b2[:3, :3].T @ _down_survey(truth),
+                       float(np.deg2rad(v["tilt_sigma_deg"])), float(np.deg2rad(v["alignment_sigma_deg"])))
     return tilt_update(T_site_b2[:3, :3], cov, tilt)
 
 
@@ -1142,6 +1159,10 @@ def run(cfg, out_dir, verbose=True):
         T = np.array(report.get("T_world_base_vision", T))  # the images' pose, before the INS's tilt was fused
         metrics["base_pos_err_vision_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
         metrics["base_rot_err_vision_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
+        w = matrix_to_rotation_vector(T[:3, :3] @ T_b1_b2[:3, :3].T)  # its rotation error about gravity and across it
+        heading = float(w @ _down_survey(truth))
+        metrics["base_rot_err_vision_heading_deg"] = float(np.rad2deg(abs(heading)))
+        metrics["base_rot_err_vision_tilt_deg"] = float(np.rad2deg(np.sqrt(max(w @ w - heading**2, 0.0))))
         std = np.sqrt(np.clip(np.diag(res.covariance), 0, None))
         metrics["base_pos_std_mm"] = float(np.linalg.norm(std[3:]) * 1e3)
         metrics["base_rot_std_deg"] = float(np.rad2deg(np.linalg.norm(std[:3])))

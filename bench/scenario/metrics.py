@@ -163,6 +163,10 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("base_pos_err_vision_mm", "mm", "the images' pose before the INS's tilt was fused into it, position "
                "(the pose itself when not fused)", "the localisation succeeded"),
         Metric("base_rot_err_vision_deg", "deg", "the same, rotation", "the localisation succeeded"),
+        Metric("base_rot_err_vision_tilt_deg", "deg", "its rotation error about the horizontal axes (what the INS's "
+               "tilt sees)", "the localisation succeeded"),
+        Metric("base_rot_err_vision_heading_deg", "deg", "its rotation error about the vertical (the heading)",
+               "the localisation succeeded"),
         Metric("base_pos_err_bundle_mm", "mm", "the thesis estimator (refine bundle) beside refine joints, position",
                "`pipeline.refine: joints`"),
         Metric("base_rot_err_bundle_deg", "deg", "the same, rotation", "`pipeline.refine: joints`"),
@@ -200,6 +204,9 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("base_pos_crb_mm", "mm", "Cramér-Rao bound of the base position (pixels as matched, encoders, arm, "
                "intrinsics and mount covariances)", "`bound.enabled`"),
         Metric("base_rot_crb_deg", "deg", "Cramér-Rao bound of the base rotation", "`bound.enabled`"),
+        Metric("base_rot_crb_tilt_deg", "deg", "the bound without the INS about the horizontal axes (RMS of the two)",
+               "`bound.enabled`"),
+        Metric("base_rot_crb_heading_deg", "deg", "the bound without the INS about the vertical", "`bound.enabled`"),
         Metric("base_pos_crb_mc_mm", "mm", "Monte Carlo of refine joints under exactly the bound's model (RMS)",
                "`bound.ml_trials` > 0"),
         Metric("base_rot_crb_mc_deg", "deg", "the same, rotation", "`bound.ml_trials` > 0"),
