@@ -197,7 +197,9 @@ class Report:
                 ("base_pos_bound_mc_mm", ""), ("keypoint_sigma_px", ""), ("keypoint_sigma_locate_px", ""),
                 ("valve_tool_err_uncompensated_mm", ""), ("panel_sift_keypoints", ""), ("arm_heldout_rms_mm", ""),
                 ("mount_rot_err_deg", ""), ("parking_attempts", ""), ("integrity_ok", ""),
-                ("protection_radius_mm", ""), ("protection_angle_deg", "")]
+                ("protection_radius_mm", ""), ("protection_angle_deg", ""), ("base_pos_err_vision_mm", ""),
+                ("base_rot_err_vision_deg", ""), ("base_pos_bound_vision_mm", ""), ("base_rot_bound_vision_deg", ""),
+                ("base_rot_err_vision_heading_deg", ""), ("base_rot_crb_heading_deg", "")]
         rows, st = [], {}
         for k, target in keys:
             st[k] = _stats(r["metrics"].get(k) for r in runs)
@@ -214,8 +216,13 @@ class Report:
             e, b = st.get(f"base_{q}_err_{unit}", {}), st.get(f"base_{q}_bound_{unit}", {})
             if e.get("n") and b.get("n"):
                 eff.append(f"{q}: {b['rms'] / e['rms']:.2f}")
+        vision = [f"{q}: {st[f'base_{q}_bound_vision_{u}']['rms'] / st[f'base_{q}_err_vision_{u}']['rms']:.2f}"
+                  for q, u in (("pos", "mm"), ("rot", "deg"))
+                  if st[f"base_{q}_bound_vision_{u}"]["n"] and st[f"base_{q}_err_vision_{u}"]["n"]]
         if eff:
-            self.md.append(f"Efficiency (RMS bound / RMS error over the seeds): {', '.join(eff)} (target ≥ 0.75).\n")
+            self.md.append(f"Efficiency (RMS bound / RMS error over the seeds): {', '.join(eff)} (target ≥ 0.75)"
+                           + (f"; the images' pose before the INS's tilt against the limit without it: "
+                              f"{', '.join(vision)}" if vision else "") + ".\n")
             name = f"bound-{folder}.png"
             if bound_plot(runs, self.figures / name, f"{title}: error, limit, CRB and floor per seed"):
                 self.md.append(f"![Error against the limit per seed]({'figures/' + name})\n\n*Per seed (ordered "
