@@ -172,7 +172,9 @@ def fuse(T_survey_locate, covariance, tilt: VehicleTilt, inflation: float = 1.0)
     ``covariance`` is the pose's as calibrated; ``inflation`` test 3's factor (``inflation_chi2``), which the
     protection levels apply to it: the update weighs the pose by ``inflation**2 * covariance`` and returns the fused
     covariance divided by it again, so that the levels computed from it as before are the fused pose's. The
-    ``correction`` ``(w, v)`` moves the pose as ``R' = exp(w) R``, ``t' = t + v`` (left perturbation).
+    ``correction`` ``(w, v)`` moves the pose as ``R' = exp(w) R``, ``t' = t + v`` (left perturbation). The gain
+    weighs the pose by its covariance alone, without the protection levels' floor that test 7 also allows (the
+    fusion that was measured, docs/integrity.md).
     """
     T = np.asarray(T_survey_locate, float)
     C = float(inflation) ** 2 * np.asarray(covariance, float)
