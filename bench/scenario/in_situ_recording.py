@@ -30,7 +30,9 @@ frame - is drawn through the *true* survey base pose, so estimate and truth meet
 * ``world/task/valve``; ``world/task/arm_compensated/<body>`` and ``world/task/arm_uncompensated/<body>`` the true arm
   where the servos took it (meshes tinted green / red), ``world/task/arm_planned`` the pipeline's model (polyline);
 * ``base_error/true``, ``base_error/estimated``, ``base_error/error`` (arrow), ``base_error/covariance``,
-  ``base_error/protection``, ``base_error/arm_base`` (the base turret for scale, not exaggerated);
+  ``base_error/protection``, ``base_error/arm_base`` (the base turret for scale, not exaggerated); with the INS's
+  tilt fused, ``base_error/vision`` (the images' own pose, exaggerated alike) and ``base_error/ins_correction`` (the
+  arrow from it to the fused estimate);
 * ``summary``: the metrics (markdown).
 """
 
@@ -44,7 +46,7 @@ from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector
 from bench.geometry.transforms import invert
 from bench.robot.kinematics import link_frames
 from bench.robot.orientation import link5_frame
-from bench.scenario.recording import GREEN, RED, Recording, arm_strip, nice_factor, run_name
+from bench.scenario.recording import GREEN, GREY, RED, Recording, arm_strip, nice_factor, run_name
 
 ORANGE = (240, 150, 30)
 YELLOW = (220, 200, 60)
@@ -286,6 +288,13 @@ def _base_error_view(rec, T_wb1, T_wb2, T_site_b2, res, report) -> tuple:
     T_hat[:3, 3] = k * dt
     rec.frame("base_error/estimated", T_hat, 0.1, static=True)
     rec.arrows("base_error/error", [np.zeros(3)], [k * dt], color=ORANGE, radius=0.0025, static=True)
+    if report.get("T_world_base_vision") is not None:  # the images' own pose, before the INS's tilt was fused
+        dt_v, dphi_v, _ = base_error(T_b1_b2, np.array(report["T_world_base_vision"], float), res.covariance)
+        T_v = np.eye(4)
+        T_v[:3, :3], T_v[:3, 3] = rotation_vector_to_matrix(k * dphi_v), k * dt_v
+        rec.frame("base_error/vision", T_v, 0.06, static=True)
+        rec.arrows("base_error/ins_correction", [k * dt_v], [k * (dt - dt_v)], color=GREY, radius=0.0015,
+                   static=True)
     if sigma > 0:
         rec.ellipsoid("base_error/covariance", k * dt, k**2 * cov_t, 1.0, color=(120, 180, 255), static=True)
     pr = report.get("protection_radius_mm")

@@ -208,6 +208,11 @@ def test_recording_loads_back_with_the_run_s_values(smoke_run):
     k = float(zoom[0].split("x")[1].split()[0])
     arrow = np.array(e["/base_error/error"]["Arrows3D:vectors"][0][0])
     assert np.linalg.norm(arrow) / k * 1e3 == pytest.approx(m["base_pos_err_mm"], rel=1e-6)
+    # the images' pose before the INS's tilt was fused, and the correction's arrow ending at the fused estimate
+    vision = np.array(e["/base_error/ins_correction"]["Arrows3D:origins"][0][0])
+    assert np.linalg.norm(vision) / k * 1e3 == pytest.approx(m["base_pos_err_vision_mm"], rel=1e-6)
+    corr = np.array(e["/base_error/ins_correction"]["Arrows3D:vectors"][0][0])
+    assert np.allclose(vision + corr, arrow, atol=1e-12)
     assert bp["site: arm, panel, cameras, map, base frames"]["origin"] == "/world"
     locate = [n for n in bp if n.startswith("locate")]
     assert len(locate) == 2 and all(f"{bp[n]['origin']}/image/matches" in e for n in locate)
