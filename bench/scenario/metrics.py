@@ -202,7 +202,7 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "when it was not fused)", "`bound.enabled`"),
         Metric("base_rot_bound_vision_deg", "deg", "the same, rotation", "`bound.enabled`"),
         Metric("base_pos_crb_mm", "mm", "Cramér-Rao bound of the base position (pixels as matched, encoders, arm, "
-               "intrinsics and mount covariances)", "`bound.enabled`"),
+               "intrinsics and mount covariances; the INS's tilt when the pipeline fused it)", "`bound.enabled`"),
         Metric("base_rot_crb_deg", "deg", "Cramér-Rao bound of the base rotation", "`bound.enabled`"),
         Metric("base_rot_crb_tilt_deg", "deg", "the bound without the INS about the horizontal axes (RMS of the two)",
                "`bound.enabled`"),
