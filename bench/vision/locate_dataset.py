@@ -626,6 +626,9 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
             p, s = report["position_mm"], report["position_std_mm"]
             print("T_world_base position [mm]: " + ", ".join(f"{v:.2f} ± {e:.2f}" for v, e in zip(p, s, strict=True)))
             print(f"rotation {report['rotation_deg']:.4f} deg (std {np.linalg.norm(report['rotation_std_deg']):.4f})")
+            if fused is not None:
+                print(f"the vehicle's INS tilt fused: the images' pose moved by {report['ins_correction_deg']:.4f} deg "
+                      f"and {report['ins_correction_mm']:.2f} mm (kept as T_world_base_vision)")
             for name, t in report["tasks"].items():
                 q = ", ".join(f"{v:.3f}" for v in t["q_command_deg"])
                 pr = t["protection_radius_mm"]
