@@ -66,6 +66,14 @@ def test_smoke_accuracy(smoke_run):
     assert 0.5 <= m["valve_protection_radius_mm"] and m["valve_tool_err_mm"] < m["valve_protection_radius_mm"]
     # test 7: the simulated INS (vehicle.yaml) agrees with the located tilt of a clean run, unless 1-6 refused it
     assert (0 <= m["integrity_tilt_sq"] < 13.8) if not m["integrity_refused"] else np.isnan(m["integrity_tilt_sq"])
+    # fused (the default, unless refused): the bound took the INS too - its rotation CRB below the images' alone (the
+    # tilt and heading split of the CRB without it), and the images' own pose scored beside the fused one
+    out, _, _ = smoke_run
+    fused = json.loads((out / "locate.json").read_text())["ins_tilt"] == "fused"
+    assert fused == (not m["integrity_refused"])
+    vision_rot = np.hypot(m["base_rot_crb_tilt_deg"], m["base_rot_crb_heading_deg"])
+    assert (m["base_rot_crb_deg"] < vision_rot) if fused else m["base_rot_crb_deg"] == pytest.approx(vision_rot)
+    assert np.isfinite(m["base_pos_err_vision_mm"]) and np.isfinite(m["base_pos_bound_vision_mm"])
     assert set(res) == {"scenario", "seed", "metrics", "tables", "timings_s", "artifacts"}
 
 
