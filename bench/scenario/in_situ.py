@@ -1061,9 +1061,9 @@ def _ins_update(cfg, truth, T_site_b2, cov):
     true base frames at both parkings, the vehicle section's accuracies."""
     from bench.vision.tilt import VehicleTilt, tilt_update
 
-    v = cfg["vehicle"]  # gravity at the locate parking: the survey's carried by the true base motion
-    tilt = VehicleTilt(_down_survey(truth), T_site_b2[:3, :3].T @ _down_survey(truth),
-                       float(np.deg2rad(v["tilt_sigma_deg"])), float(np.deg2rad(v["alignment_sigma_deg"])))
+    v, d = cfg["vehicle"], _down_survey(truth)  # gravity at the locate parking: the survey's, carried by the base
+    tilt = VehicleTilt(d, T_site_b2[:3, :3].T @ d, float(np.deg2rad(v["tilt_sigma_deg"])),
+                       float(np.deg2rad(v["alignment_sigma_deg"])))
     return tilt_update(T_site_b2[:3, :3], cov, tilt)
 
 
