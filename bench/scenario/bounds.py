@@ -428,6 +428,88 @@ def view_sigma(sigma_px, n_views: int) -> np.ndarray:
     return s
 
 
+# ----------------------------------------------------------------------------------------------- the views' error field
+#: Pixels per unit of the field's slopes: a slope of 0.01 moves a keypoint 100 px off the image centre by 0.01 px.
+FIELD_UNIT_PX = 100.0
+
+
+def field_basis(uv, size) -> np.ndarray:
+    """``[1, (u - w/2) / 100, (v - h/2) / 100]`` (..., 3) of pixels ``uv (..., 2)`` in an image of ``size (w, h)``:
+    the affine field's basis (:data:`FIELD_UNIT_PX`)."""
+    uv = np.asarray(uv, float)
+    c = 0.5 * np.asarray(size, float)
+    return np.concatenate([np.ones(uv.shape[:-1] + (1,)), (uv - c) / FIELD_UNIT_PX], axis=-1)
+
+
+def field_displacement(uv, coefficients, size) -> np.ndarray:
+    """The displacement (..., 2) px of a view's affine error field ``coefficients (..., 6)`` = ``(a0, a1, a2, b0, b1,
+    b2)`` at pixels ``uv (..., 2)``: ``du = [a0 a1 a2] . basis``, ``dv = [b0 b1 b2] . basis``
+    (:func:`field_basis`)."""
+    X = field_basis(uv, size)
+    c = np.asarray(coefficients, float)
+    return np.stack([np.sum(X * c[..., :3], axis=-1), np.sum(X * c[..., 3:], axis=-1)], axis=-1)
+
+
+def field_sd(offset_px: float, slope_px: float) -> np.ndarray:
+    """The six coefficients' standard deviations (6,) of a field with offsets ``offset_px`` (px) and slopes
+    ``slope_px`` (px per 100 px) on each axis."""
+    return np.array([offset_px, slope_px, slope_px] * 2, float)
+
+
+def draw_fields(rng: np.random.Generator, sd, n_views: int) -> np.ndarray:
+    """Independent fields (n_views, 6), coefficients ``N(0, sd^2)`` (``sd`` (6,): :func:`field_sd`)."""
+    return rng.normal(size=(n_views, 6)) * np.asarray(sd, float)
+
+
+def measure_field(dev, uv, view, shrink, size, gate: float = 3.5, min_points: int = 20) -> dict:
+    """The keypoints' error field per view, measured on their errors: the part of the errors that moves a whole view's
+    keypoints together (an offset and a slope per axis), which the white pixel noise of the bound does not describe.
+
+    For every view with ``min_points`` or more errors inside ``gate`` robust sigmas, the least-squares affine field
+    (:func:`field_basis`) of its errors; each coefficient's square less the variance white noise of that view's
+    residual scatter gives it (``s^2 (X^T X)^-1``), divided by the view's mean ``shrink`` (what subtracting each
+    track's mean left of a field: ``1 - 1/n`` in the n views the mean is over, ``1 + 1/n`` in a view outside it).
+    Pooled over the views and the two axes: the offsets' variance and the slopes'.
+
+    Parameters
+    ----------
+    dev : ndarray (N, 2)
+        The errors (px): detected minus true, about each track's mean.
+    uv : ndarray (N, 2)
+        Their pixels (px).
+    view : ndarray (N,) int
+        Their views.
+    shrink : ndarray (N,)
+        Each error's share of its view's field (above).
+    size : (w, h)
+
+    Returns
+    -------
+    dict
+        ``offset_px``, ``slope_px`` (px per 100 px; 0 when the coefficients scatter no more than white noise makes
+        them), ``views`` (the views measured; with none, both are NaN).
+    """
+    dev, uv = np.asarray(dev, float).reshape(-1, 2), np.asarray(uv, float).reshape(-1, 2)
+    view, shrink = np.asarray(view), np.asarray(shrink, float)
+    r = np.linalg.norm(dev, axis=1)
+    keep = r < gate * 1.4826 * np.median(np.abs(dev)) if len(dev) else np.zeros(0, bool)
+    excess, factor = [], []
+    for v in np.unique(view):
+        m = keep & (view == v)
+        if m.sum() < min_points:
+            continue
+        X = field_basis(uv[m], size)
+        c, *_ = np.linalg.lstsq(X, dev[m], rcond=None)  # (3, 2): the u column, the v column
+        s2 = np.sum((dev[m] - X @ c) ** 2) / (2 * (m.sum() - 3))
+        excess.append(c ** 2 - s2 * np.diag(np.linalg.inv(X.T @ X))[:, None])
+        factor.append(float(np.mean(shrink[m])))
+    if not excess:
+        return {"offset_px": float("nan"), "slope_px": float("nan"), "views": 0}
+    e = np.array(excess) / np.array(factor)[:, None, None]  # (views, 3, 2)
+    return {"offset_px": float(np.sqrt(max(np.mean(e[:, 0]), 0.0))),
+            "slope_px": float(np.sqrt(max(np.mean(e[:, 1:]), 0.0))), "views": len(e)}
+
+
 def reduced_information(model: MultiViewModel, sigma_px, jacobians=None) -> tuple:
     """Fisher information of every observed pixel (``model.vis``; Gaussian, ``sigma_px`` per axis: a scalar, or one
     per view ``(V,)``) on the model's parameters with every point a free nuisance parameter, eliminated point by

@@ -248,11 +248,13 @@ class Sources(Section):
 class Bound(Section):
     """The Cramér-Rao bound of the base pose and a Monte Carlo of the ideal estimator (in_situ_bound); ml_trials > 0:
     also a Monte Carlo of refine 'joints' under exactly the bound's model (base_*_crb_mc_*; ~2 s a trial), the check
-    that the estimator reaches the bound."""
+    that the estimator reaches the bound. keypoint_field: the keypoints' errors also move each view's keypoints
+    together (an affine field per view, measured on the panel's true surfaces: keypoint_field_*); false: white."""
 
     enabled: bool = True
     mc_trials: NonNegInt = 30
     ml_trials: NonNegInt = 0
+    keypoint_field: bool = True
 
 
 class Outputs(Section):
@@ -924,6 +926,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
     ``base_*_bound_vision_*`` is the limit without it."""
     from bench.scenario.in_situ_bound import (
         crb_base_pose,
+        field_sd,
         keypoint_sigma_px,
         mc_ideal_estimator,
         model_floor,
@@ -952,6 +955,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
     # panel's true surfaces; without a pose (no tracks), the survey's. Both as the Fisher information of the measured
     # errors' density has them (fisher_factor: the tails take a little from the core the robust sigma describes)
     ratio = points = f_survey = f_locate = float("nan")
+    field = None  # the keypoints' error field per view (sd of its six coefficients), when measured
     if res.success and res.used is not None:
         from bench.scenario.scene_points import SceneRays
 
@@ -960,6 +964,10 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
                                     np.stack([poses[n] for n in surround]), np.stack([poses[n] for n in loc]), lens,
                                     port, project, surface)
         ratio, points, f_survey, f_locate = tn["ratio"], float(tn["points"]), tn["survey_fisher"], tn["locate_fisher"]
+        out.update({"keypoint_field_offset_px": tn["field_offset_px"], "keypoint_field_slope_px": tn["field_slope_px"],
+                    "keypoint_field_views": float(tn["field_views"])})
+        if cfg["bound"]["keypoint_field"] and tn["field_views"]:
+            field = field_sd(tn["field_offset_px"], tn["field_slope_px"])
     sigma_bound = sigma_px * _or_one(f_survey)
     sigma_loc = sigma_px * _or_one(ratio) * _or_one(f_locate)
     out.update({"keypoint_sigma_bound_px": sigma_bound, "keypoint_sigma_locate_px": sigma_loc,
@@ -995,7 +1003,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
            else None)
     crb = crb_base_pose(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam.project,
                         T_site_b2, views, X_site, cam.size, sigma_views, sigma_enc, K=cam.K, vis=vis, dist=cam.dist,
-                        **priors)
+                        field=field, **priors)
     limit_vision = _limit(crb["cov"], floor, refractive)
     tilt_sd, heading_sd = _tilt_heading(crb["cov"][:3, :3], truth)
     out.update({"base_rot_crb_tilt_deg": np.rad2deg(tilt_sd), "base_rot_crb_heading_deg": np.rad2deg(heading_sd)})
@@ -1007,13 +1015,13 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
             f["pos_m"], f["rot_rad"] = float(np.linalg.norm(f["xi"][3:])), float(np.linalg.norm(f["xi"][:3]))
     mc = mc_ideal_estimator(robot, eps_true, kept, ident.covariance, mount, central, T_site_b2, views, names, X_site,
                             sigma_views, EncoderModel(**enc), np.random.default_rng([cfg["seed"], 13]),
-                            cfg["bound"]["mc_trials"], p["method"], ransac, thesis_refine, ins=upd)
+                            cfg["bound"]["mc_trials"], p["method"], ransac, thesis_refine, ins=upd, field=field)
     if cfg["bound"]["ml_trials"] > 0 and vis is not None and not pnp:  # the Monte Carlo of refine 'joints'
         from bench.scenario.in_situ_bound import mc_joint_bundle
 
         ml = mc_joint_bundle(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam, T_site_b2,
                              views, X_site, vis, sigma_views, sigma_enc, np.random.default_rng([cfg["seed"], 14]),
-                             cfg["bound"]["ml_trials"], ins=upd, **priors)
+                             cfg["bound"]["ml_trials"], ins=upd, field=field, **priors)
         out.update({"base_pos_crb_mc_mm": ml["pos_rms_m"] * 1e3, "base_rot_crb_mc_deg": np.rad2deg(ml["rot_rms_rad"])})
     if refractive:  # the floor above is the best central camera's (its camera and frame serve the CRB), not this one's
         floor = {**floor, **nan}

@@ -24,6 +24,8 @@ scored ``base_pos_err_mm``) and ``dphi`` its rotation (``base_rot_err_deg``).
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from bench.camera.model import CameraModel, distort
@@ -35,8 +37,12 @@ from bench.scenario.bounds import (  # noqa: F401 - the generic parts, re-export
     MultiViewModel,
     best_central_camera,
     crb,
+    draw_fields,
+    field_displacement,
+    field_sd,
     ideal_features,
     keypoint_sigma_px,
+    measure_field,
     true_projector,
     view_sigma,
 )
@@ -49,10 +55,11 @@ class _Model(MultiViewModel):
     parking's base pose, 6), ``q`` (joints, 6 per view), ``d_eps`` (identified arm errors), optionally ``d_K``
     (``dfx, dfy, dcx, dcy`` px: the intrinsics' error, applied to the pixels as ``c + dc + (f + df) / f (uv - c)``,
     exact for a lens whose distortion acts before K) and ``d_mount`` (the camera mount's error, a right perturbation
-    ``T_mount [[exp(w), v], [0, 1]]``, rad then m), then the points."""
+    ``T_mount [[exp(w), v], [0, 1]]``, rad then m), optionally ``field`` (per view: the keypoints' affine error
+    field, :func:`~bench.scenario.bounds.field_displacement`, px), then the points."""
 
     def __init__(self, robot, eps_true, kept, mount, project, T_site_b2, views, X_site, size, K=None,
-                 with_mount=False, vis=None, dist=None):
+                 with_mount=False, vis=None, dist=None, field=False):
         self.robot, self.eps0, self.kept, self.mount = robot, eps_true, kept, mount
         self.T_b2 = T_site_b2
         self.q0 = np.array([q for q, _ in views])
@@ -73,6 +80,10 @@ class _Model(MultiViewModel):
         if self.with_mount:
             blocks.append(Block("d_mount", 6))
             values.append(np.zeros(6))
+        self.field, self.size = bool(field), size
+        if self.field:
+            blocks.append(Block("field", 6, per_view=True, step=1e-3))
+            values.append(np.zeros((len(self.q0), 6)))
         super().__init__(self._poses, blocks, values, X_site, project, size, vis=vis)
 
     def _split(self, values):
@@ -82,7 +93,10 @@ class _Model(MultiViewModel):
         d_mount = rest.pop(0) if self.with_mount else None
         return xi, q, d_eps, d_K, d_dist, d_mount
 
-    def _poses(self, *values):
+    def _poses(self, *values):  # the camera poses: every block but the field
+        return self._kinematics(values[:len(values) - self.field])
+
+    def _kinematics(self, values):
         xi, q, d_eps, _, _, d_mount = self._split(values)
         eps = self.eps0.copy()
         eps[self.kept] += d_eps
@@ -101,9 +115,16 @@ class _Model(MultiViewModel):
     def pixels(self, *args):
         uv = super().pixels(*args)
         *values, X = args
+        if self.field:  # each view's keypoints moved by its field, evaluated where they are imaged
+            *values, fields = values
+            uv = self._camera_pixels(uv, values, X)
+            return uv + field_displacement(uv, fields[:, None, :], self.size)
+        return self._camera_pixels(uv, values, X)
+
+    def _camera_pixels(self, uv, values, X):
         _, _, _, d_K, d_dist, _ = self._split(values)
         if d_dist is not None:  # the lens's k1 k2 p1 p2 moved by d_dist: the pixel change, exactly
-            T_cam_world = np.linalg.inv(self.camera_poses(*values))
+            T_cam_world = np.linalg.inv(self._kinematics(values))
             p = np.matmul(X, np.swapaxes(T_cam_world[:, :3, :3], 1, 2)) + T_cam_world[:, None, :3, 3]
             x = p[..., :2] / p[..., 2:3]
             uv = uv + (distort(x, self.dist + np.r_[d_dist, 0.0]) - distort(x, self.dist)) @ self.K[:2, :2].T
@@ -184,7 +205,9 @@ def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_surve
       track seen in fewer than two survey views, is left out);
     * ``survey_fisher``, ``locate_fisher``: :func:`fisher_factor` of the survey's and the locate views' errors (within
       5 px, the gross mismatches left out), what the bound's robust sigmas take for the information lost to the
-      tails.
+      tails;
+    * ``field_offset_px``, ``field_slope_px``, ``field_views``: the errors' field per view (every survey and locate
+      view, :func:`~bench.scenario.bounds.measure_field`): what moves a whole view's keypoints together.
 
     Parameters
     ----------
@@ -212,26 +235,39 @@ def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_surve
         return np.asarray(uv, float) - project(transform_points(invert(T_world_cam), point[None]))[0]
 
     dev_survey, dev_locate, n_views = [], [], []
+    field = ([], [], [], [])  # every error, its pixel, view (the locate views after the survey's) and shrink
+    n_survey = len(T_world_survey)
     for j in np.flatnonzero(np.all(np.isfinite(P), axis=1)):
         views, uv = survey[j]
-        e = np.array([error(T_world_survey[k], x, P[j]) for k, x in zip(views, np.asarray(uv).reshape(-1, 2),
-                                                                          strict=True)])
+        uv = np.asarray(uv, float).reshape(-1, 2)
+        e = np.array([error(T_world_survey[k], x, P[j]) for k, x in zip(views, uv, strict=True)])
         if len(e) < 2:
             continue
         mean = e.mean(axis=0)
         dev_survey.append(e - mean)
         n_views.append(len(e))
-        dev_locate += [error(T, x, P[j]) - mean for T, x in zip(T_world_locate, uv_locate[j], strict=True)]
+        loc = [error(T, x, P[j]) - mean for T, x in zip(T_world_locate, uv_locate[j], strict=True)]
+        dev_locate += loc
+        for d, x, v, s in ((e - mean, uv, views, 1 - 1 / len(e)),
+                           (np.reshape(loc, (-1, 2)), uv_locate[j], n_survey + np.arange(len(loc)), 1 + 1 / len(e))):
+            field[0].append(d)
+            field[1].append(x)
+            field[2].append(np.asarray(v))
+            field[3].append(np.full(len(d), s))
     if not n_views:
         return {"survey_px": float("nan"), "locate_px": float("nan"), "ratio": float("nan"), "points": 0,
-                "survey_fisher": float("nan"), "locate_fisher": float("nan")}
+                "survey_fisher": float("nan"), "locate_fisher": float("nan"), "field_offset_px": float("nan"),
+                "field_slope_px": float("nan"), "field_views": 0}
     n = float(np.mean(n_views))
     s_survey = _robust_sd(np.concatenate(dev_survey)) * np.sqrt(n / (n - 1))
     s_locate = float(np.sqrt(max(_robust_sd(dev_locate) ** 2 - s_survey**2 / n, 0.0)))
     dev_survey, dev_locate = np.concatenate(dev_survey), np.asarray(dev_locate, float)
     fisher = [fisher_factor(d[np.linalg.norm(d, axis=1) < 5.0]) for d in (dev_survey, dev_locate)]
+    ok = np.all(np.isfinite(np.concatenate(field[1])), axis=1)
+    fld = measure_field(*(np.concatenate(f)[ok] for f in field[:3]), np.concatenate(field[3])[ok], lens.size)
     return {"survey_px": s_survey, "locate_px": s_locate, "ratio": s_locate / s_survey if s_survey > 0 else np.nan,
-            "points": len(n_views), "survey_fisher": fisher[0], "locate_fisher": fisher[1]}
+            "points": len(n_views), "survey_fisher": fisher[0], "locate_fisher": fisher[1],
+            "field_offset_px": fld["offset_px"], "field_slope_px": fld["slope_px"], "field_views": fld["views"]}
 
 
 def track_pixels(kmap, used, observations: dict, reference: str, survey: list, locate: list) -> tuple:
@@ -258,7 +294,7 @@ def track_pixels(kmap, used, observations: dict, reference: str, survey: list, l
 
 def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2, views, X_site, size, sigma_px,
                   sigma_enc, cov_K=None, K=None, cov_mount=None, vis=None, cov_K_mount=None, dist=None,
-                  cov_dist=None, cov_K_dist=None, cov_dist_mount=None) -> dict:
+                  cov_dist=None, cov_K_dist=None, cov_dist_mount=None, field=None) -> dict:
     """Cramér-Rao bound of the located base pose (see the module docstring; :func:`bench.scenario.bounds.crb`).
 
     Parameters
@@ -290,6 +326,10 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
         Covariance of the calibrated mount (right perturbation: rotation vector rad, then m). Omitted: exact.
     vis : ndarray (V, M) bool, optional
         The observation pattern (:func:`observation_pattern`); default every point in every view it projects into.
+    field : ndarray (6,), optional
+        Standard deviations of every view's affine keypoint error field (:func:`~bench.scenario.bounds.field_sd`,
+        measured by :func:`track_noise_on_surface`): each view's field a nuisance parameter under that prior, on top
+        of the white ``sigma_px``. Omitted (or all zero): the keypoints' errors are white.
 
     Returns
     -------
@@ -302,13 +342,15 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
     with_K = cov_K is not None
     model = _Model(robot, np.asarray(eps_true, float), np.asarray(kept), mount, project, T_site_b2, views, X_site,
                    size, K=K if with_K else None, with_mount=cov_mount is not None, vis=vis,
-                   dist=dist if cov_dist is not None else None)
+                   dist=dist if cov_dist is not None else None, field=field is not None and np.any(field))
     # the encoders observe the joints, the lab identification observed the arm errors, the lab calibrations the
     # intrinsics, the distortion and the mount (one joint prior over those given); the base pose is free
     priors = {"q": np.eye(6) / sigma_enc**2, "d_eps": np.linalg.inv(cov_eps_dot)}
     names = tuple(n for n, C in (("d_K", cov_K), ("d_dist", cov_dist), ("d_mount", cov_mount)) if C is not None)
     if names:
         priors[names] = np.linalg.inv(lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount))
+    if model.field:  # a coefficient measured at zero is known to be zero (1e-6 px: numerically so)
+        priors["field"] = np.diag(1.0 / np.maximum(np.asarray(field, float), 1e-6) ** 2)
     res = crb(model, sigma_px, priors)
     cov = res["cov"][:6, :6]
     return {"cov": cov, "pos_bound_m": float(np.sqrt(np.trace(cov[3:, 3:]))),
@@ -375,14 +417,15 @@ def pose_error(T_est, T_true) -> np.ndarray:
 
 def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraModel, T_site_b2, views, names,
                        X_site, sigma_px, encoders, rng: np.random.Generator, trials: int = 30, method: str = "svd",
-                       ransac: dict | None = None, refine="pose", ins=None) -> dict:
+                       ransac: dict | None = None, refine="pose", ins=None, field=None) -> dict:
     """RMS base error of the pipeline's estimator on ideal features with the bound's noise, over ``trials`` draws.
 
     Each draw: pixel noise ``sigma_px`` on exact projections (``camera``: the true central camera), encoder readings
     drawn by ``encoders`` (an :class:`~bench.sim.encoders.EncoderModel`), arm errors drawn from the identification
     covariance; intrinsics and mount exact. ``views`` as for :func:`crb_base_pose` (``names``: reference first, then
     the surrounding views, then the locate views: two for the two-view solve, one for PnP). ``ins``, a
-    :class:`~bench.vision.tilt.TiltUpdate`: each draw's error fused with a draw of the INS's tilt.
+    :class:`~bench.vision.tilt.TiltUpdate`: each draw's error fused with a draw of the INS's tilt. ``field`` (6,), the
+    sd of every view's keypoint error field (:func:`crb_base_pose`): each draw adds a field drawn per view.
     """
     q_true = np.array([q for q, _ in views])
     is_loc = np.array([loc for _, loc in views], dtype=bool)
@@ -395,9 +438,12 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
         eps = np.array(eps_true, float)
         eps[kept] += L @ rng.normal(size=len(kept))
         q_read = encoders.read(q_true, rng)
+        fields = None if field is None else draw_fields(rng, field, len(views))
         obs = []
         for k, name in enumerate(names):
             f = ideal_features(X_site, T_site_cam_true[k], camera.project, camera.size, sigma[k], rng)
+            if fields is not None:
+                f = dataclasses.replace(f, uv=f.uv + field_displacement(f.uv, fields[k], camera.size))
             obs.append(ViewObservation(name, f, camera.undistort_pixels(f.uv), link5_frame(robot, q_read[k], eps)
                                        @ mount))
         res = _estimate(obs, is_loc, method, rng, refine, ransac, camera.fx)
@@ -411,7 +457,7 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
 def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraModel, T_site_b2, views, X_site, vis,
                     sigma_px, sigma_enc, rng: np.random.Generator, trials: int = 20, cov_K=None,
                     cov_mount=None, refine: bool = True, cov_K_mount=None, cov_dist=None, cov_K_dist=None,
-                    cov_dist_mount=None, ins=None) -> dict:
+                    cov_dist_mount=None, ins=None, field=None) -> dict:
     """RMS base error of ``refine: joints`` (:func:`bench.vision.joint_bundle.joint_bundle`) under exactly the
     bound's model, over ``trials`` draws: the check that the estimator reaches :func:`crb_base_pose`.
 
@@ -419,7 +465,8 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
     (V, M) plus Gaussian noise ``sigma_px``; joint readings ``q_true + N(0, sigma_enc)``; the arm errors, and with
     ``cov_K`` / ``cov_dist`` / ``cov_mount`` the intrinsics, the distortion and the mount, drawn jointly from their
     calibrations' covariances (with the cross-covariances given) and given to the estimator as its (wrong by that
-    much) calibration, which it refines under those priors (``refine``) or keeps. Arguments as
+    much) calibration, which it refines under those priors (``refine``) or keeps; with ``field``, every view's
+    keypoints also moved by a field drawn for it (the estimator does not model it). Arguments as
     :func:`crb_base_pose`; ``ins`` as :func:`mc_ideal_estimator`'s. Returns ``pos_rms_m``, ``rot_rms_rad``,
     ``trials``, ``failures``.
     """
@@ -463,6 +510,8 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
             m = m @ D
         q_read = q_true + rng.normal(0, sigma_enc, q_true.shape)
         uv = uv0 + rng.normal(0, 1.0, uv0.shape) * sigma[view][:, None]
+        if field is not None:
+            uv = uv + field_displacement(uv0, draw_fields(rng, field, len(views))[view], camera.size)
         jb = joint_bundle(robot, eps, m, q_read, is_loc, T_site_b2, view, point, uv, X, sigma_enc,
                           float(sigma.min()), K, dist, gate=None, **priors)
         if not jb.success:

@@ -192,6 +192,13 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "the heavy tails take from the information", "`bound.enabled`, a pose"),
         Metric("keypoint_locate_fisher_factor", "1", "the same for the locate views' errors",
                "`bound.enabled`, a pose"),
+        Metric("keypoint_field_offset_px", "px", "the keypoints' errors that move a whole view's keypoints together: "
+               "the sd of each view's offset (per axis), measured on the panel's true surfaces over the survey and "
+               "locate views beyond what their white noise scatters (bench.scenario.bounds.measure_field)",
+               "`bound.enabled`, a pose"),
+        Metric("keypoint_field_slope_px", "px", "the same field's slopes: sd of its change per 100 px across the "
+               "image, each axis in each direction", "`bound.enabled`, a pose"),
+        Metric("keypoint_field_views", "count", "views behind that field", "`bound.enabled`, a pose"),
         Metric("keypoint_locate_ratio", "1", "the locate views' keypoint noise over the survey's, on the same "
                "tracks, measured on the panel's true surfaces (robust σ)", "`bound.enabled`, a pose"),
         Metric("keypoint_locate_points", "count", "tracks behind that ratio", "`bound.enabled`, a pose"),

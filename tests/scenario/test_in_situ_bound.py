@@ -327,3 +327,37 @@ def test_pnp_variant_bound_floor_and_monte_carlo(scene):
                             np.random.default_rng(74), trials=30, refine="none")
     print(mc, one["pos_bound_m"])
     assert mc["pos_rms_m"] > 0.8 * one["pos_bound_m"]
+
+
+def test_the_views_error_field_in_the_bound(scene):
+    """Every view's affine keypoint error field as a nuisance under its prior (``field``) is the bound of pixels
+    whose noise is correlated within a view: ``J^T (sigma^2 I + A P A^T)^-1 J`` + priors with ``A`` the fields'
+    pixel columns (Woodbury, 1e-5 relative); a vanishing field gives the white bound; a field raises it."""
+    from bench.scenario.bounds import field_basis, field_sd
+
+    robot, eps, cam, T_site_b2, X, views, kept, cov_eps = scene
+    sigma_px, sigma_enc = 0.2, 1e-4
+    sd = field_sd(0.2, 0.1)  # 25 points a view: a field as large as the white noise weighs
+    model = _Model(robot, eps, kept, MOUNT, cam.project, T_site_b2, views, X, cam.size)
+    V, M, P = len(views), len(X), len(kept)
+    J = model.jacobian_columnwise(*model.values0, X)  # rows: view by view, point by point, u v
+    uv = model.pixels(*model.values0, X)  # (V, M, 2)
+    A = np.zeros((V, M, 2, V, 6))
+    for v in range(V):
+        B = field_basis(uv[v], cam.size)  # (M, 3)
+        A[v, :, 0, v, :3], A[v, :, 1, v, 3:] = B, B
+    A = A.reshape(2 * V * M, 6 * V)
+    cov_px = sigma_px**2 * np.eye(2 * V * M) + A @ np.diag(np.tile(sd**2, V)) @ A.T
+    info = J.T @ np.linalg.solve(cov_px, J)
+    info[6:6 + 6 * V, 6:6 + 6 * V] += np.eye(6 * V) / sigma_enc**2
+    info[6 + 6 * V:6 + 6 * V + P, 6 + 6 * V:6 + 6 * V + P] += np.linalg.inv(cov_eps)
+    brute = np.linalg.inv(info)[:6, :6]
+    args = (robot, eps, kept, cov_eps, MOUNT, cam.project, T_site_b2, views, X, cam.size, sigma_px, sigma_enc)
+    with_field = crb_base_pose(*args, field=sd)
+    assert np.allclose(with_field["cov"], brute, rtol=1e-5, atol=1e-5 * np.abs(brute).max())
+    white = crb_base_pose(*args)
+    assert np.allclose(crb_base_pose(*args, field=sd * 1e-6)["cov"], white["cov"], rtol=1e-6,
+                       atol=1e-6 * np.abs(white["cov"]).max())
+    assert np.allclose(crb_base_pose(*args, field=np.zeros(6))["cov"], white["cov"], rtol=0, atol=0)
+    assert with_field["pos_bound_m"] > 1.05 * white["pos_bound_m"]
+    assert with_field["rot_bound_rad"] > 1.05 * white["rot_bound_rad"]
