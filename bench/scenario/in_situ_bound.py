@@ -5,7 +5,8 @@ measured keypoint noise (:func:`keypoint_sigma_px`) and the bound's machinery - 
 
 * :func:`crb_base_pose` - the Cramér-Rao lower bound on the located base pose: Fisher information of every
   observation the ideal estimator would have (each map point in the reference, surrounding and locate views, pixel
-  noise sigma: the survey's, and the locate views' own, :func:`track_noise_on_surface`), with the joint angles of
+  noise sigma: the survey's, and the locate views' own, :func:`track_noise_on_surface`; optionally each view's affine
+  keypoint error field as a nuisance under its measured prior), with the joint angles of
   every view as nuisance parameters observed by the encoders (sigma_enc), the identified arm errors (the 25 of
   §2.5-2.7) with the identification's covariance as prior (tracker noise) and the 3D points as free nuisance
   parameters (eliminated point by point), optionally the intrinsics and the mount
