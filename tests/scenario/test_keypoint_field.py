@@ -50,7 +50,7 @@ def test_a_known_field_is_measured_without_bias(offset, slope):
 
 def test_subtracting_each_tracks_mean_is_corrected():
     """Tracks seen in 4 views each, errors taken about each track's mean (as on the panel's surfaces): without the
-    correction (``shrink`` 1) the field is measured 1 - 1/4 too small in variance; with it, unbiased."""
+    correction (``shrink`` 1) the measured variance is 1 - 1/4 of the field's; with it, unbiased."""
     rng = np.random.default_rng(92)
     sd = field_sd(0.04, 0.03)
     raw, fixed = [], []
