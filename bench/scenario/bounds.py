@@ -483,6 +483,8 @@ def measure_field(dev, uv, view, shrink, size, gate: float = 3.5, min_points: in
         Each error's share of its view's field (above).
     size : (w, h)
 
+    Rows whose error or pixel is not finite are left out.
+
     Returns
     -------
     dict
@@ -491,6 +493,8 @@ def measure_field(dev, uv, view, shrink, size, gate: float = 3.5, min_points: in
     """
     dev, uv = np.asarray(dev, float).reshape(-1, 2), np.asarray(uv, float).reshape(-1, 2)
     view, shrink = np.asarray(view), np.asarray(shrink, float)
+    ok = np.all(np.isfinite(dev), axis=1) & np.all(np.isfinite(uv), axis=1)  # an error or pixel that is not one
+    dev, uv, view, shrink = dev[ok], uv[ok], view[ok], shrink[ok]
     r = np.linalg.norm(dev, axis=1)
     keep = r < gate * 1.4826 * np.median(np.abs(dev)) if len(dev) else np.zeros(0, bool)
     excess, factor = [], []

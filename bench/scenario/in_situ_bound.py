@@ -264,8 +264,7 @@ def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_surve
     s_locate = float(np.sqrt(max(_robust_sd(dev_locate) ** 2 - s_survey**2 / n, 0.0)))
     dev_survey, dev_locate = np.concatenate(dev_survey), np.asarray(dev_locate, float)
     fisher = [fisher_factor(d[np.linalg.norm(d, axis=1) < 5.0]) for d in (dev_survey, dev_locate)]
-    ok = np.all(np.isfinite(np.concatenate(field[1])), axis=1)
-    fld = measure_field(*(np.concatenate(f)[ok] for f in field[:3]), np.concatenate(field[3])[ok], lens.size)
+    fld = measure_field(*(np.concatenate(f) for f in field), lens.size)
     return {"survey_px": s_survey, "locate_px": s_locate, "ratio": s_locate / s_survey if s_survey > 0 else np.nan,
             "points": len(n_views), "survey_fisher": fisher[0], "locate_fisher": fisher[1],
             "field_offset_px": fld["offset_px"], "field_slope_px": fld["slope_px"], "field_views": fld["views"]}

@@ -66,6 +66,15 @@ def test_subtracting_each_tracks_mean_is_corrected():
     assert np.mean(raw) == pytest.approx(0.75 * 0.04**2, rel=0.12)
 
 
+def test_rows_that_are_not_finite_are_left_out():
+    rng = np.random.default_rng(94)
+    dev, uv, view = _views(rng, field_sd(0.03, 0.02))
+    m = measure_field(dev, uv, view, np.ones(len(dev)), SIZE)
+    bad_dev, bad_uv = np.vstack([dev, [np.nan, 0.1], [0.1, 0.1]]), np.vstack([uv, [10.0, 10.0], [np.inf, 5.0]])
+    m2 = measure_field(bad_dev, bad_uv, np.r_[view, 0, 1], np.ones(len(bad_dev)), SIZE)
+    assert m2 == m
+
+
 def test_too_few_keypoints_measure_nothing():
     rng = np.random.default_rng(93)
     dev, uv, view = _views(rng, field_sd(0.03, 0.02), n_views=3, n=10)
