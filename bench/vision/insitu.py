@@ -29,6 +29,9 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, invert, skew, transform_points
@@ -85,6 +88,11 @@ class MapConfig:
     neighbour_m: float = 0.01  # d_n of section 3.9
     cross_check_m: float = 0.005  # |1p - 1p*| (Eq. 163 vs Eq. 164)
     min_views: int = 2  # keep keypoints matched in at least this many surrounding views
+    #: Reference keypoints closer than this (px) are one detection: SIFT gives a second keypoint, with its own
+    #: orientation and descriptor, at the same position and scale wherever the orientation histogram has a second
+    #: peak (Lowe 2004, section 5). They are one measurement of one scene point, so the map keeps one of them (the
+    #: one seen in most surrounding views). 0 keeps them all (the thesis's map).
+    duplicate_px: float = 0.01
 
 
 @dataclass
@@ -214,6 +222,10 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
     kept = (count >= cfg.min_views) & (n_good >= cfg.min_views)
     kept[kept] = np.linalg.norm(mean[kept] - mean_star[kept], axis=1) <= cfg.cross_check_m
     spread_sq = np.where(good, np.sum((P - mean[:, None]) ** 2, axis=2), 0.0).sum(axis=1)
+    n_kept = int(kept.sum())
+    kept[np.flatnonzero(kept)] = _one_per_detection(reference.features.uv[keys[kept].astype(int)], n_good[kept],
+                                                    spread_sq[kept], cfg.duplicate_px)
+    stats["duplicate_detections"] = n_kept - int(kept.sum())
     idx = keys[kept].astype(int)
     spread = np.sqrt(spread_sq[kept] / np.maximum(n_good[kept], 1))
     observations = [(k_all[first[g]:first[g] + count[g]][good[g, :count[g]]],
@@ -227,6 +239,36 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
     T_ref_views = np.array([invert(T_world_ref) @ np.asarray(v.T_base_cam, float) for v in surrounding])
     return KeypointMap(mean[kept], mean_star[kept], reference.features.subset(idx), n_good[kept].astype(int), spread,
                        T_world_ref, stats, reference.x_n[idx], T_ref_views, observations, idx)
+
+
+def _one_per_detection(uv, n_views, spread_sq, tol_px: float) -> np.ndarray:
+    """Which of the points to keep so that no two keypoints lie within ``tol_px`` of each other (one per group of
+    coincident detections: the most surrounding views, then the smallest spread, then the first).
+
+    Parameters
+    ----------
+    uv : ndarray (M, 2)
+        The points' reference keypoints (px).
+    n_views, spread_sq : ndarray (M,)
+    tol_px : float
+
+    Returns
+    -------
+    ndarray (M,) bool
+    """
+    keep = np.ones(len(uv), bool)
+    if tol_px <= 0 or len(uv) < 2:
+        return keep
+    pairs = cKDTree(uv).query_pairs(float(tol_px), output_type="ndarray")
+    if not len(pairs):
+        return keep
+    _, label = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                                               shape=(len(uv), len(uv))), directed=False)
+    order = np.lexsort((np.arange(len(uv)), spread_sq, -np.asarray(n_views)))  # best first
+    first = np.zeros(len(uv), bool)
+    _, at = np.unique(label[order], return_index=True)
+    first[order[at]] = True
+    return first
 
 
 @dataclass

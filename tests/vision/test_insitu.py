@@ -1,6 +1,7 @@
 """Section 3.9 on synthetic observations: arm kinematics + projected points, no rendering."""
 
 import re
+import sys
 
 import numpy as np
 import pytest
@@ -298,3 +299,41 @@ def test_observe_drops_keypoints_the_calibrated_distortion_cannot_invert(ta40):
     obs = observe(View("v", None, q=q), cam, ta40, np.zeros(42), T_LINK5_CAM, features_fn=lambda v: f)
     assert len(obs.features) == 2 and np.all(np.isfinite(obs.x_n))
     assert np.array_equal(obs.features.uv, uv[[0, 3]])
+
+
+def test_one_map_point_per_detection(ta40, monkeypatch):
+    """SIFT's second orientation at a keypoint is a second keypoint at the same pixel with its own descriptor; it
+    matches its twin in every view, so the thesis's map would hold the scene point twice and every solve would count
+    its one measurement twice. The map keeps one per detection (``duplicate_px``; 0 keeps both)."""
+    n_dup = 40
+    scene = _scene
+
+    def scene_with_twins(rng, T_world_ref, n=250):
+        p_world, desc = scene(rng, T_world_ref, n)
+        twins = rng.normal(size=(n_dup, 128)).astype(np.float32)  # the second orientation's descriptor
+        return np.vstack([p_world, p_world[:n_dup]]), np.vstack([desc, twins])
+
+    monkeypatch.setattr(sys.modules[__name__], "_scene", scene_with_twins)
+    rng = np.random.default_rng(45)
+    eps = random_errors(rng)
+    views, loc, p_world, T_true = _campaign(ta40, rng, eps)
+    thesis = build_map(views[0], views[1:], MapConfig(duplicate_px=0.0))
+    assert len(thesis) == 250 + n_dup and thesis.stats["duplicate_detections"] == 0
+    kmap = build_map(views[0], views[1:])
+    assert len(kmap) == 250 and kmap.stats["duplicate_detections"] == n_dup
+    uv = kmap.features.uv
+    assert np.linalg.norm(uv[:, None] - uv[None] + np.diag(np.full(len(uv), np.inf))[..., None], axis=2).min() > 1
+    res = locate(kmap, loc[0], loc[1], rng=1, refine="bundle")
+    assert res.success and np.abs(res.T_world_base - T_true).max() <= 1e-9
+    assert "bundle of 250 points, 2000 observations" in res.message
+
+
+def test_the_kept_twin_is_the_one_seen_in_most_views():
+    from bench.vision.insitu import _one_per_detection
+
+    uv = np.array([[10.0, 10.0], [10.0, 10.0], [10.004, 10.0], [50.0, 50.0], [80.0, 80.0], [80.0, 80.0]])
+    n_views = np.array([2, 5, 3, 4, 3, 3])
+    spread_sq = np.array([0.0, 1.0, 0.0, 0.0, 2.0, 1.0])
+    assert _one_per_detection(uv, n_views, spread_sq, 0.01).tolist() == [False, True, False, True, False, True]
+    assert _one_per_detection(uv, n_views, spread_sq, 0.0).all()
+    assert _one_per_detection(uv[:1], n_views[:1], spread_sq[:1], 0.01).tolist() == [True]
