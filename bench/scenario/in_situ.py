@@ -936,6 +936,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
         true_projector,
     )
     from bench.sim.encoders import EncoderModel
+    from bench.vision.insitu import one_per_detection
 
     lens, port, central = _true_optics(truth)
     poses = _true_camera_poses(robot, truth)
@@ -975,7 +976,11 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
                 "keypoint_locate_fisher_factor": f_locate})
     T_wb1 = np.array(truth["T_world_base_survey"])
     T_site_b2 = invert(T_wb1) @ np.array(truth["T_world_base_locate"])
-    X_site = transform_points(kmap.T_world_ref, kmap.p_ref)  # the features the pipeline found (linearisation)
+    # the features the pipeline found (linearisation), each detection once: SIFT's twin keypoints (two orientations at
+    # one pixel) are one measurement, which the pipeline's map holds twice
+    one = one_per_detection(kmap)
+    out["keypoint_twin_points"] = float(len(kmap) - len(one))
+    X_site = transform_points(kmap.T_world_ref, kmap.p_ref[one])
     names = [ref, *surround, *loc]
     views = [(np.array(truth["views"][n]["q_true"]), n in loc) for n in names]
     sigma_views = np.array([sigma_loc if n in loc else sigma_bound for n in names])
@@ -999,8 +1004,8 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
                             thesis_refine, central=(cal.camera, invert(mount) @ he_true.T_mount_cam),
                             profile=profile) if he_true is not None and he_true.success else nan
     priors = lab["priors"]
-    vis = (observation_pattern(kmap, len(names), res.used[0], len(loc)) if res.success and res.used is not None
-           else None)
+    vis = (observation_pattern(kmap, len(names), res.used[0], len(loc))[:, one]
+           if res.success and res.used is not None else None)
     crb = crb_base_pose(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam.project,
                         T_site_b2, views, X_site, cam.size, sigma_views, sigma_enc, K=cam.K, vis=vis, dist=cam.dist,
                         field=field, **priors)

@@ -199,6 +199,9 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("keypoint_field_slope_px", "px", "the same field's slopes: sd of its change per 100 px across the "
                "image, each axis in each direction", "`bound.enabled`, a pose"),
         Metric("keypoint_field_views", "count", "views behind that field", "`bound.enabled`, a pose"),
+        Metric("keypoint_twin_points", "count", "map points whose reference keypoint is another's second SIFT "
+               "orientation (the same pixel): the pipeline weighs them, the bound counts each detection once "
+               "(bench.vision.insitu.one_per_detection)", "`bound.enabled`"),
         Metric("keypoint_locate_ratio", "1", "the locate views' keypoint noise over the survey's, on the same "
                "tracks, measured on the panel's true surfaces (robust σ)", "`bound.enabled`, a pose"),
         Metric("keypoint_locate_points", "count", "tracks behind that ratio", "`bound.enabled`, a pose"),

@@ -53,6 +53,10 @@ from bench.vision.triangulation import required_baseline, triangulate_midpoint
 #: ``BASELINE_FAIL_RATIO * z / f`` a 1 px disparity error is as large as the depth itself: no depth information, the
 #: pair is refused. The survey gets the same warning against the map's neighbour distance d_n.
 BASELINE_FAIL_RATIO = 1.0
+#: Reference keypoints closer than this (px) are one detection (:func:`one_per_detection`): SIFT's second orientation
+#: of a keypoint sits at the very same position and size (measured: every such pair within 1e-6 px; the next nearest
+#: keypoints of a map lie 0.1-2 px apart).
+TWIN_PX = 0.01
 #: Condition number of the final pose problem above which the message carries a WARNING (both locate variants).
 WARN_CONDITION = 1e4
 
@@ -88,11 +92,13 @@ class MapConfig:
     neighbour_m: float = 0.01  # d_n of section 3.9
     cross_check_m: float = 0.005  # |1p - 1p*| (Eq. 163 vs Eq. 164)
     min_views: int = 2  # keep keypoints matched in at least this many surrounding views
-    #: Reference keypoints closer than this (px) are one detection: SIFT gives a second keypoint, with its own
-    #: orientation and descriptor, at the same position and scale wherever the orientation histogram has a second
-    #: peak (Lowe 2004, section 5). They are one measurement of one scene point, so the map keeps one of them (the
-    #: one seen in most surrounding views). 0 keeps them all (the thesis's map).
-    duplicate_px: float = 0.01
+    #: Reference keypoints closer than this (px) are one detection, of which the map keeps one (the one seen in most
+    #: surrounding views); 0 (the default, the thesis's map) keeps them all. SIFT gives a second keypoint, with its
+    #: own orientation and descriptor, at the same position and scale wherever the orientation histogram has a second
+    #: peak (Lowe 2004, section 5); each matches its twin in every view, so the thesis's map holds such a scene point
+    #: twice. Keeping both weighs those points double, which measured better than keeping one (docs/bounds.md,
+    #: "Twin keypoints"); the bound counts each detection once (:func:`one_per_detection`).
+    duplicate_px: float = 0.0
 
 
 @dataclass
@@ -239,6 +245,18 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
     T_ref_views = np.array([invert(T_world_ref) @ np.asarray(v.T_base_cam, float) for v in surrounding])
     return KeypointMap(mean[kept], mean_star[kept], reference.features.subset(idx), n_good[kept].astype(int), spread,
                        T_world_ref, stats, reference.x_n[idx], T_ref_views, observations, idx)
+
+
+def one_per_detection(kmap: KeypointMap, tol_px: float = TWIN_PX) -> np.ndarray:
+    """Indices of the map points left when each detection counts once: of the points whose reference keypoints lie
+    within ``tol_px`` of each other (SIFT's orientations of one keypoint), the one seen in most surrounding views.
+
+    Returns
+    -------
+    ndarray (M',) int
+        Increasing map indices.
+    """
+    return np.flatnonzero(_one_per_detection(kmap.features.uv, kmap.n_views, kmap.spread_m**2, tol_px))
 
 
 def _one_per_detection(uv, n_views, spread_sq, tol_px: float) -> np.ndarray:

@@ -11,7 +11,15 @@ from bench.geometry.transforms import homogeneous, invert, rot_z, rotation_angle
 from bench.robot.model import random_errors
 from bench.sim.views import camera_frames, look_at_configuration, surrounding_eyes
 from bench.vision.features import Features
-from bench.vision.insitu import MapConfig, ViewObservation, build_map, locate, locate_pnp
+from bench.vision.insitu import (
+    TWIN_PX,
+    MapConfig,
+    ViewObservation,
+    build_map,
+    locate,
+    locate_pnp,
+    one_per_detection,
+)
 
 DEG = np.pi / 180
 T_LINK5_CAM = homogeneous(np.eye(3), [0.1, 0.0, 0.2])
@@ -303,8 +311,8 @@ def test_observe_drops_keypoints_the_calibrated_distortion_cannot_invert(ta40):
 
 def test_one_map_point_per_detection(ta40, monkeypatch):
     """SIFT's second orientation at a keypoint is a second keypoint at the same pixel with its own descriptor; it
-    matches its twin in every view, so the thesis's map would hold the scene point twice and every solve would count
-    its one measurement twice. The map keeps one per detection (``duplicate_px``; 0 keeps both)."""
+    matches its twin in every view, so the thesis's map (the default) holds the scene point twice. The bound counts
+    it once (``one_per_detection``); ``duplicate_px`` makes the map keep one."""
     n_dup = 40
     scene = _scene
 
@@ -317,15 +325,19 @@ def test_one_map_point_per_detection(ta40, monkeypatch):
     rng = np.random.default_rng(45)
     eps = random_errors(rng)
     views, loc, p_world, T_true = _campaign(ta40, rng, eps)
-    thesis = build_map(views[0], views[1:], MapConfig(duplicate_px=0.0))
+    thesis = build_map(views[0], views[1:])
     assert len(thesis) == 250 + n_dup and thesis.stats["duplicate_detections"] == 0
-    kmap = build_map(views[0], views[1:])
-    assert len(kmap) == 250 and kmap.stats["duplicate_detections"] == n_dup
-    uv = kmap.features.uv
+    one = one_per_detection(thesis)
+    assert len(one) == 250 and np.all(np.diff(one) > 0)
+    uv = thesis.features.uv[one]
     assert np.linalg.norm(uv[:, None] - uv[None] + np.diag(np.full(len(uv), np.inf))[..., None], axis=2).min() > 1
-    res = locate(kmap, loc[0], loc[1], rng=1, refine="bundle")
-    assert res.success and np.abs(res.T_world_base - T_true).max() <= 1e-9
-    assert "bundle of 250 points, 2000 observations" in res.message
+    kmap = build_map(views[0], views[1:], MapConfig(duplicate_px=TWIN_PX))
+    assert len(kmap) == 250 and kmap.stats["duplicate_detections"] == n_dup
+    assert np.array_equal(kmap.features.uv, uv) and len(one_per_detection(kmap)) == 250
+    for m, n_points in ((thesis, 290), (kmap, 250)):
+        res = locate(m, loc[0], loc[1], rng=1, refine="bundle")
+        assert res.success and np.abs(res.T_world_base - T_true).max() <= 1e-9
+        assert f"bundle of {n_points} points, {8 * n_points} observations" in res.message
 
 
 def test_the_kept_twin_is_the_one_seen_in_most_views():
