@@ -63,7 +63,7 @@ from bench.scenario.bounds import (
     point_sigma_px,
     true_projector,
 )
-from bench.vision.insitu import build_map
+from bench.vision.insitu import build_map, one_per_detection
 from bench.vision.xy_table_positioning import (
     R0_PRIOR_DEG,
     PositioningConfig,
@@ -191,15 +191,15 @@ def map_points(result, reference: str, T_table_ref, names_for_map) -> tuple:
     """The points of the largest map (reference + ``names_for_map``) in the table frame and, per view, which of them
     the matching found there: ``(X (M, 3), {view: seen (M,) bool})``. The map is built as the pipeline builds it
     (its views' poses from the readings and the estimated ``R0``) and moved by the true reference pose
-    ``T_table_ref``."""
+    ``T_table_ref``. Each detection counts once (:func:`~bench.vision.insitu.one_per_detection`)."""
     obs, rm = result.observations, result.reference_matches
     kmap = build_map(obs[reference], [obs[n] for n in names_for_map], matches=[rm[n] for n in names_for_map])
-    index = {tuple(uv): i for i, uv in enumerate(obs[reference].features.uv)}
-    ref_idx = np.array([index[tuple(uv)] for uv in kmap.features.uv], dtype=int)
+    one = one_per_detection(kmap)  # each detection once: SIFT's twin keypoints (one pixel) are one measurement
+    ref_idx = kmap.ref_index[one]
     seen = {reference: np.ones(len(ref_idx), bool)}
     for n, m in rm.items():
         seen[n] = np.isin(ref_idx, m.i1)
-    return transform_points(T_table_ref, kmap.p_ref), seen
+    return transform_points(T_table_ref, kmap.p_ref[one]), seen
 
 
 class _PairModel(MultiViewModel):
