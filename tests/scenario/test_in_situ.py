@@ -44,6 +44,8 @@ def test_smoke_accuracy(smoke_run):
     # in_situ._effective_camera): 0.3-0.5 deg at full size, ~0.8 deg with this smoke-size rig campaign
     assert m["mount_pos_err_mm"] < 5 and m["mount_rot_err_deg"] < (1.0 if underwater else 0.5)
     assert m["map_points"] > 50 and m["inliers"] > 20
+    # SIFT's second orientations at one pixel: about a quarter of the map; the bound counts each detection once
+    assert 0 < m["keypoint_twin_points"] < 0.5 * m["map_points"]
     # smoke-size campaign: the full-size targets (2 mm, 0.05 deg over 20 seeds) are `make reproduce`'s business
     assert m["base_pos_err_mm"] < 10 and m["base_rot_err_deg"] < 0.3
     assert m["base_pos_err_mm"] < 5 * m["base_pos_std_mm"] + 1.0  # consistent with the reported uncertainty
@@ -113,6 +115,8 @@ def test_smoke_realistic_imaging_default(tmp_path):
     for k in ("base_pos_err_mm", "base_rot_err_deg", "valve_tool_err_mm", "reproj_rms_px", "mount_pos_err_mm"):
         assert np.isfinite(m[k]), k
     assert m["map_points"] > 50 and m["inliers"] > 20
+    # SIFT's second orientations at one pixel: about a quarter of the map; the bound counts each detection once
+    assert 0 < m["keypoint_twin_points"] < 0.5 * m["map_points"]
     # realistic corners are noisier than ideal ones (0.06 px): the rig calibration sees it
     assert 0.1 < m["reproj_rms_px"] < 1.0
 
