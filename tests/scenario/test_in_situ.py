@@ -115,8 +115,6 @@ def test_smoke_realistic_imaging_default(tmp_path):
     for k in ("base_pos_err_mm", "base_rot_err_deg", "valve_tool_err_mm", "reproj_rms_px", "mount_pos_err_mm"):
         assert np.isfinite(m[k]), k
     assert m["map_points"] > 50 and m["inliers"] > 20
-    # SIFT's second orientations at one pixel: about a quarter of the map; the bound counts each detection once
-    assert 0 < m["keypoint_twin_points"] < 0.5 * m["map_points"]
     # realistic corners are noisier than ideal ones (0.06 px): the rig calibration sees it
     assert 0.1 < m["reproj_rms_px"] < 1.0
 
