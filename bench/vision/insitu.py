@@ -274,8 +274,11 @@ def _one_per_detection(uv, n_views, spread_sq, tol_px: float) -> np.ndarray:
     -------
     ndarray (M,) bool
     """
+    if not (np.isfinite(tol_px) and 0 <= tol_px <= 1):
+        raise ValueError(f"duplicate_px: expected 0 (keep every keypoint) up to 1 px (SIFT's twins coincide to "
+                         f"1e-6 px), got {tol_px!r}")
     keep = np.ones(len(uv), bool)
-    if tol_px <= 0 or len(uv) < 2:
+    if tol_px == 0 or len(uv) < 2:
         return keep
     pairs = cKDTree(uv).query_pairs(float(tol_px), output_type="ndarray")
     if not len(pairs):

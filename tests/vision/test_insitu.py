@@ -349,3 +349,6 @@ def test_the_kept_twin_is_the_one_seen_in_most_views():
     assert _one_per_detection(uv, n_views, spread_sq, 0.01).tolist() == [False, True, False, True, False, True]
     assert _one_per_detection(uv, n_views, spread_sq, 0.0).all()
     assert _one_per_detection(uv[:1], n_views[:1], spread_sq[:1], 0.01).tolist() == [True]
+    for bad in (float("nan"), -1.0, float("inf"), 5.0):  # a tolerance that would merge distinct keypoints, or none
+        with pytest.raises(ValueError, match="duplicate_px"):
+            _one_per_detection(uv, n_views, spread_sq, bad)
