@@ -978,7 +978,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
     T_site_b2 = invert(T_wb1) @ np.array(truth["T_world_base_locate"])
     # the features the pipeline found (linearisation), each detection once: SIFT's twin keypoints (two orientations at
     # one pixel) are one measurement, which the pipeline's map holds twice
-    one = one_per_detection(kmap)
+    one, merge = one_per_detection(kmap)
     out["keypoint_twin_points"] = float(len(kmap) - len(one))
     X_site = transform_points(kmap.T_world_ref, kmap.p_ref[one])
     names = [ref, *surround, *loc]
@@ -1004,7 +1004,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
                             thesis_refine, central=(cal.camera, invert(mount) @ he_true.T_mount_cam),
                             profile=profile) if he_true is not None and he_true.success else nan
     priors = lab["priors"]
-    vis = (observation_pattern(kmap, len(names), res.used[0], len(loc))[:, one]
+    vis = (observation_pattern(kmap, len(names), res.used[0], len(loc)) @ merge  # seen where either twin was
            if res.success and res.used is not None else None)
     crb = crb_base_pose(robot, eps_true, kept, ident.covariance, mount @ floor["T_lens_central"], cam.project,
                         T_site_b2, views, X_site, cam.size, sigma_views, sigma_enc, K=cam.K, vis=vis, dist=cam.dist,

@@ -194,11 +194,10 @@ def map_points(result, reference: str, T_table_ref, names_for_map) -> tuple:
     ``T_table_ref``. Each detection counts once (:func:`~bench.vision.insitu.one_per_detection`)."""
     obs, rm = result.observations, result.reference_matches
     kmap = build_map(obs[reference], [obs[n] for n in names_for_map], matches=[rm[n] for n in names_for_map])
-    one = one_per_detection(kmap)  # each detection once: SIFT's twin keypoints (one pixel) are one measurement
-    ref_idx = kmap.ref_index[one]
-    seen = {reference: np.ones(len(ref_idx), bool)}
+    one, merge = one_per_detection(kmap)  # each detection once: SIFT's twin keypoints (one pixel) are one measurement
+    seen = {reference: np.ones(len(one), bool)}
     for n, m in rm.items():
-        seen[n] = np.isin(ref_idx, m.i1)
+        seen[n] = np.isin(kmap.ref_index, m.i1) @ merge  # found where either twin was
     return transform_points(T_table_ref, kmap.p_ref[one]), seen
 
 

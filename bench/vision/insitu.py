@@ -247,16 +247,24 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
                        T_world_ref, stats, reference.x_n[idx], T_ref_views, observations, idx)
 
 
-def one_per_detection(kmap: KeypointMap, tol_px: float = TWIN_PX) -> np.ndarray:
-    """Indices of the map points left when each detection counts once: of the points whose reference keypoints lie
-    within ``tol_px`` of each other (SIFT's orientations of one keypoint), the one seen in most surrounding views.
+def one_per_detection(kmap: KeypointMap, tol_px: float = TWIN_PX) -> tuple:
+    """The map points left when each detection counts once: of the points whose reference keypoints lie within
+    ``tol_px`` of each other (SIFT's orientations of one keypoint), the one seen in most surrounding views.
 
     Returns
     -------
-    ndarray (M',) int
-        Increasing map indices.
+    one : ndarray (M',) int
+        Increasing map indices of the points kept.
+    merge : ndarray (M, M') bool
+        ``merge[i, j]``: map point ``i`` is a copy of kept point ``j`` (or ``j`` itself). A detection is observed
+        wherever any of its copies was: ``vis @ merge`` for a pattern ``vis (V, M)`` over the map points.
     """
-    return np.flatnonzero(_one_per_detection(kmap.features.uv, kmap.n_views, kmap.spread_m**2, tol_px))
+    uv = kmap.features.uv
+    one = np.flatnonzero(_one_per_detection(uv, kmap.n_views, kmap.spread_m**2, tol_px))
+    if len(one) == len(uv):
+        return one, np.eye(len(uv), dtype=bool)
+    nearest = cKDTree(uv[one]).query(uv)[1]  # each copy lies within tol_px of its kept twin, nearer than any other
+    return one, np.eye(len(one), dtype=bool)[nearest]
 
 
 def _one_per_detection(uv, n_views, spread_sq, tol_px: float) -> np.ndarray:

@@ -327,13 +327,23 @@ def test_one_map_point_per_detection(ta40, monkeypatch):
     views, loc, p_world, T_true = _campaign(ta40, rng, eps)
     thesis = build_map(views[0], views[1:])
     assert len(thesis) == 250 + n_dup and thesis.stats["duplicate_detections"] == 0
-    one = one_per_detection(thesis)
+    one, merge = one_per_detection(thesis)
     assert len(one) == 250 and np.all(np.diff(one) > 0)
+    assert merge.shape == (290, 250) and np.all(merge.sum(axis=1) == 1) and merge.sum() == 290
+    assert np.all(merge[one, np.arange(250)])  # each kept point stands for itself, and each copy for its twin
+    assert np.abs(thesis.p_ref - thesis.p_ref[one][merge.argmax(axis=1)]).max() < 1e-9
+    copies = np.setdiff1d(np.arange(290), one)
+    vis = np.zeros((2, 290), bool)
+    vis[1, copies] = True  # a view where only the copies were matched: their detections are observed there
+    seen = (vis @ merge)[1]
+    assert seen.sum() == n_dup and not (vis @ merge)[0].any()
+    twin_uv = {tuple(u) for u in thesis.features.uv[copies]}
+    assert all((tuple(u) in twin_uv) == f for u, f in zip(thesis.features.uv[one], seen, strict=True))
     uv = thesis.features.uv[one]
     assert np.linalg.norm(uv[:, None] - uv[None] + np.diag(np.full(len(uv), np.inf))[..., None], axis=2).min() > 1
     kmap = build_map(views[0], views[1:], MapConfig(duplicate_px=TWIN_PX))
     assert len(kmap) == 250 and kmap.stats["duplicate_detections"] == n_dup
-    assert np.array_equal(kmap.features.uv, uv) and len(one_per_detection(kmap)) == 250
+    assert np.array_equal(kmap.features.uv, uv) and len(one_per_detection(kmap)[0]) == 250
     for m, n_points in ((thesis, 290), (kmap, 250)):
         res = locate(m, loc[0], loc[1], rng=1, refine="bundle")
         assert res.success and np.abs(res.T_world_base - T_true).max() <= 1e-9
