@@ -175,9 +175,9 @@ def test_gauss_newton_step_is_the_least_squares_solution():
 
 
 def test_converges_where_the_step_criterion_random_walks(monkeypatch):
-    """Corners of a realistic-imaging rig campaign (camera_calibration_webcam, seed 8, thesis extractor): LM reaches
-    the optimum in ~28 iterations and then stepped at rounding level (~1e-10 relative, above the 1e-12 step
-    tolerance) until 200 iterations ran out; the Gauss-Newton decrease criterion stops it there."""
+    """Corners of a realistic-imaging rig campaign (camera_calibration_webcam at rig.distance_mm 1000, seed 8, thesis
+    extractor): LM reaches the optimum in ~28 iterations and then stepped at rounding level (~1e-10 relative, above
+    the 1e-12 step tolerance) until 200 iterations ran out; the Gauss-Newton decrease criterion stops it there."""
     data = np.load(Path(__file__).resolve().parents[1] / "data" / "calibration" / "realistic_webcam_rig_seed8.npz")
     arrays = [data[f"arr_{i}"] for i in range(len(data.files))]
     Xs, uvs = arrays[: len(arrays) // 2], arrays[len(arrays) // 2:]
@@ -204,10 +204,10 @@ def test_converges_where_the_step_criterion_random_walks(monkeypatch):
 def test_converges_along_a_flat_valley(name, image_size):
     """Rig corners where LM creeps along a flat, curved valley: every step lowers the cost as the Gauss-Newton model
     predicts and the next points elsewhere. camera_calibration_webcam seed 9 (realistic imaging, the radial-only
-    webcam lens, the thesis's extractor; ``bench sim render scenarios/camera_calibration_webcam.yaml --seed 9``) took
-    366 iterations to the Gauss-Newton criterion; xy_table_underwater seed 14 (OpenCV's corners of its calibration
-    views) 4,493 (55 s). Both failed at the old cap of 200 ("not converged"). The creep criterion stops them once 50
-    iterations move the estimate by < 0.01 standard deviations, at OpenCV's optimum."""
+    webcam lens, the thesis's extractor; ``bench sim render scenarios/camera_calibration_webcam.yaml --seed 9 --set
+    rig.distance_mm=1000``) took 366 iterations to the Gauss-Newton criterion; xy_table_underwater seed 14 (OpenCV's
+    corners of its calibration views) 4,493 (55 s). Both failed at the old cap of 200 ("not converged"). The creep
+    criterion stops them once 50 iterations move the estimate by < 0.01 standard deviations, at OpenCV's optimum."""
     data = np.load(Path(__file__).resolve().parents[1] / "data" / "calibration" / f"{name}.npz")
     arrays = [data[f"arr_{i}"] for i in range(len(data.files))]
     Xs, uvs = arrays[: len(arrays) // 2], [u.astype(float) for u in arrays[len(arrays) // 2:]]
