@@ -37,7 +37,9 @@ def seed_rows(sweeps) -> tuple[list, dict]:
         for r in read_runs(sweep):
             if not r["result_path"]:
                 continue
-            t = json.loads(Path(r["result_path"]).read_text())["tables"]["table3"]
+            t = json.loads(Path(r["result_path"]).read_text()).get("tables", {}).get("table3")
+            if t is None:
+                raise ValueError(f"{sweep}: its runs have no Table 3 table (not a camera_calibration_webcam sweep)")
             rows.append({**{k: float(np.std(t[k][:7], ddof=1)) for k in STATS}, "chi": float(t["chi_px"][7])})
             thesis = {k: float(np.std(t[f"thesis_{k}"][:7], ddof=1)) for k in STATS}
     return rows, thesis
@@ -66,10 +68,18 @@ def main(argv=None) -> int:
     for arg in args.sweeps:
         dist, _, folders = arg.partition("=")
         try:
-            rows, th = seed_rows([Path(f) for f in folders.split(",")])
-            data[float(dist)] = rows
+            dist = float(dist)
         except ValueError:
             ap.error(f"{arg}: expected DISTANCE_MM=SWEEP[,SWEEP]")
+        if not np.isfinite(dist) or dist <= 0:
+            ap.error(f"{arg}: the distance must be a positive number of mm")
+        if dist in data:
+            ap.error(f"{arg}: {dist:g} mm given twice (give its sweeps as {dist:g}=SWEEP,SWEEP)")
+        try:
+            rows, th = seed_rows([Path(f) for f in folders.split(",")])
+        except ValueError as exc:
+            ap.error(str(exc))
+        data[dist] = rows
         if not rows:
             ap.error(f"{arg}: no finished run")
         thesis = thesis or th

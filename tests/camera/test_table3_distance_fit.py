@@ -61,9 +61,17 @@ def test_finds_the_distance_whose_spread_is_table_3s(tmp_path, capsys):
 
 def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
     _sweep(tmp_path / "d800", 800.0, 800.0, np.random.default_rng(1), seeds=3)
-    for argv, msg in ((["x"], "x: expected DISTANCE_MM=SWEEP"), ([f"800={tmp_path / 'none'}"], "no finished run"),
+    (tmp_path / "other").mkdir()  # a sweep of another kind: results without Table 3
+    (tmp_path / "other" / "r.json").write_text(json.dumps({"tables": {"views": {}}}))
+    store = SweepStore(tmp_path / "other" / "sweep.sqlite")
+    store.add("r", {}, 1, {"status": "done", "message": "", "metrics": {}, "timings": {}, "versions": {},
+                           "result_path": str(tmp_path / "other" / "r.json")})
+    store.close()
+    for argv, msg in ((["x"], "x: expected DISTANCE_MM=SWEEP"), (["nan=x"], "positive number of mm"), ([f"800={tmp_path / 'none'}"], "no finished run"),
                       ([f"800={tmp_path / 'd800'}"], "at least two distances"),
-                      ([f"800={tmp_path / 'd800'}", "--stats", "gamma"], "--stats: unknown ['gamma']")):
+                      ([f"800={tmp_path / 'd800'}", "--stats", "gamma"], "--stats: unknown ['gamma']"),
+                      ([f"800={tmp_path / 'd800'}", f"800={tmp_path / 'd800'}"], "800 mm given twice"),
+                      ([f"800={tmp_path / 'other'}", f"900={tmp_path / 'd800'}"], "no Table 3 table")):
         with pytest.raises(SystemExit):
             F.main(argv)
         assert msg in capsys.readouterr().err
