@@ -67,7 +67,8 @@ def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
     store.add("r", {}, 1, {"status": "done", "message": "", "metrics": {}, "timings": {}, "versions": {},
                            "result_path": str(tmp_path / "other" / "r.json")})
     store.close()
-    for argv, msg in ((["x"], "x: expected DISTANCE_MM=SWEEP"), (["nan=x"], "positive number of mm"), ([f"800={tmp_path / 'none'}"], "no finished run"),
+    for argv, msg in ((["x"], "x: expected DISTANCE_MM=SWEEP"), (["nan=x"], "positive number of mm"),
+                      ([f"800={tmp_path / 'none'}"], "no finished run"),
                       ([f"800={tmp_path / 'd800'}"], "at least two distances"),
                       ([f"800={tmp_path / 'd800'}", "--stats", "gamma"], "--stats: unknown ['gamma']"),
                       ([f"800={tmp_path / 'd800'}", f"800={tmp_path / 'd800'}"], "800 mm given twice"),
