@@ -91,6 +91,10 @@ def main(argv=None) -> int:
         band = sum(0.33 <= r["chi"] <= 0.58 for r in data[dist])
         print(f"{dist:6.0f} mm: {len(data[dist])} runs; " + ", ".join(f"{k} {med[k]:.2f}" for k in STATS)
               + f"; chi {med['chi']:.3f} ({band} in 0.33-0.58)")
+    logd = np.log(sorted(data))
+    print("power-law exponents: " + ", ".join(
+        f"{k} {np.polyfit(logd, np.log([np.median([r[k] for r in data[x]]) for x in sorted(data)]), 1)[0]:.2f}"
+        for k in stats))
     best = fit_distance(data, thesis, stats)
     rng = np.random.default_rng(0)
     boot = [fit_distance({d: [rows[i] for i in rng.integers(0, len(rows), len(rows))] for d, rows in data.items()},
