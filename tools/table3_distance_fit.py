@@ -45,13 +45,15 @@ def seed_rows(sweeps) -> tuple[list, dict]:
     return rows, thesis
 
 
+def power_law(data: dict, key: str) -> np.ndarray:
+    """``[exponent, log factor]`` of ``median(key) = factor * distance^exponent`` through the distances' medians."""
+    dists = sorted(data)
+    return np.polyfit(np.log(dists), np.log([np.median([r[key] for r in data[d]]) for d in dists]), 1)
+
+
 def fit_distance(data: dict, thesis: dict, stats) -> float:
     """The distance (mm) whose power-law spreads best match Table 3's (least squares in logarithms)."""
-    d = np.log(sorted(data))
-    cost = np.zeros_like(GRID_MM)
-    for k in stats:
-        y = np.log([np.median([r[k] for r in data[dist]]) for dist in sorted(data)])
-        cost += (np.polyval(np.polyfit(d, y, 1), np.log(GRID_MM)) - np.log(thesis[k])) ** 2
+    cost = sum((np.polyval(power_law(data, k), np.log(GRID_MM)) - np.log(thesis[k])) ** 2 for k in stats)
     return float(GRID_MM[np.argmin(cost)])
 
 
@@ -59,8 +61,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sweeps", nargs="+", metavar="D=SWEEP[,SWEEP]")
     ap.add_argument("--stats", default="alpha_px,beta_px", help=f"spreads to fit, of {', '.join(STATS)}")
-    ap.add_argument("--bootstrap", type=int, default=2000)
+    ap.add_argument("--bootstrap", type=int, default=2000, help="resamples for the interval (default 2000)")
     args = ap.parse_args(argv)
+    if args.bootstrap < 1:
+        ap.error(f"--bootstrap: expected at least 1 resample, got {args.bootstrap}")
     stats = args.stats.split(",")
     if unknown := sorted(set(stats) - set(STATS)):
         ap.error(f"--stats: unknown {unknown}; expected some of {', '.join(STATS)}")
@@ -91,17 +95,13 @@ def main(argv=None) -> int:
         band = sum(0.33 <= r["chi"] <= 0.58 for r in data[dist])
         print(f"{dist:6.0f} mm: {len(data[dist])} runs; " + ", ".join(f"{k} {med[k]:.2f}" for k in STATS)
               + f"; chi {med['chi']:.3f} ({band} in 0.33-0.58)")
-    logd = np.log(sorted(data))
-    print("power-law exponents: " + ", ".join(
-        f"{k} {np.polyfit(logd, np.log([np.median([r[k] for r in data[x]]) for x in sorted(data)]), 1)[0]:.2f}"
-        for k in stats))
+    print("power-law exponents: " + ", ".join(f"{k} {power_law(data, k)[0]:.2f}" for k in stats))
     best = fit_distance(data, thesis, stats)
     rng = np.random.default_rng(0)
     boot = [fit_distance({d: [rows[i] for i in rng.integers(0, len(rows), len(rows))] for d, rows in data.items()},
                          thesis, stats) for _ in range(args.bootstrap)]
     lo, hi = np.percentile(boot, [5, 95])
-    d = np.log(sorted(data))
-    chi = np.polyfit(d, np.log([np.median([r["chi"] for r in data[x]]) for x in sorted(data)]), 1)
+    chi = power_law(data, "chi")
     print(f"fitted to {', '.join(stats)}: {best:.0f} mm, 90 % bootstrap [{lo:.0f}, {hi:.0f}]; "
           f"chi there (power law through the medians) {np.exp(np.polyval(chi, np.log(best))):.3f}")
     return 0

@@ -71,6 +71,7 @@ def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
                       ([f"800={tmp_path / 'none'}"], "no finished run"),
                       ([f"800={tmp_path / 'd800'}"], "at least two distances"),
                       ([f"800={tmp_path / 'd800'}", "--stats", "gamma"], "--stats: unknown ['gamma']"),
+                      ([f"800={tmp_path / 'd800'}", "--bootstrap", "0"], "at least 1 resample"),
                       ([f"800={tmp_path / 'd800'}", f"800={tmp_path / 'd800'}"], "800 mm given twice"),
                       ([f"800={tmp_path / 'other'}", f"900={tmp_path / 'd800'}"], "no Table 3 table")):
         with pytest.raises(SystemExit):
