@@ -259,17 +259,22 @@ def one_per_detection(kmap: KeypointMap, tol_px: float = TWIN_PX) -> tuple:
         ``merge[i, j]``: map point ``i`` is a copy of kept point ``j`` (or ``j`` itself). A detection is observed
         wherever any of its copies was: ``vis @ merge`` for a pattern ``vis (V, M)`` over the map points.
     """
-    uv = kmap.features.uv
-    one = np.flatnonzero(_one_per_detection(uv, kmap.n_views, kmap.spread_m**2, tol_px))
-    if len(one) == len(uv):
-        return one, np.eye(len(uv), dtype=bool)
-    nearest = cKDTree(uv[one]).query(uv)[1]  # each copy lies within tol_px of its kept twin, nearer than any other
-    return one, np.eye(len(one), dtype=bool)[nearest]
+    rep = _twin_representatives(kmap.features.uv, kmap.n_views, kmap.spread_m**2, tol_px)
+    one = np.flatnonzero(rep == np.arange(len(rep)))
+    return one, rep[:, None] == one[None]
 
 
 def _one_per_detection(uv, n_views, spread_sq, tol_px: float) -> np.ndarray:
-    """Which of the points to keep so that no two keypoints lie within ``tol_px`` of each other (one per group of
-    coincident detections: the most surrounding views, then the smallest spread, then the first).
+    """Which of the points to keep so that no two keypoints lie within ``tol_px`` of each other: ``(M,) bool``, the
+    representatives of :func:`_twin_representatives`."""
+    rep = _twin_representatives(uv, n_views, spread_sq, tol_px)
+    return rep == np.arange(len(rep))
+
+
+def _twin_representatives(uv, n_views, spread_sq, tol_px: float) -> np.ndarray:
+    """Each point's kept twin: the points whose keypoints are linked by distances within ``tol_px`` are one group of
+    coincident detections, represented by its best point (the most surrounding views, then the smallest spread,
+    then the first).
 
     Parameters
     ----------
@@ -280,24 +285,23 @@ def _one_per_detection(uv, n_views, spread_sq, tol_px: float) -> np.ndarray:
 
     Returns
     -------
-    ndarray (M,) bool
+    ndarray (M,) int
+        The index of the point that represents each point's group (a point kept represents itself).
     """
     if not (np.isfinite(tol_px) and 0 <= tol_px <= 1):
         raise ValueError(f"duplicate_px: expected 0 (keep every keypoint) up to 1 px (SIFT's twins coincide to "
                          f"1e-6 px), got {tol_px!r}")
-    keep = np.ones(len(uv), bool)
+    rep = np.arange(len(uv))
     if tol_px == 0 or len(uv) < 2:
-        return keep
+        return rep
     pairs = cKDTree(uv).query_pairs(float(tol_px), output_type="ndarray")
     if not len(pairs):
-        return keep
+        return rep
     _, label = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
                                                shape=(len(uv), len(uv))), directed=False)
-    order = np.lexsort((np.arange(len(uv)), spread_sq, -np.asarray(n_views)))  # best first
-    first = np.zeros(len(uv), bool)
-    _, at = np.unique(label[order], return_index=True)
-    first[order[at]] = True
-    return first
+    order = np.lexsort((rep, spread_sq, -np.asarray(n_views)))  # best first
+    _, at = np.unique(label[order], return_index=True)  # the labels are 0 .. n-1: one best point per label
+    return order[at][label]
 
 
 @dataclass
