@@ -206,7 +206,24 @@ def _preflight(args, stack) -> None:
     if args.command in ("locate", "calibrate-camera") and getattr(args, "out", None):
         from bench.fileio import writing_output_dir
 
-        stack.enter_context(writing_output_dir(args.out, args.command, force=args.force))
+        stack.enter_context(writing_output_dir(args.out, args.command, force=args.force, identity=_identity(args)))
+
+
+def _identity(args) -> str:
+    """``bench locate`` / ``calibrate-camera --out``'s identity: the inputs and every option the result depends on
+    (a re-run with them writes into the folder again; another camera file, seed, model, ... is refused without
+    --force, naming what differs)."""
+    from bench.fileio import settings_identity
+
+    if args.command == "calibrate-camera":
+        return settings_identity({"dataset": args.dataset, "robot": args.robot}, model=args.model, k3=args.k3,
+                                 extractor=args.extractor, target=args.target, inner=args.inner,
+                                 square_mm=args.square_mm, squares=args.squares, size_mm=args.size_mm,
+                                 margin_mm=args.margin_mm)
+    return settings_identity({"dataset": args.dataset, "camera": args.camera, "robot": args.robot,
+                              "priors": args.priors}, method=args.method, pnp=args.pnp, refine=args.refine,
+                             guided=args.guided, loss=args.loss, map_points=args.map_points,
+                             keypoints=args.keypoints, ins_tilt=args.ins_tilt, seed=args.seed)
 
 
 def _add_interchange_commands(sub) -> None:

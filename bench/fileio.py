@@ -293,8 +293,11 @@ def check_output_dir(path, command: str, *, force: bool = False, identity: str |
                             "choose another folder")
     if identity is not None and marker.get("identity") not in (None, identity):
         if not force:
-            raise OutputRefused(f"{option} {path}: holds the output of bench {command} for {marker['identity']!r}, "
-                                f"not {identity!r}; --force replaces it, or choose another folder")
+            diff = _settings_difference(marker["identity"], identity)
+            what = (f"with other settings: {diff}" if diff else
+                    f"for {marker['identity']!r}, not {identity!r}")
+            raise OutputRefused(f"{option} {path}: holds the output of bench {command} {what}; --force replaces it, "
+                                "or choose another folder")
         check_replaceable(path, option)
         return "replace"
     if force:
@@ -334,6 +337,30 @@ def prepare_output_dir(path, command: str) -> Path:
     check_output_dir(path, command)
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def settings_identity(paths: dict, **settings) -> str:
+    """An output folder's identity made of what it was computed from: the input files ``paths`` (name -> path or
+    None; resolved, so a relative path names the same file from anywhere) and the other ``settings`` (JSON, keys
+    sorted). A re-run with the same writes into the folder again; other settings are refused unless ``force``
+    (:func:`check_output_dir`), the refusal naming each setting that differs."""
+    files = {k: None if v is None else str(Path(v).resolve()) for k, v in paths.items()}
+    return json.dumps({**files, **settings}, sort_keys=True, default=str)
+
+
+def _settings_difference(have, want) -> str | None:
+    """``"seed 1 (this call: 0), ..."`` for two :func:`settings_identity` strings; None if either is not one."""
+    try:
+        a, b = json.loads(have), json.loads(want)
+    except (TypeError, ValueError):
+        return None
+    if not (isinstance(a, dict) and isinstance(b, dict)):
+        return None
+    def shown(v):
+        return "not given" if v is None else v
+
+    return ", ".join(f"{k} {shown(a.get(k))} (this call: {shown(b.get(k))})" for k in sorted(set(a) | set(b))
+                     if a.get(k) != b.get(k))
 
 
 def check_replaceable(path, option: str = "--out") -> None:

@@ -86,6 +86,29 @@ def test_claim_rules(tmp_path):
         check_output_dir(tmp_path / "broken", "run", force=True)
 
 
+def test_settings_identity_names_what_differs(tmp_path):
+    """An output computed from files and settings: the same ones (a relative path to the same file too) write into it
+    again; others are refused naming each difference; --force replaces it."""
+    from bench.fileio import settings_identity
+
+    (tmp_path / "camera.yaml").write_text("x")
+    one = settings_identity({"camera": tmp_path / "camera.yaml", "priors": None}, seed=1, refine="joints")
+    out = claim_output_dir(tmp_path / "out", "locate", identity=one)
+    cwd = os.getcwd()
+    try:
+        os.chdir(tmp_path)
+        again = settings_identity({"camera": "camera.yaml", "priors": None}, refine="joints", seed=1)
+    finally:
+        os.chdir(cwd)
+    assert again == one and check_output_dir(out, "locate", identity=again) == "own"
+    other = settings_identity({"camera": tmp_path / "camera.yaml", "priors": tmp_path / "p.yaml"}, seed=2,
+                              refine="joints")
+    with pytest.raises(OutputRefused, match=r"with other settings: priors not given \(this call: .*p\.yaml\), "
+                                            r"seed 1 \(this call: 2\); --force replaces it"):
+        check_output_dir(out, "locate", identity=other)
+    assert check_output_dir(out, "locate", identity=other, force=True) == "replace"
+
+
 def test_a_claim_killed_before_its_marker_landed_is_claimed_again(tmp_path):
     """SIGKILL between the folder's creation and the marker's rename leaves only the marker's temporary file: the
     resumed command (a sweep's run) claims the folder again instead of refusing it as foreign, forever."""
@@ -282,6 +305,11 @@ def test_locate(tmp_path, places, planar, capsys):
     refused(capsys, base + ["--out", str(out), "--force"], "holds 'notes.txt'")
     assert (out / "notes.txt").read_text() == "mine"
     refused(capsys, ["calibrate-camera", str(planar), "--out", str(out)], "holds the output of bench locate")
+    (out / "notes.txt").unlink()
+    before = snapshot(out)  # another seed would overwrite a localisation made with other settings: refused
+    refused(capsys, base + ["--out", str(out), "--seed", "4"], "with other settings: seed 0 (this call: 4)")
+    assert snapshot(out) == before
+    assert main(base + ["--out", str(out), "--seed", "4", "--force"]) == 0
 
 
 def test_calibrate_camera(tmp_path, places, planar, capsys):

@@ -48,7 +48,7 @@ import yaml
 
 from bench.dataset import load_dataset
 from bench.errors import ConfigError
-from bench.fileio import atomic_write_text, claimed_output_dir
+from bench.fileio import atomic_write_text, claimed_output_dir, settings_identity
 from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, invert, rotation_angle
 
@@ -343,10 +343,32 @@ def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None
         encoder_sigma_rad(dataset)
         if priors is not None:
             read_priors(priors)
-    # --out: claimed as bench faults' output before any work (bench.fileio); removed again if the run fails
-    with claimed_output_dir(out, "faults", force=force, identity=str(dataset.resolve())) as out:
+    # --out: claimed as bench faults' output before any work (bench.fileio); removed again if the run fails. A re-run
+    # with the same dataset and settings writes into it again (the faults asked for replace their rows, the others'
+    # stay); other settings are refused without force.
+    identity = settings_identity({"dataset": dataset, "camera": camera, "robot": robot, "priors": priors}, seed=seed,
+                                 refine=refine, keypoints=keypoints)
+    with claimed_output_dir(out, "faults", force=force, identity=identity) as out:
         rows = _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors, keypoints)
     return rows
+
+
+def _with_earlier_rows(out: Path, rows: list) -> list:
+    """``rows`` and the rows of an earlier run into ``out`` (same dataset and settings: its claim) for the faults
+    not run again whose folder is still there, in :data:`FAULTS`' order: the table keeps every fault's row."""
+    try:
+        earlier = json.loads((out / "faults.json").read_text())
+    except (OSError, ValueError):
+        return rows
+    done = {r["fault"] for r in rows}
+    # faults.json has null for a non-finite figure: no error (NaN) or no protection level (refused: inf)
+    nulls = {"pos_err_mm": float("nan"), "rot_err_deg": float("nan"), "protection_radius_mm": float("inf"),
+             "protection_angle_deg": float("inf")}
+    kept = [{**r, **{k: v for k, v in nulls.items() if r.get(k) is None}} for r in earlier
+            if isinstance(r, dict) and r.get("fault") in FAULTS and r["fault"] not in done
+            and (out / r["fault"]).is_dir()]
+    order = list(FAULTS)
+    return sorted(rows + kept, key=lambda r: order.index(r["fault"]))
 
 
 def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors, keypoints) -> list:
@@ -386,6 +408,7 @@ def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine
             print(f"{name:<16} pos {row['pos_err_mm']:9.3f} mm  rot {row['rot_err_deg']:8.4f} deg  "
                   f"{row['integrity']:<8} PR {row['protection_radius_mm']:7.2f} mm {row['protection_angle_deg']:.3f} "
                   f"deg{'  SILENT' if row['silent'] else ''}")
+    rows = _with_earlier_rows(out, rows)
     cols = ["fault", "pos_err_mm", "rot_err_deg", "integrity", "protection_radius_mm", "protection_angle_deg",
             "silent", "injected"]
     buf = io.StringIO()

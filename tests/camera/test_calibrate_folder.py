@@ -37,8 +37,13 @@ def test_plain_folder_of_real_photos(tmp_path, capsys):
     cam3 = read_camera_yaml(out3 / "camera.yaml")
     assert rep3["k3"] and cam3.dist[4] != 0.0 and abs(cam3.dist[4] - rep3["opencv_dist"][4]) < 1e-3
     assert rep3["reproj_rms_px"] <= rep["reproj_rms_px"] + 1e-9  # one more parameter never fits worse
-    # a folder of photos without a target, or a target with a wrong flag, is refused in one line
+    # the k3 calibration would overwrite the first one's files: refused, naming what differs, without --force
     capsys.readouterr()
+    first = (out / "camera.yaml").read_bytes()
+    assert main(["calibrate-camera", str(WEBCAM), *CHESS, "--k3", "--out", str(out)]) == 2
+    assert "with other settings: k3 False (this call: True)" in capsys.readouterr().err
+    assert (out / "camera.yaml").read_bytes() == first
+    # a folder of photos without a target, or a target with a wrong flag, is refused in one line
     assert main(["calibrate-camera", str(WEBCAM), "--out", str(tmp_path / "x")]) == 2
     assert "give --target chessboard --inner WxH --square-mm S" in capsys.readouterr().err
     assert main(["calibrate-camera", str(WEBCAM), *CHESS, "--size-mm", "5",

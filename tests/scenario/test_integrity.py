@@ -252,6 +252,30 @@ def test_fault_out_uses_the_shared_output_claim(rendered, tmp_path, capsys):
     assert (tmp / "faults" / OUTPUT_MARKER).is_file() and output_marker(tmp / "faults")["command"] == "faults"
 
 
+def test_faults_rerun_of_some_faults_keeps_the_other_rows(rendered, tmp_path, capsys):
+    """bench faults into its own output with the same dataset and settings: the faults asked for are run again and
+    replace their rows, every other fault's row stays in faults.csv / faults.json; other settings (another seed, lab
+    files) are refused naming them, and leave the folder as it was."""
+    import json
+
+    tmp, camera, robot = rendered
+    out = tmp_path / "faults"
+    args = ["faults", str(tmp / "ds"), "--out", str(out), "--camera", str(camera), "--robot", str(robot)]
+    assert main(args + ["--fault", "clean", "--fault", "swap_images"]) == 0
+    first = json.loads((out / "faults.json").read_text())
+    assert main(args + ["--fault", "clean"]) == 0
+    rows = json.loads((out / "faults.json").read_text())
+    assert [r["fault"] for r in rows] == ["clean", "swap_images"]
+    assert rows[1] == first[1] and rows[1]["integrity"] == "refused" and rows[1]["protection_radius_mm"] is None
+    csv_rows = (out / "faults.csv").read_text().splitlines()
+    assert len(csv_rows) == 3 and csv_rows[2].startswith("swap_images,") and ",refused,inf,inf," in csv_rows[2]
+    capsys.readouterr()
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert main(args + ["--fault", "clean", "--seed", "5"]) == 2
+    assert "with other settings: seed 0 (this call: 5)" in capsys.readouterr().err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+
+
 def _joints_setup(rendered):
     """``(tmp, camera, robot, T_true, kw)``: the rendered dataset, its oracle files, the true located base (survey
     base frame) and the keywords of a ``refine: joints`` localisation of it."""
