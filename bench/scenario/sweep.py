@@ -382,6 +382,34 @@ def check_seeds_and_workers(seeds: list, workers, backend: str = "local", addres
         raise BenchError(f"--workers: must be >= 1 (omit it for one per core), got {workers!r}")
 
 
+def check_resume(out: Path, scenario_text: str, fixed: dict, swept: set) -> None:
+    """Refuse to resume the sweep in ``out`` with other settings, whose runs its summary would pool with the new ones:
+    a finished or failed run made with other fixed overrides (``--set``), without one of the keys now swept, or from
+    another text of the scenario file (its run id, which hashes the text, no longer matches). More seeds and more
+    values of the swept keys extend the sweep. One line (:class:`~bench.fileio.OutputRefused`); ``--force`` starts
+    the sweep afresh."""
+    from bench.fileio import OutputRefused
+
+    rows = read_runs(out, finished_only=False)
+    for r in rows:
+        given = {k: v for k, v in r["params"].items() if k not in swept}
+        if given != fixed:
+            diff = ", ".join(f"{k}={json.dumps(given[k]) if k in given else '(not set)'} (this call: "
+                             f"{json.dumps(fixed[k]) if k in fixed else '(not set)'})"
+                             for k in sorted(set(given) | set(fixed)) if given.get(k) != fixed.get(k))
+            raise OutputRefused(f"--out {out}: its sweep ran with other --set overrides: {diff}; --force starts it "
+                                "afresh, or choose another folder")
+        missing = sorted(swept - set(r["params"]))
+        if missing:
+            raise OutputRefused(f"--out {out}: its sweep did not sweep {missing[0]} (its runs have no value of it); "
+                                "--force starts it afresh, or choose another folder")
+    changed = [r for r in rows if run_id(scenario_text, r["params"], r["seed"]) != r["run_id"]]
+    if changed:
+        raise OutputRefused(f"--out {out}: {len(changed)} of its {len(rows)} runs were made from another text of the "
+                            "scenario file (it changed since); --force starts the sweep afresh, or choose another "
+                            "folder")
+
+
 def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", address=None, workers=None,
               progress: bool = True, fixed: dict | None = None, force: bool = False) -> dict:
     """Run (or resume) a sweep; returns ``{"store": path, "summary": path, "plots": [...], "rows": n}``.
@@ -408,6 +436,9 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
         load_scenario(scenario, seed, [f"{k}={json.dumps(v)}" for k, v in {**fixed, **overrides}.items()])
     out = Path(out)
     check_output_dir(out, "sweep", force=force, identity=scenario.name)
+    text = scenario.read_text()
+    if not force:
+        check_resume(out, text, fixed, {k for k, _ in params})
     started = _ray_connect(address) if backend == "ray" else False  # a cluster that refuses: nothing written
     before = foreign_entries(out)  # a user's file in an earlier sweep's folder stays the user's
     try:
@@ -419,7 +450,6 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
 
             ray.shutdown()
         raise
-    text = scenario.read_text()
     todo, all_tasks = [], grid(params, seeds)
     finished = store.finished()
     for overrides, seed in all_tasks:

@@ -203,3 +203,35 @@ def test_read_runs_reads_a_sweep_without_its_writer(tmp_path):
     assert [r["run_id"] for r in read_runs(tmp_path)] == ["b", "c"]
     assert read_runs(tmp_path, finished_only=False) == rows
     assert read_runs(tmp_path)[0]["result_path"] == "runs/b/result.json" and read_runs(tmp_path / "none") == []
+
+
+def test_a_resume_with_other_settings_is_refused(tmp_path):
+    """A sweep folder's summary pools all its runs by the swept keys: resuming it with other --set overrides, without
+    a key it swept, sweeping a key its runs lack, or after the scenario file changed would pool runs of two settings.
+    Each is refused in one line naming it, before anything runs; more seeds and more values extend the sweep;
+    --force starts it afresh."""
+    from bench.fileio import OutputRefused
+    from bench.scenario.sweep import SweepStore, check_resume, run_id
+
+    text = SCENARIO.read_text()
+    out = tmp_path / "sw"
+    store = SweepStore(out / "sweep.sqlite")
+    for sigma in ([0.05], [0.1]):
+        params = {**SMALL, "noise.sigmas_mm": sigma}
+        store.add(run_id(text, params, 0), params, 0, {"status": "done", "message": "", "metrics": {}, "timings": {},
+                                                      "versions": {}, "result_path": ""})
+    store.close()
+    fixed = {k: v for k, v in SMALL.items() if k != "noise.sigmas_mm"}
+    check_resume(out, text, fixed, {"noise.sigmas_mm"})  # the same grid: more seeds or values extend it
+    with pytest.raises(OutputRefused, match=r'--set overrides: monte_carlo.trials=3 \(this call: 4\); --force'):
+        check_resume(out, text, {**fixed, "monte_carlo.trials": 4}, {"noise.sigmas_mm"})
+    with pytest.raises(OutputRefused, match=r"noise.sigmas_mm=\[0.(05|1)\] \(this call: \(not set\)\)"):
+        check_resume(out, text, fixed, set())  # the swept key no longer swept (nor set)
+    with pytest.raises(OutputRefused, match="did not sweep arcs.n_points"):
+        check_resume(out, text, fixed, {"noise.sigmas_mm", "arcs.n_points"})
+    with pytest.raises(OutputRefused, match="2 of its 2 runs were made from another text of the scenario file"):
+        check_resume(out, text + "\n# edited\n", fixed, {"noise.sigmas_mm"})
+    with pytest.raises(OutputRefused, match="its sweep ran with other --set overrides"):  # refused before any run
+        run_sweep(SCENARIO, [("noise.sigmas_mm", [[0.05]])], [0], out, workers=1, progress=False,
+                  fixed={**fixed, "monte_carlo.trials": 4})
+    assert len(_rows(out / "sweep.sqlite")) == 2
