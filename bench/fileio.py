@@ -356,6 +356,7 @@ def _settings_difference(have, want) -> str | None:
         return None
     if not (isinstance(a, dict) and isinstance(b, dict)):
         return None
+
     def shown(v):
         return "not given" if v is None else v
 
