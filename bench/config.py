@@ -196,6 +196,16 @@ def _g(x) -> str:
     return f"{x:g}" if isinstance(x, float) else str(x)
 
 
+#: the longest value an error message shows whole (a file's whole text, read as one string, would fill the screen)
+SHOWN_CHARS = 80
+
+
+def _shown(value) -> str:
+    """``repr(value)``, cut to :data:`SHOWN_CHARS` with its length said when longer."""
+    r = repr(value)
+    return r if len(r) <= SHOWN_CHARS else f"{r[:SHOWN_CHARS - 3]}... ({len(r)} characters)"
+
+
 def choices_text(choices) -> str:
     """``a`` / ``a or b`` / ``one of a, b, c``."""
     words = [str(c) for c in choices]
@@ -286,17 +296,18 @@ def message(err: dict, model, data) -> tuple[str, str]:
             key, ann = f"{key}.{name}", _annotated(ann.model_fields[name].annotation)[0]
         problem = "missing"
     elif kind in _TYPES:
-        problem = f"expected {_TYPES[kind]}, got {type(value).__name__} {value!r}"
+        problem = f"expected {_TYPES[kind]}, got {type(value).__name__} {_shown(value)}"
     elif kind == "finite_number":
-        problem = f"must be finite, got {value!r}"
+        problem = f"must be finite, got {_shown(value)}"
     elif kind == "literal_error":
-        problem = f"expected {choices_text(typing.get_args(ann))}, got {value!r}"
+        problem = f"expected {choices_text(typing.get_args(ann))}, got {_shown(value)}"
     elif kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
         text = bounds_text(meta or [type("B", (), err["ctx"])], unit_of(key))
         problem = (f"expected {text}, got {_g(value)}" if ".." in text
                    else f"must be {'in ' if text.startswith(('(', '[')) else ''}{text}, got {_g(value)}")
     elif kind in ("too_short", "too_long", "string_too_short"):
-        problem = f"expected {'a non-empty string' if isinstance(value, str) else _length_text(meta)}, got {value!r}"
+        what = "a non-empty string" if isinstance(value, str) else _length_text(meta)
+        problem = f"expected {what}, got {_shown(value)}"
     elif error is not None:
         problem = str(error)
     else:
@@ -306,7 +317,7 @@ def message(err: dict, model, data) -> tuple[str, str]:
         for p in key_loc:
             whole = whole.get(p) if isinstance(whole, dict) else None
         where = ", ".join(str(i + 1) for i in items if isinstance(i, int))
-        problem += f" (item {where} of {whole!r})"
+        problem += f" (item {where} of {_shown(whole)})"
     return key, problem
 
 

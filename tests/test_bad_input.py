@@ -229,6 +229,32 @@ def test_bench_locate_missing_override_files(good_dataset, tmp_path, capsys):
         assert err.count("\n") == 0 and "nope.yaml" in err and "not found" in err
 
 
+def test_bench_locate_files_given_in_each_others_place(good_dataset, tmp_path, capsys):
+    """A user's swapped or wrong files: each is one short line naming the file and what it is not - a robot file as
+    the camera, an OpenCV camera file or a CSV as the priors, a CSV as the robot (not its whole text), a corrupt
+    encoders.yaml."""
+    import shutil
+
+    root = tmp_path / "ds"
+    shutil.copytree(good_dataset[0], root)
+    (root / "encoders.yaml").write_text("noise_deg: 0.002\nresolution_deg: 0.001\n")
+    camera, robot, joints = root / "camera.yaml", root / "robot.yaml", root / "joints.csv"
+    priors = tmp_path / "priors.yaml"
+    priors.write_text("[1, 2]\n")
+    cases = [(["--camera", str(robot)], "not a camera file: a YAML mapping of"),
+             (["--refine", "joints", "--priors", str(camera)], "camera.yaml: <file>: not valid YAML"),
+             (["--refine", "joints", "--priors", str(priors)], "expected a mapping of covariances, got list"),
+             (["--robot", str(joints)], "joints.csv: <top>: expected a mapping, got str")]
+    for extra, pattern in cases:
+        assert main(["locate", str(root), *extra]) == 2, extra
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and pattern in err and len(err) < 300, err
+    (root / "encoders.yaml").write_text("noise_deg: [1\n")
+    assert main(["locate", str(root), "--refine", "joints"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "encoders.yaml: <file>: not valid YAML" in err, err
+
+
 # ------------------------------------------------------------------------------------------------ scenarios
 
 

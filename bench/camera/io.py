@@ -251,10 +251,7 @@ def read_camera_yaml(path, with_extra: bool = False, allow_refractive: bool = Fa
     try:
         fs = cv2.FileStorage(src, cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as exc:  # OpenCV's parser errors arrive as cv2.error wrapped in SystemError
-        cause = exc.__cause__ or exc.__context__ or exc
-        lines = [ln.strip() for ln in str(cause).splitlines() if ln.strip()]
-        msg = lines[-1] if lines else "parse error"
-        raise ConfigError(src, "file", f"not a readable OpenCV YAML/XML/JSON file ({msg})") from None
+        raise ConfigError(src, "file", _unreadable(path, exc)) from None
     try:
         if not fs.isOpened():
             raise ConfigError(src, "file", "cannot be opened")
@@ -290,6 +287,23 @@ def read_camera_yaml(path, with_extra: bool = False, allow_refractive: bool = Fa
                                                 "here: only the in-situ localisation (bench locate) takes one")
         camera = _refractive(src, cfg["flat_port"], camera)
     return (camera, extra) if with_extra else camera
+
+
+def _unreadable(path: Path, exc) -> str:
+    """Why OpenCV could not read ``path`` as a camera file: another file given in its place (a YAML mapping without
+    ``camera_matrix``, e.g. a robot file) is named by its keys; else OpenCV's own last line."""
+    import yaml
+
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError, OSError):
+        doc = None
+    if isinstance(doc, dict) and "camera_matrix" not in doc:
+        keys = ", ".join(str(k) for k in list(doc)[:5]) + (", ..." if len(doc) > 5 else "")
+        return f"not a camera file: a YAML mapping of {keys} without camera_matrix"
+    cause = exc.__cause__ or exc.__context__ or exc
+    lines = [ln.strip() for ln in str(cause).splitlines() if ln.strip()]
+    return f"not a readable OpenCV YAML/XML/JSON file ({lines[-1] if lines else 'parse error'})"
 
 
 def _refractive(src, v: dict, lens):

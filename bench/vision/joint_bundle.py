@@ -367,14 +367,13 @@ def read_priors(path) -> dict:
     optional cross-covariance) is a one-line error naming the file and key."""
     from pathlib import Path
 
-    import yaml
-
     from bench.errors import ConfigError
+    from bench.fileio import read_yaml
 
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "missing (the lab calibrations' covariances for refine 'joints')")
-    data = yaml.safe_load(path.read_text()) or {}
+    data = read_yaml(path, missing="missing (the lab calibrations' covariances for refine 'joints')") or {}
+    if not isinstance(data, dict):
+        raise ConfigError(path, "<top>", f"expected a mapping of covariances, got {type(data).__name__}")
     out = {}
     for key, name, n in (("intrinsics_covariance_px2", "cov_K", 4), ("mount_covariance", "cov_mount", 6)):
         try:

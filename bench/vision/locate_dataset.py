@@ -167,13 +167,11 @@ def encoder_sigma_rad(root) -> float:
     """The encoders' standard deviation per joint (rad) from the dataset's ``encoders.yaml`` specification:
     ``sqrt(noise^2 + resolution^2 / 12)`` (noise and uniform quantisation); a missing file or a bad value is a
     one-line error naming the file and key."""
-    import yaml
+    from bench.fileio import read_yaml
 
     path = Path(root) / ENCODERS_FILE
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "missing: refine 'joints' needs the encoders' specification (noise_deg, "
-                                          "resolution_deg)")
-    spec = yaml.safe_load(path.read_text()) or {}
+    spec = read_yaml(path, missing="missing: refine 'joints' needs the encoders' specification (noise_deg, "
+                                   "resolution_deg)") or {}
     vals = {}
     for key in ("noise_deg", "resolution_deg"):
         v = spec.get(key) if isinstance(spec, dict) else None
