@@ -253,6 +253,11 @@ def test_bench_locate_files_given_in_each_others_place(good_dataset, tmp_path, c
     assert main(["locate", str(root), "--refine", "joints"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "encoders.yaml: <file>: not valid YAML" in err, err
+    run = tmp_path / "run"  # a run's folder, or the dataset's images folder, given for the dataset: the hint
+    shutil.copytree(good_dataset[0], run / "dataset")
+    for wrong in (run, run / "dataset" / "images"):
+        assert main(["locate", str(wrong)]) == 2
+        assert f"not a dataset folder (did you mean {run / 'dataset'}?)" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------------ scenarios
