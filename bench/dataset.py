@@ -371,7 +371,9 @@ def _check_degrees(path: Path, rows: dict, columns) -> None:
     """Reject angles that cannot be degrees; warn when every reading looks like radians in a ``*_deg`` column."""
     angles = np.array([r[: len(columns)] for r in rows.values()])
     if angles.size and np.abs(angles).max() > 720:
-        raise ConfigError(path, columns[0], f"|angle| {np.abs(angles).max():.1f} > 720 deg: not degrees")
+        i, j = np.unravel_index(np.argmax(np.abs(angles)), angles.shape)  # the row and column that says so
+        raise ConfigError(path, f"{list(rows)[i]}.{columns[j]}", f"|angle| {abs(angles[i, j]):.1f} > 720 deg: not "
+                                                                 "degrees")
     if angles.size >= 18 and np.abs(angles).max() <= np.pi + 1e-6 and np.abs(angles).max() > 0.5:
         warnings.warn(f"{path}: every angle lies within +-pi although the columns are *_deg: "
                       "were radians written where degrees belong?", stacklevel=3)

@@ -183,7 +183,7 @@ LOCATE_CASES = [
         ",".join([ln.split(",")[0]] + [repr(math.radians(float(v))) for v in ln.split(",")[1:]]) for ln in ls[1:]]), 2,
      r"joints.csv: q1_deg \.\.\. q6_deg: every reading lies within \+-pi .* radians written where degrees belong"),
     ("joint beyond 720 deg", lambda r: _edit_joints(r, lambda ls: _set_cell(ls, 2, 1, "1000")), 2,
-     r"joints.csv: q1_deg: \|angle\| 1000.0 > 720 deg: not degrees"),
+     r"joints.csv: s0\.q1_deg: \|angle\| 1000.0 > 720 deg: not degrees"),
     ("joint outside its limits", lambda r: _edit_joints(r, lambda ls: _set_cell(ls, 2, 1, "120")), 2,
      r"joints.csv: s0: joint readings outside the joint limits"),
     ("view without a joints row", lambda r: _edit_joints(r, lambda ls: [ln for ln in ls if not ln.startswith("s2,")]),
