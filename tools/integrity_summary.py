@@ -309,7 +309,12 @@ def main(argv=None) -> int:
         if not (sweep / "sweep.sqlite").is_file():
             print(f"integrity_summary: {sweep}: no sweep.sqlite (not a bench sweep folder)", file=sys.stderr)
             return 2
-        runs += [r for r in load_runs(sweep, args.locate) if seeds is None or r["seed"] in seeds]
+        found = load_runs(sweep, args.locate)
+        if found and not any((sweep / "runs" / r["run_id"] / args.locate).is_file() for r in found):
+            print(f"integrity_summary: {sweep}: none of its {len(found)} runs has {args.locate} (a sweep of another "
+                  "kind than in_situ, or not localised again under that name)", file=sys.stderr)
+            return 2
+        runs += [r for r in found if seeds is None or r["seed"] in seeds]
     text = report(runs, args.figure, args.locate)
     print(text)
     if args.doc:

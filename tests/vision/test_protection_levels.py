@@ -258,6 +258,7 @@ def test_summary_measures_coverage_silent_failures_and_fits_kappa(tmp_path):
     assert S.main([str(sweep), "--seeds", "one"]) == 2
     assert S.main([str(tmp_path)]) == 2  # not a sweep folder
     assert S.main([str(sweep), str(tmp_path)]) == 2
+    assert S.main([str(sweep), "--locate", "nosuch/locate.json"]) == 2  # no run has it: not a table of failures
     # --locate: each run's localisation from another file of its folder (tools/relocate_sweep.py)
     for run in (sweep / "runs").iterdir():
         (run / "relocated").mkdir()
