@@ -332,7 +332,7 @@ def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None
     if not (dataset / "truth" / "truth.yaml").is_file():
         raise ConfigError(dataset / "truth" / "truth.yaml", "truth", "fault scoring needs a rendered dataset's truth")
     roles = _site_views(ds)
-    names = list(FAULTS) if not faults else list(faults)
+    names = list(FAULTS) if not faults else list(dict.fromkeys(faults))  # a fault named twice runs once
     for f in names:
         if f not in FAULTS:
             raise ConfigError("--fault", f, f"unknown fault (known: {', '.join(FAULTS)})")

@@ -263,7 +263,7 @@ def test_faults_rerun_of_some_faults_keeps_the_other_rows(rendered, tmp_path, ca
     args = ["faults", str(tmp / "ds"), "--out", str(out), "--camera", str(camera), "--robot", str(robot)]
     assert main(args + ["--fault", "clean", "--fault", "swap_images"]) == 0
     first = json.loads((out / "faults.json").read_text())
-    assert main(args + ["--fault", "clean"]) == 0
+    assert main(args + ["--fault", "clean", "--fault", "clean"]) == 0  # named twice: run once, one row
     rows = json.loads((out / "faults.json").read_text())
     assert [r["fault"] for r in rows] == ["clean", "swap_images"]
     assert rows[1] == first[1] and rows[1]["integrity"] == "refused" and rows[1]["protection_radius_mm"] is None
