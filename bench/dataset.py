@@ -408,9 +408,11 @@ def load_dataset(root) -> Dataset:
     mpath = root / "manifest.yaml"
     if not root.is_dir():
         raise ConfigError(root, "<folder>", "dataset folder not found")
-    near = [d for d in (root / "dataset", root.parent) if (d / "manifest.yaml").is_file()]  # a run's, the images
-    hint = f" (did you mean {near[0]}?)" if near else ""
-    man = parse(Manifest, read_yaml(mpath, f"not found: not a dataset folder{hint}"), mpath)
+    if not mpath.is_file():  # a run's folder or the images folder given for the dataset: name the one meant
+        near = [d for d in (root / "dataset", root.parent) if (d / "manifest.yaml").is_file()]
+        raise ConfigError(mpath, "<file>", "not found: not a dataset folder" + (f" (did you mean {near[0]}?)"
+                                                                                 if near else ""))
+    man = parse(Manifest, read_yaml(mpath), mpath)
     kind = man["kind"]
 
     joints = _read_csv(root / "joints.csv", "view", JOINT_COLUMNS) if (root / "joints.csv").is_file() else {}
