@@ -11,7 +11,19 @@ with RMS over seeds::
 
 the part of the final error that the source explains (errors of independent sources add in quadrature; the sum of
 the budgets' squares next to ``RMS_full^2`` shows how far that holds: ``budget_closure_<metric>`` =
-``sqrt(sum budget^2 + RMS_none^2) / RMS_full``, 1 when it adds up). The primary metric's budgets are reported as
+``sqrt(sum budget^2 + RMS_none^2) / RMS_full``, 1 when it adds up).
+
+That difference of two mean squares is a noisy estimate of a small share: each term carries the sampling noise of the
+large error it is the square of. Where the kind also declares each metric's signed components (``BUDGET_VECTORS``,
+e.g. the base's position error as x, y, z), the share is measured directly instead, seed by seed::
+
+    budget_<source> = sqrt(mean over seeds |e_full - e_without_source|^2)
+
+the RMS of the displacement that switching the source off causes in the paired run: with errors that add (``e_full
+= e_none + sum of the sources' parts``) it is the source's part, and its square is what the source adds to
+``RMS_full^2`` when the parts are independent - the same quantity, without the other sources' noise in it. The
+difference of mean squares stays in ``budget.csv`` beside it (``budget_<metric>_difference``) and is the share of a
+metric without components. The primary metric's budgets are reported as
 ``budget_<source>_<unit>`` (``budget_features_mm`` ...), the others as ``budget_<source>_<metric>``.
 ``DIR/result.json`` (the result contract), ``budget.csv`` and ``budget.png`` (a bar chart) are written.
 
@@ -58,6 +70,7 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
         raise ConfigError(scenario, "kind", f"scenario kind {kind!r} declares no error sources to budget")
     sources = module.BUDGET
     metrics = module.BUDGET_METRICS
+    vectors = getattr(module, "BUDGET_VECTORS", {})
     variants = {"full": {}, **{s: dict(o) for s, o in sources.items()},
                 "none": {k: v for o in sources.values() for k, v in o.items()}}
     check_seeds_and_workers(seeds, workers, backend, address)
@@ -79,12 +92,14 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
             if progress:
                 print(f"variant {name}: {overrides or 'every source real'}")
             base = {**getattr(module, "BUDGET_FIXED", {}), **(fixed or {}), **overrides}
-            res = run_sweep(scenario, [], seeds, out / name, backend, address, workers, progress=progress, fixed=base)
+            # one render cache for every variant: a source the images do not depend on is not rendered again
+            res = run_sweep(scenario, [], seeds, out / name, backend, address, workers, progress=progress, fixed=base,
+                            render_cache=out / ".render_cache")
             done = _rows(out / name / "sweep.sqlite")
             rows[name] = done
             if res["errors"] and progress:
                 print(f"  {len(res['errors'])} runs failed, e.g. {res['errors'][0]}")
-        table, budget_table, result_metrics = budget_from_rows(rows, list(sources), metrics)
+        table, budget_table, result_metrics = budget_from_rows(rows, list(sources), metrics, vectors)
         write_table_csv(out / "variants.csv", table)
         write_table_csv(out / "budget.csv", budget_table)
         plot = _plot(budget_table, metrics, table, out / "budget.png", scenario.stem)
@@ -117,20 +132,49 @@ def _paired(full_rows, rows, m) -> np.ndarray:
     return np.array([p for p in pairs if None not in p], dtype=float).reshape(-1, 2)
 
 
-def _bootstrap_budget(pairs, n_boot=2000, seed=0) -> tuple:
-    """90 % paired-bootstrap interval of ``sqrt(max(0, RMS_full^2 - RMS_without^2))`` over the seeds."""
-    if len(pairs) < 2:
+def _paired_vectors(full_rows, rows, names) -> np.ndarray:
+    """``(k, 2, d)`` signed components ``names`` of the full run and the variant, per seed both finished with every
+    component finite (paired as :func:`_paired`)."""
+    pairs = [_paired(full_rows, rows, n) for n in names]
+    if not all("seed" in r for r in full_rows + rows):  # by position: only the rows with every component
+        return np.stack(pairs, axis=-1) if len({len(p) for p in pairs}) == 1 else np.zeros((0, 2, len(names)))
+
+    def vector(r):
+        v = [r["metrics"].get(n) for n in names]
+        return None if any(x is None or not np.isfinite(x) for x in v) else v
+
+    other = {r["seed"]: vector(r) for r in rows}
+    out = [(vector(r), other.get(r["seed"])) for r in sorted(full_rows, key=lambda r: r["seed"])]
+    return np.array([p for p in out if None not in p], dtype=float).reshape(-1, 2, len(names))
+
+
+def _bootstrap(values, statistic, n_boot=2000, seed=0) -> tuple:
+    """90 % bootstrap interval of ``statistic(values[idx])`` over the seeds (the rows of ``values``)."""
+    if len(values) < 2:
         return float("nan"), float("nan")
-    idx = np.random.default_rng(seed).integers(0, len(pairs), (n_boot, len(pairs)))
-    ms = np.mean(pairs[idx] ** 2, axis=1)  # (n_boot, 2) mean squares of full and without
-    b = np.sqrt(np.clip(ms[:, 0] - ms[:, 1], 0.0, None))
+    idx = np.random.default_rng(seed).integers(0, len(values), (n_boot, len(values)))
+    b = statistic(values[idx])
     return float(np.percentile(b, 5)), float(np.percentile(b, 95))
 
 
-def budget_from_rows(rows: dict, sources: list, metrics: list) -> tuple:
+def _difference_share(pairs) -> np.ndarray:
+    """``sqrt(max(0, RMS_full^2 - RMS_without^2))`` of ``(..., k, 2)`` paired values."""
+    ms = np.mean(pairs**2, axis=-2)
+    return np.sqrt(np.clip(ms[..., 0] - ms[..., 1], 0.0, None))
+
+
+def _displacement_share(vectors) -> np.ndarray:
+    """``sqrt(mean |e_full - e_without|^2)`` of ``(..., k, 2, d)`` paired error vectors."""
+    d = vectors[..., 0, :] - vectors[..., 1, :]
+    return np.sqrt(np.mean(np.sum(d**2, axis=-1), axis=-1))
+
+
+def budget_from_rows(rows: dict, sources: list, metrics: list, vectors: dict | None = None) -> tuple:
     """The budget from finished runs: ``rows = {variant: [{"seed": s, "metrics": {...}}, ...]}`` with variants
-    ``full``, each source and ``none``; returns ``(variants table, budget table, result metrics)`` (see the module
-    docstring)."""
+    ``full``, each source and ``none``; ``vectors`` maps a metric to the names of its signed components (the paired
+    displacement share, where every variant's rows carry them; see the module docstring); returns ``(variants table,
+    budget table, result metrics)``."""
+    vectors = vectors or {}
     variants = ["full", *sources, "none"]
     table = {"variant": variants, "runs": [len(rows[v]) for v in variants]}
     for m in metrics:
@@ -140,18 +184,27 @@ def budget_from_rows(rows: dict, sources: list, metrics: list) -> tuple:
     budget_table = {"source": list(sources)}
     for m in metrics:
         full = table[f"rms_{m}"][0]
-        col, lo, hi = [], [], []
+        col, lo, hi, diff, method = [], [], [], [], []
         for i, s in enumerate(sources, start=1):
             without = table[f"rms_{m}"][i]
             ok = np.isfinite(full) and np.isfinite(without)
-            col.append(float(np.sqrt(max(0.0, full**2 - without**2))) if ok else float("nan"))
-            a, b = _bootstrap_budget(_paired(rows["full"], rows[s], m))
+            diff.append(float(np.sqrt(max(0.0, full**2 - without**2))) if ok else float("nan"))
+            vec = _paired_vectors(rows["full"], rows[s], vectors[m]) if m in vectors else np.zeros((0, 2, 3))
+            if len(vec) >= 2:  # the paired displacement: the share measured seed by seed
+                col.append(float(_displacement_share(vec)))
+                a, b = _bootstrap(vec, _displacement_share)
+                method.append("paired displacement")
+            else:
+                col.append(diff[-1])
+                a, b = _bootstrap(_paired(rows["full"], rows[s], m), _difference_share)
+                method.append("difference of mean squares")
             lo.append(a)
             hi.append(b)
             name = f"budget_{s}_{unit}" if m == primary else f"budget_{s}_{m}"
             result_metrics[name], result_metrics[f"{name}_lo"], result_metrics[f"{name}_hi"] = col[-1], a, b
         budget_table[f"budget_{m}"] = col
         budget_table[f"budget_{m}_lo"], budget_table[f"budget_{m}_hi"] = lo, hi
+        budget_table[f"budget_{m}_difference"], budget_table[f"budget_{m}_method"] = diff, method
         result_metrics[f"rms_full_{m}"] = full
         result_metrics[f"rms_floor_{m}"] = table[f"rms_{m}"][-1]
         result_metrics[f"budget_quadrature_sum_{m}"] = float(np.sqrt(np.nansum(np.square(col))))

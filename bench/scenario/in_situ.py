@@ -19,7 +19,10 @@ between the survey and the new parking (the site frame of the pipeline is the su
 pipeline re-targets the taught task from the located base (:mod:`bench.robot.task`: compensated IK on the
 calibrated arm), the simulated servos drive the true arm to the commanded readings, and ``valve_tool_err_mm`` is the
 distance of the true tool tip from the true handle centre (``valve_tool_err_uncompensated_mm``: the taught readings
-replayed at the new parking, what happens without the in-situ calibration).
+replayed at the new parking, what happens without the in-situ calibration). The signed errors are metrics too:
+``base_pos_err_{x,y,z}_mm`` and ``base_rot_err_{x,y,z}_deg`` (the estimate's translation and rotation vector less
+the truth's, in the survey base frame) and ``valve_tool_err_{x,y,z}_mm`` (the tool tip less the handle centre, world
+frame); ``bench budget`` pairs them seed by seed.
 """
 
 from __future__ import annotations
@@ -287,6 +290,9 @@ BUDGET = {"features": {"sources.features": "perfect"}, "optics_model": {"sources
           "kinematics": {"sources.kinematics": "perfect"}, "encoders": {"sources.encoders": "perfect"}}
 BUDGET_METRICS = ["base_pos_err_mm", "base_rot_err_deg", "valve_tool_err_mm"]
 BUDGET_FIXED = {"outputs.rerun": False, "bound.enabled": False}
+#: each budgeted metric's signed components (survey base frame; the valve's in the world frame): the budget pairs a
+#: variant's error vector with the full run's, seed by seed (:func:`bench.scenario.budget.budget_from_rows`)
+BUDGET_VECTORS = {m: tuple(f"{m.rsplit('_', 1)[0]}_{a}_{m.rsplit('_', 1)[1]}" for a in "xyz") for m in BUDGET_METRICS}
 
 DEG = np.pi / 180
 #: the IK seed of the rig views after the first
@@ -1085,6 +1091,11 @@ def _or_one(factor: float) -> float:
     return factor if np.isfinite(factor) and factor > 0 else 1.0
 
 
+def _components(name, v, unit) -> dict:
+    """``{name_x_unit: v[0], name_y_unit: v[1], name_z_unit: v[2]}``: a signed error vector as metrics."""
+    return {f"{name}_{a}_{unit}": float(x) for a, x in zip("xyz", v, strict=True)}
+
+
 def _score_task(cfg, ds, truth, report, robot):
     """Drive the true arm to the pipeline's commanded readings and measure the tool tip against the true handle.
 
@@ -1108,11 +1119,14 @@ def _score_task(cfg, ds, truth, report, robot):
     def tip_error(key, q_cmd):  # the servos settle where the encoders read the command (noise, quantisation)
         reached[key] = enc.drive_to(q_cmd, rng)
         T = T_wb2 @ forward_kinematics(robot, reached[key], eps_true)
-        return float(np.linalg.norm(transform_points(T, robot.p_ee) - p_valve) * 1e3)
+        return (transform_points(T, robot.p_ee) - p_valve) * 1e3
 
-    out = {"valve_tool_err_uncompensated_mm": tip_error("uncompensated", ds.view(task["view"]).q)}
+    out = {"valve_tool_err_uncompensated_mm": float(np.linalg.norm(tip_error("uncompensated",
+                                                                                ds.view(task["view"]).q)))}
     ok = t and t["success"]
-    out["valve_tool_err_mm"] = tip_error("compensated", np.deg2rad(t["q_command_deg"])) if ok else nan
+    e = tip_error("compensated", np.deg2rad(t["q_command_deg"])) if ok else np.full(3, nan)
+    out["valve_tool_err_mm"] = float(np.linalg.norm(e))
+    out.update(_components("valve_tool_err", e, "mm"))  # world frame: the budget's paired displacements
     pr = t.get("protection_radius_mm") if ok else None
     out["valve_protection_radius_mm"] = nan if pr is None else float(pr)
     return out, reached
@@ -1169,6 +1183,10 @@ def run(cfg, out_dir, verbose=True):
         T = res.T_world_base
         metrics["base_pos_err_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
         metrics["base_rot_err_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
+        # the signed errors in the survey base frame, for the budget's paired displacements (bench.scenario.budget)
+        metrics.update(_components("base_pos_err", (T[:3, 3] - T_b1_b2[:3, 3]) * 1e3, "mm"))
+        metrics.update(_components("base_rot_err", np.rad2deg(matrix_to_rotation_vector(
+            T[:3, :3] @ T_b1_b2[:3, :3].T)), "deg"))
         T = np.array(report.get("T_world_base_vision", T))  # the images' pose, before the INS's tilt was fused
         metrics["base_pos_err_vision_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
         metrics["base_rot_err_vision_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
@@ -1182,6 +1200,8 @@ def run(cfg, out_dir, verbose=True):
     else:
         metrics["base_pos_err_mm"] = metrics["base_rot_err_deg"] = float("nan")
         metrics["base_pos_err_vision_mm"] = metrics["base_rot_err_vision_deg"] = float("nan")
+        metrics.update({**_components("base_pos_err", np.full(3, np.nan), "mm"),
+                        **_components("base_rot_err", np.full(3, np.nan), "deg")})
     thesis = details.get("thesis_result")  # pipeline.refine = joints: the thesis estimator (bundle) beside it
     if thesis is not None and thesis.success:
         T = thesis.T_world_base

@@ -160,6 +160,10 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("insitu_solve_s", "s", "two new views → base pose (match, triangulate, align, refine), map given"),
         Metric("base_pos_err_mm", "mm", "located base displacement vs the truth, position"),
         Metric("base_rot_err_deg", "deg", "located base displacement vs the truth, rotation"),
+        Metric("base_pos_err_<axis>_mm", "mm", "the signed position error (estimate less truth) along the survey "
+               "base frame's axis (`bench budget` pairs it seed by seed)"),
+        Metric("base_rot_err_<axis>_deg", "deg", "the signed rotation error (rotation vector of the estimate's "
+               "rotation times the truth's inverse) along the survey base frame's axis"),
         Metric("base_pos_err_vision_mm", "mm", "the images' pose before the INS's tilt was fused into it, position "
                "(the pose itself when not fused)", "the localisation succeeded"),
         Metric("base_rot_err_vision_deg", "deg", "the same, rotation", "the localisation succeeded"),
@@ -175,6 +179,8 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "the localisation succeeded"),
         Metric("valve_tool_err_mm", "mm", "true tool tip vs true valve handle centre after re-targeting the taught "
                "task through the calibrated arm"),
+        Metric("valve_tool_err_<axis>_mm", "mm", "the signed tool-tip error (tip less handle centre) along the "
+               "world axis"),
         Metric("valve_tool_err_uncompensated_mm", "mm", "the same when the taught readings are replayed"),
         Metric("valve_protection_radius_mm", "mm", "protection radius of the re-targeted tool tip: the base "
                "covariance carried to the taught tip (lever arm from the base origin), as `protection_radius_mm`",

@@ -410,11 +410,23 @@ def check_resume(out: Path, scenario_text: str, fixed: dict, swept: set) -> None
                             "folder")
 
 
+def _link_render_cache(link: Path, shared: Path) -> None:
+    """``link`` (a sweep's render cache) made a link to the ``shared`` folder, unless it exists already (a cache the
+    sweep filled itself is kept)."""
+    if link.exists() or link.is_symlink():
+        return
+    shared.mkdir(parents=True, exist_ok=True)
+    link.parent.mkdir(parents=True, exist_ok=True)
+    link.symlink_to(shared.resolve(), target_is_directory=True)
+
+
 def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", address=None, workers=None,
-              progress: bool = True, fixed: dict | None = None, force: bool = False) -> dict:
+              progress: bool = True, fixed: dict | None = None, force: bool = False, render_cache=None) -> dict:
     """Run (or resume) a sweep; returns ``{"store": path, "summary": path, "plots": [...], "rows": n}``.
 
-    ``params`` is a list of ``(key, values)`` (the grid); ``fixed`` overrides every run (``--set``). Everything is
+    ``params`` is a list of ``(key, values)`` (the grid); ``fixed`` overrides every run (``--set``);
+    ``render_cache``, a folder that other sweeps share, becomes the runs' render cache (``out/runs/.render_cache``
+    links to it, unless the sweep already has a cache of its own). Everything is
     checked before ``out`` is touched; ``out`` is then claimed (:func:`bench.fileio.claim_output_dir`, command
     ``sweep``, identity the scenario file's name): a new or empty folder, or a previous sweep of the same scenario
     (resumed); ``force`` starts a previous sweep of the same scenario afresh (or replaces one of another scenario).
@@ -444,6 +456,8 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
     try:
         claim_output_dir(out, "sweep", force=force, identity=scenario.name)
         store = SweepStore(out / "sweep.sqlite")
+        if render_cache is not None:
+            _link_render_cache(out / "runs" / ".render_cache", Path(render_cache))
     except BaseException:
         if started:
             import ray

@@ -49,6 +49,10 @@ def test_smoke_accuracy(smoke_run):
     # smoke-size campaign: the full-size targets (2 mm, 0.05 deg over 20 seeds) are `make reproduce`'s business
     assert m["base_pos_err_mm"] < 10 and m["base_rot_err_deg"] < 0.3
     assert m["base_pos_err_mm"] < 5 * m["base_pos_std_mm"] + 1.0  # consistent with the reported uncertainty
+    # the signed errors (bench budget's paired displacements) are the scored errors' components
+    for name, unit in (("base_pos_err", "mm"), ("base_rot_err", "deg"), ("valve_tool_err", "mm")):
+        v = [m[f"{name}_{a}_{unit}"] for a in "xyz"]
+        assert np.linalg.norm(v) == pytest.approx(m[f"{name}_{unit}"], rel=1e-9)
     # the bound: measured SIFT noise is sub-pixel; the ideal estimator cannot beat the Cramér-Rao bound by much
     assert 0.005 < m["keypoint_sigma_px"] < 1.0 and m["keypoint_sigma_matches"] > 100
     # the locate views' own noise: the survey's times their ratio on the same tracks, on the panel's true surfaces
