@@ -69,3 +69,41 @@ def test_report_from_runs(tmp_path):
     assert (tmp_path / "docs" / "figures" / "bound-sweep-insitu.png").is_file()
     tool.main(["--runs", str(runs), "--docs", str(tmp_path / "docs")])
     assert (tmp_path / "docs" / "results.md").read_text() == doc  # idempotent
+
+
+def test_budget_section_names_its_method_and_closure(tmp_path):
+    """The budget section says how its shares were measured (the paired displacement where the runs carry the signed
+    errors), gives the difference of mean squares beside them, the closure, and the plot."""
+    import numpy as np
+
+    from bench.scenario.budget import _plot, budget_from_rows
+
+    rng = np.random.default_rng(3)
+    floor, a, b = (rng.normal(0, s, (8, 3)) for s in (0.2, 1.0, 0.3))
+
+    def rows(v):
+        return [{"seed": k, "metrics": {"err_mm": float(np.linalg.norm(v[k])),
+                                        **{f"err_{x}_mm": float(v[k][i]) for i, x in enumerate("xyz")}}}
+                for k in range(8)]
+
+    data = {"full": rows(floor + a + b), "features": rows(floor + b), "encoders": rows(floor + a),
+            "none": rows(floor)}
+    table, budget, metrics = budget_from_rows(data, ["features", "encoders"], ["err_mm"],
+                                              {"err_mm": ("err_x_mm", "err_y_mm", "err_z_mm")})
+    folder = tmp_path / "runs" / "budget-insitu"
+    folder.mkdir(parents=True)
+    _plot(budget, ["err_mm"], table, folder / "budget.png", "test")
+    (folder / "result.json").write_text(json.dumps({"metrics": metrics, "tables": {"variants": table,
+                                                                                    "budget": budget}}))
+    tool = _tool()
+    assert tool.main(["--runs", str(tmp_path / "runs"), "--docs", str(tmp_path / "docs")]) == 0
+    doc = (tmp_path / "docs" / "results.md").read_text()
+    section = doc[doc.index("## Error budget"):]
+    section = section[:section.index("\n## ", 4)] if "\n## " in section[4:] else section
+    assert "`sqrt(mean |e_full − e_without|²)`" in section
+    assert f"| features | {metrics['budget_features_mm']:.3g} [" in section
+    assert "Beside it, the difference of the mean squares" in section
+    assert f"Closure, `sqrt(Σ shares² + RMS_none²) / RMS_full` (1 when the shares add up): err_mm " \
+           f"{metrics['budget_closure_err_mm']:.3g}" in section
+    assert "figures/budget-insitu.png" in section and (tmp_path / "docs" / "figures" / "budget-insitu.png").is_file()
+    assert "_method" not in section and "_difference" not in section  # bookkeeping columns are not shares

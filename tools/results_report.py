@@ -275,7 +275,7 @@ class Report:
             self.missing.append(f"{title} (`runs/{folder}`)")
             return
         b, v = r["tables"]["budget"], r["tables"]["variants"]
-        cols = [c for c in b if c.startswith("budget_") and not c.endswith(("_lo", "_hi"))]
+        cols = [c for c in b if c.startswith("budget_") and not c.endswith(("_lo", "_hi", "_difference", "_method"))]
 
         def cell(c, i):  # the budget with its 90 % paired-bootstrap interval when the run has one
             if f"{c}_lo" not in b:
@@ -288,11 +288,27 @@ class Report:
                               [[v["variant"][i], _fmt(v["runs"][i])] + [_fmt(v[c][i]) for c in v
                                                                         if c.startswith("rms_")]
                                for i in range(len(v["variant"]))]) + "\n")
-        self.md.append("Share of the final error each source explains, `sqrt(RMS_full² − RMS_without²)` [90 % "
-                       "paired bootstrap over the seeds]:\n")
+        methods = {c: set(b.get(f"{c}_method", ["difference of mean squares"])) for c in cols}
+        if all(m == {"paired displacement"} for m in methods.values()):
+            how = ("the RMS over the seeds of the displacement that switching it off causes, seed by seed, "
+                   "`sqrt(mean |e_full − e_without|²)`")
+        else:
+            how = "`sqrt(RMS_full² − RMS_without²)`"
+        self.md.append(f"Share of the final error each source explains, {how} [90 % bootstrap over the "
+                       "seeds]:\n")
         self.md.append(_table(["source"] + [c.replace("budget_", "") for c in cols],
                               [[b["source"][i]] + [cell(c, i) for c in cols] for i in range(len(b["source"]))])
                        + "\n")
+        if all(f"{c}_difference" in b for c in cols) and how != "`sqrt(RMS_full² − RMS_without²)`":
+            self.md.append("Beside it, the difference of the mean squares, `sqrt(max(0, RMS_full² − "
+                           "RMS_without²))` (the same share under independent sources, with every source's noise "
+                           "in it): " + "; ".join(
+                               f"{c.replace('budget_', '')}: " + ", ".join(
+                                   f"{b['source'][i]} {_fmt(b[f'{c}_difference'][i])}" for i in
+                                   range(len(b["source"]))) for c in cols) + ".\n")
+        closure = [(c.replace("budget_", ""), r["metrics"].get(f"budget_closure_{c[7:]}")) for c in cols]
+        self.md.append("Closure, `sqrt(Σ shares² + RMS_none²) / RMS_full` (1 when the shares add up): "
+                       + ", ".join(f"{n} {_fmt(x)}" for n, x in closure if x is not None) + ".\n")
         self.figure(self.runs / folder / "budget.png", f"{folder}.png", title)
         full = r["metrics"].get("rms_full_" + cols[0][7:])
         self.head(f"{title}: sources of `{cols[0][7:]}` (RMS {_fmt(full)} over {_fmt(v['runs'][0])} seeds)",

@@ -235,8 +235,12 @@ def _plot(budget_table, metrics, table, path, title) -> str:
         lo = np.array(budget_table[f"budget_{m}_lo"], dtype=float)
         hi = np.array(budget_table[f"budget_{m}_hi"], dtype=float)
         err = np.nan_to_num(np.stack([np.clip(vals - lo, 0, None), np.clip(hi - vals, 0, None)]))
+        how = sorted(set(budget_table[f"budget_{m}_method"]))
         ax.bar(budget_table["source"], vals, color="tab:blue", yerr=err, capsize=4, ecolor="0.3",
-               label="budget, 90 % paired bootstrap over seeds")
+               label=f"share ({' / '.join(how)}), 90 % bootstrap over seeds")
+        if how != ["difference of mean squares"]:
+            ax.plot(budget_table["source"], budget_table[f"budget_{m}_difference"], "o", mfc="none", color="tab:red",
+                    label="difference of mean squares")
         full = table[f"rms_{m}"][0]
         ax.axhline(full, color="k", lw=1, ls="--", label=f"RMS, all sources ({full:.3g})")
         ax.set_ylabel(f"share of {m} (quadrature)")
