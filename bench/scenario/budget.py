@@ -229,7 +229,7 @@ def _rows(store_path) -> list:
 def _plot(budget_table, metrics, table, path, title) -> str:
     plt = headless_pyplot()
 
-    fig, axes = plt.subplots(1, len(metrics), figsize=(4.2 * len(metrics), 3.6), squeeze=False)
+    fig, axes = plt.subplots(1, len(metrics), figsize=(4.2 * len(metrics), 4.0), squeeze=False)
     for ax, m in zip(axes[0], metrics, strict=True):
         vals = np.array(budget_table[f"budget_{m}"], dtype=float)
         lo = np.array(budget_table[f"budget_{m}_lo"], dtype=float)
@@ -242,12 +242,14 @@ def _plot(budget_table, metrics, table, path, title) -> str:
             ax.plot(budget_table["source"], budget_table[f"budget_{m}_difference"], "o", mfc="none", color="tab:red",
                     label="difference of mean squares")
         full = table[f"rms_{m}"][0]
-        ax.axhline(full, color="k", lw=1, ls="--", label=f"RMS, all sources ({full:.3g})")
+        ax.axhline(full, color="k", lw=1, ls="--", label="RMS, every source real")
+        ax.set_title(f"{m}: RMS {full:.3g}", fontsize=9)
         ax.set_ylabel(f"share of {m} (quadrature)")
         ax.tick_params(axis="x", rotation=30)
-        ax.legend(fontsize=7)
         ax.grid(alpha=0.3, axis="y")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
     fig.suptitle(f"error budget: {title}")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     atomic_save_figure(fig, path, dpi=110)
     return str(path)
