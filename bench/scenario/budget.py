@@ -21,7 +21,10 @@ e.g. the base's position error as x, y, z), the share is measured directly inste
 
 the RMS of the displacement that switching the source off causes in the paired run: with errors that add (``e_full
 = e_none + sum of the sources' parts``) it is the source's part, and its square is what the source adds to
-``RMS_full^2`` when the parts are independent - the same quantity, without the other sources' noise in it. The
+``RMS_full^2`` when the parts are independent - the same quantity, without the other sources' noise in it. Where the
+sources interact (through an estimator's nonlinear and discrete choices) it is the source's total effect, its part
+and its share of every interaction it takes part in (Jansen's estimator of a total sensitivity index, with the
+source set perfect instead of redrawn), and the closure exceeds 1 by the interactions counted more than once. The
 difference of mean squares stays in ``budget.csv`` beside it (``budget_<metric>_difference``) and is the share of a
 metric without components. The primary metric's budgets are reported as
 ``budget_<source>_<unit>`` (``budget_features_mm`` ...), the others as ``budget_<source>_<metric>``.
