@@ -193,13 +193,16 @@ def budget_from_rows(rows: dict, sources: list, metrics: list, vectors: dict | N
             ok = np.isfinite(full) and np.isfinite(without)
             diff.append(float(np.sqrt(max(0.0, full**2 - without**2))) if ok else float("nan"))
             vec = _paired_vectors(rows["full"], rows[s], vectors[m]) if m in vectors else np.zeros((0, 2, 3))
-            if len(vec) >= 2:  # the paired displacement: the share measured seed by seed
+            pairs = _paired(rows["full"], rows[s], m)
+            # the paired displacement - the share measured seed by seed - where every paired seed has the components
+            # (runs of an earlier version, without them, leave the whole share to the difference: never a mixture)
+            if len(vec) >= 2 and len(vec) == len(pairs):
                 col.append(float(_displacement_share(vec)))
                 a, b = _bootstrap(vec, _displacement_share)
                 method.append("paired displacement")
             else:
                 col.append(diff[-1])
-                a, b = _bootstrap(_paired(rows["full"], rows[s], m), _difference_share)
+                a, b = _bootstrap(pairs, _difference_share)
                 method.append("difference of mean squares")
             lo.append(a)
             hi.append(b)

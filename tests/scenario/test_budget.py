@@ -154,3 +154,19 @@ def test_variants_share_one_render_cache(tmp_path):
     (own / "kept.png").write_bytes(b"y")
     _link_render_cache(own, shared)
     assert not own.is_symlink() and (own / "kept.png").read_bytes() == b"y"
+
+
+def test_a_budget_resumed_over_runs_without_components_is_not_a_mixture():
+    """Seeds run by an earlier version (no signed components) beside seeds with them: the share is the difference of
+    mean squares over every seed, not a displacement over the newer seeds alone."""
+    rng = np.random.default_rng(9)
+    v, w = rng.normal(0, 1, (6, 3)), rng.normal(0, 0.5, (6, 3))
+    full, without = _vector_rows(v + w, range(6)), _vector_rows(v, range(6))
+    for r in full[:3] + without[:3]:  # seeds 0-2 by the earlier version
+        for a in "xyz":
+            del r["metrics"][f"err_{a}_mm"]
+    data = {"full": full, "x": without, "none": _vector_rows(np.zeros((6, 3)), range(6))}
+    table, budget, metrics = budget_from_rows(data, ["x"], ["err_mm"], COMPONENTS)
+    assert budget["budget_err_mm_method"] == ["difference of mean squares"]
+    assert metrics["budget_x_mm"] == pytest.approx(np.sqrt(max(0, table["rms_err_mm"][0] ** 2
+                                                               - table["rms_err_mm"][1] ** 2)), rel=1e-12)
