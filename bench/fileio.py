@@ -386,13 +386,18 @@ def record_output_entries(path, exclude=()) -> None:
 
 def _legacy_output(path: Path, command: str, identity) -> bool:
     """Whether an unmarked folder is recognisably an output of ``command`` written before output markers existed
-    (so that a sweep started by an older version still resumes): its signature file, and for a run the scenario's
-    name in its result.json."""
+    (so that a sweep started by an older version still resumes): its signature file, and for a run or a budget the
+    scenario's name in its result.json and every artifact it names there (a copy of a result.json alone, e.g. kept
+    by hand beside one's notes, is not a run's folder)."""
     def doc(name):
         try:
             return json.loads((path / name).read_text())
         except (OSError, ValueError):
             return None
+
+    def artifacts_present(res) -> bool:
+        arts = res.get("artifacts") or {}
+        return isinstance(arts, dict) and all(isinstance(a, str) and (path / a).exists() for a in arts.values())
 
     if command == "sweep":
         db = path / "sweep.sqlite"
@@ -411,10 +416,13 @@ def _legacy_output(path: Path, command: str, identity) -> bool:
             return False
     if command == "run":
         res = doc("result.json")
-        return isinstance(res, dict) and identity is not None and res.get("scenario") == identity
+        return (isinstance(res, dict) and identity is not None and res.get("scenario") == identity
+                and artifacts_present(res))
     if command == "budget":
         res = doc("result.json")
-        return isinstance(res, dict) and str(res.get("scenario", "")).startswith("budget:")
+        name = f"budget:{Path(identity).stem}" if identity is not None else None
+        return (isinstance(res, dict) and str(res.get("scenario", "")).startswith("budget:")
+                and res.get("scenario") == (name or res.get("scenario")) and artifacts_present(res))
     if command == "sim render":
         try:
             import yaml

@@ -147,6 +147,28 @@ def test_outputs_of_older_versions_are_adopted_by_their_signature(tmp_path):
     sqlite3.connect(other / "sweep.sqlite").execute("CREATE TABLE notes (x TEXT)").connection.close()
     with pytest.raises(OutputRefused, match="bench did not write"):
         check_output_dir(other, "sweep")
+    # a budget: its result.json with the variants' stores it names; a copy of the result files alone is not one
+    budget = tmp_path / "budget"
+    (budget / "full").mkdir(parents=True)
+    sqlite3.connect(budget / "full" / "sweep.sqlite").execute("CREATE TABLE runs (run_id TEXT)").connection.close()
+    result = {"scenario": "budget:s", "metrics": {}, "artifacts": {"budget": "budget.csv",
+                                                                    "sweep_full": "full/sweep.sqlite"}}
+    (budget / "result.json").write_text(json.dumps(result))
+    (budget / "budget.csv").write_text("source\n")
+    assert check_output_dir(budget, "budget", identity="s.yaml") == "own"
+    with pytest.raises(OutputRefused, match="bench did not write"):
+        check_output_dir(budget, "budget", identity="t.yaml")  # another scenario's budget: not adopted
+    copy = tmp_path / "copy"  # found by misuse: the result files copied by hand were adopted and written over
+    copy.mkdir()
+    (copy / "result.json").write_text(json.dumps(result))
+    (copy / "budget.csv").write_text("source\n")
+    with pytest.raises(OutputRefused, match="bench did not write"):
+        check_output_dir(copy, "budget", identity="s.yaml")
+    (run / "result.json").write_text(json.dumps({"scenario": "s1", "metrics": {}, "artifacts": {"dataset": "dataset"}}))
+    with pytest.raises(OutputRefused, match="bench did not write"):
+        check_output_dir(run, "run", identity="s1")  # a run's result.json without the dataset it names
+    (run / "dataset").mkdir()
+    assert check_output_dir(run, "run", identity="s1") == "own"
 
 
 def test_output_files_are_claimed_by_content(tmp_path):
