@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= runs
 SEEDS ?= 20
-BUDGET_SEEDS ?= 20
+BUDGET_SEEDS ?= 40
 CAL_SEEDS ?= 10
 # issue 13's operating envelope (300 runs, ~75 min on 2 cores): appearance x water x standoff, 5 seeds
 ENVELOPE_GRID := --param 'site.textures=[{}, {backplate: data/textures/industrial_rocket_launch.jpg}, \
