@@ -20,9 +20,10 @@ pipeline re-targets the taught task from the located base (:mod:`bench.robot.tas
 calibrated arm), the simulated servos drive the true arm to the commanded readings, and ``valve_tool_err_mm`` is the
 distance of the true tool tip from the true handle centre (``valve_tool_err_uncompensated_mm``: the taught readings
 replayed at the new parking, what happens without the in-situ calibration). The signed errors are metrics too:
-``base_pos_err_{x,y,z}_mm`` and ``base_rot_err_{x,y,z}_deg`` (the estimate's translation and rotation vector less
-the truth's, in the survey base frame) and ``valve_tool_err_{x,y,z}_mm`` (the tool tip less the handle centre, world
-frame); ``bench budget`` pairs them seed by seed.
+``base_pos_err_{x,y,z}_mm`` and ``base_rot_err_{x,y,z}_deg`` (the estimate's translation less the truth's, and the
+rotation vector of the estimate's rotation times the truth's inverse, in the survey base frame) and
+``valve_tool_err_{x,y,z}_mm`` (the tool tip less the handle centre, world frame); ``bench budget`` pairs them seed
+by seed.
 """
 
 from __future__ import annotations
@@ -820,9 +821,9 @@ def _oracle_files(cfg, ds, robot, out_dir, lab):
     the best central camera for the scene (:func:`~bench.scenario.in_situ_bound.best_central_camera` over the panel's
     depths in the site views: what no central model removes stays, the model floor) under the lab calibration's own
     priors, so that the estimator is the real run's (refine 'joints' refines it in situ as it refines the lab's
-    camera). Held fixed instead, as before, the variant also switched off that refinement, which under water
-    compensates part of the floor (every source perfect: 0.345 mm RMS held, 0.260 mm refined, 20 seeds), and the
-    budget's paired displacements did not add up (closure 1.29 against 1.04; docs/bounds.md);
+    camera). Held fixed, the variant would also switch off that refinement, which under water compensates part of
+    the floor (measured, every source perfect: 0.345 mm RMS held, 0.260 mm refined, 20 seeds), and the budget's
+    paired displacements would not add up (closure 1.29 against 1.04; docs/bounds.md);
     its mount the true one with the true arm, else the one AX = XB finds on
     the calibrated arm from the rig views' true camera poses (the true mount does not go with the identified arm:
     the tracker sees positions only, the mount absorbs the wrist's orientation errors - measured 1.29 mm against
