@@ -420,9 +420,11 @@ def _legacy_output(path: Path, command: str, identity) -> bool:
                 and artifacts_present(res))
     if command == "budget":
         res = doc("result.json")
-        name = f"budget:{Path(identity).stem}" if identity is not None else None
-        return (isinstance(res, dict) and str(res.get("scenario", "")).startswith("budget:")
-                and res.get("scenario") == (name or res.get("scenario")) and artifacts_present(res))
+        if not isinstance(res, dict):
+            return False
+        name = str(res.get("scenario", ""))
+        return (name.startswith("budget:") and (identity is None or name == f"budget:{Path(identity).stem}")
+                and artifacts_present(res))
     if command == "sim render":
         try:
             import yaml

@@ -288,18 +288,15 @@ class Report:
                               [[v["variant"][i], _fmt(v["runs"][i])] + [_fmt(v[c][i]) for c in v
                                                                         if c.startswith("rms_")]
                                for i in range(len(v["variant"]))]) + "\n")
-        methods = {c: set(b.get(f"{c}_method", ["difference of mean squares"])) for c in cols}
-        if all(m == {"paired displacement"} for m in methods.values()):
-            how = ("the RMS over the seeds of the displacement that switching it off causes, seed by seed, "
-                   "`sqrt(mean |e_full − e_without|²)`")
-        else:
-            how = "`sqrt(RMS_full² − RMS_without²)`"
+        displaced = all(set(b.get(f"{c}_method", [])) == {"paired displacement"} for c in cols)
+        how = ("the RMS over the seeds of the displacement that switching it off causes, seed by seed, "
+               "`sqrt(mean |e_full − e_without|²)`" if displaced else "`sqrt(RMS_full² − RMS_without²)`")
         self.md.append(f"Share of the final error each source explains, {how} [90 % bootstrap over the "
                        "seeds]:\n")
         self.md.append(_table(["source"] + [c.replace("budget_", "") for c in cols],
                               [[b["source"][i]] + [cell(c, i) for c in cols] for i in range(len(b["source"]))])
                        + "\n")
-        if all(f"{c}_difference" in b for c in cols) and how != "`sqrt(RMS_full² − RMS_without²)`":
+        if displaced:  # its rows carry the difference of mean squares beside each share
             self.md.append("Beside it, the difference of the mean squares, `sqrt(max(0, RMS_full² − "
                            "RMS_without²))` (the same share under independent sources, with every source's noise "
                            "in it): " + "; ".join(

@@ -119,36 +119,33 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
             ray.shutdown()
 
 
-def _paired(full_rows, rows, m) -> np.ndarray:
-    """``(k, 2)`` values of metric ``m`` for the seeds both variants finished (by ``seed``, in seed order, so that the
-    bootstrap does not depend on the order runs finished in; by position if the rows carry no seed), rows with a
-    missing or non-finite value left out."""
-    def value(r):
-        v = r["metrics"].get(m)
-        return float(v) if v is not None and np.isfinite(v) else None
-
+def _pairs(full_rows, rows, value) -> list:
+    """``[(value(full row), value(variant row))]`` for the seeds both variants finished (by ``seed``, in seed order,
+    so that the bootstrap does not depend on the order runs finished in; by position if the rows carry no seed),
+    pairs with a missing value (``value`` returned None) left out."""
     if all("seed" in r for r in full_rows + rows):
         other = {r["seed"]: value(r) for r in rows}
         pairs = [(value(r), other.get(r["seed"])) for r in sorted(full_rows, key=lambda r: r["seed"])]
     else:
         pairs = list(zip(map(value, full_rows), map(value, rows), strict=False))
-    return np.array([p for p in pairs if None not in p], dtype=float).reshape(-1, 2)
+    return [p for p in pairs if None not in p]
+
+
+def _finite(r, names):
+    """The values of metrics ``names`` in row ``r``, None if any is missing or not finite."""
+    v = [r["metrics"].get(n) for n in names]
+    return None if any(x is None or not np.isfinite(x) for x in v) else v
+
+
+def _paired(full_rows, rows, m) -> np.ndarray:
+    """``(k, 2)`` values of metric ``m``, paired by :func:`_pairs`."""
+    return np.array(_pairs(full_rows, rows, lambda r: _finite(r, [m])), dtype=float).reshape(-1, 2)
 
 
 def _paired_vectors(full_rows, rows, names) -> np.ndarray:
-    """``(k, 2, d)`` signed components ``names`` of the full run and the variant, per seed both finished with every
-    component finite (paired as :func:`_paired`)."""
-    pairs = [_paired(full_rows, rows, n) for n in names]
-    if not all("seed" in r for r in full_rows + rows):  # by position: only the rows with every component
-        return np.stack(pairs, axis=-1) if len({len(p) for p in pairs}) == 1 else np.zeros((0, 2, len(names)))
-
-    def vector(r):
-        v = [r["metrics"].get(n) for n in names]
-        return None if any(x is None or not np.isfinite(x) for x in v) else v
-
-    other = {r["seed"]: vector(r) for r in rows}
-    out = [(vector(r), other.get(r["seed"])) for r in sorted(full_rows, key=lambda r: r["seed"])]
-    return np.array([p for p in out if None not in p], dtype=float).reshape(-1, 2, len(names))
+    """``(k, 2, d)`` signed components ``names`` of the full run and the variant, paired by :func:`_pairs` (a seed
+    with any component missing or not finite left out)."""
+    return np.array(_pairs(full_rows, rows, lambda r: _finite(r, names)), dtype=float).reshape(-1, 2, len(names))
 
 
 def _bootstrap(values, statistic, n_boot=2000, seed=0) -> tuple:
