@@ -36,7 +36,8 @@ sidecar ``.NAME.bench-output.json`` with the command and the SHA-256 of what was
   re-rendered whole) is refused while the folder holds anything else (a note the user put there since), which a
   re-run into the folder leaves alone;
 * an unmarked folder written by an older version is adopted by its signature (a sweep's ``sweep.sqlite`` with its
-  ``runs`` table, a run's ``result.json`` of the same scenario, ...: :func:`_legacy_output`), so old sweeps resume.
+  ``runs`` table, a run's ``result.json`` of the same scenario, a ``locate.json`` of the same dataset in a folder
+  holding nothing else, ...: :func:`_legacy_output`), so old sweeps resume.
 
 New commands: ``dataset init``-like commands that build a folder whole pass ``command=`` to
 :class:`bench.dataset.DatasetWriter`; commands that write a folder step by step use :func:`claimed_output_dir`
@@ -434,8 +435,31 @@ def _legacy_output(path: Path, command: str, identity) -> bool:
             return False
         return isinstance(man, dict) and str(man.get("created_by", "")).startswith("bench sim render")
     if command in ("locate", "calibrate-camera"):
-        return isinstance(doc("locate.json" if command == "locate" else "calibration.json"), dict)
+        res = doc(_LEGACY_REPORT[command][0])
+        names = {p.name for p in path.iterdir() if not _atomic_temporary(p.name)}
+        return (isinstance(res, dict) and set(_LEGACY_REPORT[command][1]) <= set(res)
+                and names <= set(_LEGACY_REPORT[command][2]) and _same_dataset(res, identity))
     return False
+
+
+#: an unmarked ``bench locate`` / ``calibrate-camera`` output: its report, keys every report of it has, and every
+#: entry the command may write (a folder holding anything else, e.g. one's notes beside a copied report, is not one)
+_LEGACY_REPORT = {
+    "locate": ("locate.json", ("dataset", "success", "map_points", "timings_s"), ("locate.json",)),
+    "calibrate-camera": ("calibration.json", ("views_used", "success", "reproj_rms_px", "timings_s"),
+                         ("calibration.json", "camera.yaml", "per_view.csv", "residuals.png", "robot.yaml")),
+}
+
+
+def _same_dataset(report: dict, identity) -> bool:
+    """Whether an unmarked report was computed from the dataset this call names (its identity's ``dataset``);
+    True when either does not say."""
+    try:
+        want = json.loads(identity).get("dataset") if identity else None
+    except (TypeError, ValueError, AttributeError):
+        return True
+    have = report.get("dataset", report.get("photos"))
+    return want is None or have is None or str(Path(str(have)).resolve()) == want
 
 
 def mark_output_dir(path, command: str, identity: str | None = None) -> Path:

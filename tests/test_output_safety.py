@@ -171,6 +171,42 @@ def test_outputs_of_older_versions_are_adopted_by_their_signature(tmp_path):
     assert check_output_dir(run, "run", identity="s1") == "own"
 
 
+def test_unmarked_locate_and_calibration_folders_are_adopted_only_whole(tmp_path):
+    """Found by misuse: a folder holding any locate.json (one's notes beside a copied report) was adopted by
+    ``bench locate --out`` and its report written over. Adopted: a report with the command's keys, for the same
+    dataset, in a folder holding nothing the command does not write."""
+    from bench.fileio import settings_identity
+
+    data = tmp_path / "dataset"
+    data.mkdir()
+    ident = settings_identity({"dataset": data, "camera": None, "robot": None, "priors": None}, seed=0)
+    report = {"dataset": str(data), "success": True, "map_points": 3, "timings_s": {}}
+    out = tmp_path / "loc"
+    out.mkdir()
+    (out / "locate.json").write_text(json.dumps(report))
+    assert check_output_dir(out, "locate", identity=ident) == "own"
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(OutputRefused, match="bench did not write"):
+        check_output_dir(out, "locate", identity=ident)
+    (out / "notes.txt").unlink()
+    (out / "locate.json").write_text(json.dumps({"my": "summary"}))  # a file of one's own by that name
+    with pytest.raises(OutputRefused, match="bench did not write"):
+        check_output_dir(out, "locate", identity=ident)
+    (out / "locate.json").write_text(json.dumps({**report, "dataset": str(tmp_path / "elsewhere")}))
+    with pytest.raises(OutputRefused, match="bench did not write"):
+        check_output_dir(out, "locate", identity=ident)  # another dataset's report
+    cal = tmp_path / "cal"
+    cal.mkdir()
+    (cal / "calibration.json").write_text(json.dumps({"dataset": str(data), "views_used": [], "success": True,
+                                                       "reproj_rms_px": 0.1, "timings_s": {}}))
+    (cal / "camera.yaml").write_text("%YAML:1.0\n")
+    cal_ident = settings_identity({"dataset": data, "robot": None}, model="eq50")
+    assert check_output_dir(cal, "calibrate-camera", identity=cal_ident) == "own"
+    (cal / "paper.pdf").write_text("mine")
+    with pytest.raises(OutputRefused, match="bench did not write"):
+        check_output_dir(cal, "calibrate-camera", identity=cal_ident)
+
+
 def test_output_files_are_claimed_by_content(tmp_path):
     out = tmp_path / "robot.urdf"
     write_output_file(out, "<robot/>", "export")
