@@ -40,6 +40,7 @@ from bench.camera.model import (
 from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import invert
 from bench.vision.bundle import solve
+from bench.vision.insitu import _proj_jac
 from bench.vision.xy_table_positioning import R0_PRIOR_DEG, stage_poses
 
 #: a round of the bundle ends when a step is shorter than this fraction of a standard deviation of the estimate
@@ -193,12 +194,9 @@ class PairProblem:
         p, T_ct = P[0], T_ct[0]
         K = self.intrinsics(theta)
         z = p[:, 2]
-        x_n = p[:, :2] / z[:, None]
+        x_n, Jproj = _proj_jac(p)
         dist = self.distortion(theta)
         x_d = self.distorted(x_n, theta)
-        Jproj = np.zeros((len(p), 2, 3))
-        Jproj[:, 0, 0] = Jproj[:, 1, 1] = 1.0 / z
-        Jproj[:, :, 2] = -x_n / z[:, None]
         D = distortion_jacobian(x_n, dist)
         if self.n_dist == 8:
             D = D + thin_prism_jacobian(x_n, self.prism(theta))
