@@ -52,6 +52,7 @@ import cv2
 import numpy as np
 
 from bench.camera import dlt
+from bench.geometry.transforms import homogeneous
 
 #: Sobel masks (Eq. 88 and 89), applied as correlations: G_x > 0 where the intensity grows with u
 SOBEL_X = np.array([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]])
@@ -156,13 +157,9 @@ def two_plane_rig(squares: int = 7, size: float = 0.197, margin: float = 0.0) ->
     m = float(margin)
     top = m + (n - 1) * s
     # left plane: x axis -x (left to right = towards the fold), y axis -z (down), z = -y (into the board)
-    T_left = np.eye(4)
-    T_left[:3, :3] = np.column_stack([[-1.0, 0, 0], [0, 0, -1.0], [0, -1.0, 0]])
-    T_left[:3, 3] = [top, 0.0, top]
+    T_left = homogeneous(np.column_stack([[-1.0, 0, 0], [0, 0, -1.0], [0, -1.0, 0]]), [top, 0.0, top])
     # right plane: x axis +y (away from the fold), y axis -z, z = -x (into the board)
-    T_right = np.eye(4)
-    T_right[:3, :3] = np.column_stack([[0, 1.0, 0], [0, 0, -1.0], [-1.0, 0, 0]])
-    T_right[:3, 3] = [0.0, m + s, top]
+    T_right = homogeneous(np.column_stack([[0, 1.0, 0], [0, 0, -1.0], [-1.0, 0, 0]]), [0.0, m + s, top])
     planes = (BoardPlane("left", (n - 1, n - 1), s, T_left), BoardPlane("right", (n - 1, n - 1), s, T_right))
     lo, hi = m, m + size
     if m == 0.0:

@@ -65,7 +65,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from bench.camera.model import distort, distortion_jacobian, distortion_parameter_jacobian
 from bench.camera.refractive import RefractiveCamera, lens_parameters, virtual_scale, with_lens_parameters
 from bench.geometry.quaternion import matrix_to_rotation_vector
-from bench.geometry.transforms import invert, skew, transform_points
+from bench.geometry.transforms import homogeneous, invert, skew, transform_points
 from bench.vision.insitu import KeypointMap, MapConfig, ViewObservation, _left_exp, _proj_jac, reference_matches
 from bench.vision.triangulation import triangulate_midpoint
 
@@ -474,9 +474,7 @@ def free_pose(kmap: KeypointMap, view: ViewObservation, idx_map, idx_view, focal
         return None, np.zeros(n, dtype=bool)
     inl = inl.ravel()
     rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], np.eye(3), None, rvec, tvec)
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
-    T_ref_view = invert(T)
+    T_ref_view = invert(homogeneous(cv2.Rodrigues(rvec)[0], tvec.ravel()))
     e, _ = _residuals_px(kmap, view, idx_map, idx_view, T_ref_view, focal_px)
     return T_ref_view, e <= GATE_PX
 

@@ -38,7 +38,7 @@ from bench.camera.model import (
     thin_prism_parameter_jacobian,
 )
 from bench.geometry.quaternion import rotation_vector_to_matrix
-from bench.geometry.transforms import invert
+from bench.geometry.transforms import homogeneous, invert
 from bench.vision.bundle import solve
 from bench.vision.insitu import _proj_jac
 from bench.vision.xy_table_positioning import R0_PRIOR_DEG, stage_poses
@@ -301,8 +301,7 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
         raise ValueError(f"offset_sigma: three standard deviations > 0 expected, got {offset_sigma!r}")
     if reading_sigma is not None and not (np.shape(reading_sigma) == (3,) and np.all(np.asarray(reading_sigma) > 0)):
         raise ValueError(f"reading_sigma: three standard deviations > 0 expected, got {reading_sigma!r}")
-    X0 = np.eye(4)
-    X0[:3, :3], X0[:3, 3] = R0, offset_m
+    X0 = homogeneous(R0, offset_m)
     i_a = int(np.flatnonzero(in_pair)[0])
     C0 = np.asarray(T_table_a0, float) @ invert(stage_poses(readings[i_a])[0] @ X0)  # the readings' pair moved
     problem = PairProblem(readings, in_pair, C0, np.asarray(T_table_a0, float)[:3, 3], R0, offset_m, K, dist, view,
