@@ -291,16 +291,13 @@ def check_output_dir(path, command: str, *, force: bool = False, identity: str |
     if marker["command"] != command:
         raise OutputRefused(f"{option} {path}: holds the output of bench {marker['command']}, not of bench {command}; "
                             "choose another folder")
-    if identity is not None and marker.get("identity") not in (None, identity):
-        if not force:
-            diff = _settings_difference(marker["identity"], identity)
-            what = (f"with other settings: {diff}" if diff else
-                    f"for {marker['identity']!r}, not {identity!r}")
-            raise OutputRefused(f"{option} {path}: holds the output of bench {command} {what}; --force replaces it, "
-                                "or choose another folder")
-        check_replaceable(path, option)
-        return "replace"
-    if force:
+    if identity is not None and marker.get("identity") not in (None, identity) and not force:
+        diff = _settings_difference(marker["identity"], identity)
+        what = (f"with other settings: {diff}" if diff else
+                f"for {marker['identity']!r}, not {identity!r}")
+        raise OutputRefused(f"{option} {path}: holds the output of bench {command} {what}; --force replaces it, "
+                            "or choose another folder")
+    if force:  # another identity, or the same one written afresh
         check_replaceable(path, option)
         return "replace"
     return "own"
