@@ -280,9 +280,7 @@ def search_mount_rotation(reference, views, T_base_mount_ref, T_base_mount, t_mo
     T_bm = _check_stack(T_base_mount, "T_base_mount")
     if len(T_bm) != len(views):
         raise ValueError(f"T_base_mount: {len(T_bm)} poses for {len(views)} views")
-    matches = []
-    for v in views:
-        matches.append(match_features(reference.features, v.features, ratio, orientation_tol_deg).matches)
+    matches = [match_features(reference.features, v.features, ratio, orientation_tol_deg).matches for v in views]
 
     def poses(ty, tz):
         X = homogeneous(mount_rotation(0.0, ty, tz), t_mount_cam)
