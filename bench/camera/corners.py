@@ -373,7 +373,6 @@ def edge_map(image, sigma: float = 1.0, threshold: float = 0.15, subpixel: bool 
     thr = threshold * ref
     h, w = mag.shape
     pad = np.pad(mag, 1, mode="constant")
-    keep = np.zeros_like(mag, dtype=bool)
     m_minus = np.zeros_like(mag)
     m_plus = np.zeros_like(mag)
     for k, (du, dv) in enumerate(DIRECTIONS):
@@ -597,12 +596,7 @@ def _proper_labellings(uv, inner):
     """The labellings of a detected grid that are not mirrored (positive signed area in u-right, v-down pixels)."""
     nx, ny = inner
     g = uv.reshape(ny, nx, 2)
-    out = []
-    for op in _grid_symmetries(inner):
-        h = op(g)
-        if _signed_area(h) > 0:
-            out.append(h.reshape(-1, 2))
-    return out
+    return [h.reshape(-1, 2) for h in (op(g) for op in _grid_symmetries(inner)) if _signed_area(h) > 0]
 
 
 def canonical_labelling(geometry: BoardGeometry, detections):
@@ -627,10 +621,7 @@ def canonical_labelling(geometry: BoardGeometry, detections):
     for perm in itertools.permutations(range(len(planes))):
         if any(len(detections[perm[p]]) != planes[p].inner[0] * planes[p].inner[1] for p in range(len(planes))):
             continue
-        options = []
-        for p, plane in enumerate(planes):
-            det = detections[perm[p]]
-            options.append(_proper_labellings(det, plane.inner))
+        options = [_proper_labellings(detections[perm[p]], plane.inner) for p, plane in enumerate(planes)]
         for combo in itertools.product(*options):
             uv = np.vstack(combo)
             if len(planes) == 1:
@@ -819,11 +810,7 @@ def extract_corners_thesis(image, board_geometry=(7, 7), initial_P=None, outer_c
                                      angle_tol_deg, max_iterations, inside, local_threshold)
             if res is None:
                 failed.append(len(uv_all))
-                uv_all.append(np.full(2, np.nan))
-                lines_all.append(np.full((2, 3), np.nan))
-                rms_all.append(np.nan)
-                continue
-            p, lines, rms, it = res
+            p, lines, rms, it = res or (np.full(2, np.nan), np.full((2, 3), np.nan), np.nan, 0)
             uv_all.append(p)
             lines_all.append(lines)
             rms_all.append(rms)
