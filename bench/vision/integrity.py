@@ -364,8 +364,7 @@ def relative_pose_disagreement(kmap: KeypointMap, free_a: dict, free_b: dict, T_
     T_a_ref, T_b_ref = invert(free_a["T_free"]), invert(free_b["T_free"])
 
     def d_of(delta):
-        D = T_b_a @ _left_exp(delta[:6]) @ T_a_ref @ invert(_left_exp(delta[6:]) @ T_b_ref)
-        return _log(D)
+        return _log(T_b_a @ _left_exp(delta[:6]) @ T_a_ref @ invert(_left_exp(delta[6:]) @ T_b_ref))
 
     d0 = d_of(np.zeros(12))
     h = 1e-7
@@ -723,7 +722,6 @@ def _tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config,
             warn.append(f"locate view {v.name}: consensus {frac:.2f} at the solution")
 
     # --- test 2: the two new views' relative pose, images vs kinematics -------------------------------------------
-    d_t = d_r = float("nan")
     if "b" in loc and all(loc[k]["T_free"] is not None and loc[k]["free"] >= MIN_FREE_INLIERS for k in "ab"):
         d, m2 = relative_pose_disagreement(kmap, loc["a"], loc["b"], T_a_b, lab)
         s2 = _overdispersion(lab)
