@@ -65,9 +65,7 @@ def _check_stack(T, name):
 
 def _relative_motions(A, B):
     """``A_k = A_(k+1)^-1 A_k`` and ``B_k = B_(k+1) B_k^-1``: from ``A_k X B_k = const`` follows ``A_k X = X B_k``."""
-    Ar = invert(A[1:]) @ A[:-1]
-    Br = B[1:] @ invert(B[:-1])
-    return Ar, Br
+    return invert(A[1:]) @ A[:-1], B[1:] @ invert(B[:-1])
 
 
 def _translation(Ar, Br, R):
