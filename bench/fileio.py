@@ -403,12 +403,9 @@ def _legacy_output(path: Path, command: str, identity) -> bool:
         import sqlite3
 
         try:
-            con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-            try:
+            with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True)) as con:
                 return con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'runs'").fetchone() \
                     is not None
-            finally:
-                con.close()
         except sqlite3.Error:
             return False
     if command == "run":
