@@ -101,7 +101,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="corner extractor: the thesis's edge/k-means method or OpenCV's")
     _add_interchange_commands(sub)
     _add_dataset_commands(sub)
-    _add_force_flag([*(sub.choices[c] for c in _WRITERS), rend])
+    for writer in [*(sub.choices[c] for c in _WRITERS), rend]:
+        writer.add_argument("--force", action="store_true",
+                            help="replace a previous output of this same command at --out (never a folder or file "
+                                 "that bench did not write, nor another command's output)")
     from bench.robot import commands as robot_commands
 
     robot_commands.add_parsers(sub)
@@ -187,13 +190,6 @@ def _dataset_command(args) -> int:
 _INTERCHANGE = ("export", "export-camera", "import-tracker", "import-joints")
 #: commands that write an output folder or file (bench.fileio: they claim it first); plus ``sim render``
 _WRITERS = ("run", "sweep", "budget", "locate", "calibrate-camera", *_INTERCHANGE)
-
-
-def _add_force_flag(parsers) -> None:
-    for p in parsers:
-        p.add_argument("--force", action="store_true",
-                       help="replace a previous output of this same command at --out (never a folder or file that "
-                            "bench did not write, nor another command's output)")
 
 
 def _preflight(args, stack) -> None:
