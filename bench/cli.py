@@ -101,7 +101,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="corner extractor: the thesis's edge/k-means method or OpenCV's")
     _add_interchange_commands(sub)
     _add_dataset_commands(sub)
-    _add_force_flag([*(sub.choices[c] for c in _WRITERS), rend])
+    for writer in [*(sub.choices[c] for c in _WRITERS), rend]:
+        writer.add_argument("--force", action="store_true",
+                            help="replace a previous output of this same command at --out (never a folder or file "
+                                 "that bench did not write, nor another command's output)")
     from bench.robot import commands as robot_commands
 
     robot_commands.add_parsers(sub)
@@ -189,20 +192,15 @@ _INTERCHANGE = ("export", "export-camera", "import-tracker", "import-joints")
 _WRITERS = ("run", "sweep", "budget", "locate", "calibrate-camera", *_INTERCHANGE)
 
 
-def _add_force_flag(parsers) -> None:
-    for p in parsers:
-        p.add_argument("--force", action="store_true",
-                       help="replace a previous output of this same command at --out (never a folder or file that "
-                            "bench did not write, nor another command's output)")
-
-
 def _preflight(args, stack) -> None:
-    """Checks before any work: a negative ``--seed`` (any command); ``locate --out`` and ``calibrate-camera --out``
-    write their folder at the end: refuse a foreign one now, mark what they wrote when they end
-    (:func:`bench.fileio.writing_output_dir`); the other commands claim their own."""
-    seed = getattr(args, "seed", None)
+    """Checks before any work: a negative ``--seed`` (any command), ``--seeds`` below 1 (sweep, budget);
+    ``locate --out`` and ``calibrate-camera --out`` write their folder at the end: refuse a foreign one now, mark what
+    they wrote when they end (:func:`bench.fileio.writing_output_dir`); the other commands claim their own."""
+    seed, seeds = getattr(args, "seed", None), getattr(args, "seeds", None)
     if seed is not None and seed < 0:
         raise BenchError(f"--seed: expected a non-negative integer, got {seed}")
+    if seeds is not None and seeds < 1:
+        raise BenchError(f"--seeds: must be >= 1, got {seeds}")
     if args.command in ("locate", "calibrate-camera") and getattr(args, "out", None):
         from bench.fileio import writing_output_dir
 
@@ -306,8 +304,6 @@ def _sweep(args) -> None:
     from bench.config import parse_set
     from bench.scenario.sweep import parse_param, run_sweep
 
-    if args.seeds < 1:
-        raise BenchError(f"--seeds: must be >= 1, got {args.seeds}")
     params = [parse_param(p) for p in args.params]
     fixed = dict(parse_set(item) for item in args.overrides)
     out = args.out or str(Path("runs") / f"sweep-{Path(args.scenario).stem}")
@@ -328,8 +324,6 @@ def _budget(args) -> None:
     from bench.config import parse_set
     from bench.scenario.budget import run_budget
 
-    if args.seeds < 1:
-        raise BenchError(f"--seeds: must be >= 1, got {args.seeds}")
     fixed = dict(parse_set(item) for item in args.overrides)
     out = args.out or str(Path("runs") / f"budget-{Path(args.scenario).stem}")
     res = run_budget(args.scenario, list(range(args.seed, args.seed + args.seeds)), out, args.backend, args.address,
@@ -370,10 +364,8 @@ def main(argv=None) -> int:
         elif args.command == "locate":
             from bench.vision.locate_dataset import locate_dataset
 
-            if args.priors and (args.refine != "joints" or args.pnp):
-                raise BenchError(f"--priors {args.priors}: used only by --refine joints (two views), got --refine "
-                                 f"{args.refine}{' --pnp' if args.pnp else ''}")
-            for flag, on in (("--guided", args.guided), (f"--loss {args.loss}", args.loss != "none"),
+            for flag, on in ((f"--priors {args.priors}", args.priors), ("--guided", args.guided),
+                             (f"--loss {args.loss}", args.loss != "none"),
                              (f"--map-points {args.map_points}", args.map_points != "all")):
                 if on and (args.refine != "joints" or args.pnp):
                     raise BenchError(f"{flag}: used only by --refine joints (two views), got --refine {args.refine}"

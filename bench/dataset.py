@@ -501,16 +501,21 @@ class DatasetWriter:
         marker = output_marker(self.root) if self.root.is_dir() else None
         if marker and marker["command"] == command and not (overwrite or force):
             raise ConfigError(self.root, "<folder>", "already exists (pass --overwrite to replace it)")
-        if check_output_dir(self.root, command, force=force, identity=self.identity,
-                            option="dataset folder") in ("own", "replace"):
-            check_replaceable(self.root, "dataset folder")  # replaced whole: nothing of someone else's in it
         self.overwrite, self.force = overwrite, force
+        self._check_root()
         self.tmp: Path | None = None
         self._views: list[dict] = []
         self._joints: list = []
         self._table: list = []
         self.camera_file: str | None = None
         self.robot_file: str | None = None
+
+    def _check_root(self) -> None:
+        """``root`` may be written: absent, empty, or an output it may replace (:func:`~bench.fileio.check_output_dir`);
+        one it replaces is replaced whole, so nothing of someone else's may be in it."""
+        if check_output_dir(self.root, self.command, force=self.force, identity=self.identity,
+                            option="dataset folder") in ("own", "replace"):
+            check_replaceable(self.root, "dataset folder")
 
     def __enter__(self) -> DatasetWriter:
         self.root.parent.mkdir(parents=True, exist_ok=True)
@@ -540,7 +545,7 @@ class DatasetWriter:
 
         if any(v["name"] == name for v in self._views):
             raise ValueError(f"view {name!r}: added twice")
-        entry = {"name": name}
+        rel = None
         if image is None:
             if q is None and table is None:
                 raise ValueError(f"view {name!r}: needs an image or readings")
@@ -552,20 +557,19 @@ class DatasetWriter:
             bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
             if not cv2.imwrite(str(self.tmp / rel), bgr):
                 raise OSError(f"could not write {self.tmp / rel}")
-            entry["image"] = rel
-        if role:
-            entry["role"] = role
-        if notes:
-            entry["notes"] = notes
-        if region:
-            entry["region"] = region
-        self._views.append(entry)
+        self._add_entry(name, rel, role, notes, region)
         if q is not None:
             q = np.asarray(q, dtype=float).reshape(6)
             self._joints.append([name, *np.rad2deg(q)])
         if table is not None:
             x, z, rot = np.asarray(table, dtype=float).reshape(3)
             self._table.append([name, x * 1e3, z * 1e3, np.rad2deg(rot)])
+
+    def _add_entry(self, name: str, rel: str | None, role: str, notes: str, region: str) -> None:
+        """The manifest's entry of a view: its name, then its image file, role, notes and region when given."""
+        entry = {"name": name} if rel is None else {"name": name, "image": rel}
+        entry.update((key, value) for key, value in (("role", role), ("notes", notes), ("region", region)) if value)
+        self._views.append(entry)
 
     def write_tracker(self, points, p_tracker, q) -> None:
         """Tracker points (m, in the tracker frame) with the joint readings (rad) they were taken at."""
@@ -579,10 +583,7 @@ class DatasetWriter:
         if self._table:
             self.write_text("table.csv", _csv_text(["view", *TABLE_COLUMNS], self._table))
         man = {"format": FORMAT, "kind": self.kind, "name": self.name, "units": {"length": "mm", "angle": "deg"}}
-        if self.created_by:
-            man["created_by"] = self.created_by
-        if self.notes:
-            man["notes"] = self.notes
+        man.update((key, value) for key, value in (("created_by", self.created_by), ("notes", self.notes)) if value)
         for key, rel in (("camera", "camera.yaml"), ("robot", "robot.yaml")):
             if (self.tmp / rel).is_file():
                 man[key] = rel
@@ -597,10 +598,7 @@ class DatasetWriter:
             return False
         try:
             self._finish()
-            # again: the folder may have changed while the views were rendered
-            if check_output_dir(self.root, self.command, force=self.force, identity=self.identity,
-                                option="dataset folder") in ("own", "replace"):
-                check_replaceable(self.root, "dataset folder")
+            self._check_root()  # again: the folder may have changed while the views were rendered
             if self.root.exists():
                 old = self.root.with_name(f".{self.root.name}.old-{os.getpid()}")
                 os.replace(self.root, old)

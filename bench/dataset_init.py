@@ -31,6 +31,7 @@ from __future__ import annotations
 import fnmatch
 import shutil
 import tempfile
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -71,20 +72,13 @@ class _RawDatasetWriter(DatasetWriter):
     def add_photo(self, name: str, src: Path, q_deg=None, role: str = "", region: str = "") -> None:
         rel = f"images/{name}{src.suffix.lower()}"
         shutil.copyfile(src, self.path(rel))
-        self._add_entry(name, rel, q_deg, role, region)
+        self._add_raw(name, rel, q_deg, role, region)
 
     def add_readings(self, name: str, q_deg, role: str) -> None:
-        self._add_entry(name, None, q_deg, role, "")
+        self._add_raw(name, None, q_deg, role, "")
 
-    def _add_entry(self, name, rel, q_deg, role, region) -> None:
-        entry = {"name": name}
-        if rel is not None:
-            entry["image"] = rel
-        if role:
-            entry["role"] = role
-        if region:
-            entry["region"] = region
-        self._views.append(entry)
+    def _add_raw(self, name, rel, q_deg, role, region) -> None:
+        self._add_entry(name, rel, role, "", region)
         if q_deg is not None:
             self._joints.append([name, *np.asarray(q_deg, dtype=float).reshape(len(JOINT_COLUMNS))])
 
@@ -186,14 +180,11 @@ def init_dataset(out, images=None, joints=None, joint_units: str | None = None, 
     from bench.camera.calibrate_dataset import target_yaml_text
 
     out = Path(out)
-    if out.is_dir() and not any(out.iterdir()):
-        empty_out = True
-    elif out.exists():
+    empty_out = out.is_dir() and not any(out.iterdir())
+    if out.exists() and not empty_out:
         what = ("a file" if not out.is_dir() else
                 f"a non-empty folder (holds {sorted(p.name for p in out.iterdir())[0]!r})")
         raise BenchError(f"--out {out}: is {what}; a dataset is only written into a new or empty folder")
-    else:
-        empty_out = False
     if images is None and tracker is None:
         raise BenchError("nothing to put in the dataset: give --images (photos) and/or --tracker (a tracker export)")
     if joints is not None and images is None:
@@ -218,9 +209,8 @@ def init_dataset(out, images=None, joints=None, joint_units: str | None = None, 
         if view in by_key:
             raise ConfigError(jname, f"line {ln}", f"a second row for view {view!r} (first on line {by_key[view][1]})")
         by_key[view] = (q, ln)
-    view_roles = {}
-    for v in sorted(set(photos) | set(by_key)):
-        view_roles[v] = _role_of(v, role_list, str(images) if v in photos else jname) if role_list else ""
+    view_roles = {v: _role_of(v, role_list, str(images) if v in photos else jname) if role_list else ""
+                  for v in sorted(set(photos) | set(by_key))}
     view_regions = {v: _role_of(v, region_list, str(images) if v in photos else jname, "--region")
                     for v, r in view_roles.items() if region_list and r in ("reference", "surround", "locate")}
     for v, (_, ln) in by_key.items():
@@ -283,9 +273,7 @@ def init_dataset(out, images=None, joints=None, joint_units: str | None = None, 
             shutil.copyfile(camera, w.path("camera.yaml"))
         if target is not None:
             w.write_text("target.yaml", target_yaml_text(target))
-    counts = {}
-    for r in view_roles.values():
-        counts[r or "(none)"] = counts.get(r or "(none)", 0) + 1
+    counts = dict(Counter(r or "(none)" for r in view_roles.values()))
     from bench.dataset import load_dataset
 
     try:

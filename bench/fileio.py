@@ -292,16 +292,13 @@ def check_output_dir(path, command: str, *, force: bool = False, identity: str |
     if marker["command"] != command:
         raise OutputRefused(f"{option} {path}: holds the output of bench {marker['command']}, not of bench {command}; "
                             "choose another folder")
-    if identity is not None and marker.get("identity") not in (None, identity):
-        if not force:
-            diff = _settings_difference(marker["identity"], identity)
-            what = (f"with other settings: {diff}" if diff else
-                    f"for {marker['identity']!r}, not {identity!r}")
-            raise OutputRefused(f"{option} {path}: holds the output of bench {command} {what}; --force replaces it, "
-                                "or choose another folder")
-        check_replaceable(path, option)
-        return "replace"
-    if force:
+    if identity is not None and marker.get("identity") not in (None, identity) and not force:
+        diff = _settings_difference(marker["identity"], identity)
+        what = (f"with other settings: {diff}" if diff else
+                f"for {marker['identity']!r}, not {identity!r}")
+        raise OutputRefused(f"{option} {path}: holds the output of bench {command} {what}; --force replaces it, "
+                            "or choose another folder")
+    if force:  # another identity, or the same one written afresh
         check_replaceable(path, option)
         return "replace"
     return "own"
@@ -407,12 +404,9 @@ def _legacy_output(path: Path, command: str, identity) -> bool:
         import sqlite3
 
         try:
-            con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-            try:
+            with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True)) as con:
                 return con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'runs'").fetchone() \
                     is not None
-            finally:
-                con.close()
         except sqlite3.Error:
             return False
     if command == "run":

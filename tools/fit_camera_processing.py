@@ -79,8 +79,7 @@ def profile_of(folder, pattern):
     views = detect_views(files, pattern)
     if len(views) < 3:
         raise SystemExit(f"{folder}: the {pattern[0]}x{pattern[1]} board was found in {len(views)} images (need 3)")
-    t, prof, n = median_edge_profile(views, pattern, step_px=1.0)
-    return t, prof, n
+    return median_edge_profile(views, pattern, step_px=1.0)
 
 
 def fit(data, chain, pattern) -> dict:

@@ -86,8 +86,7 @@ def refusals(raw: dict, source: Path, keys) -> dict:
         value = probe_of(field)
         if value is None:
             continue
-        probe = copy.deepcopy(raw)
-        node = probe
+        node = probe = copy.deepcopy(raw)
         *path, leaf = key.split(".")
         for part in path:
             node = node.setdefault(part, {})

@@ -213,14 +213,7 @@ def measure_print_error(views, pattern, square_mm: float, iterations: int = 4) -
         return cal.calibrate_camera([obj] * len(uvs), uvs, size, "heikkila"), obj
 
     res, _ = calib(np.zeros(cols), np.zeros(rows))
-    ref = res.residuals_px[0].reshape(rows, cols, 2)[..., 1].mean(1)
-    relabelled = 0
-    for k in range(1, len(uvs)):  # the labelling whose per-row residual pattern matches view 0's best
-        best = max(_rotations(pattern), key=lambda m, k=k: float(np.dot(
-            res.residuals_px[k][m].reshape(rows, cols, 2)[..., 1].mean(1), ref)))
-        if not np.array_equal(best, np.arange(cols * rows)):
-            relabelled += 1
-        uvs[k] = uvs[k][best]
+    uvs, relabelled = _relabel(res, uvs, pattern)  # calib() reads the relabelled views
     off_x, off_y = np.zeros(cols), np.zeros(rows)
     for _ in range(iterations):
         res, obj = calib(off_x, off_y)
@@ -246,15 +239,17 @@ def measure_print_error(views, pattern, square_mm: float, iterations: int = 4) -
 
 def _relabel(res, uvs, pattern):
     """Each view's corner labelling brought to view 0's (a symmetric board's detection may start from any of its
-    four corners): the labelling whose per-row residual pattern matches view 0's best. Returns the new ``uvs``."""
+    four corners): the labelling whose per-row residual pattern matches view 0's best. Returns the new ``uvs`` and
+    how many views were relabelled."""
     cols, rows = pattern
     ref = res.residuals_px[0].reshape(rows, cols, 2)[..., 1].mean(1)
-    out = [uvs[0].copy()]
+    out, relabelled = [uvs[0].copy()], 0
     for k in range(1, len(uvs)):
         best = max(_rotations(pattern), key=lambda m, k=k: float(np.dot(
             res.residuals_px[k][m].reshape(rows, cols, 2)[..., 1].mean(1), ref)))
+        relabelled += not np.array_equal(best, np.arange(cols * rows))
         out.append(uvs[k][best])
-    return out
+    return out, relabelled
 
 
 def fit_gaussian_field(z, xy, fixed, lengths):
@@ -298,7 +293,7 @@ def measure_board_shape(views, pattern, square_mm: float) -> dict:
     """
     cols, rows = pattern
     res, uvs = calibrate(views, pattern)
-    uvs = _relabel(res, uvs, pattern)
+    uvs, _ = _relabel(res, uvs, pattern)
     res, _ = calibrate([v._replace(uv=u) for v, u in zip(views, uvs, strict=True)], pattern)
     g = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2).astype(float)
     obj = np.c_[g, np.zeros(len(g))]

@@ -202,8 +202,7 @@ class Report:
                 ("base_rot_err_vision_heading_deg", ""), ("base_rot_crb_heading_deg", "")]
         rows, st = [], {}
         for k, target in keys:
-            st[k] = _stats(r["metrics"].get(k) for r in runs)
-            s = st[k]
+            s = st[k] = _stats(r["metrics"].get(k) for r in runs)
             if s["n"]:
                 rows.append([f"`{k}`", _fmt(s["median"]), f"{_fmt(s['q25'])} – {_fmt(s['q75'])}", _fmt(s["max"]),
                              target])
@@ -337,11 +336,9 @@ class Report:
             for m in ("quaternion", "quaternion_ratio", "lms", "lms_ratio"):
                 if (m, ds[0], "x") not in per:
                     continue
-                rows = []
-                for ax in "xyz":
-                    rows.append([f"error {ax}"] + [
-                        f"{_fmt(np.median(per[(m, d, ax)]), 2)} ({_fmt(per[(m, d, 'thesis')]['xyz'.index(ax)], 3)})"
-                        for d in ds])
+                rows = [[f"error {ax}"] + [f"{_fmt(np.median(per[(m, d, ax)]), 2)} "
+                                           f"({_fmt(per[(m, d, 'thesis')]['xyz'.index(ax)], 3)})" for d in ds]
+                        for ax in "xyz"]
                 self.md.append(f"**{m}**\n\n" + _table(["d_o (mm)"] + [_fmt(d) for d in ds], rows) + "\n")
             bd = [d for d in ds if ("bundle", d, "x") in per]
             if bd:  # the maximum-likelihood bundle, beside the thesis's four (not in the thesis)

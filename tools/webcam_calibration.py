@@ -19,7 +19,7 @@ import numpy as np
 
 from bench.camera import calibration as cal
 from bench.camera.heikkila import fit_implicit_inverse
-from bench.camera.photo_stats import detect_board
+from bench.camera.photo_stats import board_points, detect_board
 from bench.camera.plots import plot_residual_vectors
 
 WEBCAM = Path(__file__).resolve().parents[1] / "tests" / "data" / "real_webcam_chessboard"
@@ -35,8 +35,7 @@ def main(argv=None):
     files = sorted(glob.glob(str(Path(args.data) / "*.jpg")) + glob.glob(str(Path(args.data) / "*.png")))
     if not files:
         raise SystemExit(f"{args.data}: no images")
-    obj = np.zeros((49, 3))
-    obj[:, :2] = np.mgrid[0:7, 0:7].T.reshape(-1, 2)
+    obj = board_points((7, 7))
     Xs, uvs, used = [], [], []
     t0 = time.perf_counter()
     for f in files:

@@ -158,10 +158,8 @@ def _values(runs: dict, key, col) -> np.ndarray:
 
 
 def _first_finite(runs: dict, key, col) -> float:
-    for cells in runs.values():
-        if key in cells and math.isfinite(cells[key][col]):
-            return cells[key][col]
-    return float("nan")
+    return next((cells[key][col] for cells in runs.values() if key in cells and math.isfinite(cells[key][col])),
+                float("nan"))
 
 
 def markdown(name: str, rows: list, factor: float) -> str:
@@ -174,9 +172,8 @@ def markdown(name: str, rows: list, factor: float) -> str:
     n_in = sum(r["within"] for r in rows)
     lines = [f"**{name}** (medians over {_span(seeds_r)} realistic / {_span(seeds_i)} ideal seeds; mm; ratio = "
              f"realistic / thesis; within {factor:g}x: {n_in} of {len(rows)} axis cells)", ""]
-    head = "| thesis table, method | d_o (mm) |"
-    for a in AXES:
-        head += f" {a} realistic | {a} ideal | {a} thesis | {a} ratio |"
+    head = "| thesis table, method | d_o (mm) |" + "".join(f" {a} realistic | {a} ideal | {a} thesis | {a} ratio |"
+                                                         for a in AXES)
     lines += [head + f" within {factor:g}x (x y z) |", "|" + "---|" * (2 + 4 * len(AXES) + 1)]
     by_cell: dict = {}
     for r in rows:

@@ -135,15 +135,14 @@ def target_spec(target: str, inner: str | None = None, square_mm: float | None =
         raise ConfigError("--target", kind, "expected chessboard or two_plane_rig")
     flags = {"inner": inner, "square_mm": square_mm, "squares": squares, "size_mm": size_mm, "margin_mm": margin_mm}
     fields = {k: f for k, f in TARGETS[kind].model_fields.items() if k not in ("type", "tolerance")}
-    required, optional = {k for k, f in fields.items() if f.is_required()}, {k for k, f in fields.items()
-                                                                             if not f.is_required()}
+    required = {k for k, f in fields.items() if f.is_required()}
 
     def flag(key):
         return "--" + key.replace("_", "-")
 
-    allowed = ", ".join(flag(k) for k in sorted(required | set(optional)))
+    allowed = ", ".join(flag(k) for k in sorted(fields))
     for key, value in flags.items():
-        if value is not None and key not in required | set(optional):
+        if value is not None and key not in fields:
             raise ConfigError(f"--target {kind}", flag(key), f"not a flag of this target (its flags: {allowed})")
         if value is None and key in required:
             raise ConfigError(f"--target {kind}", flag(key), f"missing (this target needs "
@@ -188,11 +187,7 @@ def target_symmetries(geometry) -> list:
         c = X.mean(axis=0)
         nx, ny = geometry.planes[0].inner
         turns = (1, 2, 3) if nx == ny else (2,)
-        out = []
-        for k in turns:
-            R = rot_z(k * np.pi / 2)
-            out.append(homogeneous(R, c - R @ c))
-        return out
+        return [homogeneous(R, c - R @ c) for R in (rot_z(k * np.pi / 2) for k in turns)]
     z_mid = float(np.mean(X[:, 2]))
     return [homogeneous(np.array([[0.0, 1, 0], [1, 0, 0], [0, 0, -1]]), [0.0, 0.0, 2 * z_mid])]
 
@@ -395,11 +390,8 @@ def calibrate_dataset(root, out, model: str = "heikkila", extractor: str = "thes
               "timings_s": {"detect_s": t_detect, **result.timings_s}}
     by_name = {v.name: v for v in views}
     if result.success:
-        report["K"] = result.K.tolist()
-        report["dist"] = result.dist.tolist()
-        report["standard_errors"] = result.standard_errors
-        report["opencv_K"] = ref.K.tolist()
-        report["opencv_dist"] = ref.dist.tolist()
+        report.update(K=result.K.tolist(), dist=result.dist.tolist(), standard_errors=result.standard_errors,
+                      opencv_K=ref.K.tolist(), opencv_dist=ref.dist.tolist())
         write_camera_yaml(out / "camera.yaml", result.camera)
         rows = per_view_pinhole(Xs, uvs)
         cols = [k for k in rows[0] if k != "note"]

@@ -35,6 +35,8 @@ from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, invert, skew, transform_points
 
 MODELS = ("heikkila", "radial", "pinhole")
+#: each distortion coefficient's place in OpenCV's (k1, k2, p1, p2, k3)
+_DIST_INDEX = {"k1": 0, "k2": 1, "p1": 2, "p2": 3, "k3": 4}
 #: condition number of the column-scaled Jacobian above which the parameters count as undetermined
 COND_LIMIT = 1e10
 
@@ -117,8 +119,7 @@ class _Problem:
         self.n_views = len(object_points)
         self.offsets = np.concatenate([[0], np.cumsum([len(x) for x in object_points])])
         # columns of the 5-vector that are estimated
-        idx = {"k1": 0, "k2": 1, "p1": 2, "p2": 3, "k3": 4}
-        self.dist_cols = [idx[n] for n in self.dist_names]
+        self.dist_cols = [_DIST_INDEX[n] for n in self.dist_names]
 
     @property
     def n_params(self):
@@ -359,12 +360,8 @@ def linear_calibration(object_points, image_points, image_size, fit_skew: bool =
             K = dlt.intrinsics_from_homographies(H[:1] if len(H) == 1 else H[:2], skew=True, image_size=size)
     if not fit_skew:
         K[0, 1] = 0.0
-    T = np.empty((len(Xs), 4, 4))
-    for i in range(len(Xs)):
-        if i in Ms:
-            T[i] = dlt.pose_from_projection(K, Ms[i])
-        else:
-            T[i] = dlt.pose_from_homography(K, Hs[i]) @ invert(frames[i])
+    T = np.array([dlt.pose_from_projection(K, Ms[i]) if i in Ms else dlt.pose_from_homography(K, Hs[i])
+                  @ invert(frames[i]) for i in range(len(Xs))])
     return K, T
 
 
@@ -522,8 +519,7 @@ def _check_initial(initial, n_views, model, k3, fit_skew):
         raise ValueError("initial: contains NaN or inf")
     if not fit_skew:
         K[0, 1] = 0.0
-    idx = {"k1": 0, "k2": 1, "p1": 2, "p2": 3, "k3": 4}
-    return K, T, np.array([dist[idx[n]] for n in distortion_names(model, k3)])
+    return K, T, np.array([dist[_DIST_INDEX[n]] for n in distortion_names(model, k3)])
 
 
 def calibrate_camera(object_points, image_points, image_size, model: str = "heikkila", *, k3: bool = False,

@@ -52,6 +52,7 @@ import cv2
 import numpy as np
 
 from bench.camera import dlt
+from bench.geometry.transforms import homogeneous
 
 #: Sobel masks (Eq. 88 and 89), applied as correlations: G_x > 0 where the intensity grows with u
 SOBEL_X = np.array([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]])
@@ -156,13 +157,9 @@ def two_plane_rig(squares: int = 7, size: float = 0.197, margin: float = 0.0) ->
     m = float(margin)
     top = m + (n - 1) * s
     # left plane: x axis -x (left to right = towards the fold), y axis -z (down), z = -y (into the board)
-    T_left = np.eye(4)
-    T_left[:3, :3] = np.column_stack([[-1.0, 0, 0], [0, 0, -1.0], [0, -1.0, 0]])
-    T_left[:3, 3] = [top, 0.0, top]
+    T_left = homogeneous(np.column_stack([[-1.0, 0, 0], [0, 0, -1.0], [0, -1.0, 0]]), [top, 0.0, top])
     # right plane: x axis +y (away from the fold), y axis -z, z = -x (into the board)
-    T_right = np.eye(4)
-    T_right[:3, :3] = np.column_stack([[0, 1.0, 0], [0, 0, -1.0], [-1.0, 0, 0]])
-    T_right[:3, 3] = [0.0, m + s, top]
+    T_right = homogeneous(np.column_stack([[0, 1.0, 0], [0, 0, -1.0], [-1.0, 0, 0]]), [0.0, m + s, top])
     planes = (BoardPlane("left", (n - 1, n - 1), s, T_left), BoardPlane("right", (n - 1, n - 1), s, T_right))
     lo, hi = m, m + size
     if m == 0.0:
@@ -376,7 +373,6 @@ def edge_map(image, sigma: float = 1.0, threshold: float = 0.15, subpixel: bool 
     thr = threshold * ref
     h, w = mag.shape
     pad = np.pad(mag, 1, mode="constant")
-    keep = np.zeros_like(mag, dtype=bool)
     m_minus = np.zeros_like(mag)
     m_plus = np.zeros_like(mag)
     for k, (du, dv) in enumerate(DIRECTIONS):
@@ -600,12 +596,7 @@ def _proper_labellings(uv, inner):
     """The labellings of a detected grid that are not mirrored (positive signed area in u-right, v-down pixels)."""
     nx, ny = inner
     g = uv.reshape(ny, nx, 2)
-    out = []
-    for op in _grid_symmetries(inner):
-        h = op(g)
-        if _signed_area(h) > 0:
-            out.append(h.reshape(-1, 2))
-    return out
+    return [h.reshape(-1, 2) for h in (op(g) for op in _grid_symmetries(inner)) if _signed_area(h) > 0]
 
 
 def canonical_labelling(geometry: BoardGeometry, detections):
@@ -630,10 +621,7 @@ def canonical_labelling(geometry: BoardGeometry, detections):
     for perm in itertools.permutations(range(len(planes))):
         if any(len(detections[perm[p]]) != planes[p].inner[0] * planes[p].inner[1] for p in range(len(planes))):
             continue
-        options = []
-        for p, plane in enumerate(planes):
-            det = detections[perm[p]]
-            options.append(_proper_labellings(det, plane.inner))
+        options = [_proper_labellings(detections[perm[p]], plane.inner) for p, plane in enumerate(planes)]
         for combo in itertools.product(*options):
             uv = np.vstack(combo)
             if len(planes) == 1:
@@ -822,11 +810,7 @@ def extract_corners_thesis(image, board_geometry=(7, 7), initial_P=None, outer_c
                                      angle_tol_deg, max_iterations, inside, local_threshold)
             if res is None:
                 failed.append(len(uv_all))
-                uv_all.append(np.full(2, np.nan))
-                lines_all.append(np.full((2, 3), np.nan))
-                rms_all.append(np.nan)
-                continue
-            p, lines, rms, it = res
+            p, lines, rms, it = res or (np.full(2, np.nan), np.full((2, 3), np.nan), np.nan, 0)
             uv_all.append(p)
             lines_all.append(lines)
             rms_all.append(rms)

@@ -96,6 +96,5 @@ def export_camera(camera_file, fmt: str, out, force: bool = False) -> Path:
     if fmt not in FORMATS:
         raise ConfigError("--format", fmt, f"expected one of {', '.join(FORMATS)}")
     camera = read_camera_yaml(camera_file)
-    text = opencv_yaml_text(camera, str(camera_file)) if fmt == "opencv" else camera_info_text(camera,
-                                                                                               str(camera_file))
+    text = (opencv_yaml_text if fmt == "opencv" else camera_info_text)(camera, str(camera_file))
     return write_output_file(out, text, "export-camera", force=force)

@@ -332,13 +332,11 @@ def project_flatport(p_cam, port: FlatPort, K=None, *, tol: float = PROJECT_TOL,
     n_min = min(n_k)
     lo = np.zeros_like(rho_t)
     hi = np.full_like(rho_t, n_min)
-    s = np.zeros_like(rho_t)
     # start from the thin-port solution in water (rho_p / z_p = tan(theta_water))
     s = np.clip(port.n_water * rho_t / np.hypot(rho_t, q[valid][:, 2]), 0.0, n_min * (1 - 1e-12))
     done = rho_t == 0
     s[done] = 0.0
     it = 0
-    res = np.zeros_like(rho_t)
     for it in range(1, max_iterations + 1):
         act = ~done
         if not np.any(act):
@@ -347,7 +345,6 @@ def project_flatport(p_cam, port: FlatPort, K=None, *, tol: float = PROJECT_TOL,
         La = tuple(Lk if np.ndim(Lk) == 0 else Lk[act] for Lk in L)
         rho, drho = _radial_offset(s[act], La, n_k)
         f = rho - rho_t[act]
-        res[act] = f
         conv = np.abs(f) <= 1e-3 * tol  # iterate to float resolution; success is judged against tol
         lo_a, hi_a = lo[act], hi[act]
         lo_a = np.where(f < 0, s[act], lo_a)  # rho increasing: f < 0 -> root above s

@@ -56,10 +56,7 @@ def plot_residual_vectors(path, image_points, residuals_px, image=None, image_si
     ax.set_ylim(h - 0.5, -0.5)
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
-    text = title or "reprojection residuals"
-    if rms_px is not None:
-        text += f" (chi = {rms_px:.3f} px)"
-    ax.set_title(text)
+    ax.set_title((title or "reprojection residuals") + ("" if rms_px is None else f" (chi = {rms_px:.3f} px)"))
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     return atomic_save_figure(fig, path)

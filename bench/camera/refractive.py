@@ -224,10 +224,7 @@ def _poses_to_vector(T):
 
 def _vector_to_poses(v):
     v = v.reshape(-1, 6)
-    T = np.tile(np.eye(4), (len(v), 1, 1))
-    T[:, :3, :3] = Rotation.from_rotvec(v[:, :3]).as_matrix()
-    T[:, :3, 3] = v[:, 3:]
-    return T
+    return homogeneous(Rotation.from_rotvec(v[:, :3]).as_matrix(), v[:, 3:])
 
 
 def virtual_scale(port: FlatPort) -> np.ndarray:

@@ -133,27 +133,25 @@ class PinocchioArm:
         pin.forwardKinematics(self.model, self.data, qi)
         pin.updateFramePlacements(self.model, self.data)
 
-    def frames(self, q) -> np.ndarray:
-        """``T_base_k`` for k = 0..n from Pinocchio, shape (..., n + 1, 4, 4); ``q (..., n)`` in rad."""
+    def _each(self, q, shape: tuple, value) -> np.ndarray:
+        """``value()`` (an array of ``shape``) at every configuration of ``q (..., n)`` (rad), the kinematics and frame
+        placements updated for each: shape ``(...,) + shape``."""
         q = _check_q(self.robot, q)
         flat = q.reshape(-1, self.robot.n)
-        out = np.empty((flat.shape[0], len(self.frame_ids), 4, 4))
-        ids = self.frame_ids
+        out = np.empty((flat.shape[0],) + shape)
         for j, qi in enumerate(flat):
             self._update(qi)
-            oMf = self.data.oMf
-            out[j] = [oMf[fid].homogeneous for fid in ids]
-        return out.reshape(q.shape[:-1] + out.shape[1:])
+            out[j] = value()
+        return out.reshape(q.shape[:-1] + shape)
+
+    def frames(self, q) -> np.ndarray:
+        """``T_base_k`` for k = 0..n from Pinocchio, shape (..., n + 1, 4, 4); ``q (..., n)`` in rad."""
+        return self._each(q, (len(self.frame_ids), 4, 4),
+                          lambda: [self.data.oMf[fid].homogeneous for fid in self.frame_ids])
 
     def ee_position(self, q) -> np.ndarray:
         """The measured point ``p_base`` (m) from the ``ee_point`` frame, shape (..., 3)."""
-        q = _check_q(self.robot, q)
-        flat = q.reshape(-1, self.robot.n)
-        out = np.empty((flat.shape[0], 3))
-        for j, qi in enumerate(flat):
-            self._update(qi)
-            out[j] = self.data.oMf[self.ee_id].translation
-        return out.reshape(q.shape[:-1] + (3,))
+        return self._each(q, (3,), lambda: self.data.oMf[self.ee_id].translation)
 
     def regressor(self, q, frame="ee_point", reference="LOCAL_WORLD_ALIGNED") -> np.ndarray:
         """Pinocchio's frame kinematic regressor, shape (..., 6, 6n), rows ``(v, w)``.
@@ -166,13 +164,8 @@ class PinocchioArm:
         if not self.model.existFrame(frame):
             raise ValueError(f"frame: unknown frame {frame!r} (have frame0..frame{self.robot.n}, link5, ee_point)")
         fid = self.model.getFrameId(frame)
-        q = _check_q(self.robot, q)
-        flat = q.reshape(-1, self.robot.n)
-        out = np.empty((flat.shape[0], 6, 6 * self.robot.n))
-        for j, qi in enumerate(flat):
-            self._update(qi)
-            out[j] = pin.computeFrameKinematicRegressor(self.model, self.data, fid, _REFERENCE[reference])
-        return out.reshape(q.shape[:-1] + out.shape[1:])
+        return self._each(q, (6, 6 * self.robot.n),
+                          lambda: pin.computeFrameKinematicRegressor(self.model, self.data, fid, _REFERENCE[reference]))
 
 
 def pinocchio_frames(robot: Robot, q, eps=None) -> np.ndarray:

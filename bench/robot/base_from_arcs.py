@@ -217,10 +217,8 @@ def base_frame_from_axes(axis1: Line, axis2: Line, q1_during_arc2: float, robot:
         ``T_tracker_base`` is NaN and ``parallel`` True if the axes are parallel.
     """
     robot = _check_robot(robot)
-    z0 = np.asarray(axis1.direction, dtype=float)
-    z0 = z0 / np.linalg.norm(z0)
-    z1 = np.asarray(axis2.direction, dtype=float)
-    z1 = z1 / np.linalg.norm(z1)
+    z0, z1 = (np.asarray(axis.direction, dtype=float) for axis in (axis1, axis2))
+    z0, z1 = z0 / np.linalg.norm(z0), z1 / np.linalg.norm(z1)
     cp = closest_points_between_lines(axis1.point, z0, axis2.point, z1, parallel_tol)  # Eq. 107-117
     if cp.parallel:
         return AxesFrame(_NAN_T.copy(), float(cp.distance), 0.0, True)

@@ -57,9 +57,7 @@ def write_calibrated_robot(path, nominal_file, robot: Robot, eps=None, T_link5_c
     data = yaml.safe_load(Path(nominal_file).read_text())
     data.pop("calibration", None)
     data["calibration"] = calibration_section(robot, eps, T_link5_cam, notes)
-    path = Path(path)
-    atomic_write_text(path, yaml.safe_dump(data, sort_keys=False))
-    return path
+    return atomic_write_text(path, yaml.safe_dump(data, sort_keys=False))
 
 
 def load_calibrated_robot(path):

@@ -282,8 +282,7 @@ def mjcf_text(robot: Robot, eps=None, T_link5_cam=None, name: str | None = None,
         ind += "    "
         out.append(f'{ind}<site name="frame{k}"/>')
     out.append(f'{ind}<site name="ee" pos="{_vec(robot.p_ee)}" rgba="0.9 0.9 0.2 0.8"/>')
-    for line in reversed(closing):
-        out.append(line)
+    out += reversed(closing)
     out += ["  </worldbody>", "</mujoco>"]
     return "\n".join(out) + "\n"
 
@@ -315,8 +314,6 @@ def export_robot(robot_file, fmt: str, out, name: str | None = None, velocity: f
     robot, eps, T_link5_cam = load_calibrated_robot(robot_file)
     cal = (yaml.safe_load(Path(robot_file).read_text()) or {}).get("calibration") or {}
     notes = str(cal.get("notes", ""))
-    if fmt == "urdf":
-        text = urdf_text(robot, eps, T_link5_cam, name, str(robot_file), notes, velocity, effort)
-    else:
-        text = mjcf_text(robot, eps, T_link5_cam, name, str(robot_file), notes)
+    text = (urdf_text(robot, eps, T_link5_cam, name, str(robot_file), notes, velocity, effort) if fmt == "urdf" else
+            mjcf_text(robot, eps, T_link5_cam, name, str(robot_file), notes))
     return write_output_file(out, text, "export", force=force)

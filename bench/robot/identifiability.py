@@ -131,11 +131,8 @@ def closed_form_reduction(robot: Robot, rows: str = "position", tol: float = 1e-
 
 def _merged_from_map(kept, M, tol=1e-12) -> dict:
     names = error_names(M.shape[1] // 6)
-    out = {}
-    for j in np.setdiff1d(np.arange(M.shape[1]), kept):
-        coef = {names[k]: float(M[r, j]) for r, k in enumerate(kept) if abs(M[r, j]) > tol}
-        out[names[j]] = coef
-    return out
+    return {names[j]: {names[k]: float(M[r, j]) for r, k in enumerate(kept) if abs(M[r, j]) > tol}
+            for j in np.setdiff1d(np.arange(M.shape[1]), kept)}
 
 
 def select_columns(Js, preferred=None, rel_tol: float = 1e-9, n_poses: int | None = None):

@@ -540,9 +540,6 @@ def compensated_ik(robot: Robot, eps, T_target, q_seed=None, form: str = "exact"
                     break
         return q, ep, eo, it
 
-    def done(ep, eo):
-        return ep <= tol and (position_only or eo <= tol)
-
     def reached(run):
         return run[1] <= tol and run[2] <= tol
 
@@ -572,7 +569,7 @@ def compensated_ik(robot: Robot, eps, T_target, q_seed=None, form: str = "exact"
     E = R_t.T @ T[:3, :3]
     eo = float(np.arctan2(np.linalg.norm(vee(E)), 0.5 * (np.trace(E) - 1.0)))
     at_limit = (q <= robot.q_min) | (q >= robot.q_max)
-    ok = done(ep, eo)
+    ok = ep <= tol and (position_only or eo <= tol)
     what = "position" if position_only else "pose"
     errs = f"position error {ep:.2e} m, orientation error {eo:.2e} rad"
     if ok:

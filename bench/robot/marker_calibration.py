@@ -479,9 +479,7 @@ def identify(chain: SerialChain, meas: Measurements, model: str = "reduced", wei
     nominal = np.linalg.norm(predict(chain, q, None, T0, U0) - P, axis=-1)
     for _ in range(3):
         ww = None if w is None else w[idx]
-        extra = {}
-        if len(comp_idx):
-            extra = {"tau": tau_all[idx][:, comp_idx], "c0": (comp_idx, np.zeros(len(comp_idx)))}
+        extra = {"tau": tau_all[idx][:, comp_idx], "c0": (comp_idx, np.zeros(len(comp_idx)))} if len(comp_idx) else {}
         scale_prior = None
         if prior is not None:  # the prior is relative to the data's noise: sigma from a first unregularised pass
             T1, U1, e1, r1, _ = _solve(chain, q[idx], P[idx], ww, T0, U0, kept, None, None, **extra)
@@ -500,8 +498,7 @@ def identify(chain: SerialChain, meas: Measurements, model: str = "reduced", wei
         idx = idx[~bad]
     dof = res.fun.size - n_par if prior is None else 3 * len(idx) * k - n_par
     s2 = sigma_m**2 if sigma_m is not None else 2 * res.cost / max(dof, 1)
-    JtJ = J.T @ J
-    cov = np.linalg.pinv(JtJ) * s2
+    cov = np.linalg.pinv(J.T @ J) * s2
     # with weights (median 1) s2 is the variance of a coordinate at the median posture's standard deviation
     if np.sqrt(np.mean(resid**2)) > MAX_RMS_OF_REACH * chain.reach:
         raise BenchError(f"the calibrated model misses the markers by {np.sqrt(np.mean(resid**2)) * 1e3:.4g} mm RMS "

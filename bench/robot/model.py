@@ -187,9 +187,7 @@ def robot_from_dict(data: dict, source: str = "<robot>") -> Robot:
 
 def load_robot(path) -> Robot:
     """Load and validate a robot file such as ``models/ta40.yaml``; one-line :class:`ConfigError` on bad input."""
-    path = Path(path)
-    data = read_yaml(path)
-    return robot_from_dict(data, str(path))
+    return robot_from_dict(read_yaml(path), str(Path(path)))
 
 
 def default_robot_path() -> Path:

@@ -187,9 +187,7 @@ def _rotation_svd(c1, c2, w):
     V = np.swapaxes(Vt, -1, -2)
     d = np.sign(np.linalg.det(V @ np.swapaxes(U, -1, -2)))
     d = np.where(d == 0.0, 1.0, d)
-    D = np.zeros(d.shape + (3, 3))
-    D[..., 0, 0] = 1.0
-    D[..., 1, 1] = 1.0
+    D = np.broadcast_to(np.eye(3), d.shape + (3, 3)).copy()
     D[..., 2, 2] = d
     return V @ D @ np.swapaxes(U, -1, -2)
 
@@ -336,9 +334,8 @@ def absolute_orientation(p1, p2, weights=None, method="svd", max_condition=MAX_C
     if dof > 0:
         sigma = np.sqrt(np.sum(w * residuals**2) / dof)
         covariance = predicted_covariance(p1, p2, R, sigma, weights=w, method=method)
-    message = "ok"
-    if condition > WARN_CONDITION:
-        message = f"ok, but ill-conditioned (condition {condition:.3g}): points nearly collinear"
+    message = (f"ok, but ill-conditioned (condition {condition:.3g}): points nearly collinear"
+               if condition > WARN_CONDITION else "ok")
     return AbsoluteOrientationResult(
         success=True, message=message, R=R, t=t, T=homogeneous(R, t), rms=rms, condition=condition, method=method,
         n_points=n, residuals=residuals, covariance=covariance,

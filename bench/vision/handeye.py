@@ -65,9 +65,7 @@ def _check_stack(T, name):
 
 def _relative_motions(A, B):
     """``A_k = A_(k+1)^-1 A_k`` and ``B_k = B_(k+1) B_k^-1``: from ``A_k X B_k = const`` follows ``A_k X = X B_k``."""
-    Ar = invert(A[1:]) @ A[:-1]
-    Br = B[1:] @ invert(B[:-1])
-    return Ar, Br
+    return invert(A[1:]) @ A[:-1], B[1:] @ invert(B[:-1])
 
 
 def _translation(Ar, Br, R):
@@ -280,9 +278,7 @@ def search_mount_rotation(reference, views, T_base_mount_ref, T_base_mount, t_mo
     T_bm = _check_stack(T_base_mount, "T_base_mount")
     if len(T_bm) != len(views):
         raise ValueError(f"T_base_mount: {len(T_bm)} poses for {len(views)} views")
-    matches = []
-    for v in views:
-        matches.append(match_features(reference.features, v.features, ratio, orientation_tol_deg).matches)
+    matches = [match_features(reference.features, v.features, ratio, orientation_tol_deg).matches for v in views]
 
     def poses(ty, tz):
         X = homogeneous(mount_rotation(0.0, ty, tz), t_mount_cam)

@@ -187,6 +187,7 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
     stats = {"reference_keypoints": n, "matches": 0, "after_gap_filter": 0}
     if matches is not None and len(matches) != len(surrounding):
         raise ValueError(f"matches: {len(matches)} match sets for {len(surrounding)} surrounding views")
+    T_ref_views = np.array([invert(T_world_ref) @ np.asarray(v.T_base_cam, float) for v in surrounding])
     # every estimate of a reference keypoint: (its index, p on the reference ray, p on the other ray, view, keypoint)
     ests = [(np.empty(0, int), np.empty((0, 3)), np.empty((0, 3)), np.empty(0, int), np.empty((0, 2)))]
     for k, view in enumerate(surrounding):
@@ -194,8 +195,7 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
         stats["matches"] += len(m)
         if len(m) == 0:
             continue
-        T_ref_j = invert(T_world_ref) @ np.asarray(view.T_base_cam, dtype=float)
-        tri = triangulate_midpoint([np.eye(4), T_ref_j], [reference.x_n[m.i1], view.x_n[m.i2]])
+        tri = triangulate_midpoint([np.eye(4), T_ref_views[k]], [reference.x_n[m.i1], view.x_n[m.i2]])
         ok = tri.valid & (tri.gap <= cfg.gap_max_m)
         stats["after_gap_filter"] += int(ok.sum())
         # Eq. 163 (on the reference ray) and Eq. 164 (on ray j)
@@ -239,10 +239,8 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
                     for g in np.flatnonzero(kept)]
     stats["map_points"] = len(idx)
     # survey geometry for the baseline check (Eq. 199): the widest reference-to-view baseline and the map's depth
-    stats["survey_baseline_m"] = float(max(np.linalg.norm((invert(T_world_ref) @ np.asarray(v.T_base_cam, float))
-                                                          [:3, 3]) for v in surrounding))
+    stats["survey_baseline_m"] = float(max(np.linalg.norm(T[:3, 3]) for T in T_ref_views))
     stats["median_depth_m"] = float(np.median(mean[kept, 2])) if len(idx) else float("nan")
-    T_ref_views = np.array([invert(T_world_ref) @ np.asarray(v.T_base_cam, float) for v in surrounding])
     return KeypointMap(mean[kept], mean_star[kept], reference.features.subset(idx), n_good[kept].astype(int), spread,
                        T_world_ref, stats, reference.x_n[idx], T_ref_views, observations, idx)
 
@@ -491,8 +489,7 @@ def locate(kmap: KeypointMap, view_a: ViewObservation, view_b: ViewObservation, 
             if not rp.kept.all():
                 msg += f", {int((~rp.kept).sum())} points beyond the reprojection gate dropped"
             if refine == "bundle":
-                k = sel_ok[rp.kept]
-                bp = bundle_refine(kmap, i_map[k], view_a.x_n[i_a[k]], view_b.x_n[i_b[k]], T_a_b, T_ref_a)
+                bp = bundle_refine(kmap, i_map[used], view_a.x_n[i_a[used]], view_b.x_n[i_b[used]], T_a_b, T_ref_a)
                 if bp.success:
                     T_ref_a, cov_ref_a, cond = bp.T_ref_a, bp.covariance, bp.condition
                     msg += f"; {bp.message[4:]}, rms {bp.rms:.3g}, {bp.iterations} iterations"
@@ -787,8 +784,7 @@ def locate_pnp(kmap: KeypointMap, view_a: ViewObservation, config: MapConfig | N
     inl = inl.ravel()
     rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], np.eye(3), None, rvec, tvec)
     R, _ = cv2.Rodrigues(rvec)
-    T_a_ref = np.eye(4)
-    T_a_ref[:3, :3], T_a_ref[:3, 3] = R, tvec.ravel()
+    T_a_ref = homogeneous(R, tvec.ravel())
     T_ref_a = invert(T_a_ref)
     T_base_a = np.asarray(view_a.T_base_cam, float)
     T_world_base = kmap.T_world_ref @ T_ref_a @ invert(T_base_a)

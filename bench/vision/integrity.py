@@ -65,7 +65,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from bench.camera.model import distort, distortion_jacobian, distortion_parameter_jacobian
 from bench.camera.refractive import RefractiveCamera, lens_parameters, virtual_scale, with_lens_parameters
 from bench.geometry.quaternion import matrix_to_rotation_vector
-from bench.geometry.transforms import invert, skew, transform_points
+from bench.geometry.transforms import homogeneous, invert, skew, transform_points
 from bench.vision.insitu import KeypointMap, MapConfig, ViewObservation, _left_exp, _proj_jac, reference_matches
 from bench.vision.triangulation import triangulate_midpoint
 
@@ -364,8 +364,7 @@ def relative_pose_disagreement(kmap: KeypointMap, free_a: dict, free_b: dict, T_
     T_a_ref, T_b_ref = invert(free_a["T_free"]), invert(free_b["T_free"])
 
     def d_of(delta):
-        D = T_b_a @ _left_exp(delta[:6]) @ T_a_ref @ invert(_left_exp(delta[6:]) @ T_b_ref)
-        return _log(D)
+        return _log(T_b_a @ _left_exp(delta[:6]) @ T_a_ref @ invert(_left_exp(delta[6:]) @ T_b_ref))
 
     d0 = d_of(np.zeros(12))
     h = 1e-7
@@ -474,9 +473,7 @@ def free_pose(kmap: KeypointMap, view: ViewObservation, idx_map, idx_view, focal
         return None, np.zeros(n, dtype=bool)
     inl = inl.ravel()
     rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], np.eye(3), None, rvec, tvec)
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
-    T_ref_view = invert(T)
+    T_ref_view = invert(homogeneous(cv2.Rodrigues(rvec)[0], tvec.ravel()))
     e, _ = _residuals_px(kmap, view, idx_map, idx_view, T_ref_view, focal_px)
     return T_ref_view, e <= GATE_PX
 
@@ -725,7 +722,6 @@ def _tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config,
             warn.append(f"locate view {v.name}: consensus {frac:.2f} at the solution")
 
     # --- test 2: the two new views' relative pose, images vs kinematics -------------------------------------------
-    d_t = d_r = float("nan")
     if "b" in loc and all(loc[k]["T_free"] is not None and loc[k]["free"] >= MIN_FREE_INLIERS for k in "ab"):
         d, m2 = relative_pose_disagreement(kmap, loc["a"], loc["b"], T_a_b, lab)
         s2 = _overdispersion(lab)

@@ -36,6 +36,7 @@ from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous
 from bench.robot.orientation import link5_frame
 from bench.vision.bundle import solve
+from bench.vision.insitu import _proj_jac
 
 
 @dataclass(frozen=True)
@@ -143,27 +144,23 @@ def residuals_and_jacobian(problem: _Problem, theta, T_b2, X) -> tuple:
     _, _, d_K, d_d, _ = problem.split(theta)
     K, dist = problem.intrinsics(d_K), problem.distortion(d_d)
     z = p[:, 2]
-    x_n = p[:, :2] / z[:, None]
+    x_n, Jproj = _proj_jac(p)
     x_d = distort(x_n, dist)
-    Jproj = np.zeros((len(p), 2, 3))
-    Jproj[:, 0, 0] = Jproj[:, 1, 1] = 1.0 / z
-    Jproj[:, :, 2] = -x_n / z[:, None]
     A = K[:2, :2] @ distortion_jacobian(x_n, dist) @ Jproj  # d uv / d p_cam (N, 2, 3)
     N, V, h = len(p), problem.V, problem.step
     J = np.zeros((N, 2, problem.n))
 
-    def dp(e):
+    def dp(at):
+        """The camera points' central difference for a step ``h`` of the parameters ``at`` (an index or a slice)."""
+        e = np.zeros(problem.n)
+        e[at] = h
         return (problem.camera_points(problem.poses(theta + e, T_b2), X)
                 - problem.camera_points(problem.poses(theta - e, T_b2), X)) / (2 * h)
 
     for c in range(6):  # the base pose: its rows are the locate views'
-        e = np.zeros(problem.n)
-        e[c] = h
-        J[:, :, c] = -np.einsum("nij,nj->ni", A, dp(e))
+        J[:, :, c] = -np.einsum("nij,nj->ni", A, dp(c))
     for c in range(6):  # joint c of every view at once: rows of view v depend on its own joints only
-        e = np.zeros(problem.n)
-        e[6 + c:6 + 6 * V:6] = h
-        J[np.arange(N), :, 6 + 6 * problem.view + c] = -np.einsum("nij,nj->ni", A, dp(e))
+        J[np.arange(N), :, 6 + 6 * problem.view + c] = -np.einsum("nij,nj->ni", A, dp(slice(6 + c, 6 + 6 * V, 6)))
     k = 6 + 6 * V
     if problem.with_K:  # u = fx x_d + s y_d + cx, v = fy y_d + cy
         J[:, 0, k], J[:, 1, k + 1], J[:, 0, k + 2], J[:, 1, k + 3] = -x_d[:, 0], -x_d[:, 1], -1.0, -1.0
@@ -173,9 +170,7 @@ def residuals_and_jacobian(problem: _Problem, theta, T_b2, X) -> tuple:
         k += 4
     if problem.with_mount:
         for c in range(6):
-            e = np.zeros(problem.n)
-            e[k + c] = h
-            J[:, :, k + c] = -np.einsum("nij,nj->ni", A, dp(e))
+            J[:, :, k + c] = -np.einsum("nij,nj->ni", A, dp(k + c))
     J_pt = -A @ T_cs[problem.view, :3, :3]
     uv = to_pixels(x_d, K)
     return problem.uv - uv, J, J_pt, float(z.min())
@@ -325,12 +320,9 @@ def lab_prior(cov_K=None, cov_dist=None, cov_mount=None, cov_K_dist=None, cov_K_
         for j, (b, B) in enumerate(blocks):
             if i == j:
                 row.append(np.asarray(A, float))
-            elif i < j:
-                c = cross[a, b]
+            else:  # below the diagonal: the transpose of the block above it
+                c = cross[a, b] if i < j else cross[b, a] if cross[b, a] is None else np.asarray(cross[b, a], float).T
                 row.append(np.zeros((len(A), len(B))) if c is None else np.asarray(c, float))
-            else:
-                c = cross[b, a]
-                row.append(np.zeros((len(A), len(B))) if c is None else np.asarray(c, float).T)
         rows.append(row)
     return np.block(rows)
 

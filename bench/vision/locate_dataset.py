@@ -143,9 +143,7 @@ def _retarget_tasks(ds, robot, eps, T_site_base, q_now, covariance, tests) -> di
     and the tool tip's protection radius there (:func:`~bench.vision.integrity.point_protection_radius`, from the
     base ``covariance`` and the integrity ``tests``)."""
     out = {}
-    for v in ds.views:
-        if v.role != "task":
-            continue
+    for v in [v for v in ds.views if v.role == "task"]:
         if v.q is None:
             raise ConfigError(ds.root / "joints.csv", v.name, "a task frame needs joint readings")
         q_taught = robot.check_q(v.q, f"joints.csv ({v.name})")

@@ -38,8 +38,9 @@ from bench.camera.model import (
     thin_prism_parameter_jacobian,
 )
 from bench.geometry.quaternion import rotation_vector_to_matrix
-from bench.geometry.transforms import invert
+from bench.geometry.transforms import homogeneous, invert
 from bench.vision.bundle import solve
+from bench.vision.insitu import _proj_jac
 from bench.vision.xy_table_positioning import R0_PRIOR_DEG, stage_poses
 
 #: a round of the bundle ends when a step is shorter than this fraction of a standard deviation of the estimate
@@ -72,10 +73,7 @@ class PairBundleResult:
 def _displacements(xi, pivot) -> np.ndarray:
     """``D (..., 4, 4)``: rotation ``exp(xi[..., :3])`` about ``pivot``, then translation ``xi[..., 3:]``."""
     R = rotation_vector_to_matrix(xi[..., :3])
-    D = np.zeros((*R.shape[:-2], 4, 4))
-    D[..., :3, :3], D[..., 3, 3] = R, 1.0
-    D[..., :3, 3] = pivot + xi[..., 3:] - R @ pivot
-    return D
+    return homogeneous(R, pivot + xi[..., 3:] - R @ pivot)
 
 
 class PairProblem:
@@ -151,9 +149,7 @@ class PairProblem:
     def poses(self, theta) -> np.ndarray:
         """``T_table_cam (..., V, 4, 4)`` of every view for parameters ``theta (..., n)``."""
         theta = np.asarray(theta, float)
-        X = np.zeros((*theta.shape[:-1], 1, 4, 4))
-        X[..., :3, :3], X[..., 3, 3] = self.rotation(theta)[..., None, :, :], 1.0
-        X[..., :3, 3] = self.centre_on_stage(theta)[..., None, :]
+        X = homogeneous(self.rotation(theta)[..., None, :, :], self.centre_on_stage(theta)[..., None, :])
         T = stage_poses(self.readings(theta)) @ X
         T[..., self.in_pair, :, :] = (_displacements(theta[..., :6], self.pivot)[..., None, :, :] @ self.C0
                                       @ T[..., self.in_pair, :, :])
@@ -193,12 +189,9 @@ class PairProblem:
         p, T_ct = P[0], T_ct[0]
         K = self.intrinsics(theta)
         z = p[:, 2]
-        x_n = p[:, :2] / z[:, None]
+        x_n, Jproj = _proj_jac(p)
         dist = self.distortion(theta)
         x_d = self.distorted(x_n, theta)
-        Jproj = np.zeros((len(p), 2, 3))
-        Jproj[:, 0, 0] = Jproj[:, 1, 1] = 1.0 / z
-        Jproj[:, :, 2] = -x_n / z[:, None]
         D = distortion_jacobian(x_n, dist)
         if self.n_dist == 8:
             D = D + thin_prism_jacobian(x_n, self.prism(theta))
@@ -225,10 +218,8 @@ def pair_observations(kmap, views: list, matches: dict, features: dict, pair) ->
     (``views[-2:]``) where the reference keypoint was matched (``matches[name]``, reference -> view). ``points``
     are the map indices of the points kept (those seen at least twice), renumbered ``0..M-1`` in ``point``."""
     ref = views[0]
-    lookup = {}
-    for name in views[1:]:
-        m = matches[name]
-        lookup[name] = dict(zip(np.asarray(m.i1, int).tolist(), np.asarray(m.i2, int).tolist(), strict=True))
+    lookup = {name: dict(zip(np.asarray(matches[name].i1, int).tolist(), np.asarray(matches[name].i2, int).tolist(),
+                             strict=True)) for name in views[1:]}
     view, point, uv, points = [], [], [], []
     for i, r in enumerate(np.asarray(kmap.ref_index, int)):
         obs = [(0, features[ref].uv[r])]
@@ -303,8 +294,7 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
         raise ValueError(f"offset_sigma: three standard deviations > 0 expected, got {offset_sigma!r}")
     if reading_sigma is not None and not (np.shape(reading_sigma) == (3,) and np.all(np.asarray(reading_sigma) > 0)):
         raise ValueError(f"reading_sigma: three standard deviations > 0 expected, got {reading_sigma!r}")
-    X0 = np.eye(4)
-    X0[:3, :3], X0[:3, 3] = R0, offset_m
+    X0 = homogeneous(R0, offset_m)
     i_a = int(np.flatnonzero(in_pair)[0])
     C0 = np.asarray(T_table_a0, float) @ invert(stage_poses(readings[i_a])[0] @ X0)  # the readings' pair moved
     problem = PairProblem(readings, in_pair, C0, np.asarray(T_table_a0, float)[:3, 3], R0, offset_m, K, dist, view,
@@ -334,9 +324,7 @@ def pair_bundle(readings, in_pair, T_table_a0, R0, offset_m, K, dist, view, poin
                                 np.full((3, 3), np.nan), problem.R0, problem.K, sol.sigma_px, np.nan, 0,
                                 sol.iterations)
     G = np.zeros((3, n))  # d (c_a - c_ref) / d theta, every column (the pair, the centre, the readings of ref and a)
-    for c in range(n):
-        e = np.zeros(n)
-        e[c] = problem.step
+    for c, e in enumerate(np.eye(n) * problem.step):
         G[:, c] = (problem.centre_offset(sol.theta + e) - problem.centre_offset(sol.theta - e)) / (2 * problem.step)
     cov_p = G @ sol.covariance() @ G.T
     r = problem.residuals(sol.theta, sol.X)[sol.keep]

@@ -359,17 +359,10 @@ def intraocular_pairs(names, readings, reference: str, intraocular_mm, tolerance
     names = list(names)
     x = np.asarray(readings, float)[:, 0]
     order = np.argsort(x, kind="stable")
-    out = {}
-    for d in intraocular_mm:
-        pairs = []
-        for i in order:
-            for j in order:
-                if names[i] == reference or names[j] == reference or x[j] <= x[i]:
-                    continue
-                if abs((x[j] - x[i]) - d * 1e-3) <= tolerance_m:
-                    pairs.append((names[i], names[j]))
-        out[float(d)] = pairs
-    return out
+    return {float(d): [(names[i], names[j]) for i in order for j in order
+                       if reference not in (names[i], names[j]) and x[j] > x[i]
+                       and abs((x[j] - x[i]) - d * 1e-3) <= tolerance_m]
+            for d in intraocular_mm}
 
 
 def map_view_names(names, centres, reference: str, pair, min_baseline_m: float, exclude=()) -> list:
