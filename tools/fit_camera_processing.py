@@ -28,7 +28,6 @@ ratio, ``sharpen.amount`` and ``sharpen.sigma_px``.
 from __future__ import annotations
 
 import argparse
-import glob
 import json
 import sys
 from pathlib import Path
@@ -40,7 +39,7 @@ from scipy.special import ndtr
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.camera.photo_stats import detect_views, median_edge_profile, parse_pattern  # noqa: E402
+from bench.camera.photo_stats import detect_views, median_edge_profile, parse_pattern, photo_paths  # noqa: E402
 from bench.sim.imaging import srgb_oetf, unsharp_luma  # noqa: E402
 from bench.sim.scenes.rig import BLACK_REFLECTANCE  # noqa: E402
 
@@ -75,7 +74,10 @@ def _best(cost, starts):
 
 
 def profile_of(folder, pattern):
-    files = sorted(glob.glob(str(Path(folder) / "*.jpg")) + glob.glob(str(Path(folder) / "*.png")))
+    try:
+        files = photo_paths(folder)
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
     views = detect_views(files, pattern)
     if len(views) < 3:
         raise SystemExit(f"{folder}: the {pattern[0]}x{pattern[1]} board was found in {len(views)} images (need 3)")

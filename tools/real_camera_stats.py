@@ -32,7 +32,6 @@ Measured here:
 from __future__ import annotations
 
 import argparse
-import glob
 import io
 import json
 import sys
@@ -54,6 +53,7 @@ from bench.camera.photo_stats import (  # noqa: E402 - detection, calibration, r
     measure_noise,
     measure_sift_precision,
     parse_pattern,
+    photo_paths,
     residual_statistics,
 )
 
@@ -377,9 +377,10 @@ def _inverse_jacobian_apply(H, XY, duv):
 
 
 def measure(data_dir, pattern=(7, 7), square_mm: float = 25.0) -> dict:
-    files = sorted(glob.glob(str(Path(data_dir) / "*.jpg")) + glob.glob(str(Path(data_dir) / "*.png")))
-    if not files:
-        raise SystemExit(f"{data_dir}: no .jpg or .png images")
+    try:
+        files = photo_paths(data_dir)
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
     views = detect_views(files, pattern)
     if len(views) < 3:
         raise SystemExit(f"{data_dir}: the {pattern[0]}x{pattern[1]} board was found in only {len(views)} images")

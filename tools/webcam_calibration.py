@@ -10,7 +10,6 @@ is needed for the intrinsics.
 from __future__ import annotations
 
 import argparse
-import glob
 import time
 from pathlib import Path
 
@@ -19,7 +18,7 @@ import numpy as np
 
 from bench.camera import calibration as cal
 from bench.camera.heikkila import fit_implicit_inverse
-from bench.camera.photo_stats import board_points, detect_board
+from bench.camera.photo_stats import board_points, detect_board, photo_paths
 from bench.camera.plots import plot_residual_vectors
 
 WEBCAM = Path(__file__).resolve().parents[1] / "tests" / "data" / "real_webcam_chessboard"
@@ -32,9 +31,10 @@ def main(argv=None):
     ap.add_argument("--out", default="runs/webcam_calibration")
     ap.add_argument("--model", default="heikkila", choices=cal.MODELS)
     args = ap.parse_args(argv)
-    files = sorted(glob.glob(str(Path(args.data) / "*.jpg")) + glob.glob(str(Path(args.data) / "*.png")))
-    if not files:
-        raise SystemExit(f"{args.data}: no images")
+    try:
+        files = photo_paths(args.data)
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
     obj = board_points((7, 7))
     Xs, uvs, used = [], [], []
     t0 = time.perf_counter()

@@ -44,6 +44,19 @@ def detect_board(grey, pattern):
     return c.reshape(-1, 2).astype(float) if ok else None
 
 
+def photo_paths(folder) -> list:
+    """The photos in ``folder`` as paths (:func:`bench.dataset.photo_files`: ``.png``, ``.jpg``, ``.jpeg`` in any
+    letter case, sorted by name); ``ValueError`` (one line naming the folder) when it is not a folder or holds none."""
+    from bench.dataset import IMAGE_SUFFIXES, photo_files
+
+    if not Path(folder).is_dir():
+        raise ValueError(f"{folder}: not a folder")
+    files = [str(f) for f in photo_files(Path(folder))]
+    if not files:
+        raise ValueError(f"{folder}: no photos (files ending {', '.join(IMAGE_SUFFIXES)}, any case)")
+    return files
+
+
 def detect_views(files, pattern, read=None) -> list:
     """:class:`BoardView` of each photo in ``files`` where the board is found (the others are left out).
 

@@ -104,3 +104,20 @@ def test_mount_from_symmetric_labellings_without_a_guess(geometry):
     for s in S:
         Q = P @ s[:3, :3].T + s[:3, 3]
         assert np.max(np.min(np.linalg.norm(Q[:, None] - P[None], axis=2), axis=1)) < 1e-12
+
+
+def test_the_photo_tools_read_every_photo_suffix_in_any_case(tmp_path):
+    """tools/real_camera_stats, fit_camera_processing and webcam_calibration listed only ``*.jpg`` and ``*.png``
+    (a camera's ``IMG_0001.JPG`` or a ``.jpeg`` was not a photo to them); they list photos as ``bench.dataset`` does."""
+    import pytest
+
+    from bench.camera.photo_stats import photo_paths
+
+    for name in ("a.JPG", "b.jpeg", "c.png", "notes.txt"):
+        (tmp_path / name).write_bytes(b"")
+    assert [p.split("/")[-1] for p in photo_paths(tmp_path)] == ["a.JPG", "b.jpeg", "c.png"]
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="no photos"):
+        photo_paths(tmp_path / "empty")
+    with pytest.raises(ValueError, match="not a folder"):
+        photo_paths(tmp_path / "missing")
