@@ -510,7 +510,7 @@ def _view_consensus(kmap, view, T_ref_view, focal_px, cfg, seed):
             "residual_px": e[pred], "residual_vec": r[pred], "uv": view.features.uv[m.i2[pred]]}
 
 
-def _robust_rms(e):
+def _rms(e):
     e = np.asarray(e, float)
     return float(np.sqrt(np.mean(e**2))) if len(e) else float("nan")
 
@@ -740,9 +740,9 @@ def _tests(kmap, surround, view_a, view_b, result, focal_px, image_size, config,
             soft.append(f"{what}; beyond a clean run's {ex_mm:.1f} mm and {ex_deg:.2f} deg")
 
     # --- test 3: reprojection chi-square, locate views vs the survey's own noise -----------------------------------
-    sigma_survey = _robust_rms(np.concatenate(survey_res)) if survey_res else float("nan")
+    sigma_survey = _rms(np.concatenate(survey_res)) if survey_res else float("nan")
     res_loc = np.concatenate([c["residual_px"] for c in loc.values()])
-    rms_loc = _robust_rms(res_loc)
+    rms_loc = _rms(res_loc)
     # no detector localises better than NOISE_FLOOR_PX: below it the ratio would compare rounding errors (exact data)
     ratio = rms_loc / max(sigma_survey, NOISE_FLOOR_PX) if np.isfinite(sigma_survey) else float("nan")
     tests.update(survey_rms_px=sigma_survey, locate_rms_px=rms_loc, chi2_ratio=ratio,
