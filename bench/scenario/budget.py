@@ -64,7 +64,7 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
     from bench.config import load_yaml
     from bench.fileio import check_output_dir, claim_output_dir, foreign_entries, record_output_entries
     from bench.scenario.runner import kind_module, load_scenario
-    from bench.scenario.sweep import check_seeds_and_workers, run_sweep
+    from bench.scenario.sweep import _ray_connect, check_seeds_and_workers, read_runs, run_sweep
 
     scenario = Path(scenario)
     kind = load_yaml(scenario).get("kind")
@@ -77,16 +77,13 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
     variants = {"full": {}, **{s: dict(o) for s, o in sources.items()},
                 "none": {k: v for o in sources.values() for k, v in o.items()}}
     check_seeds_and_workers(seeds, workers, backend, address)
+    every = {**getattr(module, "BUDGET_FIXED", {}), **(fixed or {})}  # the overrides every variant takes
     for overrides in variants.values():  # every variant's values, before anything is created
-        base = {**getattr(module, "BUDGET_FIXED", {}), **(fixed or {}), **overrides}
-        load_scenario(scenario, seeds[0], [f"{k}={json.dumps(v)}" for k, v in base.items()])
+        load_scenario(scenario, seeds[0], [f"{k}={json.dumps(v)}" for k, v in {**every, **overrides}.items()])
     out = Path(out)
     check_output_dir(out, "budget", force=force, identity=scenario.name)
-    started = False
-    if backend == "ray":  # a missing Ray or a cluster that refuses: refused before the folder is made
-        from bench.scenario.sweep import _ray_connect
-
-        started = _ray_connect(address)
+    # a missing Ray or a cluster that refuses: refused before the folder is made
+    started = _ray_connect(address) if backend == "ray" else False
     try:
         before = foreign_entries(out)
         claim_output_dir(out, "budget", force=force, identity=scenario.name)
@@ -94,12 +91,10 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
         for name, overrides in variants.items():
             if progress:
                 print(f"variant {name}: {overrides or 'every source real'}")
-            base = {**getattr(module, "BUDGET_FIXED", {}), **(fixed or {}), **overrides}
             # one render cache for every variant: a source the images do not depend on is not rendered again
-            res = run_sweep(scenario, [], seeds, out / name, backend, address, workers, progress=progress, fixed=base,
-                            render_cache=out / ".render_cache")
-            done = _rows(out / name / "sweep.sqlite")
-            rows[name] = done
+            res = run_sweep(scenario, [], seeds, out / name, backend, address, workers, progress=progress,
+                            fixed={**every, **overrides}, render_cache=out / ".render_cache")
+            rows[name] = read_runs(out / name)
             if res["errors"] and progress:
                 print(f"  {len(res['errors'])} runs failed, e.g. {res['errors'][0]}")
         table, budget_table, result_metrics = budget_from_rows(rows, list(sources), metrics, vectors)
@@ -216,17 +211,6 @@ def budget_from_rows(rows: dict, sources: list, metrics: list, vectors: dict | N
         result_metrics[f"budget_closure_{m}"] = float(np.sqrt(np.nansum(np.square(col)) + (floor**2 if np.isfinite(
             floor) else 0.0)) / full) if np.isfinite(full) and full > 0 else float("nan")
     return table, budget_table, result_metrics
-
-
-def _rows(store_path) -> list:
-    """The finished runs of a variant's sweep (:class:`~bench.scenario.sweep.SweepStore` rows)."""
-    from bench.scenario.sweep import SweepStore
-
-    store = SweepStore(store_path)
-    try:
-        return [r for r in store.rows() if r["status"] == "done"]
-    finally:
-        store.close()
 
 
 def _plot(budget_table, metrics, table, path, title) -> str:
