@@ -63,7 +63,7 @@ from bench.config import (
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
 from bench.geometry.quaternion import matrix_to_rotation_vector
-from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
+from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, transform_points
 from bench.robot.calibration_file import write_calibrated_robot
 from bench.robot.identifiability import closed_form_reduction
 from bench.robot.ik import compensated_ik
@@ -72,7 +72,7 @@ from bench.robot.model import load_robot, random_errors
 from bench.robot.orientation import link5_frame
 from bench.scenario.in_situ_lab import calibrate_lab
 from bench.scenario.plan_memo import memoized
-from bench.scenario.results import write_result, write_table_csv
+from bench.scenario.results import pose_errors, write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
 from bench.sim.imaging import draw_true_lens, profile_from_config, rig_errors, rig_target_yaml
 from bench.sim.ins import vehicle_yaml_text
@@ -1183,15 +1183,13 @@ def run(cfg, out_dir, verbose=True):
                                                                                  "refine_s")))
     if res.success:
         T = res.T_world_base
-        metrics["base_pos_err_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
-        metrics["base_rot_err_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
+        metrics["base_pos_err_mm"], metrics["base_rot_err_deg"] = pose_errors(T, T_b1_b2)
         # the signed errors in the survey base frame, for the budget's paired displacements (bench.scenario.budget)
         metrics.update(_components("base_pos_err", (T[:3, 3] - T_b1_b2[:3, 3]) * 1e3, "mm"))
         metrics.update(_components("base_rot_err", np.rad2deg(matrix_to_rotation_vector(
             T[:3, :3] @ T_b1_b2[:3, :3].T)), "deg"))
         T = np.array(report.get("T_world_base_vision", T))  # the images' pose, before the INS's tilt was fused
-        metrics["base_pos_err_vision_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
-        metrics["base_rot_err_vision_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
+        metrics["base_pos_err_vision_mm"], metrics["base_rot_err_vision_deg"] = pose_errors(T, T_b1_b2)
         w = matrix_to_rotation_vector(T[:3, :3] @ T_b1_b2[:3, :3].T)  # its rotation error about gravity and across it
         heading = float(w @ _down_survey(truth))
         metrics["base_rot_err_vision_heading_deg"] = float(np.rad2deg(abs(heading)))
@@ -1206,9 +1204,8 @@ def run(cfg, out_dir, verbose=True):
                         **_components("base_rot_err", np.full(3, np.nan), "deg")})
     thesis = details.get("thesis_result")  # pipeline.refine = joints: the thesis estimator (bundle) beside it
     if thesis is not None and thesis.success:
-        T = thesis.T_world_base
-        metrics["base_pos_err_bundle_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
-        metrics["base_rot_err_bundle_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
+        metrics["base_pos_err_bundle_mm"], metrics["base_rot_err_bundle_deg"] = pose_errors(thesis.T_world_base,
+                                                                                            T_b1_b2)
     task_metrics, reached = _score_task(cfg, ds, truth, report, robot)
     metrics.update(task_metrics)
     if cfg["bound"]["enabled"] and "map" in details and len(details["map"]) >= 3:
@@ -1235,10 +1232,9 @@ def run(cfg, out_dir, verbose=True):
     metrics["focal_err_pct"] = float(abs(K_hat[0, 0] / cam_true[0, 0] - 1) * 100)
     metrics["reproj_rms_px"] = float(rms)
     Tm_hat = lab["mount"].T_mount_cam
-    metrics["mount_pos_err_mm"] = float(np.linalg.norm(Tm_hat[:3, 3] - Tm_true[:3, 3]) * 1e3)
-    metrics["mount_pos_err_lens_centre_mm"] = float(np.linalg.norm(Tm_hat[:3, 3] - np.array(truth["T_link5_cam"])
-                                                                   [:3, 3]) * 1e3)
-    metrics["mount_rot_err_deg"] = float(np.rad2deg(rotation_angle(Tm_hat[:3, :3].T @ Tm_true[:3, :3])))
+    metrics["mount_pos_err_mm"], rot = pose_errors(Tm_hat, Tm_true)
+    metrics["mount_pos_err_lens_centre_mm"] = pose_errors(Tm_hat, np.array(truth["T_link5_cam"]))[0]
+    metrics["mount_rot_err_deg"] = rot
     q_ho = load_robot(Path(cfg["_file"]).parent / cfg["robot"]).random_configurations(np.random.default_rng(1), 500)
     eps_true = np.array(truth["errors"])
     metrics["arm_heldout_rms_mm"] = float(np.sqrt(np.mean(np.sum(

@@ -38,7 +38,7 @@ from bench.config import (
 )
 from bench.errors import ConfigError
 from bench.fileio import atomic_save_figure, headless_pyplot
-from bench.geometry.transforms import homogeneous, random_transform, rot_z, rotation_angle
+from bench.geometry.transforms import homogeneous, random_transform, rot_z
 from bench.robot.base_from_arcs import (
     base_frame_accuracy,
     base_frame_bound,
@@ -48,7 +48,7 @@ from bench.robot.base_from_arcs import (
 )
 from bench.robot.kinematics import error_matrix
 from bench.robot.model import load_robot, random_errors
-from bench.scenario.results import write_result, write_table_csv
+from bench.scenario.results import pose_errors, write_result, write_table_csv
 
 SIGMA = (Field(gt=0), at_most(50, "{v} mm is implausible for a laser tracker; the unit is mm"))
 
@@ -122,11 +122,6 @@ def _estimate(robot, m):
     return base_frame_from_arcs(m.arc1_tracker, m.arc2_tracker, m.q1_during_arc2, m.q1_arc1, m.q2_arc2, robot)
 
 
-def _errors(T_est, T_ref):
-    return (float(1e3 * np.linalg.norm(T_est[:3, 3] - T_ref[:3, 3])),
-            float(np.rad2deg(rotation_angle(T_est[:3, :3].T @ T_ref[:3, :3]))))
-
-
 def _cell(robot, clean, T_true, sigma, trials, rng):
     """Monte Carlo over tracker noise for one (sigma, span) cell; linear prediction at the clean arcs."""
     args = (clean.arc1_tracker, clean.arc2_tracker, clean.q1_during_arc2, clean.q1_arc1, clean.q2_arc2, robot, sigma)
@@ -140,7 +135,7 @@ def _cell(robot, clean, T_true, sigma, trials, rng):
         if not r.success:
             failed += 1
             continue
-        p, a = _errors(r.T_tracker_base, T_true)
+        p, a = pose_errors(r.T_tracker_base, T_true)
         pos.append(p)
         rot.append(a)
     pos, rot = np.array(pos), np.array(rot)
@@ -181,7 +176,7 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     exact = _estimate(robot, clean)
     if not exact.success:
         raise ConfigError(cfg["_file"], "arcs", f"noise-free arcs give no base frame: {exact.message}")
-    metrics["base_pos_err_mm_noise_free"], metrics["base_rot_err_deg_noise_free"] = _errors(exact.T_tracker_base,
+    metrics["base_pos_err_mm_noise_free"], metrics["base_rot_err_deg_noise_free"] = pose_errors(exact.T_tracker_base,
                                                                                             T_true)
     noisy = simulate_arcs(robot, T_true, q_start, span0, span0, n, eps_01_free, sigma0, rng)
     t1 = time.perf_counter()
@@ -189,7 +184,7 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     metrics["base_from_arcs_s"] = time.perf_counter() - t1
     if not res.success:
         raise ConfigError(cfg["_file"], "noise.default_sigma_mm", f"the base frame cannot be estimated: {res.message}")
-    metrics["base_pos_err_mm"], metrics["base_rot_err_deg"] = _errors(res.T_tracker_base, T_true)
+    metrics["base_pos_err_mm"], metrics["base_rot_err_deg"] = pose_errors(res.T_tracker_base, T_true)
     metrics["residual_rms_mm"] = 1e3 * res.residual_rms_m
     metrics["a1_measured_mm"] = 1e3 * res.a1_measured_m
     metrics["alpha1_measured_deg"] = float(np.rad2deg(res.alpha1_measured_rad))
@@ -236,7 +231,7 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     pert = _estimate(robot, simulate_arcs(robot, T_true, q_start, span0, span0, n, eps))
     e1 = eps[6:12]
     predicted = T_true @ error_matrix(eps[:6]) @ homogeneous(rot_z(e1[3]), [0.0, 0.0, e1[1]])
-    metrics["e01_base_shift_mm"], metrics["e01_base_turn_deg"] = _errors(pert.T_tracker_base, T_true)
+    metrics["e01_base_shift_mm"], metrics["e01_base_turn_deg"] = pose_errors(pert.T_tracker_base, T_true)
     dev = pose_deviation(pert.T_tracker_base, predicted)
     metrics["e01_vs_stated_result_mm"] = float(1e3 * np.linalg.norm(dev[:3]))
     metrics["e01_vs_stated_result_deg"] = float(np.rad2deg(np.linalg.norm(dev[3:])))
