@@ -552,11 +552,6 @@ def _within(z) -> dict:
     return {**{f"within_{k}std": float(np.sum(z <= k)) for k in (1, 2, 3)}, "max_abs_z": float(z.max())}
 
 
-def _dlt_residuals(X, uv):
-    M = dlt.dlt_projection_matrix(X, uv)  # Eq. 55-58
-    return uv - dlt.project(M, X)  # p_e - p_p (Eq. 195)
-
-
 def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
     """Run the pipeline on one medium's dataset and score it against its truth.
 
@@ -761,7 +756,8 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
     if cfg["outputs"]["plots"]:
         first = ds.view(det.names[0]).image()
         if cfg["camera"]["preset"] == "air_webcam":
-            r44 = _dlt_residuals(t3_X[0], t3_uvs[0])
+            M = dlt.dlt_projection_matrix(t3_X[0], t3_uvs[0])  # Eq. 55-58
+            r44 = t3_uvs[0] - dlt.project(M, t3_X[0])  # p_e - p_p (Eq. 195)
             plot_residual_vectors(out_dir / "figure44_residuals.png", t3_uvs[0], r44,
                                   image=ds.view(t3_names[0]).image()[..., ::-1],
                                   title=f"Fig. 44 - {t3_names[0]}: pin-hole (DLT) residuals x50",

@@ -52,7 +52,9 @@ class CachedCamera:
         else:
             self.stage = FlatPortStage(camera.K, camera.size, port, supersample, lens=camera)
             self.spec = self.stage.render_spec(z_min)
-        self._rays = camera.unproject(_pixel_grid(camera), normalize=False)  # the lens's pixel rays (distortion in)
+        # the lens's pixel rays (distortion in) through the pixel centres (H, W, 2)
+        uv = np.stack(np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float)), -1)
+        self._rays = camera.unproject(uv, normalize=False)
         self._cos = cos_beam(self._rays)
         self._supersample = supersample
 
@@ -203,12 +205,6 @@ class ArmScene(CachedCamera):
         from bench.camera.flatport import lens_port_projector
 
         return lens_port_projector(self.camera, self.port)(np.asarray(p_cam, dtype=float))
-
-
-def _pixel_grid(camera: CameraModel) -> np.ndarray:
-    """Pixel centres ``(H, W, 2)`` of the camera's image."""
-    u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
-    return np.stack([u, v], axis=-1)
 
 
 def keypoint_reliability(scene: ArmScene, q_a, q_b, image_a, image_b, tol_px: float = 2.0) -> dict:
