@@ -451,9 +451,8 @@ def _valve_targets(panel, T_world_panel, cfg) -> list:
     if choice != "nearest" and choice not in valves:
         raise ConfigError(cfg["_file"], "task.valve", f"unknown valve {choice!r} (panel has {', '.join(valves)}; "
                                                       "or 'nearest')")
-    names = sorted(valves, key=lambda k: np.linalg.norm(np.asarray(valves[k]["centre"])[:2]))
-    if choice != "nearest":
-        names = [choice]
+    names = [choice] if choice != "nearest" else \
+        sorted(valves, key=lambda k: np.linalg.norm(np.asarray(valves[k]["centre"])[:2]))
     return [(k, transform_points(T_world_panel, valves[k]["centre"]), T_world_panel[:3, :3] @ valves[k]["axis"])
             for k in names]
 
@@ -609,13 +608,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     rig = calibration_rig(name="rig", errors=rig_errors(imaging(cfg), cfg["seed"]))
     rig_centre = transform_points(T_world_rig, rig.features["corners"]).mean(axis=0)
 
-    views = []  # (name, role, T_world_base, q_true)
-
     # --- lab: rig views from several directions (rotation diversity for AX = XB), base at the world origin -----------
-    n_rig = cfg["lab"]["rig_views"]
-    rig_views, unreachable = _rig_views(robot, rig_centre, cfg["lab"]["rig_distance_m"], n_rig, "rig", mount_nominal)
-    views += rig_views
-    n_requested = n_rig
+    n_rig = cfg["lab"]["rig_views"]  # views: (name, role, T_world_base, q_true)
+    views, unreachable = _rig_views(robot, rig_centre, cfg["lab"]["rig_distance_m"], n_rig, "rig", mount_nominal)
 
     # --- site: parking 1 (survey, task taught) and parking 2 (locate, task executed) ---------------------------------
     T_ref_look = look_at(eye_ref, centre)
@@ -672,18 +667,15 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                                                                    mount_nominal))
     views += site_views
     n_paired = len(views)  # the views every variant renders: the ones after read their own encoder stream
-    if cfg["lab"]["rig_in_air"]:  # before the tank is flooded, closer by the port's magnification so that the rig
-        # covers the image as in water (rendered last: no draw moves)
-        air_views, air_unreachable = _rig_views(robot, rig_centre, cfg["lab"]["rig_distance_m"] / mag, n_rig,
-                                                "rigair", mount_nominal, role="rig_air")
-        views += air_views
-        unreachable += air_unreachable
-        n_requested += n_rig
-    for i, d in enumerate([float(d) for d in cfg["lab"]["rig_extra_distances_m"]]):
-        extra, extra_unreachable = _rig_views(robot, rig_centre, d, n_rig, f"rig{i + 1}d", mount_nominal)
+    # rig_in_air: before the tank is flooded, closer by the port's magnification so that the rig covers the image as
+    # in water (rendered last: no draw moves); then the extra distances
+    more = ([(cfg["lab"]["rig_distance_m"] / mag, "rigair", "rig_air")] if cfg["lab"]["rig_in_air"] else []) + [
+        (float(d), f"rig{i + 1}d", "rig") for i, d in enumerate(cfg["lab"]["rig_extra_distances_m"])]
+    for d, prefix, role in more:
+        extra, extra_unreachable = _rig_views(robot, rig_centre, d, n_rig, prefix, mount_nominal, role=role)
         views += extra
         unreachable += extra_unreachable
-        n_requested += n_rig
+    n_requested = n_rig * (1 + len(more))
     views += region_views
     region_of = {v[0]: "r0" if len(regions) > 1 else "" for v in site_views}
     region_of.update({v[0]: v[0].split("_")[0] for v in region_views})
@@ -1212,9 +1204,9 @@ def run(cfg, out_dir, verbose=True):
         t_b = time.perf_counter()
         metrics.update(_bound(cfg, robot, truth, lab, details, ransac, res, report.get("ins_tilt") == "fused"))
         metrics["bound_s"] = time.perf_counter() - t_b
-        for q in ("pos", "rot"):  # efficiency of this run: bound / achieved (over seeds: RMS bound / RMS error)
-            b, e = metrics.get(f"base_{q}_bound_{'mm' if q == 'pos' else 'deg'}"), metrics.get(
-                f"base_{q}_err_{'mm' if q == 'pos' else 'deg'}")
+        # efficiency of this run: bound / achieved (over seeds: RMS bound / RMS error)
+        for q, u in (("pos", "mm"), ("rot", "deg")):
+            b, e = metrics.get(f"base_{q}_bound_{u}"), metrics.get(f"base_{q}_err_{u}")
             if b is not None and e is not None and e > 0:
                 metrics[f"base_{q}_efficiency"] = b / e
     refr = lab.get("refractive")
