@@ -314,11 +314,7 @@ def _optics(cfg):
     from bench.sim.optics_presets import optics_preset
 
     s = cfg["sim"]
-    overrides = {}
-    if not s["port"]:
-        overrides["port"] = None
-        overrides["water"] = None  # the water needs the port
-        overrides["light"] = None
+    overrides = {} if s["port"] else {"port": None, "water": None, "light": None}  # the water needs the port
     if not s["sensor_noise"]:
         overrides["sensor"] = None
     try:
