@@ -108,12 +108,8 @@ def load_error_table(path) -> dict:
         bad = next((i for i, (a, b) in enumerate(zip(names, expected, strict=False)) if a != b), len(names))
         raise ConfigError(path, f"row {bad + 1}",
                           f"names must be {expected[0]}, {expected[1]}, ... {expected[-1]} in order")
-    out = {"name": names}
-    for col in header:
-        if col != "name":
-            out[col] = np.array([csv_number(path, f"{col} (row {i + 1}, {names[i]})", r[col])
-                                 for i, r in enumerate(rows)])
-    return out
+    return {"name": names, **{col: np.array([csv_number(path, f"{col} (row {i + 1}, {names[i]})", r[col])
+                                             for i, r in enumerate(rows)]) for col in header if col != "name"}}
 
 
 def _check_pose_counts(cfg, n_params):
@@ -129,8 +125,7 @@ def _check_pose_counts(cfg, n_params):
 
 def validate(cfg: dict) -> None:
     """Check every value of a loaded scenario without running it (``bench sweep`` does, per grid point)."""
-    base = Path(cfg["_file"]).parent
-    robot = load_robot(base / cfg["robot"])
+    robot = load_robot(Path(cfg["_file"]).parent / cfg["robot"])
     _check_pose_counts(cfg, len(closed_form_reduction(robot).kept))
 
 

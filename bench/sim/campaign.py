@@ -240,9 +240,8 @@ def keypoint_reliability(scene: ArmScene, q_a, q_b, image_a, image_b, tol_px: fl
                        uv[:, 1:], cv2.INTER_LINEAR) for k in range(3)]
     p_a = np.concatenate(chans, axis=1).astype(float)
     # reject keypoints on depth edges (the four neighbours see surfaces more than 1 cm apart): no single truth
-    u0, v0 = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
-    u0 = np.clip(u0, 0, pts.shape[1] - 2)
-    v0 = np.clip(v0, 0, pts.shape[0] - 2)
+    u0 = np.clip(np.floor(uv[:, 0]).astype(int), 0, pts.shape[1] - 2)
+    v0 = np.clip(np.floor(uv[:, 1]).astype(int), 0, pts.shape[0] - 2)
     nb = np.stack([pts[v0, u0], pts[v0, u0 + 1], pts[v0 + 1, u0], pts[v0 + 1, u0 + 1]], axis=1)
     with np.errstate(invalid="ignore"):
         known = np.all(np.isfinite(nb), axis=(1, 2)) & (np.ptp(nb[..., 2], axis=1) < 0.01)
