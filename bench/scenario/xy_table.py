@@ -45,7 +45,7 @@ from pydantic import Field, model_validator
 
 from bench.camera.calibrate_dataset import load_target, load_target_tolerance
 from bench.camera.calibration import calibrate_camera
-from bench.camera.corners import EXTRACTORS, extract_corners
+from bench.camera.corners import EXTRACTORS
 from bench.camera.io import camera_yaml_text
 from bench.camera.model import CameraModel
 from bench.camera.presets import load_preset
@@ -72,6 +72,7 @@ from bench.errors import ConfigError
 from bench.fileio import atomic_save_figure, headless_pyplot
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
 from bench.scenario.bounds import true_projector
+from bench.scenario.in_situ_lab import rig_corners
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
 from bench.sim.campaign import CachedCamera
@@ -542,18 +543,7 @@ def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48, extracto
     from bench.camera.target_tolerance import calibration_with_tolerance
 
     geometry = load_target(ds.root / "target.yaml")
-    Xs, uvs, size = [], [], None
-    for v in ds.views:
-        if v.role != "calibration":
-            continue
-        img = v.image()
-        res = extract_corners(img, geometry, extractor)
-        if res.success:
-            Xs.append(res.object_points)
-            uvs.append(res.uv)
-            size = (img.shape[1], img.shape[0])
-    if len(Xs) < 2:
-        raise ConfigError(ds.root, "calibration views", f"the rig was found in {len(Xs)} views (need >= 2)")
+    Xs, uvs, _, size = rig_corners(ds, geometry, extractor, "calibration", need=2)
     cal = calibrate_camera(Xs, uvs, size, model=model)
     if not cal.success:
         raise ConfigError(ds.root, "calibration views", f"camera calibration failed: {cal.message}")
