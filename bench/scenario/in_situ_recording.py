@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
-from bench.geometry.transforms import invert
+from bench.geometry.transforms import homogeneous, invert
 from bench.robot.kinematics import link_frames
 from bench.robot.orientation import link5_frame
 from bench.scenario.recording import GREEN, GREY, RED, Recording, arm_strip, nice_factor, run_name
@@ -283,16 +283,11 @@ def _base_error_view(rec, T_wb1, T_wb2, T_site_b2, res, report) -> tuple:
     dt, dphi, cov_t = base_error(T_b1_b2, T_site_b2, res.covariance)
     sigma = float(np.sqrt(max(np.linalg.eigvalsh(cov_t).max(), 0.0))) if np.all(np.isfinite(cov_t)) else 0.0
     k = nice_factor(max(float(np.linalg.norm(dt)), sigma), ZOOM_TARGET_M)
-    T_hat = np.eye(4)
-    T_hat[:3, :3] = rotation_vector_to_matrix(k * dphi)
-    T_hat[:3, 3] = k * dt
-    rec.frame("base_error/estimated", T_hat, 0.1, static=True)
+    rec.frame("base_error/estimated", homogeneous(rotation_vector_to_matrix(k * dphi), k * dt), 0.1, static=True)
     rec.arrows("base_error/error", [np.zeros(3)], [k * dt], color=ORANGE, radius=0.0025, static=True)
     if report.get("T_world_base_vision") is not None:  # the images' own pose, before the INS's tilt was fused
         dt_v, dphi_v, _ = base_error(T_b1_b2, np.array(report["T_world_base_vision"], float), res.covariance)
-        T_v = np.eye(4)
-        T_v[:3, :3], T_v[:3, 3] = rotation_vector_to_matrix(k * dphi_v), k * dt_v
-        rec.frame("base_error/vision", T_v, 0.06, static=True)
+        rec.frame("base_error/vision", homogeneous(rotation_vector_to_matrix(k * dphi_v), k * dt_v), 0.06, static=True)
         rec.arrows("base_error/ins_correction", [k * dt_v], [k * (dt - dt_v)], color=GREY, radius=0.0015,
                    static=True)
     if sigma > 0:
@@ -329,9 +324,9 @@ def blueprint(images, locate_names, zoom: float, res_scale: float, centre=None, 
         rrb.Vertical(rrb.Horizontal(zoomed, metrics, column_shares=[3, 2]), rrb.Horizontal(*locate),
                      row_shares=[1, 1]),
         column_shares=[3, 2], name="localisation")
-    tabs = [localisation]
-    tabs.append(rrb.Grid(*[rrb.Spatial2DView(origin=f"/world/views/{n}/true", name=n,
-                                             contents=["$origin/image/**"]) for n in site_views], name="survey"))
+    tabs = [localisation, rrb.Grid(*[rrb.Spatial2DView(origin=f"/world/views/{n}/true", name=n,
+                                                       contents=["$origin/image/**"]) for n in site_views],
+                                   name="survey")]
     if task:
         tabs.append(rrb.Spatial3DView(
             origin="/world", name="task: compensated (green), taught readings replayed (red), plan (yellow)",
