@@ -50,6 +50,7 @@ from bench.config import ImagingParams, ScenarioBase, Section, about, at_least, 
 from bench.dataset import photo_files as folder_photos
 from bench.errors import BenchError, ConfigError
 from bench.fileio import atomic_save_figure, atomic_write_bytes, headless_pyplot
+from bench.geometry.transforms import homogeneous
 from bench.scenario.results import write_result, write_table_csv
 from bench.sim.imaging import profile_from_config
 
@@ -149,9 +150,7 @@ def board_poses(res, square_m: float) -> np.ndarray:
     in metres and moved to the simulated board's frame (origin at the pattern's outer corner, one square before)."""
     T = np.array(res.T_cam_target, float).copy()
     T[:, :3, 3] *= square_m
-    shift = np.eye(4)
-    shift[:3, 3] = [-square_m, -square_m, 0.0]
-    return T @ shift
+    return T @ homogeneous(np.eye(3), [-square_m, -square_m, 0.0])
 
 
 # ------------------------------------------------------------------------------------------------ the replica

@@ -51,7 +51,7 @@ import numpy as np
 
 from bench.camera.model import distortion_parameter_jacobian, thin_prism_parameter_jacobian
 from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
-from bench.geometry.transforms import invert, transform_points
+from bench.geometry.transforms import homogeneous, invert, transform_points
 from bench.scenario.bounds import (
     Block,
     MultiViewModel,
@@ -254,10 +254,7 @@ class _PairModel(MultiViewModel):
         if d_R0 is not None:
             T[:, :3, :3] = T[:, :3, :3] @ rotation_vector_to_matrix(d_R0)
         R = rotation_vector_to_matrix(xi[:3])
-        D = np.eye(4)
-        D[:3, :3] = R
-        D[:3, 3] = self.pivot + xi[3:] - R @ self.pivot
-        T[self.locate] = D @ T[self.locate]
+        T[self.locate] = homogeneous(R, self.pivot + xi[3:] - R @ self.pivot) @ T[self.locate]
         return T
 
     def pixels(self, *args):
