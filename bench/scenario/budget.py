@@ -171,9 +171,8 @@ def budget_from_rows(rows: dict, sources: list, metrics: list, vectors: dict | N
     budget table, result metrics)``."""
     vectors = vectors or {}
     variants = ["full", *sources, "none"]
-    table = {"variant": variants, "runs": [len(rows[v]) for v in variants]}
-    for m in metrics:
-        table[f"rms_{m}"] = [_rms(r["metrics"].get(m) for r in rows[v]) for v in variants]
+    table = {"variant": variants, "runs": [len(rows[v]) for v in variants],
+             **{f"rms_{m}": [_rms(r["metrics"].get(m) for r in rows[v]) for v in variants] for m in metrics}}
     result_metrics = {}
     primary, unit = metrics[0], metrics[0].rsplit("_", 1)[-1]
     budget_table = {"source": list(sources)}
@@ -218,9 +217,7 @@ def _plot(budget_table, metrics, table, path, title) -> str:
 
     fig, axes = plt.subplots(1, len(metrics), figsize=(4.2 * len(metrics), 4.0), squeeze=False)
     for ax, m in zip(axes[0], metrics, strict=True):
-        vals = np.array(budget_table[f"budget_{m}"], dtype=float)
-        lo = np.array(budget_table[f"budget_{m}_lo"], dtype=float)
-        hi = np.array(budget_table[f"budget_{m}_hi"], dtype=float)
+        vals, lo, hi = (np.array(budget_table[f"budget_{m}{s}"], dtype=float) for s in ("", "_lo", "_hi"))
         err = np.nan_to_num(np.stack([np.clip(vals - lo, 0, None), np.clip(hi - vals, 0, None)]))
         how = sorted(set(budget_table[f"budget_{m}_method"]))
         ax.bar(budget_table["source"], vals, color="tab:blue", yerr=err, capsize=4, ecolor="0.3",

@@ -663,9 +663,8 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
     true_cv = _opencv_params(true_cam.K, true_cam.dist)
     if in_water:  # no true pin-hole camera: only the paraxial focal lengths are defined
         true_cv = {k: float("nan") for k in OPENCV_ROWS} | {"fx_px": f_true[0], "fy_px": f_true[1]}
-    std = {k: float("nan") for k in OPENCV_ROWS}
-    for name, sd in zip(cal.parameter_names, cal.std, strict=True):
-        std[_CV_KEY.get(name, name)] = float(sd)
+    std = {k: float("nan") for k in OPENCV_ROWS} | {_CV_KEY.get(name, name): float(sd)
+                                                    for name, sd in zip(cal.parameter_names, cal.std, strict=True)}
     fitted = [k for k in OPENCV_ROWS if np.isfinite(std[k])]  # the parameters the model estimates
     intr = _parameter_table(list(OPENCV_ROWS), nominal_cv, true_cv, _opencv_params(cal.K, cal.dist), std,
                             _jackknife(rows_cv, OPENCV_ROWS), _opencv_params(ref.K, ref.dist),

@@ -46,7 +46,7 @@ from bench.camera.photo_stats import (
     measure_sift_precision,
     residual_statistics,
 )
-from bench.config import ImagingParams, ScenarioBase, Section, about, at_least, at_most, section
+from bench.config import ImagingParams, PlotOutputs, ScenarioBase, Section, about, at_least, at_most, section
 from bench.dataset import photo_files as folder_photos
 from bench.errors import BenchError, ConfigError
 from bench.fileio import atomic_save_figure, atomic_write_bytes, headless_pyplot
@@ -79,8 +79,7 @@ class Camera(Section):
     supersample: Annotated[int, Field(ge=1, le=8)] = 3
 
 
-class Outputs(Section):
-    plots: bool = True
+class Outputs(PlotOutputs):
     images: Annotated[bool, about("write the grey renders to renders/")] = True
 
 
@@ -251,12 +250,8 @@ def calibrate_replica(cfg, greys, real_views):
 
 
 def statistics(views, res, pattern) -> dict:
-    out = residual_statistics(res.residuals_px, pattern)
-    out.update(measure_sift_precision(views, pattern, res.K, res.dist))
-    out.update(measure_blur(views, pattern))
-    out.update(measure_edge_profile(views, pattern))
-    out.update(measure_noise(views, pattern))
-    return out
+    return {**residual_statistics(res.residuals_px, pattern), **measure_sift_precision(views, pattern, res.K, res.dist),
+            **measure_blur(views, pattern), **measure_edge_profile(views, pattern), **measure_noise(views, pattern)}
 
 
 def run(cfg, out_dir, verbose=True):

@@ -1162,11 +1162,9 @@ def run(cfg, out_dir, verbose=True):
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
     T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
     metrics = dict(checks)
-    metrics["map_points"] = float(report["map_points"])
-    metrics["inliers"] = float(report["inliers"])
+    metrics.update({k: float(report[k]) for k in ("map_points", "inliers")})
     # integrity (bench.vision.integrity): ok = 1; protection levels NaN when refused (no bound: do not use the pose)
-    metrics["integrity_ok"] = float(report["integrity"] == "ok")
-    metrics["integrity_refused"] = float(report["integrity"] == "refused")
+    metrics.update({f"integrity_{v}": float(report["integrity"] == v) for v in ("ok", "refused")})
     for k in ("protection_radius_mm", "protection_angle_deg"):
         metrics[k] = float("nan") if report[k] is None else float(report[k])
     tilt = report["integrity_tests"].get("tilt_mahalanobis_sq")  # test 7 (bench.vision.tilt)

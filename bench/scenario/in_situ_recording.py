@@ -124,19 +124,17 @@ def locate_residuals(kmap, obs, res, camera, names):
     sel = b_of_a[m_a.i2] >= 0
     i_map, i_a = m_a.i1[sel], m_a.i2[sel]
     i_b = b_of_a[i_a]
-    kept = set()
-    if res.p1 is not None and res.inliers is not None:
-        kept = {tuple(p) for p in np.asarray(res.p1)[np.asarray(res.inliers, bool)]}
+    kept = {tuple(p) for p in np.asarray(res.p1)[np.asarray(res.inliers, bool)]} \
+        if res.p1 is not None and res.inliers is not None else set()
     inlier = np.array([tuple(p) in kept for p in kmap.p_ref[i_map]], dtype=bool)
-    out = {}
     if not res.success:
-        for v, idx in ((a, i_a), (b, i_b)):
-            out[v.name] = {"uv": v.features.uv[idx], "inlier": inlier, "residual": np.full((len(idx), 2), np.nan)}
-        return out
+        return {v.name: {"uv": v.features.uv[idx], "inlier": inlier, "residual": np.full((len(idx), 2), np.nan)}
+                for v, idx in ((a, i_a), (b, i_b))}
     T_a_ref = invert(res.T_ref_cam)
     T_b_a = invert(invert(a.T_base_cam) @ b.T_base_cam)
     X_a = kmap.p_ref[i_map] @ T_a_ref[:3, :3].T + T_a_ref[:3, 3]
     X_b = X_a @ T_b_a[:3, :3].T + T_b_a[:3, 3]
+    out = {}
     for v, idx, X in ((a, i_a, X_a), (b, i_b, X_b)):
         r = camera.project(X) - v.features.uv[idx]
         r[~inlier] = np.nan

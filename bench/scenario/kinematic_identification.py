@@ -245,9 +245,8 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     J_ho = identification_jacobian(robot, q_ho, eps_true)[..., red.kept]
     metrics["heldout_rms_bound_mm"] = float(np.sqrt(np.mean(np.einsum("nij,jk,nik->n", J_ho, crb, J_ho))) * 1e3)
     metrics["heldout_efficiency"] = metrics["heldout_rms_bound_mm"] / metrics["heldout_rms_mm_calibrated"]
-    metrics["residual_rms_mm"] = res.residual_rms * 1e3
-    metrics["condition_number"] = res.condition_number
-    metrics["iterations"] = res.iterations
+    metrics.update({"residual_rms_mm": res.residual_rms * 1e3, "condition_number": res.condition_number,
+                    "iterations": res.iterations})
     # the linearised thesis method on exact, noisy data, for comparison
     lin_real = identify_linear(robot, q_id, noisy_pts, red, sigma=sigma)
     metrics["heldout_rms_mm_calibrated_linear_method"] = _rms_mm(ee_position(robot, q_ho, lin_real.eps), p_ho)

@@ -569,9 +569,7 @@ def _plot(table, keys, metrics, out):
             sel = np.array([o == label for o in others])
             idx = np.argsort(x[sel])
             xs = x[sel][idx]
-            med = np.array(table[f"{m}_median"])[sel][idx]
-            lo = np.array(table[f"{m}_q25"])[sel][idx]
-            hi = np.array(table[f"{m}_q75"])[sel][idx]
+            med, lo, hi = (np.array(table[f"{m}_{s}"])[sel][idx] for s in ("median", "q25", "q75"))
             name = ", ".join(f"{k}={v}" for k, v in zip(keys[1:], label, strict=True)) or "median"
             line, = ax.plot(xs, med, "o-", label=name)
             ax.fill_between(xs, lo, hi, alpha=0.2, color=line.get_color())

@@ -195,14 +195,11 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     metrics["predicted_pos_std_mm"] = 1e3 * acc.pos_std_m
     metrics["predicted_rot_std_deg"] = float(np.rad2deg(acc.rot_std_rad))
     default_cell = _cell(robot, clean, T_true, sigma0, trials, rng)
-    metrics["base_pos_err_mm_median"] = default_cell["pos_err_mm_median"]
-    metrics["base_rot_err_deg_median"] = default_cell["rot_err_deg_median"]
+    metrics.update({f"base_{k}": default_cell[k] for k in ("pos_err_mm_median", "rot_err_deg_median")})
     metrics["pos_rms_over_predicted"] = default_cell["pos_err_mm_rms"] / default_cell["predicted_pos_std_mm"]
     # Cramér-Rao (base_frame_bound): with the joint readings along the arcs (all the simulation's information), and
     # from the geometry alone (what the circle fit uses); efficiency = bound / RMS over the Monte Carlo
-    metrics["base_pos_bound_mm"] = default_cell["pos_bound_mm"]
-    metrics["base_rot_bound_deg"] = default_cell["rot_bound_deg"]
-    metrics["base_pos_bound_geometry_mm"] = default_cell["pos_bound_geometry_mm"]
+    metrics.update({f"base_{k}": default_cell[k] for k in ("pos_bound_mm", "rot_bound_deg", "pos_bound_geometry_mm")})
     metrics["base_pos_efficiency"] = default_cell["pos_bound_mm"] / default_cell["pos_err_mm_rms"]
     metrics["base_rot_efficiency"] = default_cell["rot_bound_deg"] / default_cell["rot_err_deg_rms"]
     metrics["base_pos_efficiency_geometry"] = default_cell["pos_bound_geometry_mm"] / default_cell["pos_err_mm_rms"]

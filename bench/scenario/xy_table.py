@@ -827,10 +827,9 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose, cov_K=None, co
     unknowns = Unknowns(lens.K, cov_K, R0_free=p["mount_bias"] == "estimated", cov_dist=cov_dist,
                         offset_sigma=spec.camera_offset_sigma_m)
     bounds = experiment_bounds(res, kin, pc, X, seen, project, lens.size, sigma, verbose, unknowns)
-    metrics["bound_intrinsics_free"] = float(cov_K is not None)
-    metrics["bound_R0_free"] = float(unknowns.R0_free)
-    metrics["bound_distortion_free"] = float(cov_dist is not None)
-    metrics["bound_centre_free"] = float(unknowns.offset_sigma is not None)
+    metrics.update({"bound_intrinsics_free": float(cov_K is not None), "bound_R0_free": float(unknowns.R0_free),
+                    "bound_distortion_free": float(cov_dist is not None),
+                    "bound_centre_free": float(unknowns.offset_sigma is not None)})
     cols = {k: [] for k in ("d_mm", "bound_x_mm", "bound_y_mm", "bound_z_mm", "bound_pos_mm", "bound_rot_deg",
                             "crb_x_mm", "crb_y_mm", "crb_z_mm", "crb_pos_mm", "floor_x_mm", "floor_y_mm",
                             "floor_z_mm", "floor_pos_mm", "bound_mc_x_mm", "bound_mc_y_mm", "bound_mc_z_mm",
@@ -923,9 +922,8 @@ def run(cfg, out_dir, verbose=True):
     if p["camera"] == "calibrated":
         cal, n_cal, cov_K = calibrate_from_rig_views(ds, p["camera_model"], extractor=p["calibration_corner_extractor"])
         camera = cal.camera
-        metrics["calibration_fx_std_px"] = float(np.sqrt(cov_K[0, 0]))
-        metrics["reproj_rms_px"] = float(cal.rms_px)
-        metrics["calibration_views_used"] = float(n_cal)
+        metrics.update({"calibration_fx_std_px": float(np.sqrt(cov_K[0, 0])), "reproj_rms_px": float(cal.rms_px),
+                        "calibration_views_used": float(n_cal)})
     elif p["camera"] == "nominal":
         camera = ds.camera()
     else:
@@ -1014,9 +1012,8 @@ def run(cfg, out_dir, verbose=True):
     metrics["keypoints_reference"] = float(res.keypoints[ref])
     ok = [c for c in res.combinations if c.success and c.method != "bundle"]  # the thesis's map and inlier counts
     if ok:
-        metrics["map_points_median"] = float(np.median([c.map_points for c in ok]))
-        metrics["pairs_3d_median"] = float(np.median([c.pairs_3d for c in ok]))
-        metrics["inliers_median"] = float(np.median([c.inliers for c in ok]))
+        metrics.update({f"{k}_median": float(np.median([getattr(c, k) for c in ok]))
+                        for k in ("map_points", "pairs_3d", "inliers")})
     if cfg["bound"]["enabled"] and res.success:
         t1 = time.perf_counter()
         bound_metrics, columns = _bound(cfg, truth, res, pc, spec, verbose, cov_K,
