@@ -315,9 +315,7 @@ def plot_replica(per_view: dict, corr: dict, metrics: dict, path) -> str:
         b.plot(corr["lag"], corr[f"real_{d}"], "o-", color=c, label=f"along a {d}: real")
         b.plot(corr["lag"], corr[f"sim_{d}"], "s--", color=c, label=f"along a {d}: simulated")
     b.axhline(0, color="k", lw=0.5)
-    b.set_xticks(corr["lag"])
-    b.set_xlabel("corners apart")
-    b.set_ylabel("correlation of residual vectors")
+    b.set(xticks=corr["lag"], xlabel="corners apart", ylabel="correlation of residual vectors")
     b.legend(fontsize=8)
     fig.suptitle(f"The photos and their simulation, calibrated by the same code: RMS simulated / real "
                  f"{metrics['rms_ratio']:.2f}", fontsize=10)

@@ -577,9 +577,7 @@ def _plot(table, keys, metrics, out):
             if bound:  # the lower bound from the simulation's noise, beside the achieved error
                 ax.plot(xs, np.array(table[f"{bound}_median"])[sel][idx], "--", color=line.get_color(),
                         label=f"{name}: bound ({bound})")
-        ax.set_xlabel(keys[0])
-        ax.set_ylabel(m)
-        ax.set_title(f"{m}: median and interquartile range over seeds")
+        ax.set(xlabel=keys[0], ylabel=m, title=f"{m}: median and interquartile range over seeds")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
         fig.tight_layout()

@@ -264,10 +264,7 @@ def plot_accuracy(table: dict, path) -> str:
             ax.plot(x, np.asarray(table[obs + "_median"])[sel][order], "s:", color=color, ms=3, lw=0.8)
             ax.plot(x, np.asarray(table[pred])[sel][order], "--", color=color, lw=1.2, label=f"{s:g} deg: predicted")
             ax.plot(x, np.asarray(table[bound])[sel][order], ":", color=color, lw=2.0, label=f"{s:g} deg: bound")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("tracker noise sigma per axis (mm)")
-        ax.set_ylabel(label)
+        ax.set(xscale="log", yscale="log", xlabel="tracker noise sigma per axis (mm)", ylabel=label)
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=7, ncol=2)
     fig.suptitle("Base frame from joint-1/joint-2 arcs (section 2.9): Monte Carlo RMS (o), median (s), "

@@ -746,10 +746,9 @@ def plot_tables(summary: dict, poses: str, path) -> str:
         if "eq123_z_mm" in summary and m in numbers:
             ax.plot(d, np.array(summary["eq123_z_mm"])[sel], "-.", color=colors["z"], lw=1, alpha=0.8,
                     label="z: Eq. 123 (disparity sqrt(2) sigma, / sqrt(inliers))")
-        ax.set_yscale("log")
+        ax.set(yscale="log", ylabel="RMS position error (mm)")
         ax.set_title(f"Table {numbers[m]}: {LABELS[m]}" if m in numbers else
                      "not in the thesis - " + LABELS[m].replace(": ", ":\n"), fontsize=9)
-        ax.set_ylabel("RMS position error (mm)")
         ax.grid(alpha=0.3, which="both")
     if has_bundle:  # how close each estimator comes to the limit
         ax = axes[1, 2]
