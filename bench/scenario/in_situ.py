@@ -877,9 +877,8 @@ def _true_optics(truth):
     """The true lens (CameraModel), port (FlatPort or None) and the central camera equivalent to both."""
     w, h = truth["image_size"]
     lens = CameraModel(int(w), int(h), np.array(truth["camera_K"]), np.array(truth["camera_dist"]), "true lens")
-    port = truth.get("port")
-    port = None if port is None else FlatPort(**{k: np.array(v) if isinstance(v, list) else v
-                                                 for k, v in port.items()})
+    port = None if truth.get("port") is None else FlatPort(**{k: np.array(v) if isinstance(v, list) else v
+                                                             for k, v in truth["port"].items()})
     central = lens.replace(K=np.array(truth["camera_K_effective"]), name="true central camera")
     return lens, port, central
 

@@ -154,8 +154,7 @@ def _cell(robot, clean, T_true, sigma, trials, rng):
 
 
 def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
-    base = Path(cfg["_file"]).parent
-    robot = load_robot(base / cfg["robot"])
+    robot = load_robot(Path(cfg["_file"]).parent / cfg["robot"])
     q_start, spans, sigmas = _check_values(cfg, robot)
     rng = np.random.default_rng(cfg["seed"])
     metrics, timings, tables, artifacts = {}, {}, {}, {}

@@ -195,9 +195,8 @@ def map_points(result, reference: str, T_table_ref, names_for_map) -> tuple:
     obs, rm = result.observations, result.reference_matches
     kmap = build_map(obs[reference], [obs[n] for n in names_for_map], matches=[rm[n] for n in names_for_map])
     one, merge = one_per_detection(kmap)  # each detection once: SIFT's twin keypoints (one pixel) are one measurement
-    seen = {reference: np.ones(len(one), bool)}
-    for n, m in rm.items():
-        seen[n] = np.isin(kmap.ref_index, m.i1) @ merge  # found where either twin was
+    seen = {reference: np.ones(len(one), bool),  # the others found where either twin was
+            **{n: np.isin(kmap.ref_index, m.i1) @ merge for n, m in rm.items()}}
     return transform_points(T_table_ref, kmap.p_ref[one]), seen
 
 
