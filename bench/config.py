@@ -345,7 +345,8 @@ def leaves(model: type[BaseModel], prefix: str = ""):
 def type_text(ann) -> str:
     """A short name of a field's type for the reference (``float``, ``list of number``, ``one of a, b``)."""
     bare, _ = _annotated(ann)
-    optional = bare is not ann and type(None) in typing.get_args(_strip_annotated(ann))
+    inner = typing.get_args(ann)[0] if typing.get_origin(ann) is Annotated else ann  # Annotated nests flat
+    optional = bare is not ann and type(None) in typing.get_args(inner)
     if typing.get_origin(bare) is Literal:
         text = choices_text(typing.get_args(bare))
     elif typing.get_origin(bare) is list:
@@ -357,12 +358,6 @@ def type_text(ann) -> str:
     else:
         text = getattr(bare, "__name__", str(bare))
     return f"{text} or null" if optional else text
-
-
-def _strip_annotated(ann):
-    while typing.get_origin(ann) is Annotated:
-        ann = typing.get_args(ann)[0]
-    return ann
 
 
 def constraint_text(field: FieldInfo, unit: str = "") -> str:

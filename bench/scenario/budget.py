@@ -39,6 +39,7 @@ bootstrap over the seeds (the same resampled seeds in both variants) gives each 
 from __future__ import annotations
 
 import json
+from contextlib import closing
 from pathlib import Path
 
 import numpy as np
@@ -64,7 +65,7 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
     from bench.config import load_yaml
     from bench.fileio import check_output_dir, claim_output_dir, foreign_entries, record_output_entries
     from bench.scenario.runner import kind_module, load_scenario
-    from bench.scenario.sweep import check_seeds_and_workers, run_sweep
+    from bench.scenario.sweep import SweepStore, _ray_connect, check_seeds_and_workers, run_sweep
 
     scenario = Path(scenario)
     kind = load_yaml(scenario).get("kind")
@@ -77,16 +78,13 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
     variants = {"full": {}, **{s: dict(o) for s, o in sources.items()},
                 "none": {k: v for o in sources.values() for k, v in o.items()}}
     check_seeds_and_workers(seeds, workers, backend, address)
+    every = {**getattr(module, "BUDGET_FIXED", {}), **(fixed or {})}  # the overrides every variant takes
     for overrides in variants.values():  # every variant's values, before anything is created
-        base = {**getattr(module, "BUDGET_FIXED", {}), **(fixed or {}), **overrides}
-        load_scenario(scenario, seeds[0], [f"{k}={json.dumps(v)}" for k, v in base.items()])
+        load_scenario(scenario, seeds[0], [f"{k}={json.dumps(v)}" for k, v in {**every, **overrides}.items()])
     out = Path(out)
     check_output_dir(out, "budget", force=force, identity=scenario.name)
-    started = False
-    if backend == "ray":  # a missing Ray or a cluster that refuses: refused before the folder is made
-        from bench.scenario.sweep import _ray_connect
-
-        started = _ray_connect(address)
+    # a missing Ray or a cluster that refuses: refused before the folder is made
+    started = _ray_connect(address) if backend == "ray" else False
     try:
         before = foreign_entries(out)
         claim_output_dir(out, "budget", force=force, identity=scenario.name)
@@ -94,12 +92,11 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
         for name, overrides in variants.items():
             if progress:
                 print(f"variant {name}: {overrides or 'every source real'}")
-            base = {**getattr(module, "BUDGET_FIXED", {}), **(fixed or {}), **overrides}
             # one render cache for every variant: a source the images do not depend on is not rendered again
-            res = run_sweep(scenario, [], seeds, out / name, backend, address, workers, progress=progress, fixed=base,
-                            render_cache=out / ".render_cache")
-            done = _rows(out / name / "sweep.sqlite")
-            rows[name] = done
+            res = run_sweep(scenario, [], seeds, out / name, backend, address, workers, progress=progress,
+                            fixed={**every, **overrides}, render_cache=out / ".render_cache")
+            with closing(SweepStore(out / name / "sweep.sqlite")) as store:  # the variant's finished runs
+                rows[name] = [r for r in store.rows() if r["status"] == "done"]
             if res["errors"] and progress:
                 print(f"  {len(res['errors'])} runs failed, e.g. {res['errors'][0]}")
         table, budget_table, result_metrics = budget_from_rows(rows, list(sources), metrics, vectors)
@@ -176,9 +173,8 @@ def budget_from_rows(rows: dict, sources: list, metrics: list, vectors: dict | N
     budget table, result metrics)``."""
     vectors = vectors or {}
     variants = ["full", *sources, "none"]
-    table = {"variant": variants, "runs": [len(rows[v]) for v in variants]}
-    for m in metrics:
-        table[f"rms_{m}"] = [_rms(r["metrics"].get(m) for r in rows[v]) for v in variants]
+    table = {"variant": variants, "runs": [len(rows[v]) for v in variants],
+             **{f"rms_{m}": [_rms(r["metrics"].get(m) for r in rows[v]) for v in variants] for m in metrics}}
     result_metrics = {}
     primary, unit = metrics[0], metrics[0].rsplit("_", 1)[-1]
     budget_table = {"source": list(sources)}
@@ -218,25 +214,12 @@ def budget_from_rows(rows: dict, sources: list, metrics: list, vectors: dict | N
     return table, budget_table, result_metrics
 
 
-def _rows(store_path) -> list:
-    """The finished runs of a variant's sweep (:class:`~bench.scenario.sweep.SweepStore` rows)."""
-    from bench.scenario.sweep import SweepStore
-
-    store = SweepStore(store_path)
-    try:
-        return [r for r in store.rows() if r["status"] == "done"]
-    finally:
-        store.close()
-
-
 def _plot(budget_table, metrics, table, path, title) -> str:
     plt = headless_pyplot()
 
     fig, axes = plt.subplots(1, len(metrics), figsize=(4.2 * len(metrics), 4.0), squeeze=False)
     for ax, m in zip(axes[0], metrics, strict=True):
-        vals = np.array(budget_table[f"budget_{m}"], dtype=float)
-        lo = np.array(budget_table[f"budget_{m}_lo"], dtype=float)
-        hi = np.array(budget_table[f"budget_{m}_hi"], dtype=float)
+        vals, lo, hi = (np.array(budget_table[f"budget_{m}{s}"], dtype=float) for s in ("", "_lo", "_hi"))
         err = np.nan_to_num(np.stack([np.clip(vals - lo, 0, None), np.clip(hi - vals, 0, None)]))
         how = sorted(set(budget_table[f"budget_{m}_method"]))
         ax.bar(budget_table["source"], vals, color="tab:blue", yerr=err, capsize=4, ecolor="0.3",

@@ -475,20 +475,14 @@ def load_table3(path=TABLE3_CSV) -> dict:
 
 def heikkila_thesis_units(params) -> dict:
     """Heikkilä parameters (:class:`~bench.camera.heikkila.HeikkilaParameters`, SI) in the units of Tables 9/15."""
-    out = {}
-    for name, attr, scale in HEIKKILA_ROWS:
-        out[name] = params.f_px if attr == "f" else getattr(params, attr) * scale
-    return out
+    return {name: params.f_px if attr == "f" else getattr(params, attr) * scale for name, attr, scale in HEIKKILA_ROWS}
 
 
 def _heikkila_std(K, dist, cov, pitch) -> dict:
     """Standard errors of the Heikkilä parameters in the units of Tables 9/15 (first-order propagation)."""
     C = heikkila_covariance(K, dist, cov, pitch)
     s = np.sqrt(np.clip(np.diag(C), 0, None))
-    out = {}
-    for i, (name, attr, scale) in enumerate(HEIKKILA_ROWS):
-        out[name] = s[i] / pitch if attr == "f" else s[i] * scale
-    return out
+    return {name: s[i] / pitch if attr == "f" else s[i] * scale for i, (name, attr, scale) in enumerate(HEIKKILA_ROWS)}
 
 
 # ------------------------------------------------------------------------------------------------ pipeline + scoring
@@ -511,11 +505,9 @@ def _jackknife(rows, names) -> dict:
     V = len(rows)
     if V < 2:
         return {n: float("nan") for n in names}
-    out = {}
-    for n in names:
-        a = np.array([r[n] for r in rows], float)
-        out[n] = float(np.sqrt((V - 1) / V * np.sum((a - a.mean()) ** 2))) if np.all(np.isfinite(a)) else float("nan")
-    return out
+    cols = {n: np.array([r[n] for r in rows], float) for n in names}
+    return {n: float(np.sqrt((V - 1) / V * np.sum((a - a.mean()) ** 2))) if np.all(np.isfinite(a)) else float("nan")
+            for n, a in cols.items()}
 
 
 def _parameter_table(names, nominal, true, est, std, jk, opencv, oracle, fitted, nominal_key="nominal") -> dict:
@@ -550,11 +542,6 @@ def _within(z) -> dict:
     if not np.all(np.isfinite(z)):
         return {f"within_{k}std": float("nan") for k in (1, 2, 3)} | {"max_abs_z": float("nan")}
     return {**{f"within_{k}std": float(np.sum(z <= k)) for k in (1, 2, 3)}, "max_abs_z": float(z.max())}
-
-
-def _dlt_residuals(X, uv):
-    M = dlt.dlt_projection_matrix(X, uv)  # Eq. 55-58
-    return uv - dlt.project(M, X)  # p_e - p_p (Eq. 195)
 
 
 def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
@@ -676,9 +663,8 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
     true_cv = _opencv_params(true_cam.K, true_cam.dist)
     if in_water:  # no true pin-hole camera: only the paraxial focal lengths are defined
         true_cv = {k: float("nan") for k in OPENCV_ROWS} | {"fx_px": f_true[0], "fy_px": f_true[1]}
-    std = {k: float("nan") for k in OPENCV_ROWS}
-    for name, sd in zip(cal.parameter_names, cal.std, strict=True):
-        std[_CV_KEY.get(name, name)] = float(sd)
+    std = {k: float("nan") for k in OPENCV_ROWS} | {_CV_KEY.get(name, name): float(sd)
+                                                    for name, sd in zip(cal.parameter_names, cal.std, strict=True)}
     fitted = [k for k in OPENCV_ROWS if np.isfinite(std[k])]  # the parameters the model estimates
     intr = _parameter_table(list(OPENCV_ROWS), nominal_cv, true_cv, _opencv_params(cal.K, cal.dist), std,
                             _jackknife(rows_cv, OPENCV_ROWS), _opencv_params(ref.K, ref.dist),
@@ -692,10 +678,8 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
             return heikkila_thesis_units(opencv_to_heikkila(K, dist, pitch))
 
         thesis = thesis_blocks(load_preset(truth["nominal_camera"]))["heikkila_eq75"]
-        if in_water:
-            h_true = {n: float("nan") for n in names} | {"f_px": f_true[1], "s_u": f_true[0] / f_true[1]}
-        else:
-            h_true = h_of(true_cam.K, true_cam.dist)
+        h_true = ({n: float("nan") for n in names} | {"f_px": f_true[1], "s_u": f_true[0] / f_true[1]} if in_water
+                  else h_of(true_cam.K, true_cam.dist))
         h_rows = [h_of(*_K_dist(cal.parameter_names, r)) if np.all(np.isfinite(r)) else
                   {n: float("nan") for n in names} for r in jk_rows]
         score = tables["heikkila"] = _parameter_table(
@@ -736,10 +720,9 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
         for c in ("alpha", "beta"):  # the spread over the pictures (sample std), Table 3's beside it
             m[f"table3_{c}_std_px"] = float(np.std(t3[f"{c}_px"][:-1], ddof=1)) if len(per_view) > 1 else float("nan")
             m[f"thesis_table3_{c}_std_px"] = float(np.std(thesis3[f"{c}_px"][:7], ddof=1))
-    views = {"view": list(det.names), "chi_px": [float(v) for v in cal.per_view_rms_px],
-             "opencv_chi_px": [float(v) for v in ref.per_view_rms_px],
-             "corner_rms_px": [float(np.sqrt(np.mean(e**2))) for e in err]}
-    tables["views"] = views
+    tables["views"] = {"view": list(det.names), "chi_px": [float(v) for v in cal.per_view_rms_px],
+                       "opencv_chi_px": [float(v) for v in ref.per_view_rms_px],
+                       "corner_rms_px": [float(np.sqrt(np.mean(e**2))) for e in err]}
 
     # --- the other extractor on the same images (corner accuracy only) -----------------------------------------------
     m[f"corner_rms_px_{p['extractor']}_extractor"] = m["corner_rms_px"]
@@ -761,7 +744,8 @@ def evaluate_medium(cfg, medium, ds_dir, out_dir, verbose=True):
     if cfg["outputs"]["plots"]:
         first = ds.view(det.names[0]).image()
         if cfg["camera"]["preset"] == "air_webcam":
-            r44 = _dlt_residuals(t3_X[0], t3_uvs[0])
+            M = dlt.dlt_projection_matrix(t3_X[0], t3_uvs[0])  # Eq. 55-58
+            r44 = t3_uvs[0] - dlt.project(M, t3_X[0])  # p_e - p_p (Eq. 195)
             plot_residual_vectors(out_dir / "figure44_residuals.png", t3_uvs[0], r44,
                                   image=ds.view(t3_names[0]).image()[..., ::-1],
                                   title=f"Fig. 44 - {t3_names[0]}: pin-hole (DLT) residuals x50",

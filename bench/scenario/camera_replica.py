@@ -46,10 +46,11 @@ from bench.camera.photo_stats import (
     measure_sift_precision,
     residual_statistics,
 )
-from bench.config import ImagingParams, ScenarioBase, Section, about, at_least, at_most, section
+from bench.config import ImagingParams, PlotOutputs, ScenarioBase, Section, about, at_least, at_most, section
 from bench.dataset import photo_files as folder_photos
 from bench.errors import BenchError, ConfigError
 from bench.fileio import atomic_save_figure, atomic_write_bytes, headless_pyplot
+from bench.geometry.transforms import homogeneous
 from bench.scenario.results import write_result, write_table_csv
 from bench.sim.imaging import profile_from_config
 
@@ -78,8 +79,7 @@ class Camera(Section):
     supersample: Annotated[int, Field(ge=1, le=8)] = 3
 
 
-class Outputs(Section):
-    plots: bool = True
+class Outputs(PlotOutputs):
     images: Annotated[bool, about("write the grey renders to renders/")] = True
 
 
@@ -149,9 +149,7 @@ def board_poses(res, square_m: float) -> np.ndarray:
     in metres and moved to the simulated board's frame (origin at the pattern's outer corner, one square before)."""
     T = np.array(res.T_cam_target, float).copy()
     T[:, :3, 3] *= square_m
-    shift = np.eye(4)
-    shift[:3, 3] = [-square_m, -square_m, 0.0]
-    return T @ shift
+    return T @ homogeneous(np.eye(3), [-square_m, -square_m, 0.0])
 
 
 # ------------------------------------------------------------------------------------------------ the replica
@@ -252,12 +250,8 @@ def calibrate_replica(cfg, greys, real_views):
 
 
 def statistics(views, res, pattern) -> dict:
-    out = residual_statistics(res.residuals_px, pattern)
-    out.update(measure_sift_precision(views, pattern, res.K, res.dist))
-    out.update(measure_blur(views, pattern))
-    out.update(measure_edge_profile(views, pattern))
-    out.update(measure_noise(views, pattern))
-    return out
+    return {**residual_statistics(res.residuals_px, pattern), **measure_sift_precision(views, pattern, res.K, res.dist),
+            **measure_blur(views, pattern), **measure_edge_profile(views, pattern), **measure_noise(views, pattern)}
 
 
 def run(cfg, out_dir, verbose=True):
@@ -321,9 +315,7 @@ def plot_replica(per_view: dict, corr: dict, metrics: dict, path) -> str:
         b.plot(corr["lag"], corr[f"real_{d}"], "o-", color=c, label=f"along a {d}: real")
         b.plot(corr["lag"], corr[f"sim_{d}"], "s--", color=c, label=f"along a {d}: simulated")
     b.axhline(0, color="k", lw=0.5)
-    b.set_xticks(corr["lag"])
-    b.set_xlabel("corners apart")
-    b.set_ylabel("correlation of residual vectors")
+    b.set(xticks=corr["lag"], xlabel="corners apart", ylabel="correlation of residual vectors")
     b.legend(fontsize=8)
     fig.suptitle(f"The photos and their simulation, calibrated by the same code: RMS simulated / real "
                  f"{metrics['rms_ratio']:.2f}", fontsize=10)

@@ -50,7 +50,8 @@ from bench.dataset import load_dataset
 from bench.errors import ConfigError
 from bench.fileio import atomic_write_text, claimed_output_dir, settings_identity
 from bench.geometry.quaternion import rotation_vector_to_matrix
-from bench.geometry.transforms import homogeneous, invert, rotation_angle
+from bench.geometry.transforms import homogeneous, invert
+from bench.scenario.results import pose_errors
 
 #: A position error above this is a failure whatever the protection radius (the alert limit of the issue, mm).
 SILENT_MM = 3.0
@@ -302,8 +303,7 @@ def score(dataset, report, T_world_base) -> dict:
     T = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
     if not np.all(np.isfinite(T_world_base)):
         return {"pos_err_mm": float("nan"), "rot_err_deg": float("nan")}
-    return {"pos_err_mm": float(np.linalg.norm(T_world_base[:3, 3] - T[:3, 3]) * 1e3),
-            "rot_err_deg": float(np.rad2deg(rotation_angle(T_world_base[:3, :3].T @ T[:3, :3])))}
+    return dict(zip(("pos_err_mm", "rot_err_deg"), pose_errors(T_world_base, T), strict=True))
 
 
 def is_silent(row) -> bool:

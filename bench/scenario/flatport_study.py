@@ -607,11 +607,9 @@ def plot_study(table: dict, cfg: dict, path, tilt_deg=(0.0, 0.0)) -> str:
             ax = axes[row, j]
             ax.axvspan(D - dr, D + dr, color="0.85", zorder=0)
             ax.axvline(D, color="0.5", lw=0.8)
-            ax.set_xscale("log")
-            ax.set_yscale("log")
             ticks = [x for x in (0.1, 0.2, 0.3, 0.5, 0.7, 1.0, 2.0, 3.0, 5.0, 10.0, 20.0, 50.0)
                      if z.min() * 0.99 <= x <= z.max() * 1.01]
-            ax.set_xticks(ticks)
+            ax.set(xscale="log", yscale="log", xticks=ticks)
             ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
             ax.xaxis.set_minor_formatter(NullFormatter())
             ax.grid(alpha=0.3, which="both")
@@ -620,8 +618,7 @@ def plot_study(table: dict, cfg: dict, path, tilt_deg=(0.0, 0.0)) -> str:
             f"port tilted {tilt_deg[0]:.2f} / {tilt_deg[1]:.2f} deg about x / y")
         axes[0, j].set_title(f"{a}: {what}", fontsize=10)
         axes[0, j].set_ylabel("reprojection error over the image (px)")
-        axes[1, j].set_ylabel("object-space error (mm)")
-        axes[1, j].set_xlabel("working distance z (m, lens frame)")
+        axes[1, j].set(ylabel="object-space error (mm)", xlabel="working distance z (m, lens frame)")
         axes[0, j].legend(fontsize=7, loc="best")
     refr = cfg["refractive"]
     extra = (f"\nsquares, dotted: the refractive model calibrated from the same views + {refr['noise_px']:g} px noise"

@@ -63,7 +63,7 @@ from bench.config import (
 from bench.dataset import DatasetWriter, load_dataset
 from bench.errors import ConfigError
 from bench.geometry.quaternion import matrix_to_rotation_vector
-from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
+from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, transform_points
 from bench.robot.calibration_file import write_calibrated_robot
 from bench.robot.identifiability import closed_form_reduction
 from bench.robot.ik import compensated_ik
@@ -72,7 +72,7 @@ from bench.robot.model import load_robot, random_errors
 from bench.robot.orientation import link5_frame
 from bench.scenario.in_situ_lab import calibrate_lab
 from bench.scenario.plan_memo import memoized
-from bench.scenario.results import write_result, write_table_csv
+from bench.scenario.results import pose_errors, write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
 from bench.sim.imaging import draw_true_lens, profile_from_config, rig_errors, rig_target_yaml
 from bench.sim.ins import vehicle_yaml_text
@@ -451,9 +451,8 @@ def _valve_targets(panel, T_world_panel, cfg) -> list:
     if choice != "nearest" and choice not in valves:
         raise ConfigError(cfg["_file"], "task.valve", f"unknown valve {choice!r} (panel has {', '.join(valves)}; "
                                                       "or 'nearest')")
-    names = sorted(valves, key=lambda k: np.linalg.norm(np.asarray(valves[k]["centre"])[:2]))
-    if choice != "nearest":
-        names = [choice]
+    names = [choice] if choice != "nearest" else \
+        sorted(valves, key=lambda k: np.linalg.norm(np.asarray(valves[k]["centre"])[:2]))
     return [(k, transform_points(T_world_panel, valves[k]["centre"]), T_world_panel[:3, :3] @ valves[k]["axis"])
             for k in names]
 
@@ -609,13 +608,9 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     rig = calibration_rig(name="rig", errors=rig_errors(imaging(cfg), cfg["seed"]))
     rig_centre = transform_points(T_world_rig, rig.features["corners"]).mean(axis=0)
 
-    views = []  # (name, role, T_world_base, q_true)
-
     # --- lab: rig views from several directions (rotation diversity for AX = XB), base at the world origin -----------
-    n_rig = cfg["lab"]["rig_views"]
-    rig_views, unreachable = _rig_views(robot, rig_centre, cfg["lab"]["rig_distance_m"], n_rig, "rig", mount_nominal)
-    views += rig_views
-    n_requested = n_rig
+    n_rig = cfg["lab"]["rig_views"]  # views: (name, role, T_world_base, q_true)
+    views, unreachable = _rig_views(robot, rig_centre, cfg["lab"]["rig_distance_m"], n_rig, "rig", mount_nominal)
 
     # --- site: parking 1 (survey, task taught) and parking 2 (locate, task executed) ---------------------------------
     T_ref_look = look_at(eye_ref, centre)
@@ -672,18 +667,15 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
                                                                    mount_nominal))
     views += site_views
     n_paired = len(views)  # the views every variant renders: the ones after read their own encoder stream
-    if cfg["lab"]["rig_in_air"]:  # before the tank is flooded, closer by the port's magnification so that the rig
-        # covers the image as in water (rendered last: no draw moves)
-        air_views, air_unreachable = _rig_views(robot, rig_centre, cfg["lab"]["rig_distance_m"] / mag, n_rig,
-                                                "rigair", mount_nominal, role="rig_air")
-        views += air_views
-        unreachable += air_unreachable
-        n_requested += n_rig
-    for i, d in enumerate([float(d) for d in cfg["lab"]["rig_extra_distances_m"]]):
-        extra, extra_unreachable = _rig_views(robot, rig_centre, d, n_rig, f"rig{i + 1}d", mount_nominal)
+    # rig_in_air: before the tank is flooded, closer by the port's magnification so that the rig covers the image as
+    # in water (rendered last: no draw moves); then the extra distances
+    more = ([(cfg["lab"]["rig_distance_m"] / mag, "rigair", "rig_air")] if cfg["lab"]["rig_in_air"] else []) + [
+        (float(d), f"rig{i + 1}d", "rig") for i, d in enumerate(cfg["lab"]["rig_extra_distances_m"])]
+    for d, prefix, role in more:
+        extra, extra_unreachable = _rig_views(robot, rig_centre, d, n_rig, prefix, mount_nominal, role=role)
         views += extra
         unreachable += extra_unreachable
-        n_requested += n_rig
+    n_requested = n_rig * (1 + len(more))
     views += region_views
     region_of = {v[0]: "r0" if len(regions) > 1 else "" for v in site_views}
     region_of.update({v[0]: v[0].split("_")[0] for v in region_views})
@@ -885,9 +877,8 @@ def _true_optics(truth):
     """The true lens (CameraModel), port (FlatPort or None) and the central camera equivalent to both."""
     w, h = truth["image_size"]
     lens = CameraModel(int(w), int(h), np.array(truth["camera_K"]), np.array(truth["camera_dist"]), "true lens")
-    port = truth.get("port")
-    port = None if port is None else FlatPort(**{k: np.array(v) if isinstance(v, list) else v
-                                                 for k, v in port.items()})
+    port = None if truth.get("port") is None else FlatPort(**{k: np.array(v) if isinstance(v, list) else v
+                                                             for k, v in truth["port"].items()})
     central = lens.replace(K=np.array(truth["camera_K_effective"]), name="true central camera")
     return lens, port, central
 
@@ -1170,11 +1161,9 @@ def run(cfg, out_dir, verbose=True):
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
     T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])
     metrics = dict(checks)
-    metrics["map_points"] = float(report["map_points"])
-    metrics["inliers"] = float(report["inliers"])
+    metrics.update({k: float(report[k]) for k in ("map_points", "inliers")})
     # integrity (bench.vision.integrity): ok = 1; protection levels NaN when refused (no bound: do not use the pose)
-    metrics["integrity_ok"] = float(report["integrity"] == "ok")
-    metrics["integrity_refused"] = float(report["integrity"] == "refused")
+    metrics.update({f"integrity_{v}": float(report["integrity"] == v) for v in ("ok", "refused")})
     for k in ("protection_radius_mm", "protection_angle_deg"):
         metrics[k] = float("nan") if report[k] is None else float(report[k])
     tilt = report["integrity_tests"].get("tilt_mahalanobis_sq")  # test 7 (bench.vision.tilt)
@@ -1183,15 +1172,13 @@ def run(cfg, out_dir, verbose=True):
                                                                                  "refine_s")))
     if res.success:
         T = res.T_world_base
-        metrics["base_pos_err_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
-        metrics["base_rot_err_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
+        metrics["base_pos_err_mm"], metrics["base_rot_err_deg"] = pose_errors(T, T_b1_b2)
         # the signed errors in the survey base frame, for the budget's paired displacements (bench.scenario.budget)
         metrics.update(_components("base_pos_err", (T[:3, 3] - T_b1_b2[:3, 3]) * 1e3, "mm"))
         metrics.update(_components("base_rot_err", np.rad2deg(matrix_to_rotation_vector(
             T[:3, :3] @ T_b1_b2[:3, :3].T)), "deg"))
         T = np.array(report.get("T_world_base_vision", T))  # the images' pose, before the INS's tilt was fused
-        metrics["base_pos_err_vision_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
-        metrics["base_rot_err_vision_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
+        metrics["base_pos_err_vision_mm"], metrics["base_rot_err_vision_deg"] = pose_errors(T, T_b1_b2)
         w = matrix_to_rotation_vector(T[:3, :3] @ T_b1_b2[:3, :3].T)  # its rotation error about gravity and across it
         heading = float(w @ _down_survey(truth))
         metrics["base_rot_err_vision_heading_deg"] = float(np.rad2deg(abs(heading)))
@@ -1206,18 +1193,17 @@ def run(cfg, out_dir, verbose=True):
                         **_components("base_rot_err", np.full(3, np.nan), "deg")})
     thesis = details.get("thesis_result")  # pipeline.refine = joints: the thesis estimator (bundle) beside it
     if thesis is not None and thesis.success:
-        T = thesis.T_world_base
-        metrics["base_pos_err_bundle_mm"] = float(np.linalg.norm(T[:3, 3] - T_b1_b2[:3, 3]) * 1e3)
-        metrics["base_rot_err_bundle_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_b1_b2[:3, :3])))
+        metrics["base_pos_err_bundle_mm"], metrics["base_rot_err_bundle_deg"] = pose_errors(thesis.T_world_base,
+                                                                                            T_b1_b2)
     task_metrics, reached = _score_task(cfg, ds, truth, report, robot)
     metrics.update(task_metrics)
     if cfg["bound"]["enabled"] and "map" in details and len(details["map"]) >= 3:
         t_b = time.perf_counter()
         metrics.update(_bound(cfg, robot, truth, lab, details, ransac, res, report.get("ins_tilt") == "fused"))
         metrics["bound_s"] = time.perf_counter() - t_b
-        for q in ("pos", "rot"):  # efficiency of this run: bound / achieved (over seeds: RMS bound / RMS error)
-            b, e = metrics.get(f"base_{q}_bound_{'mm' if q == 'pos' else 'deg'}"), metrics.get(
-                f"base_{q}_err_{'mm' if q == 'pos' else 'deg'}")
+        # efficiency of this run: bound / achieved (over seeds: RMS bound / RMS error)
+        for q, u in (("pos", "mm"), ("rot", "deg")):
+            b, e = metrics.get(f"base_{q}_bound_{u}"), metrics.get(f"base_{q}_err_{u}")
             if b is not None and e is not None and e > 0:
                 metrics[f"base_{q}_efficiency"] = b / e
     refr = lab.get("refractive")
@@ -1235,10 +1221,9 @@ def run(cfg, out_dir, verbose=True):
     metrics["focal_err_pct"] = float(abs(K_hat[0, 0] / cam_true[0, 0] - 1) * 100)
     metrics["reproj_rms_px"] = float(rms)
     Tm_hat = lab["mount"].T_mount_cam
-    metrics["mount_pos_err_mm"] = float(np.linalg.norm(Tm_hat[:3, 3] - Tm_true[:3, 3]) * 1e3)
-    metrics["mount_pos_err_lens_centre_mm"] = float(np.linalg.norm(Tm_hat[:3, 3] - np.array(truth["T_link5_cam"])
-                                                                   [:3, 3]) * 1e3)
-    metrics["mount_rot_err_deg"] = float(np.rad2deg(rotation_angle(Tm_hat[:3, :3].T @ Tm_true[:3, :3])))
+    metrics["mount_pos_err_mm"], rot = pose_errors(Tm_hat, Tm_true)
+    metrics["mount_pos_err_lens_centre_mm"] = pose_errors(Tm_hat, np.array(truth["T_link5_cam"]))[0]
+    metrics["mount_rot_err_deg"] = rot
     q_ho = load_robot(Path(cfg["_file"]).parent / cfg["robot"]).random_configurations(np.random.default_rng(1), 500)
     eps_true = np.array(truth["errors"])
     metrics["arm_heldout_rms_mm"] = float(np.sqrt(np.mean(np.sum(

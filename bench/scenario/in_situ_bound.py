@@ -31,7 +31,7 @@ import numpy as np
 
 from bench.camera.model import CameraModel, distort
 from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
-from bench.geometry.transforms import transform_points
+from bench.geometry.transforms import homogeneous, transform_points
 from bench.robot.orientation import link5_frame
 from bench.scenario.bounds import (  # noqa: F401 - the generic parts, re-exported for the in-situ scenario
     Block,
@@ -106,9 +106,7 @@ class _Model(MultiViewModel):
         T_b2[:3, 3] += xi[3:]
         mount = self.mount
         if d_mount is not None:
-            D = np.eye(4)
-            D[:3, :3], D[:3, 3] = rotation_vector_to_matrix(d_mount[:3]), d_mount[3:]
-            mount = mount @ D
+            mount = mount @ homogeneous(rotation_vector_to_matrix(d_mount[:3]), d_mount[3:])
         T_site_cam = link5_frame(self.robot, q, eps) @ mount  # (V, 4, 4)
         T_site_cam[self.locate] = T_b2 @ T_site_cam[self.locate]
         return T_site_cam
@@ -505,9 +503,7 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
             dist[:4] += d[:4]
             d = d[4:]
         if cov_mount is not None:
-            D = np.eye(4)
-            D[:3, :3], D[:3, 3] = rotation_vector_to_matrix(np.array(d[:3])), d[3:]
-            m = m @ D
+            m = m @ homogeneous(rotation_vector_to_matrix(np.array(d[:3])), d[3:])
         q_read = q_true + rng.normal(0, sigma_enc, q_true.shape)
         uv = uv0 + rng.normal(0, 1.0, uv0.shape) * sigma[view][:, None]
         if field is not None:

@@ -57,20 +57,22 @@ class _VirtualCalibration:
         return cls(cam.K, cam.dist, r.T_cam_target, names, C, np.diag(S)[4:] * r.camera.lens.dist[:4])
 
 
-def _rig_corners(ds, geometry, cfg, role):
-    """``(object points, pixels, views)`` of the rig's corners in the dataset's views of ``role`` where the extractor
-    (``pipeline.extractor``) finds the rig; fewer than three is a one-line error."""
-    Xs, uvs, used = [], [], []
+def rig_corners(ds, geometry, extractor: str, role: str, need: int = 3):
+    """``(object points, pixels, views, size)`` of the rig's corners in the dataset's views of ``role`` where the
+    ``extractor`` finds the rig, ``size`` the last of those images' ``(width, height)``; fewer than ``need`` views is
+    a one-line error."""
+    Xs, uvs, used, size = [], [], [], None
     for v in (v for v in ds.views if v.role == role):
         img = v.image()
-        res = extract_corners(img, geometry, cfg["pipeline"]["extractor"])
+        res = extract_corners(img, geometry, extractor)
         if res.success:
             Xs.append(res.object_points)
             uvs.append(res.uv)
             used.append(v)
-    if len(used) < 3:
-        raise ConfigError(ds.root, f"{role} views", f"the rig was found in {len(used)} views (need >= 3)")
-    return Xs, uvs, used
+            size = (img.shape[1], img.shape[0])
+    if len(used) < need:
+        raise ConfigError(ds.root, f"{role} views", f"the rig was found in {len(used)} views (need >= {need})")
+    return Xs, uvs, used, size
 
 
 def _calibrate_lens_in_air(ds, geometry, cfg):
@@ -83,7 +85,7 @@ def _calibrate_lens_in_air(ds, geometry, cfg):
 
     if not any(v.role == "rig_air" for v in ds.views):
         return None
-    Xs, uvs, used = _rig_corners(ds, geometry, cfg, "rig_air")
+    Xs, uvs, used, _ = rig_corners(ds, geometry, cfg["pipeline"]["extractor"], "rig_air")
     size = (used[0].image().shape[1], used[0].image().shape[0])
     c = calibrate_camera(Xs, uvs, size, model="heikkila")
     if not c.success:
@@ -187,7 +189,7 @@ def calibrate_lab(ds, robot, cfg, out):
     eps_hat = ident.eps
     t_arm = time.perf_counter() - t0
     geometry = load_target(ds.root / "target.yaml")
-    Xs, uvs, used = _rig_corners(ds, geometry, cfg, "rig")
+    Xs, uvs, used, _ = rig_corners(ds, geometry, cfg["pipeline"]["extractor"], "rig")
     size = (used[0].image().shape[1], used[0].image().shape[0])
     cal = calibrate_camera(Xs, uvs, size, model="heikkila", k3=cfg["pipeline"]["lab_k3"])
     if not cal.success:

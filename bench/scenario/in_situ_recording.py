@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
-from bench.geometry.transforms import invert
+from bench.geometry.transforms import homogeneous, invert
 from bench.robot.kinematics import link_frames
 from bench.robot.orientation import link5_frame
 from bench.scenario.recording import GREEN, GREY, RED, Recording, arm_strip, nice_factor, run_name
@@ -124,19 +124,17 @@ def locate_residuals(kmap, obs, res, camera, names):
     sel = b_of_a[m_a.i2] >= 0
     i_map, i_a = m_a.i1[sel], m_a.i2[sel]
     i_b = b_of_a[i_a]
-    kept = set()
-    if res.p1 is not None and res.inliers is not None:
-        kept = {tuple(p) for p in np.asarray(res.p1)[np.asarray(res.inliers, bool)]}
+    kept = {tuple(p) for p in np.asarray(res.p1)[np.asarray(res.inliers, bool)]} \
+        if res.p1 is not None and res.inliers is not None else set()
     inlier = np.array([tuple(p) in kept for p in kmap.p_ref[i_map]], dtype=bool)
-    out = {}
     if not res.success:
-        for v, idx in ((a, i_a), (b, i_b)):
-            out[v.name] = {"uv": v.features.uv[idx], "inlier": inlier, "residual": np.full((len(idx), 2), np.nan)}
-        return out
+        return {v.name: {"uv": v.features.uv[idx], "inlier": inlier, "residual": np.full((len(idx), 2), np.nan)}
+                for v, idx in ((a, i_a), (b, i_b))}
     T_a_ref = invert(res.T_ref_cam)
     T_b_a = invert(invert(a.T_base_cam) @ b.T_base_cam)
     X_a = kmap.p_ref[i_map] @ T_a_ref[:3, :3].T + T_a_ref[:3, 3]
     X_b = X_a @ T_b_a[:3, :3].T + T_b_a[:3, 3]
+    out = {}
     for v, idx, X in ((a, i_a, X_a), (b, i_b, X_b)):
         r = camera.project(X) - v.features.uv[idx]
         r[~inlier] = np.nan
@@ -283,16 +281,11 @@ def _base_error_view(rec, T_wb1, T_wb2, T_site_b2, res, report) -> tuple:
     dt, dphi, cov_t = base_error(T_b1_b2, T_site_b2, res.covariance)
     sigma = float(np.sqrt(max(np.linalg.eigvalsh(cov_t).max(), 0.0))) if np.all(np.isfinite(cov_t)) else 0.0
     k = nice_factor(max(float(np.linalg.norm(dt)), sigma), ZOOM_TARGET_M)
-    T_hat = np.eye(4)
-    T_hat[:3, :3] = rotation_vector_to_matrix(k * dphi)
-    T_hat[:3, 3] = k * dt
-    rec.frame("base_error/estimated", T_hat, 0.1, static=True)
+    rec.frame("base_error/estimated", homogeneous(rotation_vector_to_matrix(k * dphi), k * dt), 0.1, static=True)
     rec.arrows("base_error/error", [np.zeros(3)], [k * dt], color=ORANGE, radius=0.0025, static=True)
     if report.get("T_world_base_vision") is not None:  # the images' own pose, before the INS's tilt was fused
         dt_v, dphi_v, _ = base_error(T_b1_b2, np.array(report["T_world_base_vision"], float), res.covariance)
-        T_v = np.eye(4)
-        T_v[:3, :3], T_v[:3, 3] = rotation_vector_to_matrix(k * dphi_v), k * dt_v
-        rec.frame("base_error/vision", T_v, 0.06, static=True)
+        rec.frame("base_error/vision", homogeneous(rotation_vector_to_matrix(k * dphi_v), k * dt_v), 0.06, static=True)
         rec.arrows("base_error/ins_correction", [k * dt_v], [k * (dt - dt_v)], color=GREY, radius=0.0015,
                    static=True)
     if sigma > 0:
@@ -329,9 +322,9 @@ def blueprint(images, locate_names, zoom: float, res_scale: float, centre=None, 
         rrb.Vertical(rrb.Horizontal(zoomed, metrics, column_shares=[3, 2]), rrb.Horizontal(*locate),
                      row_shares=[1, 1]),
         column_shares=[3, 2], name="localisation")
-    tabs = [localisation]
-    tabs.append(rrb.Grid(*[rrb.Spatial2DView(origin=f"/world/views/{n}/true", name=n,
-                                             contents=["$origin/image/**"]) for n in site_views], name="survey"))
+    tabs = [localisation, rrb.Grid(*[rrb.Spatial2DView(origin=f"/world/views/{n}/true", name=n,
+                                                       contents=["$origin/image/**"]) for n in site_views],
+                                   name="survey")]
     if task:
         tabs.append(rrb.Spatial3DView(
             origin="/world", name="task: compensated (green), taught readings replayed (red), plan (yellow)",

@@ -108,12 +108,8 @@ def load_error_table(path) -> dict:
         bad = next((i for i, (a, b) in enumerate(zip(names, expected, strict=False)) if a != b), len(names))
         raise ConfigError(path, f"row {bad + 1}",
                           f"names must be {expected[0]}, {expected[1]}, ... {expected[-1]} in order")
-    out = {"name": names}
-    for col in header:
-        if col != "name":
-            out[col] = np.array([csv_number(path, f"{col} (row {i + 1}, {names[i]})", r[col])
-                                 for i, r in enumerate(rows)])
-    return out
+    return {"name": names, **{col: np.array([csv_number(path, f"{col} (row {i + 1}, {names[i]})", r[col])
+                                             for i, r in enumerate(rows)]) for col in header if col != "name"}}
 
 
 def _check_pose_counts(cfg, n_params):
@@ -129,8 +125,7 @@ def _check_pose_counts(cfg, n_params):
 
 def validate(cfg: dict) -> None:
     """Check every value of a loaded scenario without running it (``bench sweep`` does, per grid point)."""
-    base = Path(cfg["_file"]).parent
-    robot = load_robot(base / cfg["robot"])
+    robot = load_robot(Path(cfg["_file"]).parent / cfg["robot"])
     _check_pose_counts(cfg, len(closed_form_reduction(robot).kept))
 
 
@@ -250,9 +245,8 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     J_ho = identification_jacobian(robot, q_ho, eps_true)[..., red.kept]
     metrics["heldout_rms_bound_mm"] = float(np.sqrt(np.mean(np.einsum("nij,jk,nik->n", J_ho, crb, J_ho))) * 1e3)
     metrics["heldout_efficiency"] = metrics["heldout_rms_bound_mm"] / metrics["heldout_rms_mm_calibrated"]
-    metrics["residual_rms_mm"] = res.residual_rms * 1e3
-    metrics["condition_number"] = res.condition_number
-    metrics["iterations"] = res.iterations
+    metrics.update({"residual_rms_mm": res.residual_rms * 1e3, "condition_number": res.condition_number,
+                    "iterations": res.iterations})
     # the linearised thesis method on exact, noisy data, for comparison
     lin_real = identify_linear(robot, q_id, noisy_pts, red, sigma=sigma)
     metrics["heldout_rms_mm_calibrated_linear_method"] = _rms_mm(ee_position(robot, q_ho, lin_real.eps), p_ho)

@@ -53,6 +53,14 @@ PLACEHOLDERS = {
                                                  "point written `p`), one per `port.lens_to_glass_mm` × alignment"),
 }
 
+# the ``when`` of the metrics many configurations share
+BOUND = "`bound.enabled`"
+BOUND_NOISY = "`bound.enabled`, features not exact"
+BOUND_POSE = "`bound.enabled`, a pose"
+REFRACTIVE = "`refractive.enabled`"
+MONTE_CARLO = "`monte_carlo.seeds` >= 2"
+WEBCAM = "`camera.preset: air_webcam`"
+
 METRICS: dict[str, tuple[Metric, ...]] = {
     "kinematic_identification": (
         Metric("n_identifiable_closed_form", "count", "identifiable errors by the closed-form reduction (Eq. 21, 23, "
@@ -80,15 +88,15 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("iterations", "count", "LM iterations"),
         Metric("heldout_rms_mm_calibrated_linear_method", "mm", "held-out RMS of the linear method on the same "
                "noisy exact data"),
-        Metric("mc_seeds", "count", "noise draws of the Monte Carlo", "`monte_carlo.seeds` >= 2"),
+        Metric("mc_seeds", "count", "noise draws of the Monte Carlo", MONTE_CARLO),
         Metric("mc_std_ratio_median", "1", "Monte Carlo / predicted standard deviation of ε̇, median over the "
-               "errors", "`monte_carlo.seeds` >= 2"),
-        Metric("mc_std_ratio_min", "1", "the same, smallest", "`monte_carlo.seeds` >= 2"),
-        Metric("mc_std_ratio_max", "1", "the same, largest", "`monte_carlo.seeds` >= 2"),
-        Metric("mc_heldout_rms_mm_median", "mm", "held-out RMS, median over the draws", "`monte_carlo.seeds` >= 2"),
-        Metric("mc_heldout_rms_mm_rms", "mm", "held-out RMS, RMS over the draws", "`monte_carlo.seeds` >= 2"),
+               "errors", MONTE_CARLO),
+        Metric("mc_std_ratio_min", "1", "the same, smallest", MONTE_CARLO),
+        Metric("mc_std_ratio_max", "1", "the same, largest", MONTE_CARLO),
+        Metric("mc_heldout_rms_mm_median", "mm", "held-out RMS, median over the draws", MONTE_CARLO),
+        Metric("mc_heldout_rms_mm_rms", "mm", "held-out RMS, RMS over the draws", MONTE_CARLO),
         Metric("mc_heldout_efficiency", "1", "bound / Monte Carlo RMS (1 = the estimator reaches the bound)",
-               "`monte_carlo.seeds` >= 2"),
+               MONTE_CARLO),
         Metric("pose_selection_<index>_selected", "1", "the index's value for the selected poses"),
         Metric("pose_selection_<index>_random_median", "1", "the index's value for random pose sets, median",
                "`pose_selection.n_random_sets` >= 1"),
@@ -186,62 +194,59 @@ METRICS: dict[str, tuple[Metric, ...]] = {
                "covariance carried to the taught tip (lever arm from the base origin), as `protection_radius_mm`",
                "a taught task; the localisation not refused"),
         Metric("keypoint_sigma_px", "px", "SIFT keypoint noise of the survey views, measured against the true "
-               "epipolar curves (robust σ)", "`bound.enabled`"),
-        Metric("keypoint_sigma_matches", "count", "matches behind that σ", "`bound.enabled`"),
+               "epipolar curves (robust σ)", BOUND),
+        Metric("keypoint_sigma_matches", "count", "matches behind that σ", BOUND),
         Metric("keypoint_sigma_bound_px", "px", "the bound's noise in the reference and survey views: "
-               "`keypoint_sigma_px` × `keypoint_fisher_factor`", "`bound.enabled`"),
+               "`keypoint_sigma_px` × `keypoint_fisher_factor`", BOUND),
         Metric("keypoint_sigma_locate_px", "px", "the locate views' own keypoint noise (the other parking's "
                "viewpoint): `keypoint_sigma_px` × `keypoint_locate_ratio` × `keypoint_locate_fisher_factor`; the "
-               "bound's noise there", "`bound.enabled`"),
+               "bound's noise there", BOUND),
         Metric("keypoint_fisher_factor", "1", "σ of the Fisher information of the survey views' keypoint errors "
                "(a Gaussian scale mixture fitted to them on the panel's true surfaces) over their robust σ: what "
-               "the heavy tails take from the information", "`bound.enabled`, a pose"),
-        Metric("keypoint_locate_fisher_factor", "1", "the same for the locate views' errors",
-               "`bound.enabled`, a pose"),
+               "the heavy tails take from the information", BOUND_POSE),
+        Metric("keypoint_locate_fisher_factor", "1", "the same for the locate views' errors", BOUND_POSE),
         Metric("keypoint_field_offset_px", "px", "the keypoints' errors that move a whole view's keypoints together: "
                "the sd of each view's offset (per axis), measured on the panel's true surfaces over the survey and "
-               "locate views beyond what their white noise scatters (bench.scenario.bounds.measure_field)",
-               "`bound.enabled`, a pose"),
+               "locate views beyond what their white noise scatters (bench.scenario.bounds.measure_field)", BOUND_POSE),
         Metric("keypoint_field_slope_px", "px", "the same field's slopes: sd of its change per 100 px across the "
-               "image, each axis in each direction", "`bound.enabled`, a pose"),
-        Metric("keypoint_field_views", "count", "views behind that field", "`bound.enabled`, a pose"),
+               "image, each axis in each direction", BOUND_POSE),
+        Metric("keypoint_field_views", "count", "views behind that field", BOUND_POSE),
         Metric("keypoint_twin_points", "count", "map points whose reference keypoint is another's second SIFT "
                "orientation (the same pixel): the pipeline weighs them, the bound counts each detection once "
-               "(bench.vision.insitu.one_per_detection)", "`bound.enabled`"),
+               "(bench.vision.insitu.one_per_detection)", BOUND),
         Metric("keypoint_locate_ratio", "1", "the locate views' keypoint noise over the survey's, on the same "
-               "tracks, measured on the panel's true surfaces (robust σ)", "`bound.enabled`, a pose"),
-        Metric("keypoint_locate_points", "count", "tracks behind that ratio", "`bound.enabled`, a pose"),
+               "tracks, measured on the panel's true surfaces (robust σ)", BOUND_POSE),
+        Metric("keypoint_locate_points", "count", "tracks behind that ratio", BOUND_POSE),
         Metric("base_pos_bound_mm", "mm", "the limit of the base position: Cramér-Rao bound ⊕ model floor "
-               "(root-sum-square); with the INS's tilt when the pipeline fused it", "`bound.enabled`"),
-        Metric("base_rot_bound_deg", "deg", "the limit of the base rotation: bound ⊕ floor", "`bound.enabled`"),
+               "(root-sum-square); with the INS's tilt when the pipeline fused it", BOUND),
+        Metric("base_rot_bound_deg", "deg", "the limit of the base rotation: bound ⊕ floor", BOUND),
         Metric("base_pos_bound_vision_mm", "mm", "the limit without the INS's tilt (the same as `base_pos_bound_mm` "
-               "when it was not fused)", "`bound.enabled`"),
-        Metric("base_rot_bound_vision_deg", "deg", "the same, rotation", "`bound.enabled`"),
+               "when it was not fused)", BOUND),
+        Metric("base_rot_bound_vision_deg", "deg", "the same, rotation", BOUND),
         Metric("base_pos_crb_mm", "mm", "Cramér-Rao bound of the base position (pixels as matched, encoders, arm, "
-               "intrinsics and mount covariances; the INS's tilt when the pipeline fused it)", "`bound.enabled`"),
-        Metric("base_rot_crb_deg", "deg", "Cramér-Rao bound of the base rotation", "`bound.enabled`"),
+               "intrinsics and mount covariances; the INS's tilt when the pipeline fused it)", BOUND),
+        Metric("base_rot_crb_deg", "deg", "Cramér-Rao bound of the base rotation", BOUND),
         Metric("base_rot_crb_tilt_deg", "deg", "the bound without the INS about the horizontal axes (RMS of the two)",
-               "`bound.enabled`"),
-        Metric("base_rot_crb_heading_deg", "deg", "the bound without the INS about the vertical", "`bound.enabled`"),
+               BOUND),
+        Metric("base_rot_crb_heading_deg", "deg", "the bound without the INS about the vertical", BOUND),
         Metric("base_pos_crb_mc_mm", "mm", "Monte Carlo of refine joints under exactly the bound's model (RMS)",
                "`bound.ml_trials` > 0"),
         Metric("base_rot_crb_mc_deg", "deg", "the same, rotation", "`bound.ml_trials` > 0"),
         Metric("base_pos_floor_mm", "mm", "model floor: base position error on noise-free features through the true "
-               "optics with the best central camera", "`bound.enabled`"),
-        Metric("base_rot_floor_deg", "deg", "model floor, rotation", "`bound.enabled`"),
+               "optics with the best central camera", BOUND),
+        Metric("base_rot_floor_deg", "deg", "model floor, rotation", BOUND),
         Metric("base_pos_floor_calibrated_mm", "mm", "the same with the lab's calibrated camera (mount by AX = XB "
-               "on the true arm): what the calibrated central model leaves", "`bound.enabled`"),
-        Metric("base_rot_floor_calibrated_deg", "deg", "the same, rotation", "`bound.enabled`"),
+               "on the true arm): what the calibrated central model leaves", BOUND),
+        Metric("base_rot_floor_calibrated_deg", "deg", "the same, rotation", BOUND),
         Metric("floor_misfit_px", "px", "RMS pixel misfit of the best central camera to the true optics over the "
-               "observations", "`bound.enabled`"),
+               "observations", BOUND),
         Metric("base_pos_bound_mc_mm", "mm", "Monte Carlo of the pipeline's estimator on ideal features, position",
-               "`bound.enabled`"),
-        Metric("base_rot_bound_mc_deg", "deg", "the same, rotation", "`bound.enabled`"),
-        Metric("bound_observations", "count", "image observations in the bound", "`bound.enabled`"),
-        Metric("bound_s", "s", "time of the bound", "`bound.enabled`"),
-        Metric("base_pos_efficiency", "1", "bound / achieved, position (over seeds: RMS bound / RMS error)",
-               "`bound.enabled`"),
-        Metric("base_rot_efficiency", "1", "bound / achieved, rotation", "`bound.enabled`"),
+               BOUND),
+        Metric("base_rot_bound_mc_deg", "deg", "the same, rotation", BOUND),
+        Metric("bound_observations", "count", "image observations in the bound", BOUND),
+        Metric("bound_s", "s", "time of the bound", BOUND),
+        Metric("base_pos_efficiency", "1", "bound / achieved, position (over seeds: RMS bound / RMS error)", BOUND),
+        Metric("base_rot_efficiency", "1", "bound / achieved, rotation", BOUND),
         Metric("focal_err_pct", "%", "calibrated focal length vs the true (in water: paraxial; refractive: the "
                "lens's) one"),
         Metric("reproj_rms_px", "px", "reprojection RMS of the lab camera calibration"),
@@ -282,52 +287,43 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("map_points_median", "count", "map points per pair, median", "a pair succeeded"),
         Metric("pairs_3d_median", "count", "3D pairs per estimate, median", "a pair succeeded"),
         Metric("inliers_median", "count", "RANSAC inliers per estimate, median", "a pair succeeded"),
-        Metric("keypoint_sigma_px", "px", "feature noise measured against the truth", "`bound.enabled`"),
-        Metric("keypoint_sigma_matches", "count", "matches behind that σ", "`bound.enabled`"),
-        Metric("table_reading_rms_mm", "mm", "table readings vs the carriage's true position, RMS",
-               "`bound.enabled`"),
-        Metric("table_reading_rms_deg", "deg", "the same for the rotary stage", "`bound.enabled`"),
-        Metric("bound_pose_check_mm", "mm", "the bound's table model vs the simulator's camera poses",
-               "`bound.enabled`, features not exact"),
+        Metric("keypoint_sigma_px", "px", "feature noise measured against the truth", BOUND),
+        Metric("keypoint_sigma_matches", "count", "matches behind that σ", BOUND),
+        Metric("table_reading_rms_mm", "mm", "table readings vs the carriage's true position, RMS", BOUND),
+        Metric("table_reading_rms_deg", "deg", "the same for the rotary stage", BOUND),
+        Metric("bound_pose_check_mm", "mm", "the bound's table model vs the simulator's camera poses", BOUND_NOISY),
         Metric("bound_mc_failures", "count", "failed draws of the ideal estimator's Monte Carlo",
                "`bound.enabled`, `bound.mc_trials` > 0"),
-        Metric("bound_points", "count", "map points in the bound", "`bound.enabled`, features not exact"),
-        Metric("bound_observations_median", "count", "observations per bound, median",
-               "`bound.enabled`, features not exact"),
+        Metric("bound_points", "count", "map points in the bound", BOUND_NOISY),
+        Metric("bound_observations_median", "count", "observations per bound, median", BOUND_NOISY),
         Metric("<method>_err_pos_at_<at>_mm", "mm", "3D RMS position error over the pairs at that d_o"),
         Metric("<method>_err_<axis>_mm_at_<at>", "mm", "RMS position error along one table axis at that d_o "
                "(Tables 5-8, 11-14)"),
         Metric("lms_ratio_err_pos_at_<d>_mm", "mm", "LMS + error ratio: 3D RMS error at every d_o"),
         Metric("lms_ratio_bound_pos_at_<d>_mm", "mm", "the limit of that 3D error: the complete Cramér-Rao bound "
-               "(table errors, intrinsics, R0) ⊕ the model floor", "`bound.enabled`, features not exact"),
-        Metric("lms_ratio_bound_<axis>_mm_at_<at2>", "mm", "the limit along one axis",
-               "`bound.enabled`, features not exact"),
+               "(table errors, intrinsics, R0) ⊕ the model floor", BOUND_NOISY),
+        Metric("lms_ratio_bound_<axis>_mm_at_<at2>", "mm", "the limit along one axis", BOUND_NOISY),
         Metric("lms_ratio_crb_<axis>_mm_at_<at2>", "mm", "the complete Cramér-Rao bound alone along one axis",
-               "`bound.enabled`, features not exact"),
+               BOUND_NOISY),
         Metric("lms_ratio_floor_<axis>_mm_at_<at2>", "mm", "the model floor along one axis: the estimator on "
-               "noise-free features through the true optics with the best central camera",
-               "`bound.enabled`, features not exact"),
+               "noise-free features through the true optics with the best central camera", BOUND_NOISY),
         Metric("calibration_fx_std_px", "px", "standard deviation of the calibrated fx: the calibration's covariance "
                "plus what the rig's stated tolerances (target.yaml) leave in it", "`pipeline.camera: calibrated`"),
-        Metric("floor_failures", "count", "estimates of the model floor's run that failed",
-               "`bound.enabled`, features not exact"),
-        Metric("floor_misfit_px", "px", "RMS pixel misfit of the best central camera to the true optics",
-               "`bound.enabled`, features not exact"),
+        Metric("floor_failures", "count", "estimates of the model floor's run that failed", BOUND_NOISY),
+        Metric("floor_misfit_px", "px", "RMS pixel misfit of the best central camera to the true optics", BOUND_NOISY),
         Metric("bound_intrinsics_free", "1 / 0", "1 when the bound takes the intrinsics under the calibration's "
-               "covariance (`pipeline.camera: calibrated`)", "`bound.enabled`, features not exact"),
+               "covariance (`pipeline.camera: calibrated`)", BOUND_NOISY),
         Metric("bound_R0_free", "1 / 0", "1 when the bound estimates R0 with the camera positions "
-               "(`pipeline.mount_bias: estimated`)", "`bound.enabled`, features not exact"),
+               "(`pipeline.mount_bias: estimated`)", BOUND_NOISY),
         Metric("bound_centre_free", "1 / 0", "1 when the bound takes the camera centre on the stage under the "
-               "tolerance table.yaml states (`sim.camera_centre_tolerance_mm`)", "`bound.enabled`, features not exact"),
+               "tolerance table.yaml states (`sim.camera_centre_tolerance_mm`)", BOUND_NOISY),
         Metric("bound_distortion_free", "1 / 0", "1 when the bound takes the distortion under the pipeline's stated "
-               "prior (`pipeline.bundle`, `pipeline.bundle_distortion_sigma`)", "`bound.enabled`, features not exact"),
-        Metric("lms_ratio_bound_mc_pos_at_<at2>_mm", "mm", "the ideal estimator's Monte Carlo, 3D RMS",
-               "`bound.enabled`, features not exact"),
-        Metric("lms_ratio_efficiency_at_<at2>", "1", "limit / achieved 3D error",
-               "`bound.enabled`, features not exact"),
+               "prior (`pipeline.bundle`, `pipeline.bundle_distortion_sigma`)", BOUND_NOISY),
+        Metric("lms_ratio_bound_mc_pos_at_<at2>_mm", "mm", "the ideal estimator's Monte Carlo, 3D RMS", BOUND_NOISY),
+        Metric("lms_ratio_efficiency_at_<at2>", "1", "limit / achieved 3D error", BOUND_NOISY),
         Metric("bundle_efficiency_at_<at2>", "1", "limit / achieved 3D error of the bundle (the same limit)",
                "`bound.enabled`, features not exact, `pipeline.bundle`"),
-        Metric("bound_rot_at_<at2>_deg", "deg", "rotation bound at that d_o", "`bound.enabled`, features not exact"),
+        Metric("bound_rot_at_<at2>_deg", "deg", "rotation bound at that d_o", BOUND_NOISY),
     ),
     "camera_replica": (
         Metric("photos", "count", "photos in `photos.dir`"),
@@ -393,19 +389,16 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("<medium>heikkila_n_coeffs", "count", "coefficients fitted"),
         Metric("<medium>tolerance_draws", "count", "calibrations against rigs drawn from target.yaml's stated "
                "tolerances behind the covariance (0: none stated, or `pipeline.target_tolerance: false`)"),
-        Metric("table3_alpha_mean_err_pct", "%", "Table 3: average per-view α vs the true fx",
-               "`camera.preset: air_webcam`"),
-        Metric("table3_beta_mean_err_pct", "%", "Table 3: average per-view β vs the true fy",
-               "`camera.preset: air_webcam`"),
-        Metric("table3_theta_mean_deg", "deg", "Table 3: average per-view skew angle θ", "`camera.preset: air_webcam`"),
+        Metric("table3_alpha_mean_err_pct", "%", "Table 3: average per-view α vs the true fx", WEBCAM),
+        Metric("table3_beta_mean_err_pct", "%", "Table 3: average per-view β vs the true fy", WEBCAM),
+        Metric("table3_theta_mean_deg", "deg", "Table 3: average per-view skew angle θ", WEBCAM),
         Metric("table3_chi_mean_px", "px", "Table 3: average per-view χ (corners by `pipeline.table3_edges`: the "
-               "edge map's pixels as printed, or sub-pixel)", "`camera.preset: air_webcam`"),
+               "edge map's pixels as printed, or sub-pixel)", WEBCAM),
         Metric("table3_chi_subpixel_mean_px", "px", "the same χ on the thesis extractor's corners from sub-pixel "
-               "edge positions (the bench's addition; null with the OpenCV extractor)", "`camera.preset: air_webcam`"),
+               "edge positions (the bench's addition; null with the OpenCV extractor)", WEBCAM),
         Metric("table3_<c>_std_px", "px", "Table 3: sample std of the per-view α (`alpha`) or β (`beta`) over the "
-               "pictures", "`camera.preset: air_webcam`"),
-        Metric("thesis_table3_<c>_std_px", "px", "the same std over the thesis's seven pictures",
-               "`camera.preset: air_webcam`"),
+               "pictures", WEBCAM),
+        Metric("thesis_table3_<c>_std_px", "px", "the same std over the thesis's seven pictures", WEBCAM),
         Metric("focal_ratio_water_air", "1", "focal length in water / in air (paraxial: 1.34)",
                "`camera.medium: both`"),
         Metric("thesis_focal_ratio_water_air", "1", "the thesis's Table 15 / Table 9 focal lengths",
@@ -434,17 +427,16 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("paraxial_centre_axial_mm_<case>", "mm", "the port's paraxial virtual centre along the axis"),
         Metric("calib_coverage_<case>", "1", "fraction of the image the calibration corners cover"),
         Metric("refractive_rms_px_at_calib_<case>", "px", "the refractive model (calibrated from the same views with "
-               "refractive.noise_px of noise): image RMS error at the calibration distance", "`refractive.enabled`"),
-        Metric("refractive_rms_px_at_0p2m_<case>", "px", "the same at 0.2 m", "`refractive.enabled`"),
-        Metric("refractive_rms_px_at_3m_<case>", "px", "the same at 3 m", "`refractive.enabled`"),
-        Metric("refractive_d0_err_mm_<case>", "mm", "its lens-to-glass distance's error", "`refractive.enabled`"),
+               "refractive.noise_px of noise): image RMS error at the calibration distance", REFRACTIVE),
+        Metric("refractive_rms_px_at_0p2m_<case>", "px", "the same at 0.2 m", REFRACTIVE),
+        Metric("refractive_rms_px_at_3m_<case>", "px", "the same at 3 m", REFRACTIVE),
+        Metric("refractive_d0_err_mm_<case>", "mm", "its lens-to-glass distance's error", REFRACTIVE),
         Metric("refractive_calib_rms_px_<case>", "px", "its calibration's reprojection RMS (noise included)",
-               "`refractive.enabled`"),
+               REFRACTIVE),
         Metric("central_noisy_rms_px_at_0p2m_<case>", "px", "the Heikkilä fit of the same noisy views: image RMS "
-               "error at 0.2 m", "`refractive.enabled`"),
-        Metric("central_noisy_rms_px_at_3m_<case>", "px", "the same at 3 m", "`refractive.enabled`"),
-        Metric("central_noisy_rms_px_at_calib_<case>", "px", "the same at the calibration distance",
-               "`refractive.enabled`"),
+               "error at 0.2 m", REFRACTIVE),
+        Metric("central_noisy_rms_px_at_3m_<case>", "px", "the same at 3 m", REFRACTIVE),
+        Metric("central_noisy_rms_px_at_calib_<case>", "px", "the same at the calibration distance", REFRACTIVE),
         Metric("frame_reproj_rms_px_<case>", "px", "calibration corners reprojected with one camera frame for all "
                "views"),
     ),

@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.geometry.transforms import homogeneous
+
 #: MJCF geom groups drawn (MuJoCo's default visible groups; the arm's and the scenes' visuals use 0 and 1).
 VISIBLE_GROUPS = (0, 1, 2)
 
@@ -206,10 +208,7 @@ class SceneMeshes:
         out = {}
         for body in self.parts:
             b = m.body(body).id if body != "world" else 0
-            T = np.eye(4)
-            T[:3, :3] = d.xmat[b].reshape(3, 3)
-            T[:3, 3] = d.xpos[b]
-            out[body] = T
+            out[body] = homogeneous(d.xmat[b].reshape(3, 3), d.xpos[b])
         return out
 
     def merged(self, qpos: dict | None = None) -> list:

@@ -86,19 +86,13 @@ def parse_param(spec: str, source: str = "--param") -> tuple:
 def grid(params: list, seeds: list) -> list:
     """Every combination as ``(overrides dict, seed)``, params varying slowest-first as given."""
     keys = [k for k, _ in params]
-    out = []
-    for combo in itertools.product(*[v for _, v in params]):
-        for seed in seeds:
-            out.append((dict(zip(keys, combo, strict=True)), int(seed)))
-    return out
+    return [(dict(zip(keys, combo, strict=True)), int(seed)) for combo in itertools.product(*[v for _, v in params])
+            for seed in seeds]
 
 
 def run_id(scenario_text: str, overrides: dict, seed: int) -> str:
-    h = hashlib.sha256()
-    h.update(scenario_text.encode())
-    h.update(json.dumps(overrides, sort_keys=True, default=str).encode())
-    h.update(str(seed).encode())
-    return h.hexdigest()[:16]
+    text = scenario_text + json.dumps(overrides, sort_keys=True, default=str) + str(seed)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 @functools.lru_cache(maxsize=1)
@@ -508,11 +502,7 @@ def summarise(rows: list, keys: list, out: Path, scenario: str = "") -> dict:
     for r in rows:
         groups.setdefault(tuple(json.dumps(r["params"].get(k)) for k in keys), []).append(r)
     metrics = sorted({m for r in rows for m in r["metrics"]})
-    table = {k: [] for k in keys}
-    table["runs"] = []
-    for m in metrics:
-        for s in ("median", "q25", "q75", "min", "max"):
-            table[f"{m}_{s}"] = []
+    table = {**{k: [] for k in keys}, "runs": [], **{f"{m}_{s}": [] for m in metrics for s in _STATS}}
     order = sorted(groups, key=lambda g: [_sort_key(json.loads(v)) for v in g])
     for g in order:
         for k, v in zip(keys, g, strict=True):
@@ -520,14 +510,13 @@ def summarise(rows: list, keys: list, out: Path, scenario: str = "") -> dict:
         rs = groups[g]
         table["runs"].append(len(rs))
         for m in metrics:
-            vals = np.array([r["metrics"][m] for r in rs if r["metrics"].get(m) is not None], dtype=float)
+            vals = _values(rs, m)
             stats = (np.median(vals), *np.percentile(vals, [25, 75]), vals.min(), vals.max()) if len(vals) else \
                 (np.nan,) * 5
-            for s, v in zip(("median", "q25", "q75", "min", "max"), stats, strict=True):
+            for s, v in zip(_STATS, stats, strict=True):
                 table[f"{m}_{s}"].append(float(v))
         for m, b in _bound_pairs(metrics):  # efficiency: RMS bound / RMS achieved error over the seeds
-            err = np.array([r["metrics"][m] for r in rs if r["metrics"].get(m) is not None], dtype=float)
-            bnd = np.array([r["metrics"][b] for r in rs if r["metrics"].get(b) is not None], dtype=float)
+            err, bnd = _values(rs, m), _values(rs, b)
             eff = np.sqrt(np.mean(bnd**2)) / np.sqrt(np.mean(err**2)) if len(err) and len(bnd) else np.nan
             table.setdefault(f"{m}_rms", []).append(float(np.sqrt(np.mean(err**2))) if len(err) else np.nan)
             table.setdefault(f"{b}_rms", []).append(float(np.sqrt(np.mean(bnd**2))) if len(bnd) else np.nan)
@@ -542,6 +531,14 @@ def summarise(rows: list, keys: list, out: Path, scenario: str = "") -> dict:
         recording = str(record_sweep(out / "sweep.rrd", table, keys, metrics, _bound_pairs(metrics), scenario))
     return {"store": str(out / "sweep.sqlite"), "summary": str(out / "summary.csv"), "plots": plots,
             "recording": recording, "rows": len(rows), "table": table}
+
+
+_STATS = ("median", "q25", "q75", "min", "max")
+
+
+def _values(rows, m) -> np.ndarray:
+    """The values of metric ``m`` in the runs ``rows`` that have it."""
+    return np.array([r["metrics"][m] for r in rows if r["metrics"].get(m) is not None], dtype=float)
 
 
 def _bound_pairs(metrics) -> list:
@@ -572,9 +569,7 @@ def _plot(table, keys, metrics, out):
             sel = np.array([o == label for o in others])
             idx = np.argsort(x[sel])
             xs = x[sel][idx]
-            med = np.array(table[f"{m}_median"])[sel][idx]
-            lo = np.array(table[f"{m}_q25"])[sel][idx]
-            hi = np.array(table[f"{m}_q75"])[sel][idx]
+            med, lo, hi = (np.array(table[f"{m}_{s}"])[sel][idx] for s in ("median", "q25", "q75"))
             name = ", ".join(f"{k}={v}" for k, v in zip(keys[1:], label, strict=True)) or "median"
             line, = ax.plot(xs, med, "o-", label=name)
             ax.fill_between(xs, lo, hi, alpha=0.2, color=line.get_color())
@@ -582,9 +577,7 @@ def _plot(table, keys, metrics, out):
             if bound:  # the lower bound from the simulation's noise, beside the achieved error
                 ax.plot(xs, np.array(table[f"{bound}_median"])[sel][idx], "--", color=line.get_color(),
                         label=f"{name}: bound ({bound})")
-        ax.set_xlabel(keys[0])
-        ax.set_ylabel(m)
-        ax.set_title(f"{m}: median and interquartile range over seeds")
+        ax.set(xlabel=keys[0], ylabel=m, title=f"{m}: median and interquartile range over seeds")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
         fig.tight_layout()

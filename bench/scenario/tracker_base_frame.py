@@ -38,7 +38,7 @@ from bench.config import (
 )
 from bench.errors import ConfigError
 from bench.fileio import atomic_save_figure, headless_pyplot
-from bench.geometry.transforms import homogeneous, random_transform, rot_z, rotation_angle
+from bench.geometry.transforms import homogeneous, random_transform, rot_z
 from bench.robot.base_from_arcs import (
     base_frame_accuracy,
     base_frame_bound,
@@ -48,7 +48,7 @@ from bench.robot.base_from_arcs import (
 )
 from bench.robot.kinematics import error_matrix
 from bench.robot.model import load_robot, random_errors
-from bench.scenario.results import write_result, write_table_csv
+from bench.scenario.results import pose_errors, write_result, write_table_csv
 
 SIGMA = (Field(gt=0), at_most(50, "{v} mm is implausible for a laser tracker; the unit is mm"))
 
@@ -122,11 +122,6 @@ def _estimate(robot, m):
     return base_frame_from_arcs(m.arc1_tracker, m.arc2_tracker, m.q1_during_arc2, m.q1_arc1, m.q2_arc2, robot)
 
 
-def _errors(T_est, T_ref):
-    return (float(1e3 * np.linalg.norm(T_est[:3, 3] - T_ref[:3, 3])),
-            float(np.rad2deg(rotation_angle(T_est[:3, :3].T @ T_ref[:3, :3]))))
-
-
 def _cell(robot, clean, T_true, sigma, trials, rng):
     """Monte Carlo over tracker noise for one (sigma, span) cell; linear prediction at the clean arcs."""
     args = (clean.arc1_tracker, clean.arc2_tracker, clean.q1_during_arc2, clean.q1_arc1, clean.q2_arc2, robot, sigma)
@@ -140,7 +135,7 @@ def _cell(robot, clean, T_true, sigma, trials, rng):
         if not r.success:
             failed += 1
             continue
-        p, a = _errors(r.T_tracker_base, T_true)
+        p, a = pose_errors(r.T_tracker_base, T_true)
         pos.append(p)
         rot.append(a)
     pos, rot = np.array(pos), np.array(rot)
@@ -159,8 +154,7 @@ def _cell(robot, clean, T_true, sigma, trials, rng):
 
 
 def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
-    base = Path(cfg["_file"]).parent
-    robot = load_robot(base / cfg["robot"])
+    robot = load_robot(Path(cfg["_file"]).parent / cfg["robot"])
     q_start, spans, sigmas = _check_values(cfg, robot)
     rng = np.random.default_rng(cfg["seed"])
     metrics, timings, tables, artifacts = {}, {}, {}, {}
@@ -181,7 +175,7 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     exact = _estimate(robot, clean)
     if not exact.success:
         raise ConfigError(cfg["_file"], "arcs", f"noise-free arcs give no base frame: {exact.message}")
-    metrics["base_pos_err_mm_noise_free"], metrics["base_rot_err_deg_noise_free"] = _errors(exact.T_tracker_base,
+    metrics["base_pos_err_mm_noise_free"], metrics["base_rot_err_deg_noise_free"] = pose_errors(exact.T_tracker_base,
                                                                                             T_true)
     noisy = simulate_arcs(robot, T_true, q_start, span0, span0, n, eps_01_free, sigma0, rng)
     t1 = time.perf_counter()
@@ -189,7 +183,7 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     metrics["base_from_arcs_s"] = time.perf_counter() - t1
     if not res.success:
         raise ConfigError(cfg["_file"], "noise.default_sigma_mm", f"the base frame cannot be estimated: {res.message}")
-    metrics["base_pos_err_mm"], metrics["base_rot_err_deg"] = _errors(res.T_tracker_base, T_true)
+    metrics["base_pos_err_mm"], metrics["base_rot_err_deg"] = pose_errors(res.T_tracker_base, T_true)
     metrics["residual_rms_mm"] = 1e3 * res.residual_rms_m
     metrics["a1_measured_mm"] = 1e3 * res.a1_measured_m
     metrics["alpha1_measured_deg"] = float(np.rad2deg(res.alpha1_measured_rad))
@@ -200,14 +194,11 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     metrics["predicted_pos_std_mm"] = 1e3 * acc.pos_std_m
     metrics["predicted_rot_std_deg"] = float(np.rad2deg(acc.rot_std_rad))
     default_cell = _cell(robot, clean, T_true, sigma0, trials, rng)
-    metrics["base_pos_err_mm_median"] = default_cell["pos_err_mm_median"]
-    metrics["base_rot_err_deg_median"] = default_cell["rot_err_deg_median"]
+    metrics.update({f"base_{k}": default_cell[k] for k in ("pos_err_mm_median", "rot_err_deg_median")})
     metrics["pos_rms_over_predicted"] = default_cell["pos_err_mm_rms"] / default_cell["predicted_pos_std_mm"]
     # Cramér-Rao (base_frame_bound): with the joint readings along the arcs (all the simulation's information), and
     # from the geometry alone (what the circle fit uses); efficiency = bound / RMS over the Monte Carlo
-    metrics["base_pos_bound_mm"] = default_cell["pos_bound_mm"]
-    metrics["base_rot_bound_deg"] = default_cell["rot_bound_deg"]
-    metrics["base_pos_bound_geometry_mm"] = default_cell["pos_bound_geometry_mm"]
+    metrics.update({f"base_{k}": default_cell[k] for k in ("pos_bound_mm", "rot_bound_deg", "pos_bound_geometry_mm")})
     metrics["base_pos_efficiency"] = default_cell["pos_bound_mm"] / default_cell["pos_err_mm_rms"]
     metrics["base_rot_efficiency"] = default_cell["rot_bound_deg"] / default_cell["rot_err_deg_rms"]
     metrics["base_pos_efficiency_geometry"] = default_cell["pos_bound_geometry_mm"] / default_cell["pos_err_mm_rms"]
@@ -236,7 +227,7 @@ def run(cfg: dict, out_dir: Path, verbose: bool = True) -> Path:
     pert = _estimate(robot, simulate_arcs(robot, T_true, q_start, span0, span0, n, eps))
     e1 = eps[6:12]
     predicted = T_true @ error_matrix(eps[:6]) @ homogeneous(rot_z(e1[3]), [0.0, 0.0, e1[1]])
-    metrics["e01_base_shift_mm"], metrics["e01_base_turn_deg"] = _errors(pert.T_tracker_base, T_true)
+    metrics["e01_base_shift_mm"], metrics["e01_base_turn_deg"] = pose_errors(pert.T_tracker_base, T_true)
     dev = pose_deviation(pert.T_tracker_base, predicted)
     metrics["e01_vs_stated_result_mm"] = float(1e3 * np.linalg.norm(dev[:3]))
     metrics["e01_vs_stated_result_deg"] = float(np.rad2deg(np.linalg.norm(dev[3:])))
@@ -272,10 +263,7 @@ def plot_accuracy(table: dict, path) -> str:
             ax.plot(x, np.asarray(table[obs + "_median"])[sel][order], "s:", color=color, ms=3, lw=0.8)
             ax.plot(x, np.asarray(table[pred])[sel][order], "--", color=color, lw=1.2, label=f"{s:g} deg: predicted")
             ax.plot(x, np.asarray(table[bound])[sel][order], ":", color=color, lw=2.0, label=f"{s:g} deg: bound")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("tracker noise sigma per axis (mm)")
-        ax.set_ylabel(label)
+        ax.set(xscale="log", yscale="log", xlabel="tracker noise sigma per axis (mm)", ylabel=label)
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=7, ncol=2)
     fig.suptitle("Base frame from joint-1/joint-2 arcs (section 2.9): Monte Carlo RMS (o), median (s), "

@@ -45,7 +45,7 @@ from pydantic import Field, model_validator
 
 from bench.camera.calibrate_dataset import load_target, load_target_tolerance
 from bench.camera.calibration import calibrate_camera
-from bench.camera.corners import EXTRACTORS, extract_corners
+from bench.camera.corners import EXTRACTORS
 from bench.camera.io import camera_yaml_text
 from bench.camera.model import CameraModel
 from bench.camera.presets import load_preset
@@ -72,6 +72,7 @@ from bench.errors import ConfigError
 from bench.fileio import atomic_save_figure, headless_pyplot
 from bench.geometry.transforms import homogeneous, invert, rot_x, rot_y, rot_z, rotation_angle, transform_points
 from bench.scenario.bounds import true_projector
+from bench.scenario.in_situ_lab import rig_corners
 from bench.scenario.results import write_result, write_table_csv
 from bench.scenario.scene_textures import naming_the_key, texture_paths
 from bench.sim.campaign import CachedCamera
@@ -314,11 +315,7 @@ def _optics(cfg):
     from bench.sim.optics_presets import optics_preset
 
     s = cfg["sim"]
-    overrides = {}
-    if not s["port"]:
-        overrides["port"] = None
-        overrides["water"] = None  # the water needs the port
-        overrides["light"] = None
+    overrides = {} if s["port"] else {"port": None, "water": None, "light": None}  # the water needs the port
     if not s["sensor_noise"]:
         overrides["sensor"] = None
     try:
@@ -546,18 +543,7 @@ def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48, extracto
     from bench.camera.target_tolerance import calibration_with_tolerance
 
     geometry = load_target(ds.root / "target.yaml")
-    Xs, uvs, size = [], [], None
-    for v in ds.views:
-        if v.role != "calibration":
-            continue
-        img = v.image()
-        res = extract_corners(img, geometry, extractor)
-        if res.success:
-            Xs.append(res.object_points)
-            uvs.append(res.uv)
-            size = (img.shape[1], img.shape[0])
-    if len(Xs) < 2:
-        raise ConfigError(ds.root, "calibration views", f"the rig was found in {len(Xs)} views (need >= 2)")
+    Xs, uvs, _, size = rig_corners(ds, geometry, extractor, "calibration", need=2)
     cal = calibrate_camera(Xs, uvs, size, model=model)
     if not cal.success:
         raise ConfigError(ds.root, "calibration views", f"camera calibration failed: {cal.message}")
@@ -760,10 +746,9 @@ def plot_tables(summary: dict, poses: str, path) -> str:
         if "eq123_z_mm" in summary and m in numbers:
             ax.plot(d, np.array(summary["eq123_z_mm"])[sel], "-.", color=colors["z"], lw=1, alpha=0.8,
                     label="z: Eq. 123 (disparity sqrt(2) sigma, / sqrt(inliers))")
-        ax.set_yscale("log")
+        ax.set(yscale="log", ylabel="RMS position error (mm)")
         ax.set_title(f"Table {numbers[m]}: {LABELS[m]}" if m in numbers else
                      "not in the thesis - " + LABELS[m].replace(": ", ":\n"), fontsize=9)
-        ax.set_ylabel("RMS position error (mm)")
         ax.grid(alpha=0.3, which="both")
     if has_bundle:  # how close each estimator comes to the limit
         ax = axes[1, 2]
@@ -841,10 +826,9 @@ def _bound(cfg, truth, res, pc: PositioningConfig, spec, verbose, cov_K=None, co
     unknowns = Unknowns(lens.K, cov_K, R0_free=p["mount_bias"] == "estimated", cov_dist=cov_dist,
                         offset_sigma=spec.camera_offset_sigma_m)
     bounds = experiment_bounds(res, kin, pc, X, seen, project, lens.size, sigma, verbose, unknowns)
-    metrics["bound_intrinsics_free"] = float(cov_K is not None)
-    metrics["bound_R0_free"] = float(unknowns.R0_free)
-    metrics["bound_distortion_free"] = float(cov_dist is not None)
-    metrics["bound_centre_free"] = float(unknowns.offset_sigma is not None)
+    metrics.update({"bound_intrinsics_free": float(cov_K is not None), "bound_R0_free": float(unknowns.R0_free),
+                    "bound_distortion_free": float(cov_dist is not None),
+                    "bound_centre_free": float(unknowns.offset_sigma is not None)})
     cols = {k: [] for k in ("d_mm", "bound_x_mm", "bound_y_mm", "bound_z_mm", "bound_pos_mm", "bound_rot_deg",
                             "crb_x_mm", "crb_y_mm", "crb_z_mm", "crb_pos_mm", "floor_x_mm", "floor_y_mm",
                             "floor_z_mm", "floor_pos_mm", "bound_mc_x_mm", "bound_mc_y_mm", "bound_mc_z_mm",
@@ -937,9 +921,8 @@ def run(cfg, out_dir, verbose=True):
     if p["camera"] == "calibrated":
         cal, n_cal, cov_K = calibrate_from_rig_views(ds, p["camera_model"], extractor=p["calibration_corner_extractor"])
         camera = cal.camera
-        metrics["calibration_fx_std_px"] = float(np.sqrt(cov_K[0, 0]))
-        metrics["reproj_rms_px"] = float(cal.rms_px)
-        metrics["calibration_views_used"] = float(n_cal)
+        metrics.update({"calibration_fx_std_px": float(np.sqrt(cov_K[0, 0])), "reproj_rms_px": float(cal.rms_px),
+                        "calibration_views_used": float(n_cal)})
     elif p["camera"] == "nominal":
         camera = ds.camera()
     else:
@@ -1028,9 +1011,8 @@ def run(cfg, out_dir, verbose=True):
     metrics["keypoints_reference"] = float(res.keypoints[ref])
     ok = [c for c in res.combinations if c.success and c.method != "bundle"]  # the thesis's map and inlier counts
     if ok:
-        metrics["map_points_median"] = float(np.median([c.map_points for c in ok]))
-        metrics["pairs_3d_median"] = float(np.median([c.pairs_3d for c in ok]))
-        metrics["inliers_median"] = float(np.median([c.inliers for c in ok]))
+        metrics.update({f"{k}_median": float(np.median([getattr(c, k) for c in ok]))
+                        for k in ("map_points", "pairs_3d", "inliers")})
     if cfg["bound"]["enabled"] and res.success:
         t1 = time.perf_counter()
         bound_metrics, columns = _bound(cfg, truth, res, pc, spec, verbose, cov_K,

@@ -51,7 +51,7 @@ import numpy as np
 
 from bench.camera.model import distortion_parameter_jacobian, thin_prism_parameter_jacobian
 from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
-from bench.geometry.transforms import invert, transform_points
+from bench.geometry.transforms import homogeneous, invert, transform_points
 from bench.scenario.bounds import (
     Block,
     MultiViewModel,
@@ -195,9 +195,8 @@ def map_points(result, reference: str, T_table_ref, names_for_map) -> tuple:
     obs, rm = result.observations, result.reference_matches
     kmap = build_map(obs[reference], [obs[n] for n in names_for_map], matches=[rm[n] for n in names_for_map])
     one, merge = one_per_detection(kmap)  # each detection once: SIFT's twin keypoints (one pixel) are one measurement
-    seen = {reference: np.ones(len(one), bool)}
-    for n, m in rm.items():
-        seen[n] = np.isin(kmap.ref_index, m.i1) @ merge  # found where either twin was
+    seen = {reference: np.ones(len(one), bool),  # the others found where either twin was
+            **{n: np.isin(kmap.ref_index, m.i1) @ merge for n, m in rm.items()}}
     return transform_points(T_table_ref, kmap.p_ref[one]), seen
 
 
@@ -254,10 +253,7 @@ class _PairModel(MultiViewModel):
         if d_R0 is not None:
             T[:, :3, :3] = T[:, :3, :3] @ rotation_vector_to_matrix(d_R0)
         R = rotation_vector_to_matrix(xi[:3])
-        D = np.eye(4)
-        D[:3, :3] = R
-        D[:3, 3] = self.pivot + xi[3:] - R @ self.pivot
-        T[self.locate] = D @ T[self.locate]
+        T[self.locate] = homogeneous(R, self.pivot + xi[3:] - R @ self.pivot) @ T[self.locate]
         return T
 
     def pixels(self, *args):

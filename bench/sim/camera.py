@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from bench.geometry.transforms import homogeneous
+
 #: The OpenCV optical frame expressed in MuJoCo's camera frame (and back): x kept, y and z flipped.
 R_MJCAM_CV = np.diag([1.0, -1.0, -1.0])
 
@@ -131,7 +133,4 @@ def opencv_intrinsics(model, name: str, width: int, height: int) -> np.ndarray:
 def camera_pose_cv(model, data, name: str) -> np.ndarray:
     """``T_world_cam`` (OpenCV optical frame) of MuJoCo camera ``name`` after ``mj_forward``/``mj_kinematics``."""
     cid = _camera_id(model, name)
-    T = np.eye(4)
-    T[:3, :3] = data.cam_xmat[cid].reshape(3, 3) @ R_MJCAM_CV
-    T[:3, 3] = data.cam_xpos[cid]
-    return T
+    return homogeneous(data.cam_xmat[cid].reshape(3, 3) @ R_MJCAM_CV, data.cam_xpos[cid])

@@ -52,7 +52,9 @@ class CachedCamera:
         else:
             self.stage = FlatPortStage(camera.K, camera.size, port, supersample, lens=camera)
             self.spec = self.stage.render_spec(z_min)
-        self._rays = camera.unproject(_pixel_grid(camera), normalize=False)  # the lens's pixel rays (distortion in)
+        # the lens's pixel rays (distortion in) through the pixel centres (H, W, 2)
+        uv = np.stack(np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float)), -1)
+        self._rays = camera.unproject(uv, normalize=False)
         self._cos = cos_beam(self._rays)
         self._supersample = supersample
 
@@ -205,12 +207,6 @@ class ArmScene(CachedCamera):
         return lens_port_projector(self.camera, self.port)(np.asarray(p_cam, dtype=float))
 
 
-def _pixel_grid(camera: CameraModel) -> np.ndarray:
-    """Pixel centres ``(H, W, 2)`` of the camera's image."""
-    u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
-    return np.stack([u, v], axis=-1)
-
-
 def keypoint_reliability(scene: ArmScene, q_a, q_b, image_a, image_b, tol_px: float = 2.0) -> dict:
     """How many SIFT keypoints two views of ``scene`` share, and how many of their matches are true.
 
@@ -244,9 +240,8 @@ def keypoint_reliability(scene: ArmScene, q_a, q_b, image_a, image_b, tol_px: fl
                        uv[:, 1:], cv2.INTER_LINEAR) for k in range(3)]
     p_a = np.concatenate(chans, axis=1).astype(float)
     # reject keypoints on depth edges (the four neighbours see surfaces more than 1 cm apart): no single truth
-    u0, v0 = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
-    u0 = np.clip(u0, 0, pts.shape[1] - 2)
-    v0 = np.clip(v0, 0, pts.shape[0] - 2)
+    u0 = np.clip(np.floor(uv[:, 0]).astype(int), 0, pts.shape[1] - 2)
+    v0 = np.clip(np.floor(uv[:, 1]).astype(int), 0, pts.shape[0] - 2)
     nb = np.stack([pts[v0, u0], pts[v0, u0 + 1], pts[v0 + 1, u0], pts[v0 + 1, u0 + 1]], axis=1)
     with np.errstate(invalid="ignore"):
         known = np.all(np.isfinite(nb), axis=(1, 2)) & (np.ptp(nb[..., 2], axis=1) < 0.01)

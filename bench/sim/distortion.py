@@ -110,10 +110,6 @@ def render_K(camera: CameraModel, supersample: int, margin: int = 2) -> RenderSp
     return RenderSpec(K, int(size[0]), int(size[1]), s)
 
 
-def _camera_key(camera: CameraModel, s: int):
-    return (camera.width, camera.height, camera.K.tobytes(), camera.dist.tobytes(), s)
-
-
 def ideal_subsample_grid(camera: CameraModel, supersample: int) -> np.ndarray:
     """Ideal normalised coordinates ``(H s, W s, 2)`` of all sub-samples of the image (exact, Newton to 1e-12).
 
@@ -171,7 +167,8 @@ class DistortionStage:
         """The (cached) remap tables for a render with intrinsics ``K_render`` and size ``(width, height)``."""
         K_r = check_K(K_render, "K_render")
         Wr, Hr = (int(v) for v in render_size)
-        key = (_camera_key(self.camera, self.supersample), K_r.tobytes(), Wr, Hr)
+        cam = self.camera
+        key = ((cam.width, cam.height, cam.K.tobytes(), cam.dist.tobytes(), self.supersample), K_r.tobytes(), Wr, Hr)
         if key in _MAP_CACHE:
             _MAP_CACHE.move_to_end(key)
             return _MAP_CACHE[key]

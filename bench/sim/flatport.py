@@ -121,11 +121,6 @@ class FlatPortStage:
         return (which, self.K_out.tobytes(), self.width, self.height, self.supersample, lens,
                 (p.d0, p.t, p.n_air, p.n_glass, p.n_water, p.tilt.tobytes(), p.decentre.tobytes()))
 
-    def _air_rays(self, uv):
-        if self.lens is not None:
-            return self.lens.unproject(uv)
-        return unproject_pinhole(from_pixels(uv, self.K_out))
-
     def rays(self, which: str = "sub"):
         """Cached ``(origin, direction, ok)`` in water for the sub-samples (``"sub"``, ``(H s, W s)``) or the pixel
         centres (``"centre"``, ``(H, W)``)."""
@@ -135,7 +130,9 @@ class FlatPortStage:
             return _TRACE_CACHE[key]
         s = self.supersample if which == "sub" else 1
         uu, vv = np.meshgrid(subsample_coordinates(self.width, s), subsample_coordinates(self.height, s))
-        o, w, ok = trace_rays(self._air_rays(np.stack([uu, vv], -1)), self.port)
+        uv = np.stack([uu, vv], -1)
+        dirs = self.lens.unproject(uv) if self.lens is not None else unproject_pinhole(from_pixels(uv, self.K_out))
+        o, w, ok = trace_rays(dirs, self.port)
         if not np.all(ok):
             raise ValueError(f"port: {np.count_nonzero(~ok)} ray(s) of the image are totally reflected or miss the "
                              "port (tilt too large for the field of view)")

@@ -15,6 +15,7 @@ import numpy as np
 import trimesh
 from trimesh.creation import box, cylinder
 
+from bench.geometry.transforms import homogeneous
 from bench.robot.model import Robot
 
 
@@ -25,11 +26,7 @@ def _cyl(p0, p1, radius, sections=32):
 
 
 def _box(centre, extents, R=None):
-    T = np.eye(4)
-    if R is not None:
-        T[:3, :3] = R
-    T[:3, 3] = centre
-    return box(extents=extents, transform=T)
+    return box(extents=extents, transform=homogeneous(np.eye(3) if R is None else R, centre))
 
 
 def _dh_S(robot: Robot, k: int) -> np.ndarray:

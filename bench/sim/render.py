@@ -58,11 +58,7 @@ def box_filter(image, s: int) -> np.ndarray:
 
 def nearest_surface(depth, s: int) -> np.ndarray:
     """Minimum of each ``s x s`` block of ``depth (s H, s W)``: the nearest surface in each pixel footprint (m)."""
-    out = depth[0::s, 0::s].copy()
-    for i in range(s):
-        for j in range(s):
-            np.minimum(out, depth[i::s, j::s], out=out)
-    return out
+    return depth.reshape(depth.shape[0] // s, s, depth.shape[1] // s, s).min(axis=(1, 3))
 
 
 class SceneRenderer:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from bench.geometry.transforms import rot_z
+from bench.geometry.transforms import homogeneous, rot_z
 from bench.robot.model import Robot
 from bench.robot.orientation import link5_frame
 
@@ -128,10 +128,7 @@ def look_at(eye, target, down=(0.0, 0.0, -1.0)):
     if np.linalg.norm(y) < 1e-9:
         raise ValueError("down: parallel to the viewing direction")
     y /= np.linalg.norm(y)
-    T = np.eye(4)
-    T[:3, :3] = np.column_stack([np.cross(y, z), y, z])
-    T[:3, 3] = eye
-    return T
+    return homogeneous(np.column_stack([np.cross(y, z), y, z]), eye)
 
 
 def surrounding_eyes(T_base_ref_cam, offsets_m) -> np.ndarray:

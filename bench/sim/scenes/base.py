@@ -147,19 +147,12 @@ def disc_mesh(name: str, radius: float, half_thickness: float, segments: int = 4
     a = 2 * np.pi * np.arange(segments) / segments
     ca, sa = np.cos(a), np.sin(a)
     uv_rim = [(0.5 + 0.5 * c, 0.5 - 0.5 * s) for c, s in zip(ca, sa, strict=True)]
-    verts, uvs, faces = [], [], []
-    # front cap: centre + rim
-    verts.append((0.0, 0.0, half_thickness))
-    uvs.append((0.5, 0.5))
-    verts += [(radius * c, radius * s, half_thickness) for c, s in zip(ca, sa, strict=True)]
-    uvs += uv_rim
-    faces += [(0, 1 + i, 1 + (i + 1) % segments) for i in range(segments)]
-    # back cap
-    k = len(verts)
-    verts.append((0.0, 0.0, -half_thickness))
-    uvs.append((0.5, 0.5))
-    verts += [(radius * c, radius * s, -half_thickness) for c, s in zip(ca, sa, strict=True)]
-    uvs += uv_rim
+    verts, uvs = [], []
+    for z in (half_thickness, -half_thickness):  # front cap, then back cap: centre + rim
+        verts += [(0.0, 0.0, z)] + [(radius * c, radius * s, z) for c, s in zip(ca, sa, strict=True)]
+        uvs += [(0.5, 0.5)] + uv_rim
+    k = segments + 1  # the back cap's centre
+    faces = [(0, 1 + i, 1 + (i + 1) % segments) for i in range(segments)]
     faces += [(k, k + 1 + (i + 1) % segments, k + 1 + i) for i in range(segments)]
     # side wall: rim vertices front (1..n) and back (k+1..k+n)
     faces += [(1 + i, k + 1 + i, k + 1 + (i + 1) % segments) for i in range(segments)]

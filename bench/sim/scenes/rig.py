@@ -220,13 +220,9 @@ def _printed_corners(xs, ys, width_m, bow_m, dz):
 def rig_board_poses(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M):
     """``(T_rig_board_a, T_rig_board_b)``, each (4, 4): the two board frames in the rig frame (module docstring)."""
     top = margin_m + squares * square_m
-    T_a = np.eye(4)
-    T_a[:3, :3] = np.array([[-1.0, 0, 0], [0, 0, -1], [0, -1, 0]])  # x_b = -x_rig, y_b = -z_rig, z_b = -y_rig
-    T_a[:3, 3] = [margin_m + squares * square_m, 0.0, top]
-    T_b = np.eye(4)
-    T_b[:3, :3] = np.array([[0.0, 0, -1], [1, 0, 0], [0, -1, 0]])  # x_b = +y_rig, y_b = -z_rig, z_b = -x_rig
-    T_b[:3, 3] = [0.0, margin_m, top]
-    return T_a, T_b
+    # board a: x_b = -x_rig, y_b = -z_rig, z_b = -y_rig; board b: x_b = +y_rig, y_b = -z_rig, z_b = -x_rig
+    return (homogeneous([[-1.0, 0, 0], [0, 0, -1], [0, -1, 0]], [margin_m + squares * square_m, 0.0, top]),
+            homogeneous([[0.0, 0, -1], [1, 0, 0], [0, -1, 0]], [0.0, margin_m, top]))
 
 
 def calibration_rig(squares=BOARD_SQUARES, square_m=SQUARE_M, margin_m=MARGIN_M, thickness_m=0.01,
