@@ -404,7 +404,7 @@ def _legacy_output(path: Path, command: str, identity) -> bool:
         import sqlite3
 
         try:
-            with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True)) as con:
+            with contextlib.closing(read_only_sqlite(db)) as con:
                 return con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'runs'").fetchone() \
                     is not None
         except sqlite3.Error:
@@ -454,6 +454,14 @@ def _same_dataset(report: dict, identity) -> bool:
         return True
     have = report.get("dataset", report.get("photos"))
     return want is None or have is None or str(Path(str(have)).resolve()) == want
+
+
+def read_only_sqlite(path):
+    """``sqlite3`` connection to the database file ``path``, read-only (its URI percent-encoded: a folder named
+    ``run#2`` or ``a?b`` is a path, not a URI's fragment or query)."""
+    import sqlite3
+
+    return sqlite3.connect(f"{Path(path).resolve().as_uri()}?mode=ro", uri=True)
 
 
 def mark_output_dir(path, command: str, identity: str | None = None) -> Path:

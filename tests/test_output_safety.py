@@ -429,3 +429,23 @@ def _umask():
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
+
+
+def test_a_sweep_folder_named_with_uri_characters_is_read(tmp_path):
+    """Found in review: the read-only SQLite URI was built from the raw path, so a sweep in ``runs/s#2`` read as the
+    URI fragment ``#2`` ("no such table: runs"): its rows were not read and it was not recognised as a sweep."""
+    import sqlite3
+
+    from bench.scenario.sweep import read_runs
+
+    for name in ("s#2", "a?b", "100%"):
+        folder = tmp_path / name
+        folder.mkdir()
+        con = sqlite3.connect(folder / "sweep.sqlite")
+        con.execute("CREATE TABLE runs (run_id TEXT, params TEXT, seed INTEGER, status TEXT, message TEXT, "
+                    "metrics TEXT, timings TEXT, result_path TEXT)")
+        con.execute("INSERT INTO runs VALUES ('r1', '{}', 3, 'done', '', '{\"x\": 1.0}', '{}', 'r1/result.json')")
+        con.commit()
+        con.close()
+        assert [(r["run_id"], r["seed"], r["metrics"]) for r in read_runs(folder)] == [("r1", 3, {"x": 1.0})]
+        assert check_output_dir(folder, "sweep") == "own"

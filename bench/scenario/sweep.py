@@ -37,7 +37,7 @@ import numpy as np
 import yaml
 
 from bench.errors import BenchError, ConfigError
-from bench.fileio import atomic_save_figure, headless_pyplot
+from bench.fileio import atomic_save_figure, headless_pyplot, read_only_sqlite
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS runs (
@@ -215,7 +215,7 @@ def read_runs(folder, finished_only: bool = True) -> list:
     path = Path(folder) / "sweep.sqlite"
     if not path.is_file():
         return []
-    db = sqlite3.connect(f"file:{path.resolve()}?mode=ro", uri=True)
+    db = read_only_sqlite(path)
     try:
         return _row_dicts(db, "WHERE status = 'done'" if finished_only else "")
     finally:
