@@ -43,6 +43,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.camera.calibration import opencv_one_thread  # noqa: E402
 from bench.camera.photo_stats import (  # noqa: E402 - detection, calibration, residual and image statistics
     apply_homography,
     board_homography,
@@ -315,7 +316,8 @@ def measure_board_shape(views, pattern, square_mm: float) -> dict:
     size = views[0][2].shape[::-1]
     O = [(obj * square_mm).astype(np.float32)] * len(uvs)
     img = [u.astype(np.float32).reshape(-1, 1, 2) for u in uvs]
-    out = cv2.calibrateCameraRO(O, img, size, cols - 1, None, None, flags=cv2.CALIB_FIX_K3)
+    with opencv_one_thread():  # the same figures from run to run (its sums run in parallel otherwise)
+        out = cv2.calibrateCameraRO(O, img, size, cols - 1, None, None, flags=cv2.CALIB_FIX_K3)
     rms_ro, shape = float(out[0]), out[5].reshape(-1, 3).astype(float)
     # similarity onto the nominal grid (Umeyama), then the shape's deviations (mm)
     A, B = obj * square_mm, shape

@@ -24,6 +24,7 @@ coordinate), the intrinsic block of the full inverse (i.e. marginalised over the
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field, replace
 
@@ -739,6 +740,21 @@ def opencv_flags(model: str, k3: bool = False) -> int:
     return flags
 
 
+@contextlib.contextmanager
+def opencv_one_thread():
+    """OpenCV on one thread inside the block (its thread count restored after): ``cv2.calibrateCamera`` sums over
+    views in parallel, so with two threads the same detections gave intrinsics differing by ~1e-6 px from call to
+    call; on one thread it is the same to the last bit."""
+    import cv2
+
+    n = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(n)
+
+
 def opencv_reference(object_points, image_points, image_size, model: str = "heikkila", *, k3: bool = False,
                      K_init=None, max_iterations: int = 500) -> CalibrationResult:
     """``cv2.calibrateCamera`` on the same detections with flags matching ``model`` (zero skew).
@@ -764,9 +780,10 @@ def opencv_reference(object_points, image_points, image_size, model: str = "heik
         K0 = np.eye(3)
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, max_iterations, np.finfo(float).eps)
     try:
-        rms_cv, K, dist, rvecs, tvecs = cv2.calibrateCamera(
-            [X.astype(np.float32) for X in Xs], [uv.astype(np.float32) for uv in uvs], size, K0, np.zeros(5),
-            flags=flags, criteria=criteria)
+        with opencv_one_thread():
+            rms_cv, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+                [X.astype(np.float32) for X in Xs], [uv.astype(np.float32) for uv in uvs], size, K0, np.zeros(5),
+                flags=flags, criteria=criteria)
     except cv2.error as e:
         first = str(e).strip().splitlines()
         return _failure(model, size, len(Xs), f"cv2.calibrateCamera failed: {first[-1] if first else e}")

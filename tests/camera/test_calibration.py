@@ -325,3 +325,23 @@ def test_jackknife_views_matches_formal_errors_for_independent_noise_and_exceeds
     assert np.all(jk2[:2] > 2.5 * res2.std[:2])  # fx, fy: the per-view scale errors are focal-length errors (3x)
     one, _ = cal.jackknife_views(Xs[:1], uvs[:1], SIZE)
     assert np.all(np.isnan(one))
+
+
+def test_opencv_reference_is_the_same_from_call_to_call():
+    """cv2.calibrateCamera sums over views on several threads: on 2 threads the same detections gave intrinsics
+    ~1e-6 px apart from call to call (found by the lean pass). The reference runs on one thread: identical."""
+    import cv2
+
+    from bench.camera.calibration import opencv_reference
+    from bench.camera.photo_stats import board_points, detect_views, photo_paths
+
+    views = detect_views(photo_paths(Path(__file__).parents[1] / "data" / "real_webcam_chessboard")[:8], (7, 7))
+    Xs, uvs = [board_points((7, 7))] * len(views), [v.uv for v in views]
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        Ks = [opencv_reference(Xs, uvs, views[0].grey.shape[::-1]).K for _ in range(4)]
+        assert cv2.getNumThreads() == 2  # restored
+    finally:
+        cv2.setNumThreads(threads)
+    assert all(np.array_equal(K, Ks[0]) for K in Ks)
