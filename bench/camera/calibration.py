@@ -756,8 +756,11 @@ def opencv_one_thread():
 
 
 def opencv_reference(object_points, image_points, image_size, model: str = "heikkila", *, k3: bool = False,
-                     K_init=None, max_iterations: int = 500) -> CalibrationResult:
+                     K_init=None, max_iterations: int = 500, one_thread: bool = True) -> CalibrationResult:
     """``cv2.calibrateCamera`` on the same detections with flags matching ``model`` (zero skew).
+
+    ``one_thread`` (default): OpenCV on one thread (:func:`opencv_one_thread`), the same result to the last bit from
+    call to call; ``False`` runs it on OpenCV's own thread count (``make benchmark`` times the peer so).
 
     Non-planar targets need an initial ``K`` (OpenCV's own initialisation is planar only): ``K_init`` or, if None, the
     linear calibration of this module. OpenCV takes the points as float32 (it refuses float64): compare on detections
@@ -780,7 +783,7 @@ def opencv_reference(object_points, image_points, image_size, model: str = "heik
         K0 = np.eye(3)
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, max_iterations, np.finfo(float).eps)
     try:
-        with opencv_one_thread():
+        with opencv_one_thread() if one_thread else contextlib.nullcontext():
             rms_cv, K, dist, rvecs, tvecs = cv2.calibrateCamera(
                 [X.astype(np.float32) for X in Xs], [uv.astype(np.float32) for uv in uvs], size, K0, np.zeros(5),
                 flags=flags, criteria=criteria)
