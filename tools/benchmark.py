@@ -100,7 +100,8 @@ def pipeline_steps(run_dir: Path, repeats: int) -> dict:
 
     from bench.camera.calibrate_dataset import detect_dataset_corners
     from bench.camera.calibration import calibrate_camera, opencv_reference
-    from bench.geometry.transforms import invert, rotation_angle
+    from bench.geometry.transforms import invert
+    from bench.scenario.results import pose_errors
     from bench.vision.features import match_descriptors, orientation_filter
     from bench.vision.insitu import build_map, locate, locate_pnp
     from bench.vision.locate_dataset import locate_dataset
@@ -124,9 +125,7 @@ def pipeline_steps(run_dir: Path, repeats: int) -> dict:
     out["solve_time_ratio_ours_over_pnp"] = out["insitu_solve_s"] / out["pnp_solve_s"]
     for key, res in (("two_view", locate(kmap, a, b, rng=0)), ("pnp", locate_pnp(kmap, a, focal_px=cam.fx))):
         if res.success:
-            T = res.T_world_base
-            out[f"{key}_base_pos_err_mm"] = float(np.linalg.norm(T[:3, 3] - T_true[:3, 3]) * 1e3)
-            out[f"{key}_base_rot_err_deg"] = float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_true[:3, :3])))
+            out[f"{key}_base_pos_err_mm"], out[f"{key}_base_rot_err_deg"] = pose_errors(res.T_world_base, T_true)
     corners = detect_dataset_corners(run_dir / "dataset", extractor="opencv")
     Xs, uvs, size = corners.object_points, corners.image_points, corners.image_size
     ours = calibrate_camera(Xs, uvs, size, model="heikkila")

@@ -40,7 +40,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.geometry.quaternion import matrix_to_rotation_vector  # noqa: E402
-from bench.geometry.transforms import invert, rotation_angle, transform_points  # noqa: E402
+from bench.geometry.transforms import invert, transform_points  # noqa: E402
+from bench.scenario.results import pose_errors  # noqa: E402
 from bench.vision import integrity as I  # noqa: E402
 
 SILENT_MM = 3.0
@@ -96,8 +97,8 @@ def load_runs(sweep: Path, locate: str = "locate.json") -> list:
             e_r = matrix_to_rotation_vector(T[:3, :3] @ T_true[:3, :3].T)  # left, world frame (as the covariance)
             if "T_world_panel" in truth:  # the panel centre (site frame), where the work is: the same pose there
                 run.update(_at_panel_centre(truth, T, T_true, cov))
-            run.update(cov=cov, err_mm=float(np.linalg.norm(e_t) * 1e3),
-                       err_deg=float(np.rad2deg(rotation_angle(T[:3, :3].T @ T_true[:3, :3]))),
+            err_mm, err_deg = pose_errors(T, T_true)
+            run.update(cov=cov, err_mm=err_mm, err_deg=err_deg,
                        nees_pos=float(e_t @ np.linalg.solve(cov[3:, 3:], e_t)),
                        nees_rot=float(e_r @ np.linalg.solve(cov[:3, :3], e_r)),
                        sigma_mm=float(np.sqrt(np.linalg.eigvalsh(cov[3:, 3:]).max()) * 1e3))

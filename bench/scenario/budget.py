@@ -39,7 +39,6 @@ bootstrap over the seeds (the same resampled seeds in both variants) gives each 
 from __future__ import annotations
 
 import json
-from contextlib import closing
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +64,7 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
     from bench.config import load_yaml
     from bench.fileio import check_output_dir, claim_output_dir, foreign_entries, record_output_entries
     from bench.scenario.runner import kind_module, load_scenario
-    from bench.scenario.sweep import SweepStore, _ray_connect, check_seeds_and_workers, run_sweep
+    from bench.scenario.sweep import _ray_connect, check_seeds_and_workers, read_runs, run_sweep
 
     scenario = Path(scenario)
     kind = load_yaml(scenario).get("kind")
@@ -95,8 +94,7 @@ def run_budget(scenario, seeds: list, out, backend: str = "local", address=None,
             # one render cache for every variant: a source the images do not depend on is not rendered again
             res = run_sweep(scenario, [], seeds, out / name, backend, address, workers, progress=progress,
                             fixed={**every, **overrides}, render_cache=out / ".render_cache")
-            with closing(SweepStore(out / name / "sweep.sqlite")) as store:  # the variant's finished runs
-                rows[name] = [r for r in store.rows() if r["status"] == "done"]
+            rows[name] = read_runs(out / name)  # the variant's finished runs
             if res["errors"] and progress:
                 print(f"  {len(res['errors'])} runs failed, e.g. {res['errors'][0]}")
         table, budget_table, result_metrics = budget_from_rows(rows, list(sources), metrics, vectors)
