@@ -320,9 +320,12 @@ def lab_prior(cov_K=None, cov_dist=None, cov_mount=None, cov_K_dist=None, cov_K_
         for j, (b, B) in enumerate(blocks):
             if i == j:
                 row.append(np.asarray(A, float))
-            else:  # below the diagonal: the transpose of the block above it
-                c = cross[a, b] if i < j else cross[b, a] if cross[b, a] is None else np.asarray(cross[b, a], float).T
+            elif i < j:
+                c = cross[a, b]
                 row.append(np.zeros((len(A), len(B))) if c is None else np.asarray(c, float))
+            else:  # below the diagonal: the transpose of the block above it
+                c = cross[b, a]
+                row.append(np.zeros((len(A), len(B))) if c is None else np.asarray(c, float).T)
         rows.append(row)
     return np.block(rows)
 
