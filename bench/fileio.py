@@ -12,7 +12,7 @@ Output claims: no command deletes or replaces what it did not create
 Every command that writes an output folder (``bench run``, ``sweep``, ``budget``, ``sim render``, ``locate --out``,
 ``calibrate-camera --out``, ...) claims it first, before any work, with one line::
 
-    out = claim_output_dir(args.out, "run", force=args.force, identity=scenario_name)
+    out = claim_output_dir(args.out, "run", force=args.force, identity=run_identity(cfg, args.overrides))
 
 and every command that writes one output file (``bench export``, ``export-camera``, ``import-tracker``,
 ``import-joints``, ...) writes it through::
@@ -21,14 +21,15 @@ and every command that writes one output file (``bench export``, ``export-camera
 
 (``check_output_dir`` / ``check_output_file`` make the same decision without creating anything, for a command that
 must refuse before a long computation and writes later.) A claimed folder holds a marker, :data:`OUTPUT_MARKER`
-(``.bench-output.json``: the command, an identity such as the scenario name, the time); an output file has a
-sidecar ``.NAME.bench-output.json`` with the command and the SHA-256 of what was written. The rules:
+(``.bench-output.json``: the command, an identity such as the scenario with its seed and overrides, the time); an
+output file has a sidecar ``.NAME.bench-output.json`` with the command and the SHA-256 of what was written. The rules:
 
 * a path that does not exist, or an empty folder, is claimed (folders created, the marker written);
 * a previous output of the same command and identity is written into again (a sweep resumes, a run re-runs, a
   file is replaced): today's behaviour for one's own output;
-* a previous output of the same command with another identity (a run folder of another scenario), or an output
-  file edited since bench wrote it, is refused unless ``force=True``, which replaces it;
+* a previous output of the same command with another identity (a run folder of another scenario, or of the same
+  one with another seed or ``--set``), or an output file edited since bench wrote it, is refused unless
+  ``force=True``, which replaces it;
 * anything else - a non-empty folder bench did not mark, another command's output, a file where a folder is
   expected or a folder where a file is expected - is refused, ``force`` or not: :class:`OutputRefused`, one line
   naming the option, the path and what is in the way;
@@ -283,8 +284,8 @@ def check_output_dir(path, command: str, *, force: bool = False, identity: str |
     if not [n for n in names if not _atomic_temporary(n)]:
         return "empty"  # nothing, or only a temporary file of a write killed before its rename (e.g. the marker's)
     marker = output_marker(path)
-    if marker is None and _legacy_output(path, command, identity):
-        marker = {"command": command, "identity": identity}  # written before markers existed: adopted as it is
+    if marker is None and _legacy_output(path, command, identity):  # written before markers existed: adopted
+        marker = {"command": command, "identity": _json_field(identity, "name") if command == "run" else identity}
     if marker is None:
         extra = f" (--force only replaces a previous output of bench {command})" if force else ""
         raise OutputRefused(f"{option} {path}: a non-empty folder that bench did not write (holds {_listing(names)}); "
@@ -292,10 +293,11 @@ def check_output_dir(path, command: str, *, force: bool = False, identity: str |
     if marker["command"] != command:
         raise OutputRefused(f"{option} {path}: holds the output of bench {marker['command']}, not of bench {command}; "
                             "choose another folder")
-    if identity is not None and marker.get("identity") not in (None, identity) and not force:
-        diff = _settings_difference(marker["identity"], identity)
+    recorded = _recorded_identity(marker.get("identity"), identity, path)
+    if identity is not None and recorded not in (None, identity) and not force:
+        diff = _settings_difference(recorded, identity)
         what = (f"with other settings: {diff}" if diff else
-                f"for {marker['identity']!r}, not {identity!r}")
+                f"for {recorded!r}, not {identity!r}")
         raise OutputRefused(f"{option} {path}: holds the output of bench {command} {what}; --force replaces it, "
                             "or choose another folder")
     if force:  # another identity, or the same one written afresh
@@ -344,6 +346,38 @@ def settings_identity(paths: dict, **settings) -> str:
     (:func:`check_output_dir`), the refusal naming each setting that differs."""
     files = {k: None if v is None else str(Path(v).resolve()) for k, v in paths.items()}
     return json.dumps({**files, **settings}, sort_keys=True, default=str)
+
+
+def _json_field(identity, key):
+    """Field ``key`` of a :func:`settings_identity` string; the identity itself when it is a plain name (as older
+    versions recorded), None when it is neither."""
+    try:
+        doc = json.loads(identity)
+    except (TypeError, ValueError):
+        return identity if isinstance(identity, str) else None
+    return doc.get(key) if isinstance(doc, dict) else None
+
+
+def _recorded_identity(have, want, path: Path):
+    """The identity a folder's marker recorded, comparable with this call's ``want``. A run marked by an older
+    version recorded only the scenario's name (``have`` a plain name, ``want`` a :func:`settings_identity` naming
+    that scenario): it is read as this call's settings with the seed of the folder's result.json, so a re-run with
+    the same seed adopts it and one with another seed is refused by name; its overrides were not recorded."""
+    if not isinstance(have, str) or not isinstance(want, str) or have == want or _json_field(want, "name") != have:
+        return have
+    try:
+        json.loads(have)
+        return have  # a settings identity of its own: compared as it is
+    except ValueError:
+        pass
+    try:
+        seed = json.loads((path / "result.json").read_text()).get("seed")
+    except (OSError, ValueError, AttributeError):
+        seed = None
+    doc = json.loads(want)
+    if seed is not None:
+        doc["seed"] = seed
+    return json.dumps(doc, sort_keys=True, default=str)
 
 
 def _settings_difference(have, want) -> str | None:
@@ -411,7 +445,7 @@ def _legacy_output(path: Path, command: str, identity) -> bool:
             return False
     if command == "run":
         res = doc("result.json")
-        return (isinstance(res, dict) and identity is not None and res.get("scenario") == identity
+        return (isinstance(res, dict) and identity is not None and res.get("scenario") == _json_field(identity, "name")
                 and artifacts_present(res))
     if command == "budget":
         res = doc("result.json")

@@ -264,6 +264,44 @@ def test_run(tmp_path, places, capsys):
     capsys.readouterr()
 
 
+def test_a_run_with_another_seed_or_override_does_not_take_the_place_of_the_last(tmp_path, capsys):
+    """``bench run --out X --seed 2`` over a seed-1 run of the same scenario was written in place, losing the first
+    result without a word; now refused by name (the seed, the overrides), and ``--force`` replaces it."""
+    base = ["run", str(TRACKER), *TINY, "--quiet"]
+    out = tmp_path / "r"
+    assert main(base + ["--out", str(out), "--seed", "1"]) == 0
+    first = (out / "result.json").read_text()
+    refused(capsys, base + ["--out", str(out), "--seed", "2"], "with other settings: seed 1 (this call: 2); "
+            "--force replaces it")
+    err = refused(capsys, base + ["--out", str(out), "--seed", "1", "--set", "arcs.n_points=7"],
+                  "with other settings: set [")
+    assert "'arcs.n_points=7'] (this call" not in err and "'arcs.n_points=7']); --force" in err
+    assert (out / "result.json").read_text() == first
+    assert main(base + ["--out", str(out), "--seed", "1"]) == 0  # the same settings: re-run in place
+    assert main(base + ["--out", str(out), "--seed", "2", "--force"]) == 0
+    assert json.loads((out / "result.json").read_text())["seed"] == 2
+    capsys.readouterr()
+
+
+def test_a_run_marked_by_an_older_version_is_compared_by_its_seed(tmp_path):
+    """Older versions recorded a run's identity as the scenario's name alone: a call with that scenario and the
+    seed of the folder's result.json re-runs it in place; another seed is refused naming both."""
+    from bench.scenario.runner import load_scenario, run_identity
+
+    run = tmp_path / "old"
+    run.mkdir()
+    (run / "result.json").write_text(json.dumps({"scenario": "s1", "seed": 3, "metrics": {}}))
+    (run / OUTPUT_MARKER).write_text(json.dumps({"command": "run", "identity": "s1"}))
+    cfg = {**load_scenario(TRACKER), "name": "s1"}
+    assert check_output_dir(run, "run", identity=run_identity({**cfg, "seed": 3})) == "own"
+    with pytest.raises(OutputRefused, match=r"seed 3 \(this call: 4\)"):
+        check_output_dir(run, "run", identity=run_identity({**cfg, "seed": 4}))
+    (run / OUTPUT_MARKER).unlink()  # written before markers: adopted by its result.json the same way
+    assert check_output_dir(run, "run", identity=run_identity({**cfg, "seed": 3})) == "own"
+    with pytest.raises(OutputRefused, match=r"seed 3 \(this call: 4\)"):
+        check_output_dir(run, "run", identity=run_identity({**cfg, "seed": 4}))
+
+
 def test_sweep(tmp_path, places, capsys):
     base = ["sweep", str(TRACKER), *TINY, "--workers", "1"]
     refused(capsys, base + ["--out", str(places["folder"])], "bench did not write")
