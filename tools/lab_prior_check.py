@@ -66,7 +66,7 @@ def check_run(run: Path) -> dict | None:
 
     from bench.camera.io import read_camera_yaml
     from bench.robot.calibration_file import load_calibrated_robot
-    from bench.vision.joint_bundle import lab_prior, read_priors
+    from bench.vision.joint_bundle import lab_blocks, lab_prior, read_priors
 
     truth_path, lab = run / "dataset" / "truth" / "truth.yaml", run / "calibrated"
     if not truth_path.is_file() or not (lab / "calibration_priors.yaml").is_file():
@@ -74,7 +74,7 @@ def check_run(run: Path) -> dict | None:
     truth = yaml.safe_load(truth_path.read_text())
     if truth.get("water") or truth.get("port"):
         return None
-    C = lab_prior(**read_priors(lab / "calibration_priors.yaml"))
+    C = lab_prior(**lab_blocks(read_priors(lab / "calibration_priors.yaml")))
     cam = read_camera_yaml(lab / "camera.yaml")
     robot, eps, T_mount = load_calibrated_robot(lab / "robot.yaml")
     e = lab_error(truth, cam.K, cam.dist, robot, eps, T_mount, len(C))

@@ -29,7 +29,7 @@ import dataclasses
 
 import numpy as np
 
-from bench.camera.model import CameraModel, distort
+from bench.camera.model import CameraModel, check_dist, distort
 from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, transform_points
 from bench.robot.orientation import link5_frame
@@ -55,18 +55,19 @@ class _Model(MultiViewModel):
     """Pixels of every (view, point) observation as a function of the parameters: blocks ``xi`` (the locate
     parking's base pose, 6), ``q`` (joints, 6 per view), ``d_eps`` (identified arm errors), optionally ``d_K``
     (``dfx, dfy, dcx, dcy`` px: the intrinsics' error, applied to the pixels as ``c + dc + (f + df) / f (uv - c)``,
-    exact for a lens whose distortion acts before K) and ``d_mount`` (the camera mount's error, a right perturbation
+    exact for a lens whose distortion acts before K), ``d_dist`` (``dk1 dk2 dp1 dp2``, and ``dk3`` with ``k3``)
+    and ``d_mount`` (the camera mount's error, a right perturbation
     ``T_mount [[exp(w), v], [0, 1]]``, rad then m), optionally ``field`` (per view: the keypoints' affine error
     field, :func:`~bench.scenario.bounds.field_displacement`, px), then the points."""
 
     def __init__(self, robot, eps_true, kept, mount, project, T_site_b2, views, X_site, size, K=None,
-                 with_mount=False, vis=None, dist=None, field=False):
+                 with_mount=False, vis=None, dist=None, field=False, k3=False):
         self.robot, self.eps0, self.kept, self.mount = robot, eps_true, kept, mount
         self.T_b2 = T_site_b2
         self.q0 = np.array([q for q, _ in views])
         self.locate = np.array([loc for _, loc in views], dtype=bool)
         self.K = None if K is None else np.asarray(K, float)
-        self.dist = None if dist is None else np.asarray(dist, float)  # given: d_dist (k1 k2 p1 p2) is a block
+        self.dist = None if dist is None else check_dist(dist)  # given: d_dist (k1 k2 p1 p2 [k3]) is a block
         self.with_mount = bool(with_mount)
         blocks = [Block("xi", 6), Block("q", 6, per_view=True), Block("d_eps", len(kept))]
         values = [np.zeros(6), self.q0, np.zeros(len(kept))]
@@ -76,8 +77,11 @@ class _Model(MultiViewModel):
         if self.dist is not None:
             if self.K is None:
                 raise ValueError("a distortion block needs the intrinsics K")
-            blocks.append(Block("d_dist", 4, step=1e-5))
-            values.append(np.zeros(4))
+            nd = 5 if k3 else 4
+            blocks.append(Block("d_dist", nd, step=1e-5))
+            values.append(np.zeros(nd))
+        elif k3:
+            raise ValueError("k3 is a block with the distortion's (dist)")
         if self.with_mount:
             blocks.append(Block("d_mount", 6))
             values.append(np.zeros(6))
@@ -122,11 +126,12 @@ class _Model(MultiViewModel):
 
     def _camera_pixels(self, uv, values, X):
         _, _, _, d_K, d_dist, _ = self._split(values)
-        if d_dist is not None:  # the lens's k1 k2 p1 p2 moved by d_dist: the pixel change, exactly
+        if d_dist is not None:  # the lens's k1 k2 p1 p2 [k3] moved by d_dist: the pixel change, exactly
             T_cam_world = np.linalg.inv(self._kinematics(values))
             p = np.matmul(X, np.swapaxes(T_cam_world[:, :3, :3], 1, 2)) + T_cam_world[:, None, :3, 3]
             x = p[..., :2] / p[..., 2:3]
-            uv = uv + (distort(x, self.dist + np.r_[d_dist, 0.0]) - distort(x, self.dist)) @ self.K[:2, :2].T
+            moved = self.dist + (np.r_[d_dist, 0.0] if len(d_dist) == 4 else d_dist)
+            uv = uv + (distort(x, moved) - distort(x, self.dist)) @ self.K[:2, :2].T
         if d_K is None:
             return uv
         f, c = np.array([self.K[0, 0], self.K[1, 1]]), self.K[:2, 2]
@@ -292,7 +297,7 @@ def track_pixels(kmap, used, observations: dict, reference: str, survey: list, l
 
 def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2, views, X_site, size, sigma_px,
                   sigma_enc, cov_K=None, K=None, cov_mount=None, vis=None, cov_K_mount=None, dist=None,
-                  cov_dist=None, cov_K_dist=None, cov_dist_mount=None, field=None) -> dict:
+                  cov_dist=None, cov_K_dist=None, cov_dist_mount=None, field=None, k3_sd=None) -> dict:
     """Cramér-Rao bound of the located base pose (see the module docstring; :func:`bench.scenario.bounds.crb`).
 
     Parameters
@@ -328,6 +333,9 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
         Standard deviations of every view's affine keypoint error field (:func:`~bench.scenario.bounds.field_sd`,
         measured by :func:`track_noise_on_surface`): each view's field a nuisance parameter under that prior, on top
         of the white ``sigma_px``. Omitted (or all zero): the keypoints' errors are white.
+    k3_sd : float, optional
+        With ``cov_dist``: the lens's k3 is unknown to the estimator too, under that prior standard deviation (the
+        joint bundle refines it, :func:`bench.vision.joint_bundle.with_k3`). Omitted: k3 is the camera's, exact.
 
     Returns
     -------
@@ -335,18 +343,21 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
         ``cov (6, 6)`` (rotation vector rad, then base origin m), ``pos_bound_m``, ``rot_bound_rad``,
         ``observations``.
     """
-    from bench.vision.joint_bundle import lab_prior
+    from bench.vision.joint_bundle import lab_prior, with_k3
 
     with_K = cov_K is not None
+    k3_sd = k3_sd if cov_dist is not None else None
     model = _Model(robot, np.asarray(eps_true, float), np.asarray(kept), mount, project, T_site_b2, views, X_site,
                    size, K=K if with_K else None, with_mount=cov_mount is not None, vis=vis,
-                   dist=dist if cov_dist is not None else None, field=field is not None and np.any(field))
+                   dist=dist if cov_dist is not None else None, field=field is not None and np.any(field),
+                   k3=k3_sd is not None)
     # the encoders observe the joints, the lab identification observed the arm errors, the lab calibrations the
     # intrinsics, the distortion and the mount (one joint prior over those given); the base pose is free
     priors = {"q": np.eye(6) / sigma_enc**2, "d_eps": np.linalg.inv(cov_eps_dot)}
     names = tuple(n for n, C in (("d_K", cov_K), ("d_dist", cov_dist), ("d_mount", cov_mount)) if C is not None)
     if names:
-        priors[names] = np.linalg.inv(lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount))
+        priors[names] = np.linalg.inv(with_k3(lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount,
+                                                        cov_dist_mount), k3_sd, 4 * with_K))
     if model.field:  # a coefficient measured at zero is known to be zero (1e-6 px: numerically so)
         priors["field"] = np.diag(1.0 / np.maximum(np.asarray(field, float), 1e-6) ** 2)
     res = crb(model, sigma_px, priors)
@@ -455,7 +466,7 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
 def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraModel, T_site_b2, views, X_site, vis,
                     sigma_px, sigma_enc, rng: np.random.Generator, trials: int = 20, cov_K=None,
                     cov_mount=None, refine: bool = True, cov_K_mount=None, cov_dist=None, cov_K_dist=None,
-                    cov_dist_mount=None, ins=None, field=None) -> dict:
+                    cov_dist_mount=None, ins=None, field=None, k3_sd=None) -> dict:
     """RMS base error of ``refine: joints`` (:func:`bench.vision.joint_bundle.joint_bundle`) under exactly the
     bound's model, over ``trials`` draws: the check that the estimator reaches :func:`crb_base_pose`.
 
@@ -468,7 +479,7 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
     :func:`crb_base_pose`; ``ins`` as :func:`mc_ideal_estimator`'s. Returns ``pos_rms_m``, ``rot_rms_rad``,
     ``trials``, ``failures``.
     """
-    from bench.vision.joint_bundle import joint_bundle, lab_prior
+    from bench.vision.joint_bundle import joint_bundle, lab_prior, with_k3
 
     q_true = np.array([q for q, _ in views])
     is_loc = np.array([loc for _, loc in views], dtype=bool)
@@ -484,24 +495,27 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
     view, point = view[order], point[order]
     sigma = view_sigma(sigma_px, len(views))
     L_eps = np.linalg.cholesky(cov_eps_dot)
-    lab = lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount)
+    k3_sd = k3_sd if cov_dist is not None else None
+    nd = 4 if k3_sd is None else 5  # the distortion's coefficients drawn and refined: k1 k2 p1 p2 [k3]
+    lab = with_k3(lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount), k3_sd,
+                  4 * (cov_K is not None))
     L_lab = None if lab is None else np.linalg.cholesky(lab)
     priors = dict(cov_K=cov_K, cov_mount=cov_mount, cov_K_mount=cov_K_mount, cov_dist=cov_dist,
-                  cov_K_dist=cov_K_dist, cov_dist_mount=cov_dist_mount) if refine else {}
+                  cov_K_dist=cov_K_dist, cov_dist_mount=cov_dist_mount, k3_sd=k3_sd) if refine else {}
     errs, fails = [], 0
     for _ in range(trials):
         eps = np.array(eps_true, float)
         eps[kept] += L_eps @ rng.normal(size=len(kept))
         d = [] if L_lab is None else list(L_lab @ rng.normal(size=len(lab)))  # K, dist, mount: those given
-        K, dist, m = camera.K.copy(), np.array(camera.dist, float), mount.copy()
+        K, dist, m = camera.K.copy(), check_dist(camera.dist), mount.copy()
         if cov_K is not None:
             dK, d = d[:4], d[4:]
             K[0, 0] += dK[0]
             K[1, 1] += dK[1]
             K[:2, 2] += dK[2:]
         if cov_dist is not None:
-            dist[:4] += d[:4]
-            d = d[4:]
+            dist[:nd] += d[:nd]
+            d = d[nd:]
         if cov_mount is not None:
             m = m @ homogeneous(rotation_vector_to_matrix(np.array(d[:3])), d[3:])
         q_read = q_true + rng.normal(0, sigma_enc, q_true.shape)

@@ -68,37 +68,41 @@ class _Problem:
     """The observations, the camera and the kinematics of :func:`joint_bundle` (see the module docstring).
 
     Parameter vector: ``xi`` (6), the joints view by view (6 V), then ``d_K`` (``dfx, dfy, dcx, dcy`` px) if
-    ``with_K``, ``d_dist`` (``dk1, dk2, dp1, dp2``) if ``with_dist`` and ``d_mount`` (6: ``T_link5_cam [[exp(w), v],
-    [0, 1]]``) if ``with_mount``."""
+    ``with_K``, ``d_dist`` (``dk1, dk2, dp1, dp2``, and ``dk3`` with ``with_k3``) if ``with_dist`` and ``d_mount``
+    (6: ``T_link5_cam [[exp(w), v], [0, 1]]``) if ``with_mount``."""
 
     step = 1e-7
 
     def __init__(self, robot, eps, T_link5_cam, is_locate, view, point, uv, K, dist=None, with_K=False,
-                 with_mount=False, with_dist=False):
+                 with_mount=False, with_dist=False, with_k3=False):
         self.robot, self.eps, self.mount = robot, np.asarray(eps, float), np.asarray(T_link5_cam, float)
         self.is_locate = np.asarray(is_locate, bool)
         self.view, self.point, self.uv = np.asarray(view, int), np.asarray(point, int), np.asarray(uv, float)
         self.K = np.asarray(K, float)
         self.dist = np.zeros(5) if dist is None or not len(dist) else check_dist(dist)
         self.with_K, self.with_mount, self.with_dist = bool(with_K), bool(with_mount), bool(with_dist)
+        if with_k3 and not with_dist:
+            raise ValueError("k3 is refined with the distortion block (with_dist)")
+        self.nd = 5 if with_k3 else 4  # the distortion block's size
         self.V = len(self.is_locate)
-        self.n = 6 + 6 * self.V + 4 * self.with_K + 4 * self.with_dist + 6 * self.with_mount
+        self.n = 6 + 6 * self.V + 4 * self.with_K + self.nd * self.with_dist + 6 * self.with_mount
 
     def split(self, theta):
-        """``theta (n,)`` -> ``xi (6,), q (V, 6), d_K (4,), d_dist (4,), d_mount (6,)`` (zeros for a block not
-        estimated)."""
+        """``theta (n,)`` -> ``xi (6,), q (V, 6), d_K (4,), d_dist (4,) or (5,), d_mount (6,)`` (zeros for a block
+        not estimated)."""
         xi, q = theta[:6], theta[6:6 + 6 * self.V].reshape(self.V, 6)
         k = 6 + 6 * self.V
         d_K = theta[k:k + 4] if self.with_K else np.zeros(4)
         k += 4 * self.with_K
-        d_d = theta[k:k + 4] if self.with_dist else np.zeros(4)
-        k += 4 * self.with_dist
+        d_d = theta[k:k + self.nd] if self.with_dist else np.zeros(4)
+        k += self.nd * self.with_dist
         d_m = theta[k:k + 6] if self.with_mount else np.zeros(6)
         return xi, q, d_K, d_d, d_m
 
     def distortion(self, d_dist) -> np.ndarray:
-        """The distortion ``(5,)`` with ``k1, k2, p1, p2`` moved by ``d_dist`` (k3 as calibrated)."""
-        return self.dist + np.r_[d_dist, 0.0]
+        """The distortion ``(5,)`` with ``k1, k2, p1, p2`` (and ``k3`` when ``d_dist`` has five) moved by
+        ``d_dist``; otherwise k3 as calibrated."""
+        return self.dist + (np.r_[d_dist, 0.0] if len(d_dist) == 4 else d_dist)
 
     def mounted(self, d_mount) -> np.ndarray:
         """The mount ``T_link5_cam`` (4, 4) moved by ``d_mount`` (a right perturbation ``[w, v]``)."""
@@ -167,7 +171,10 @@ def residuals_and_jacobian(problem: _Problem, theta, T_b2, X) -> tuple:
         k += 4
     if problem.with_dist:
         J[:, :, k:k + 4] = -K[:2, :2] @ distortion_parameter_jacobian(x_n)
-        k += 4
+        if problem.nd == 5:  # x_d = x_n (1 + k1 r^2 + k2 r^4 + k3 r^6) + tangential: d x_d / d k3 = x_n r^6
+            r6 = np.sum(x_n**2, axis=1) ** 3
+            J[:, :, k + 4] = -(x_n * r6[:, None]) @ K[:2, :2].T
+        k += problem.nd
     if problem.with_mount:
         for c in range(6):
             J[:, :, k + c] = -np.einsum("nij,nj->ni", A, dp(k + c))
@@ -192,7 +199,7 @@ class _Bound:
 def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, point, uv, X, sigma_enc: float,
                  sigma_px: float, K, dist=None, cov_K=None, cov_mount=None, iterations: int = 10, rounds: int = 3,
                  gate: float | None = 3.5, cov_K_mount=None, cov_dist=None, cov_K_dist=None,
-                 cov_dist_mount=None, loss: str | None = None) -> JointBundleResult:
+                 cov_dist_mount=None, loss: str | None = None, k3_sd: float | None = None) -> JointBundleResult:
     """Base pose, joints of every view, map points (and the intrinsics and mount under their lab priors) by maximum
     likelihood (see the module docstring).
 
@@ -226,6 +233,10 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     cov_dist : ndarray (4, 4), optional
         The lab calibration's covariance of ``k1, k2, p1, p2``: given, the four are refined under it as a prior;
         ``cov_K_dist`` (4, 4) and ``cov_dist_mount`` (4, 6) its cross-covariances with the intrinsics and the mount.
+    k3_sd : float, optional
+        With ``cov_dist``: the lens's sixth-order ``k3`` is refined too, under a prior of this standard deviation
+        about its calibrated value, independent of the other blocks (the lab's Heikkila fit holds k3 fixed, so its
+        covariance has no k3; behind a flat port the best central camera needs one: docs/bounds.md).
     iterations, rounds : int
         Gauss-Newton iterations per round; rounds of re-estimating the pixel noise and the gate.
     gate : float or None
@@ -245,13 +256,16 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     counts = np.bincount(np.asarray(point, int), minlength=M)
     if np.any(counts < 2):
         raise ValueError(f"{int(np.sum(counts < 2))} points observed in fewer than two views")
+    if k3_sd is not None and not (cov_dist is not None and np.isfinite(k3_sd) and k3_sd > 0):
+        raise ValueError(f"k3_sd ({k3_sd}) needs the distortion's prior cov_dist and must be > 0")
     problem = _Problem(robot, eps, T_link5_cam, is_locate, view, point, uv, K, dist, cov_K is not None,
-                       cov_mount is not None, cov_dist is not None)
+                       cov_mount is not None, cov_dist is not None, k3_sd is not None)
     n = problem.n
     info0 = np.zeros((n, n))  # the priors' information (rad^-2, px^-2, m^-2)
     info0[6:6 + 6 * V, 6:6 + 6 * V] = np.eye(6 * V) / sigma_enc**2
     k = 6 + 6 * V
-    lab = lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount)
+    lab = with_k3(lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount), k3_sd,
+                  4 * (cov_K is not None))
     if lab is not None:
         info0[k:, k:] = np.linalg.inv(lab)
     mean = np.r_[np.zeros(6), q_read.ravel(), np.zeros(n - 6 - 6 * V)]
@@ -275,6 +289,25 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
                              f"views' joints{extra}, sigma {s_px:.3g} px", T, cov, q, s_px, rms,
                              len(r), sol.iterations, problem.intrinsics(d_K), problem.mounted(d_m),
                              problem.distortion(d_d))
+
+
+def lab_blocks(priors: dict) -> dict:
+    """The covariance blocks of a :func:`read_priors` dict, for :func:`lab_prior` (its ``k3_sd`` left out)."""
+    return {k: v for k, v in priors.items() if k != "k3_sd"}
+
+
+def with_k3(lab, k3_sd, dist_at: int):
+    """The lab prior ``lab`` (:func:`lab_prior`) with ``k3`` inserted after the distortion block's ``k1 k2 p1 p2``
+    (which start at index ``dist_at``), variance ``k3_sd**2`` and no cross-covariance: the joint bundle's and the
+    bound's parameter order when k3 is refined. ``lab`` itself when ``k3_sd`` is None."""
+    if k3_sd is None or lab is None:
+        return lab
+    at = dist_at + 4
+    keep = np.r_[0:at, at + 1:len(lab) + 1]
+    out = np.zeros((len(lab) + 1, len(lab) + 1))
+    out[np.ix_(keep, keep)] = lab
+    out[at, at] = float(k3_sd) ** 2
+    return out
 
 
 def observations_of(kmap, used, n_surround: int, map_points: str = "all") -> tuple:
@@ -338,12 +371,14 @@ _OPTIONAL_PRIORS = (("intrinsics_mount_covariance", "cov_K_mount", (4, 6)),
 
 
 def priors_yaml_text(cov_K, cov_mount, notes: str = "", cov_K_mount=None, cov_dist=None, cov_K_dist=None,
-                     cov_dist_mount=None) -> str:
+                     cov_dist_mount=None, k3_sd=None) -> str:
     """The lab calibrations' covariances as a YAML file for :func:`read_priors` (``calibration_priors.yaml``):
     ``intrinsics_covariance_px2`` (4 x 4, fx fy cx cy), ``mount_covariance`` (6 x 6: rotation vector rad, then
     m, a right perturbation of the mount) and, when known, ``intrinsics_mount_covariance`` (4 x 6, their
     cross-covariance), ``distortion_covariance`` (4 x 4, k1 k2 p1 p2) and its cross-covariances
-    ``intrinsics_distortion_covariance`` (4 x 4) and ``distortion_mount_covariance`` (4 x 6)."""
+    ``intrinsics_distortion_covariance`` (4 x 4) and ``distortion_mount_covariance`` (4 x 6); ``distortion_k3_sd``
+    (a number) when the lens's k3, which the lab's fit held fixed, is to be refined under that standard deviation.
+    """
     import yaml
 
     data = {"notes": notes, "intrinsics_covariance_px2": np.asarray(cov_K, float).tolist(),
@@ -353,6 +388,8 @@ def priors_yaml_text(cov_K, cov_mount, notes: str = "", cov_K_mount=None, cov_di
     for key, name, _ in _OPTIONAL_PRIORS:
         if given[name] is not None:
             data[key] = np.asarray(given[name], float).tolist()
+    if k3_sd is not None:
+        data["distortion_k3_sd"] = float(k3_sd)
     return yaml.safe_dump(data, sort_keys=False)
 
 
@@ -394,7 +431,14 @@ def read_priors(path) -> dict:
         out[name] = C
     if out["cov_dist"] is None and (out["cov_K_dist"] is not None or out["cov_dist_mount"] is not None):
         raise ConfigError(path, "distortion_covariance", "missing (a distortion cross-covariance is given)")
-    if np.linalg.eigvalsh(lab_prior(**out)).min() <= 0:
+    k3 = data.get("distortion_k3_sd")
+    if k3 is not None:
+        if isinstance(k3, bool) or not isinstance(k3, (int, float)) or not (np.isfinite(k3) and k3 > 0):
+            raise ConfigError(path, "distortion_k3_sd", f"expected a positive number, got {k3!r}")
+        if out["cov_dist"] is None:
+            raise ConfigError(path, "distortion_k3_sd", "needs distortion_covariance (k3 is refined with k1 k2 p1 p2)")
+    out["k3_sd"] = None if k3 is None else float(k3)
+    if np.linalg.eigvalsh(lab_prior(**lab_blocks(out))).min() <= 0:
         bad = "distortion_covariance" if out["cov_dist"] is not None else "intrinsics_mount_covariance"
         raise ConfigError(path, bad, "the joint covariance with the other blocks is not positive definite")
     return out

@@ -461,7 +461,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     tilt = read_vehicle_yaml(ds.root / VEHICLE_FILE) if (ds.root / VEHICLE_FILE).is_file() else None  # test 7
     priors = None
     if priors_path is not None and refine == "joints" and not pnp:
-        from bench.vision.joint_bundle import lab_prior, read_priors
+        from bench.vision.joint_bundle import lab_blocks, lab_prior, read_priors
 
         priors = read_priors(priors_path)
     obs = {v.name: observe(v, camera, robot, eps, T_link5_cam, features_fn=features_fn)
@@ -475,7 +475,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     # the joint bundle works in pixels: a refractive camera's coordinates go to it through its virtual pinhole
     pixels_camera = camera.virtual_camera() if isinstance(camera, RefractiveCamera) else camera
     lab = None if priors is None else LabPrior(  # test 2
-        lab_prior(**priors), pixels_camera.K, pixels_camera.dist,
+        lab_prior(**lab_blocks(priors)), pixels_camera.K, pixels_camera.dist,
         refractive=camera if isinstance(camera, RefractiveCamera) else None)
 
     def combine(per, maps, obs, include):

@@ -262,6 +262,34 @@ def test_intrinsics_and_mount_blocks(scene):
     assert sparse["observations"] == vis.sum() and sparse["pos_bound_m"] > exact["pos_bound_m"] * 1.1
 
 
+def test_the_lens_k3_block(scene):
+    """The distortion block with k3 (``k3_sd``): block Jacobian = column by column, and its k3 column the exact pixel
+    change of k3; a wide k3 prior only raises the bound, a very tight one gives back the bound with k3 exact."""
+    robot, eps, cam, T_site_b2, X, views, kept, cov_eps = scene
+    dist = np.r_[-0.2, 0.05, 0.001, -0.001, 0.3]
+    model = _Model(robot, eps, kept, MOUNT, cam.project, T_site_b2, views, X, cam.size, K=cam.K, dist=dist, k3=True)
+    J = model.jacobian_columnwise(*model.values0, X)
+    assert np.allclose(model.jacobian(*model.values0, X), J, rtol=1e-5, atol=1e-5)
+    i = model.blocks.index(next(b for b in model.blocks if b.name == "d_dist"))
+    def moved(dk3):
+        vals = [v.copy() for v in model.values0]
+        vals[i][4] = dk3
+        return model.pixels(*vals, X) - model.pixels(*model.values0, X)
+
+    assert np.abs(moved(1.0)).max() > 1e-3  # k3 moves the pixels off the centre (these within ~0.17 of it), linearly
+    assert np.allclose(moved(2.0), 2 * moved(1.0), rtol=1e-9, atol=1e-12)
+    args = (robot, eps, kept, cov_eps, MOUNT, cam.project, T_site_b2, views, X, cam.size, 0.3, 1e-4)
+    lab = dict(cov_K=np.diag([4.0, 4, 1, 1]), K=cam.K, dist=dist, cov_dist=np.diag([1e-4, 1e-4, 1e-7, 1e-7]))
+    without = crb_base_pose(*args, **lab)
+    wide = crb_base_pose(*args, **lab, k3_sd=10.0)
+    tight = crb_base_pose(*args, **lab, k3_sd=1e-9)
+    assert wide["pos_bound_m"] > without["pos_bound_m"] and wide["rot_bound_rad"] > without["rot_bound_rad"]
+    assert tight["pos_bound_m"] == pytest.approx(without["pos_bound_m"], rel=1e-6)
+    assert crb_base_pose(*args, k3_sd=10.0)["pos_bound_m"] == crb_base_pose(*args)["pos_bound_m"]  # no lens block
+    with pytest.raises(ValueError, match="distortion"):
+        _Model(robot, eps, kept, MOUNT, cam.project, T_site_b2, views, X, cam.size, K=cam.K, k3=True)
+
+
 def test_paraxial_intrinsics_keep_the_principal_point():
     """The central camera of a lens behind a flat port: focal lengths times n_w / n_a, principal point unmoved."""
     from bench.scenario.in_situ import _paraxial_K

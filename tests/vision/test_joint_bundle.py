@@ -156,7 +156,7 @@ def test_lab_prior_orders_blocks_and_the_priors_file_carries_the_distortion(tmp_
     """lab_prior puts intrinsics, distortion, mount in the joint bundle's order with the cross-covariances given
     (zero otherwise); the priors file round-trips the distortion blocks and refuses a cross term without its block."""
     from bench.errors import ConfigError
-    from bench.vision.joint_bundle import lab_prior, priors_yaml_text, read_priors
+    from bench.vision.joint_bundle import lab_blocks, lab_prior, priors_yaml_text, read_priors, with_k3
 
     rng = np.random.default_rng(5)
     A = rng.normal(size=(14, 14))
@@ -169,10 +169,66 @@ def test_lab_prior_orders_blocks_and_the_priors_file_carries_the_distortion(tmp_
     assert lab_prior() is None
     p = tmp_path / "calibration_priors.yaml"
     p.write_text(priors_yaml_text(notes="test", **blocks))
-    assert np.allclose(lab_prior(**read_priors(p)), C, rtol=1e-12)
+    got = read_priors(p)
+    assert got["k3_sd"] is None and np.allclose(lab_prior(**lab_blocks(got)), C, rtol=1e-12)
     p.write_text(priors_yaml_text(C[:4, :4], C[8:, 8:], "cross without its block", cov_K_dist=C[:4, 4:8]))
     with pytest.raises(ConfigError, match="distortion_covariance"):
         read_priors(p)
+    p.write_text(priors_yaml_text(notes="k3", k3_sd=10.0, **blocks))
+    assert read_priors(p)["k3_sd"] == 10.0
+    big = with_k3(C, 10.0, 4)  # k3 after k1 k2 p1 p2, independent of the rest
+    assert big.shape == (15, 15) and big[8, 8] == 100.0 and not big[8, np.r_[:8, 9:15]].any()
+    assert np.array_equal(np.delete(np.delete(big, 8, 0), 8, 1), C)
+    for bad, msg in ((0.0, "positive number"), ("wide", "positive number"), (True, "positive number")):
+        p.write_text(priors_yaml_text(notes="bad k3", **blocks) + f"distortion_k3_sd: {bad}\n")
+        with pytest.raises(ConfigError, match=f"distortion_k3_sd: .*{msg}"):
+            read_priors(p)
+    p.write_text(priors_yaml_text(C[:4, :4], C[8:, 8:], "k3 without the lens block", k3_sd=10.0))
+    with pytest.raises(ConfigError, match="distortion_k3_sd: needs distortion_covariance"):
+        read_priors(p)
+
+
+def test_k3_jacobian_equals_difference_quotient():
+    """The k3 column of the distortion block (with every other block), against a difference quotient."""
+    rng = np.random.default_rng(83)
+    robot, eps, T_b2, X, view, point, x = _scene(rng, 8)
+    problem = _Problem(robot, eps, MOUNT, LOC, view, point, x, K, DIST, with_K=True, with_mount=True, with_dist=True,
+                       with_k3=True)
+    theta = np.r_[rng.normal(0, 1e-3, 6), (Q + rng.normal(0, 1e-4, Q.shape)).ravel(), rng.normal(0, 1, 4),
+                  rng.normal(0, 1e-2, 5), rng.normal(0, 1e-3, 6)]
+    _, J, _, _ = residuals_and_jacobian(problem, theta, T_b2, X)
+    assert problem.n == 6 + 6 * len(Q) + 15
+    c, h = 6 + 6 * len(Q) + 8, 1e-6
+    e = np.zeros_like(theta)
+    e[c] = h
+    d = (residuals(problem, theta + e, T_b2, X) - residuals(problem, theta - e, T_b2, X)) / (2 * h)
+    assert np.abs(J[:, :, c]).max() > 1e-3 and np.allclose(d, J[:, :, c], rtol=1e-4, atol=1e-7)
+    assert np.allclose(problem.distortion(theta[c - 4:c + 1]), DIST + theta[c - 4:c + 1])
+    with pytest.raises(ValueError, match="with the distortion block"):
+        _Problem(robot, eps, MOUNT, LOC, view, point, x, K, DIST, with_k3=True)
+
+
+def test_k3_refined_in_situ_removes_a_lens_the_lab_fitted_without_it():
+    """The true lens has a k3 the lab's fit (k3 = 0) lacks; with k3 refined under a wide prior the joint bundle finds
+    it from the views and the base exactly (noise-free), where the bundle without it is biased by the missing
+    term."""
+    rng = np.random.default_rng(84)
+    robot, eps, T_b2, X, view, point, _ = _scene(rng, 80)
+    true_dist = DIST + np.r_[0, 0, 0, 0, 0.8]
+    truth = _Problem(robot, eps, MOUNT, LOC, view, point, np.zeros((len(view), 2)), K, true_dist)
+    x = -residuals(truth, np.r_[np.zeros(6), Q.ravel()], T_b2, X)  # exact projections through the true lens
+    sigma_enc = np.deg2rad(0.002)
+    errs = {}
+    for k3 in (None, 10.0):
+        res = joint_bundle(robot, eps, MOUNT, Q, LOC, np.eye(4), view, point, x, X, sigma_enc, 0.05, K, DIST,
+                           cov_dist=np.diag([1e-4, 1e-4, 1e-8, 1e-8]), gate=None, k3_sd=k3)
+        assert res.success, res.message
+        errs[k3] = np.linalg.norm(res.T_site_base[:3, 3] - T_b2[:3, 3])
+        if k3 is not None:  # noise-free: exact
+            assert np.allclose(res.dist, true_dist, atol=1e-6), res.dist
+    assert errs[10.0] < 1e-9 and errs[None] > 1e-6, errs  # without k3, k2 absorbs it and the base moves
+    with pytest.raises(ValueError, match="needs the distortion's prior"):
+        joint_bundle(robot, eps, MOUNT, Q, LOC, np.eye(4), view, point, x, X, sigma_enc, 0.05, K, DIST, k3_sd=10.0)
 
 
 def test_observations_of_every_map_point_or_the_located_ones():
