@@ -57,6 +57,9 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--priors", default=None, help="with --refine joints: calibration_priors.yaml (the lab "
                      "calibrations' covariances) - the intrinsics and the mount (and the distortion, when the file "
                      "has distortion_covariance) are refined under them")
+    loc.add_argument("--refine-k3", action="store_true", help="with --priors: the joint bundle also refines the "
+                     "lens's k3 (which a Heikkila calibration holds fixed), under the priors file's "
+                     "distortion_k3_sd or a wide default (bench.vision.joint_bundle.K3_PRIOR_SD)")
     loc.add_argument("--guided", action="store_true", help="with --refine joints: search the map again in both "
                      "locate views at the refined poses and re-run the joint bundle (bench.vision.guided)")
     loc.add_argument("--loss", choices=("none", "huber"), default="none", help="with --refine joints: the joint "
@@ -364,6 +367,9 @@ def main(argv=None) -> int:
         elif args.command == "locate":
             from bench.vision.locate_dataset import locate_dataset
 
+            if args.refine_k3 and not args.priors:
+                raise BenchError("--refine-k3: needs --priors (k3 is refined with the lens's k1 k2 p1 p2 under the "
+                                 "lab's covariance of them)")
             for flag, on in ((f"--priors {args.priors}", args.priors), ("--guided", args.guided),
                              (f"--loss {args.loss}", args.loss != "none"),
                              (f"--map-points {args.map_points}", args.map_points != "all")):
@@ -374,7 +380,7 @@ def main(argv=None) -> int:
                                       camera_path=args.camera, robot_path=args.robot, refine=args.refine,
                                       priors_path=args.priors, guided=args.guided,
                                       loss=None if args.loss == "none" else args.loss, map_points=args.map_points,
-                                      keypoints=args.keypoints, ins_tilt=args.ins_tilt)
+                                      keypoints=args.keypoints, ins_tilt=args.ins_tilt, refine_k3=args.refine_k3)
             return 0 if res.success and rep["integrity"] != "refused" else 1  # refused: do not use the pose
         elif args.command == "faults":
             from bench.scenario.faults import run_faults

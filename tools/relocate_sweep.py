@@ -70,7 +70,8 @@ def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None) -> 
                               loss=None if pipeline.get("loss", "none") == "none" else pipeline["loss"],
                               map_points=pipeline.get("map_points", "all"), keypoints=pipeline.get("keypoints", "sift"),
                               pnp=pipeline.get("locate", "two_view") == "pnp", details=details,
-                              ins_tilt=pipeline.get("ins_tilt", "fuse"))
+                              ins_tilt=pipeline.get("ins_tilt", "fuse"),
+                              refine_k3=pipeline.get("refine_k3", False) and pipeline.get("refine_distortion", True))
 
 
 def relocate(run_dir: str, seed: int, pipeline: dict, name: str) -> tuple:

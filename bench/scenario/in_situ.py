@@ -202,7 +202,7 @@ class Pipeline(Section):
         "distortion is the largest error it leaves under water: docs/bounds.md)")] = True
     refine_k3: Annotated[bool, about(
         "with refine_distortion, the joint bundle also refines the lens's sixth-order k3, which the lab's Heikkila "
-        "fit holds at zero, under a wide prior (bench.scenario.in_situ_lab.K3_PRIOR_SD; the lab's own sd with "
+        "fit holds at zero, under a wide prior (bench.vision.joint_bundle.K3_PRIOR_SD; the lab's own sd with "
         "lab_k3): behind a flat port the best central camera needs one (docs/bounds.md); the bound carries it "
         "too")] = False
     target_tolerance: Annotated[bool, about(

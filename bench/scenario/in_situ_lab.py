@@ -27,10 +27,6 @@ from bench.robot.orientation import link5_frame
 from bench.vision.handeye import hand_eye_axxb, resolve_target_symmetry
 
 DEG = np.pi / 180
-#: the prior sd of the lens's k3 that the lab's Heikkila fit (k1 k2 p1 p2) does not estimate, when the joint bundle
-#: refines it (``pipeline.refine_k3``): wide against the k3 of the best central camera of the lens behind the flat
-#: port over the site's ranges (docs/bounds.md); 10 and 100 give the same in-situ errors there, so the views decide
-K3_PRIOR_SD = 10.0
 
 
 @dataclass(frozen=True)
@@ -166,9 +162,10 @@ def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5
 def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:
     """The lab calibrations' covariances for refine 'joints' (:func:`bench.vision.joint_bundle.read_priors`'s
     names): the camera calibration's own block of ``fx fy cx cy`` (and ``k1 k2 p1 p2`` with
-    ``pipeline.refine_distortion``, and k3's sd with ``pipeline.refine_k3``: :data:`K3_PRIOR_SD`, or the lab's own
-    when it fitted k3); the mount's from the AX = XB residuals, rms^2 / n per axis (it gives no
-    covariance); plus the rig tolerances' consider covariance (14, 14) when given."""
+    ``pipeline.refine_distortion``, and k3's sd with ``pipeline.refine_k3``:
+    :data:`~bench.vision.joint_bundle.K3_PRIOR_SD`, or the lab's own when it fitted k3); the mount's from the AX = XB
+    residuals, rms^2 / n per axis (it gives no covariance); plus the rig tolerances' consider covariance (14, 14)
+    when given."""
     names = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
     idx = [cal.parameter_names.index(n) for n in names]
     C = np.zeros((14, 14))
@@ -181,6 +178,8 @@ def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:
     if cfg["pipeline"]["refine_distortion"]:
         out.update(cov_dist=C[4:8, 4:8], cov_K_dist=C[:4, 4:8], cov_dist_mount=C[4:8, 8:] if tol else None)
         if cfg["pipeline"]["refine_k3"]:  # the lab's own sd when it fitted k3 (its cross-covariances left out)
+            from bench.vision.joint_bundle import K3_PRIOR_SD
+
             out["k3_sd"] = cal.standard_errors.get("k3", K3_PRIOR_SD) if cfg["pipeline"]["lab_k3"] else K3_PRIOR_SD
     return out
 

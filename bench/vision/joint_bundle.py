@@ -38,6 +38,12 @@ from bench.robot.orientation import link5_frame
 from bench.vision.bundle import solve
 from bench.vision.insitu import _proj_jac
 
+#: the prior sd of the lens's k3 that a Heikkila calibration (k1 k2 p1 p2) does not estimate, when the joint bundle
+#: refines it (``bench locate --refine-k3``, the in-situ kind's ``pipeline.refine_k3``): of the order of the k3 that
+#: the best central camera of the bench's lens behind its flat port needs at 0.5-1.0 m (10.3-10.5); 10 and 100 gave
+#: the same in-situ errors, so the views decide (docs/bounds.md)
+K3_PRIOR_SD = 10.0
+
 
 @dataclass(frozen=True)
 class JointBundleResult:
@@ -283,7 +289,8 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     T[:3, 3] += xi[3:]
     r = r[keep]
     rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1)) / 2))
-    extra = ((", intrinsics" if cov_K is not None else "") + (", distortion" if cov_dist is not None else "")
+    extra = ((", intrinsics" if cov_K is not None else "")
+             + (", distortion" + (" with k3" if k3_sd is not None else "") if cov_dist is not None else "")
              + (", mount" if cov_mount is not None else ""))
     return JointBundleResult(True, f"ok; joint bundle of {M} points, {len(r)} of {len(keep)} observations kept, {V} "
                              f"views' joints{extra}, sigma {s_px:.3g} px", T, cov, q, s_px, rms,

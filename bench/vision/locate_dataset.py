@@ -413,7 +413,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                    seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine="bundle",
                    ransac: dict | None = None, details: dict | None = None, features_fn=None, priors_path=None,
                    guided: bool = False, loss: str | None = None, map_points: str = "all", keypoints: str = "sift",
-                   ins_tilt: str = "fuse"):
+                   ins_tilt: str = "fuse", refine_k3: bool = False):
     """Build the map from the survey views and locate the base from the two ``locate`` views.
 
     ``camera_path`` / ``robot_path`` replace the dataset's own files (e.g. the results of an earlier calibration);
@@ -461,9 +461,14 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     tilt = read_vehicle_yaml(ds.root / VEHICLE_FILE) if (ds.root / VEHICLE_FILE).is_file() else None  # test 7
     priors = None
     if priors_path is not None and refine == "joints" and not pnp:
-        from bench.vision.joint_bundle import lab_blocks, lab_prior, read_priors
+        from bench.vision.joint_bundle import K3_PRIOR_SD, lab_blocks, lab_prior, read_priors
 
         priors = read_priors(priors_path)
+        if refine_k3 and priors["k3_sd"] is None:  # the file's own sd, else a wide one
+            if priors["cov_dist"] is None:
+                raise ConfigError(priors_path, "distortion_covariance", "missing: refining k3 needs the lens's "
+                                                                        "k1 k2 p1 p2 block")
+            priors["k3_sd"] = K3_PRIOR_SD
     obs = {v.name: observe(v, camera, robot, eps, T_link5_cam, features_fn=features_fn)
            for _, roles in regions for r in roles.values() for v in r}
     t_detect = time.perf_counter() - t0

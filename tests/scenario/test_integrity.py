@@ -335,6 +335,37 @@ def test_map_points_located_against_all_on_a_rendered_dataset(rendered):
         load_scenario(scenario, overrides=["pipeline.map_points=located", "pipeline.refine=bundle"])
 
 
+def test_refine_k3_on_a_rendered_dataset(rendered, tmp_path, capsys):
+    """bench locate --refine-k3 (pipeline.refine_k3): the joint bundle also refines the lens's k3 under the priors
+    file's distortion_k3_sd or the wide default; on a rendered dataset it solves, differs from the bundle without
+    k3 and lies inside its radius; the file's own sd is used when it has one; without --priors, or with priors that
+    have no distortion block, one line naming what is missing."""
+    from bench.vision.joint_bundle import priors_yaml_text
+
+    tmp, camera, robot, T_true, kw = _joints_setup(rendered)
+    priors = tmp_path / "calibration_priors.yaml"
+    cov_K, cov_dist, cov_mount = np.diag([4.0, 4, 1, 1]), np.diag([1e-4, 1e-4, 1e-8, 1e-8]), np.diag([1e-6] * 6)
+    priors.write_text(priors_yaml_text(cov_K, cov_mount, "test", cov_dist=cov_dist))
+    plain, _ = locate_dataset(tmp / "ds", None, priors_path=priors, **kw)
+    res, rep = locate_dataset(tmp / "ds", None, priors_path=priors, refine_k3=True, **kw)
+    assert plain.success and res.success and "distortion with k3" in res.message and "k3" not in plain.message
+    assert not np.allclose(res.T_world_base, plain.T_world_base, rtol=0, atol=1e-9)
+    assert rep["integrity"] != "refused", rep["integrity_reasons"]
+    assert np.linalg.norm(res.T_world_base[:3, 3] - T_true[:3, 3]) * 1e3 <= rep["protection_radius_mm"]
+    own = tmp_path / "own.yaml"  # the file's own k3 sd, used with or without the flag
+    own.write_text(priors_yaml_text(cov_K, cov_mount, "test", cov_dist=cov_dist, k3_sd=1e-9))
+    tight, _ = locate_dataset(tmp / "ds", None, priors_path=own, refine_k3=True, **kw)
+    assert "with k3" in tight.message
+    assert np.allclose(tight.T_world_base, plain.T_world_base, rtol=0, atol=1e-7)  # k3 held: the bundle without
+    no_lens = tmp_path / "no_lens.yaml"
+    no_lens.write_text(priors_yaml_text(cov_K, cov_mount, "test"))
+    with pytest.raises(ConfigError, match=r"no_lens\.yaml: distortion_covariance: missing: refining k3 needs"):
+        locate_dataset(tmp / "ds", None, priors_path=no_lens, refine_k3=True, **kw)
+    assert main(["locate", str(tmp / "ds"), "--refine", "joints", "--refine-k3"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--refine-k3: needs --priors" in err, err
+
+
 def test_aligned_keypoints_on_a_rendered_dataset(rendered, capsys, tmp_path):
     """pipeline.keypoints: aligned - the survey's and locate views' keypoints moved onto the reference's patches. On
     a rendered dataset most matched keypoints align, by a fraction of a pixel; the joint bundle's residuals shrink
