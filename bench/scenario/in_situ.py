@@ -201,10 +201,10 @@ class Pipeline(Section):
         "refine 'joints' also refines the lens's k1 k2 p1 p2 under the lab calibration's covariance (the lab's "
         "distortion is the largest error it leaves under water: docs/bounds.md)")] = True
     refine_k3: Annotated[bool, about(
-        "with refine_distortion, the joint bundle also refines the lens's sixth-order k3, which the lab's Heikkila "
-        "fit holds at zero, under a wide prior (bench.vision.joint_bundle.K3_PRIOR_SD; the lab's own sd with "
-        "lab_k3): behind a flat port the best central camera needs one (docs/bounds.md); the bound carries it "
-        "too")] = False
+        "with refine_distortion and the central camera model, the joint bundle also refines the lens's "
+        "sixth-order k3, which the lab's Heikkila fit holds at zero, under a wide prior "
+        "(bench.vision.joint_bundle.K3_PRIOR_SD; the lab's own sd with lab_k3): behind a flat port the best "
+        "central camera needs one (docs/bounds.md); the bound carries it too")] = True
     target_tolerance: Annotated[bool, about(
         "the lab calibrations' priors also carry what the rig's stated tolerances (target.yaml) leave in the "
         "intrinsics and the mount (bench.camera.target_tolerance; Monte Carlo of tolerance_draws draws)")] = True
@@ -359,13 +359,6 @@ def validate(cfg) -> None:
         if on and not in_water:
             raise ConfigError(src, key, f"needs a camera behind a port in water, but camera.preset "
                                         f"{cfg['camera']['preset']!r} is in air")
-    if cfg["pipeline"]["refine_k3"]:
-        for key, bad, why in (("pipeline.refine_distortion", not cfg["pipeline"]["refine_distortion"],
-                               "must be true (k3 is refined with k1 k2 p1 p2)"),
-                              ("pipeline.camera_model", cfg["pipeline"]["camera_model"] != "central",
-                               "must be central (the refractive camera's lens is behind the port)")):
-            if bad:
-                raise ConfigError(src, key, f"{why} with pipeline.refine_k3")
     if cfg["pipeline"]["locate"] == "pnp" and cfg["bound"]["ml_trials"] > 0:
         raise ConfigError(src, "bound.ml_trials", "the Monte Carlo of refine 'joints' (two locate views); not "
                                                   "with pipeline.locate=pnp (its bound's own Monte Carlo is "

@@ -177,7 +177,9 @@ def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:
     out = {"cov_K": C[:4, :4], "cov_mount": C[8:, 8:], "cov_K_mount": C[:4, 8:] if tol else None}
     if cfg["pipeline"]["refine_distortion"]:
         out.update(cov_dist=C[4:8, 4:8], cov_K_dist=C[:4, 4:8], cov_dist_mount=C[4:8, 8:] if tol else None)
-        if cfg["pipeline"]["refine_k3"]:  # the lab's own sd when it fitted k3 (its cross-covariances left out)
+        # k3: the lab's own sd when it fitted k3 (its cross-covariances left out); not for a refractive camera,
+        # whose lens is behind the port
+        if cfg["pipeline"]["refine_k3"] and cfg["pipeline"]["camera_model"] == "central":
             from bench.vision.joint_bundle import K3_PRIOR_SD
 
             out["k3_sd"] = cal.standard_errors.get("k3", K3_PRIOR_SD) if cfg["pipeline"]["lab_k3"] else K3_PRIOR_SD
