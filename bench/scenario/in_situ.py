@@ -204,7 +204,8 @@ class Pipeline(Section):
         "with refine_distortion and the central camera model, the joint bundle also refines the lens's "
         "sixth-order k3, which the lab's Heikkila fit holds at zero, under a wide prior "
         "(bench.vision.joint_bundle.K3_PRIOR_SD; the lab's own sd with lab_k3): behind a flat port the best "
-        "central camera needs one (docs/bounds.md); the bound carries it too")] = True
+        "central camera needs one (docs/bounds.md); the bound carries it too. Off by default: it lowers the "
+        "realistic underwater error and raises the ideal chain's (docs/bounds.md)")] = False
     target_tolerance: Annotated[bool, about(
         "the lab calibrations' priors also carry what the rig's stated tolerances (target.yaml) leave in the "
         "intrinsics and the mount (bench.camera.target_tolerance; Monte Carlo of tolerance_draws draws)")] = True
