@@ -284,8 +284,8 @@ def check_output_dir(path, command: str, *, force: bool = False, identity: str |
     if not [n for n in names if not _atomic_temporary(n)]:
         return "empty"  # nothing, or only a temporary file of a write killed before its rename (e.g. the marker's)
     marker = output_marker(path)
-    if marker is None and _legacy_output(path, command, identity):  # written before markers existed: adopted
-        marker = {"command": command, "identity": _json_field(identity, "name") if command == "run" else identity}
+    if marker is None:  # written before markers existed: adopted by its signature, or refused below
+        marker = _legacy_marker(path, command, identity)
     if marker is None:
         extra = f" (--force only replaces a previous output of bench {command})" if force else ""
         raise OutputRefused(f"{option} {path}: a non-empty folder that bench did not write (holds {_listing(names)}); "
@@ -364,12 +364,7 @@ def _recorded_identity(have, want, path: Path):
     that scenario): it is read as this call's settings with the seed of the folder's result.json, so a re-run with
     the same seed adopts it and one with another seed is refused by name; its overrides were not recorded."""
     if not isinstance(have, str) or not isinstance(want, str) or have == want or _json_field(want, "name") != have:
-        return have
-    try:
-        json.loads(have)
-        return have  # a settings identity of its own: compared as it is
-    except ValueError:
-        pass
+        return have  # a settings identity of its own (or none): compared as it is
     try:
         seed = json.loads((path / "result.json").read_text()).get("seed")
     except (OSError, ValueError, AttributeError):
@@ -416,11 +411,20 @@ def record_output_entries(path, exclude=()) -> None:
     atomic_write_text(path / OUTPUT_MARKER, json.dumps(marker, indent=2) + "\n")
 
 
+def _legacy_marker(path: Path, command: str, identity) -> dict | None:
+    """The marker an unmarked folder is adopted with when it is recognisably an output of ``command`` written before
+    output markers existed (so that a sweep started by an older version still resumes), else None. A run's marker
+    holds the scenario's name, as older versions recorded it (:func:`_recorded_identity` reads it with the seed of
+    its result.json); the others hold this call's ``identity``."""
+    if not _legacy_output(path, command, identity):
+        return None
+    return {"command": command, "identity": _json_field(identity, "name") if command == "run" else identity}
+
+
 def _legacy_output(path: Path, command: str, identity) -> bool:
-    """Whether an unmarked folder is recognisably an output of ``command`` written before output markers existed
-    (so that a sweep started by an older version still resumes): its signature file, and for a run or a budget the
-    scenario's name in its result.json and every artifact it names there (a copy of a result.json alone, e.g. kept
-    by hand beside one's notes, is not a run's folder)."""
+    """Whether an unmarked folder is recognisably an output of ``command`` written before output markers existed:
+    its signature file, and for a run or a budget the scenario's name in its result.json and every artifact it names
+    there (a copy of a result.json alone, e.g. kept by hand beside one's notes, is not a run's folder)."""
     def doc(name):
         try:
             return json.loads((path / name).read_text())
