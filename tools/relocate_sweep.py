@@ -53,6 +53,7 @@ def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None) -> 
     and the scenario's ``pipeline`` settings, as the ``in_situ`` kind passes them; ``(result, report)``."""
     import warnings
 
+    from bench.scenario.in_situ_lab import refines_k3
     from bench.vision.insitu import MapConfig
     from bench.vision.locate_dataset import locate_dataset
 
@@ -71,7 +72,7 @@ def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None) -> 
                               map_points=pipeline.get("map_points", "all"), keypoints=pipeline.get("keypoints", "sift"),
                               pnp=pipeline.get("locate", "two_view") == "pnp", details=details,
                               ins_tilt=pipeline.get("ins_tilt", "fuse"),
-                              refine_k3=pipeline.get("refine_k3", False) and pipeline.get("refine_distortion", True))
+                              refine_k3=refines_k3(pipeline))
 
 
 def relocate(run_dir: str, seed: int, pipeline: dict, name: str) -> tuple:

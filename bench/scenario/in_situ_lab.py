@@ -159,6 +159,14 @@ def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5
     return consider_covariance(geometry, tolerance, Xs, solve, draws)
 
 
+def refines_k3(pipeline: dict) -> bool:
+    """Whether the in-situ kind's joint bundle refines the lens's k3 (``pipeline.refine_k3``): with the distortion
+    refined and the central camera model (a refractive camera's lens is behind the port). Keys absent in an older
+    run's settings take the kind's defaults."""
+    return (pipeline.get("refine_k3", False) and pipeline.get("refine_distortion", True)
+            and pipeline.get("camera_model", "central") == "central")
+
+
 def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:
     """The lab calibrations' covariances for refine 'joints' (:func:`bench.vision.joint_bundle.read_priors`'s
     names): the camera calibration's own block of ``fx fy cx cy`` (and ``k1 k2 p1 p2`` with
@@ -177,9 +185,7 @@ def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:
     out = {"cov_K": C[:4, :4], "cov_mount": C[8:, 8:], "cov_K_mount": C[:4, 8:] if tol else None}
     if cfg["pipeline"]["refine_distortion"]:
         out.update(cov_dist=C[4:8, 4:8], cov_K_dist=C[:4, 4:8], cov_dist_mount=C[4:8, 8:] if tol else None)
-        # k3: the lab's own sd when it fitted k3 (its cross-covariances left out); not for a refractive camera,
-        # whose lens is behind the port
-        if cfg["pipeline"]["refine_k3"] and cfg["pipeline"]["camera_model"] == "central":
+        if refines_k3(cfg["pipeline"]):  # the lab's own sd when it fitted k3 (its cross-covariances left out)
             from bench.vision.joint_bundle import K3_PRIOR_SD
 
             out["k3_sd"] = cal.standard_errors.get("k3", K3_PRIOR_SD) if cfg["pipeline"]["lab_k3"] else K3_PRIOR_SD
