@@ -335,7 +335,7 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
         of the white ``sigma_px``. Omitted (or all zero): the keypoints' errors are white.
     k3_sd : float, optional
         With ``cov_dist``: the lens's k3 is unknown to the estimator too, under that prior standard deviation (the
-        joint bundle refines it, :func:`bench.vision.joint_bundle.with_k3`). Omitted: k3 is the camera's, exact.
+        joint bundle refines it, :func:`bench.vision.joint_bundle.lab_prior`). Omitted: k3 is the camera's, exact.
 
     Returns
     -------
@@ -343,7 +343,7 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
         ``cov (6, 6)`` (rotation vector rad, then base origin m), ``pos_bound_m``, ``rot_bound_rad``,
         ``observations``.
     """
-    from bench.vision.joint_bundle import lab_prior, with_k3
+    from bench.vision.joint_bundle import lab_prior
 
     with_K = cov_K is not None
     k3_sd = k3_sd if cov_dist is not None else None
@@ -356,8 +356,8 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
     priors = {"q": np.eye(6) / sigma_enc**2, "d_eps": np.linalg.inv(cov_eps_dot)}
     names = tuple(n for n, C in (("d_K", cov_K), ("d_dist", cov_dist), ("d_mount", cov_mount)) if C is not None)
     if names:
-        priors[names] = np.linalg.inv(with_k3(lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount,
-                                                        cov_dist_mount), k3_sd, 4 * with_K))
+        priors[names] = np.linalg.inv(lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount,
+                                                k3_sd))
     if model.field:  # a coefficient measured at zero is known to be zero (1e-6 px: numerically so)
         priors["field"] = np.diag(1.0 / np.maximum(np.asarray(field, float), 1e-6) ** 2)
     res = crb(model, sigma_px, priors)
@@ -479,7 +479,7 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
     :func:`crb_base_pose`; ``ins`` as :func:`mc_ideal_estimator`'s. Returns ``pos_rms_m``, ``rot_rms_rad``,
     ``trials``, ``failures``.
     """
-    from bench.vision.joint_bundle import joint_bundle, lab_prior, with_k3
+    from bench.vision.joint_bundle import joint_bundle, lab_prior
 
     q_true = np.array([q for q, _ in views])
     is_loc = np.array([loc for _, loc in views], dtype=bool)
@@ -497,8 +497,7 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
     L_eps = np.linalg.cholesky(cov_eps_dot)
     k3_sd = k3_sd if cov_dist is not None else None
     nd = 4 if k3_sd is None else 5  # the distortion's coefficients drawn and refined: k1 k2 p1 p2 [k3]
-    lab = with_k3(lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount), k3_sd,
-                  4 * (cov_K is not None))
+    lab = lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount, k3_sd)
     L_lab = None if lab is None else np.linalg.cholesky(lab)
     priors = dict(cov_K=cov_K, cov_mount=cov_mount, cov_K_mount=cov_K_mount, cov_dist=cov_dist,
                   cov_K_dist=cov_K_dist, cov_dist_mount=cov_dist_mount, k3_sd=k3_sd) if refine else {}

@@ -270,8 +270,7 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     info0 = np.zeros((n, n))  # the priors' information (rad^-2, px^-2, m^-2)
     info0[6:6 + 6 * V, 6:6 + 6 * V] = np.eye(6 * V) / sigma_enc**2
     k = 6 + 6 * V
-    lab = with_k3(lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount), k3_sd,
-                  4 * (cov_K is not None))
+    lab = lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount, k3_sd)
     if lab is not None:
         info0[k:, k:] = np.linalg.inv(lab)
     mean = np.r_[np.zeros(6), q_read.ravel(), np.zeros(n - 6 - 6 * V)]
@@ -303,20 +302,6 @@ def lab_blocks(priors: dict) -> dict:
     return {k: v for k, v in priors.items() if k != "k3_sd"}
 
 
-def with_k3(lab, k3_sd, dist_at: int):
-    """The lab prior ``lab`` (:func:`lab_prior`) with ``k3`` inserted after the distortion block's ``k1 k2 p1 p2``
-    (which start at index ``dist_at``), variance ``k3_sd**2`` and no cross-covariance: the joint bundle's and the
-    bound's parameter order when k3 is refined. ``lab`` itself when ``k3_sd`` is None."""
-    if k3_sd is None or lab is None:
-        return lab
-    at = dist_at + 4
-    keep = np.r_[0:at, at + 1:len(lab) + 1]
-    out = np.zeros((len(lab) + 1, len(lab) + 1))
-    out[np.ix_(keep, keep)] = lab
-    out[at, at] = float(k3_sd) ** 2
-    return out
-
-
 def observations_of(kmap, used, n_surround: int, map_points: str = "all") -> tuple:
     """``(view, point, x, points)`` of :func:`joint_bundle` from a map and a locate result's ``used``: the map points
     seen in the locate views (renumbered ``0..M-1``; ``points`` their map indices), each in the reference (view 0),
@@ -346,10 +331,12 @@ def observations_of(kmap, used, n_surround: int, map_points: str = "all") -> tup
     return np.array(view, int), np.array(point, int), np.array(x, float).reshape(-1, 2), idx
 
 
-def lab_prior(cov_K=None, cov_dist=None, cov_mount=None, cov_K_dist=None, cov_K_mount=None, cov_dist_mount=None):
+def lab_prior(cov_K=None, cov_dist=None, cov_mount=None, cov_K_dist=None, cov_K_mount=None, cov_dist_mount=None,
+              k3_sd=None):
     """The joint covariance of the lab's blocks that are given, in the order intrinsics (4), distortion (4), mount
     (6) - the joint bundle's and the bound's parameter order; a cross-covariance not given (or whose blocks are not
-    both given) is zero. None when no block is given."""
+    both given) is zero. With ``k3_sd`` and the distortion block, ``k3`` follows ``k1 k2 p1 p2``, variance
+    ``k3_sd**2`` and no cross-covariance (the order when k3 is refined). None when no block is given."""
     blocks = [(n, C) for n, C in (("K", cov_K), ("dist", cov_dist), ("mount", cov_mount)) if C is not None]
     if not blocks:
         return None
@@ -367,7 +354,15 @@ def lab_prior(cov_K=None, cov_dist=None, cov_mount=None, cov_K_dist=None, cov_K_
                 c = cross[b, a]
                 row.append(np.zeros((len(A), len(B))) if c is None else np.asarray(c, float).T)
         rows.append(row)
-    return np.block(rows)
+    lab = np.block(rows)
+    if k3_sd is None or cov_dist is None:
+        return lab
+    at = 4 * (cov_K is not None) + 4  # after k1 k2 p1 p2
+    keep = np.r_[0:at, at + 1:len(lab) + 1]
+    out = np.zeros((len(lab) + 1, len(lab) + 1))
+    out[np.ix_(keep, keep)] = lab
+    out[at, at] = float(k3_sd) ** 2
+    return out
 
 
 #: optional keys of calibration_priors.yaml: (key, name in read_priors' dict, shape)

@@ -156,7 +156,7 @@ def test_lab_prior_orders_blocks_and_the_priors_file_carries_the_distortion(tmp_
     """lab_prior puts intrinsics, distortion, mount in the joint bundle's order with the cross-covariances given
     (zero otherwise); the priors file round-trips the distortion blocks and refuses a cross term without its block."""
     from bench.errors import ConfigError
-    from bench.vision.joint_bundle import lab_blocks, lab_prior, priors_yaml_text, read_priors, with_k3
+    from bench.vision.joint_bundle import lab_blocks, lab_prior, priors_yaml_text, read_priors
 
     rng = np.random.default_rng(5)
     A = rng.normal(size=(14, 14))
@@ -176,9 +176,10 @@ def test_lab_prior_orders_blocks_and_the_priors_file_carries_the_distortion(tmp_
         read_priors(p)
     p.write_text(priors_yaml_text(notes="k3", k3_sd=10.0, **blocks))
     assert read_priors(p)["k3_sd"] == 10.0
-    big = with_k3(C, 10.0, 4)  # k3 after k1 k2 p1 p2, independent of the rest
+    big = lab_prior(**blocks, k3_sd=10.0)  # k3 after k1 k2 p1 p2, independent of the rest
     assert big.shape == (15, 15) and big[8, 8] == 100.0 and not big[8, np.r_[:8, 9:15]].any()
     assert np.array_equal(np.delete(np.delete(big, 8, 0), 8, 1), C)
+    assert lab_prior(C[:4, :4], None, C[8:, 8:], k3_sd=10.0).shape == (10, 10)  # no lens block: no k3
     for bad, msg in ((0.0, "positive number"), ("wide", "positive number"), (True, "positive number")):
         p.write_text(priors_yaml_text(notes="bad k3", **blocks) + f"distortion_k3_sd: {bad}\n")
         with pytest.raises(ConfigError, match=f"distortion_k3_sd: .*{msg}"):
