@@ -6,7 +6,8 @@ The joint bundle, test 2 and the in-situ bound all take the lab's intrinsics, le
 covariance the lab wrote (its own noise and the rig's tolerances, with every cross-covariance). This tool measures
 whether the lab's *actual* errors follow it: per run of an in-situ sweep, the error vector ``e`` (calibrated minus
 true, in the priors' order: ``fx fy cx cy`` px, ``k1 k2 p1 p2``, the mount's right perturbation rad then m) and its
-Mahalanobis square ``e^T C^-1 e``, which is chi-square with 10 or 14 degrees of freedom when the priors are right;
+Mahalanobis square ``e^T C^-1 e``, which is chi-square with 10, 14 or 15 (the lab's k3 too) degrees of freedom when
+the priors are right;
 also per block (intrinsics, intrinsics + lens, mount) and with the cross-covariances between blocks left out.
 
 The truth: the camera's ``camera_K`` / ``camera_dist`` (a camera in air; in water the central calibration has no
@@ -27,12 +28,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-#: the priors' blocks (columns of the 14-vector)
-BLOCKS = {"intrinsics": slice(0, 4), "lens": slice(4, 8), "mount": slice(8, 14)}
-
-
 def lab_error(truth: dict, K, dist, robot, eps_cal, T_mount_cal, n_params: int) -> np.ndarray:
-    """The lab's error (calibrated minus true) in the priors' order (10 or 14,) - see the module docstring."""
+    """The lab's error (calibrated minus true) in the priors' order (10, 14 or 15,) - see the module docstring."""
     from bench.geometry.quaternion import matrix_to_rotation_vector
     from bench.geometry.transforms import invert
     from bench.robot.orientation import link5_frame
@@ -45,12 +42,15 @@ def lab_error(truth: dict, K, dist, robot, eps_cal, T_mount_cal, n_params: int) 
     M_true = np.asarray(truth["T_link5_cam"], float)
     D = [invert(M_true) @ invert(L_true[i]) @ L_cal[i] @ T_mount_cal for i in range(len(q))]  # exp(e) per view
     e_m = np.mean([np.r_[matrix_to_rotation_vector(d[:3, :3]), d[:3, 3]] for d in D], axis=0)
-    return np.r_[e_K, np.asarray(dist, float)[:4] - d_t[:4], e_m] if n_params == 14 else np.r_[e_K, e_m]
+    nd = n_params - 10  # the lens's coefficients: none, k1 k2 p1 p2, or with the lab's k3 too
+    return np.r_[e_K, np.asarray(dist, float)[:nd] - d_t[:nd], e_m]
 
 
 def squares(e, C) -> dict:
     """``e^T C^-1 e`` of the whole vector, of each block, and with the cross-covariances between blocks zeroed."""
-    blocks = dict(BLOCKS) if len(e) == 14 else {"intrinsics": slice(0, 4), "mount": slice(4, 10)}
+    nd = len(e) - 10
+    blocks = ({"intrinsics": slice(0, 4), "lens": slice(4, 4 + nd), "mount": slice(4 + nd, 10 + nd)} if nd
+              else {"intrinsics": slice(0, 4), "mount": slice(4, 10)})
     out = {"all": float(e @ np.linalg.solve(C, e))}
     diag = np.zeros_like(C)
     for name, s in blocks.items():
@@ -104,7 +104,7 @@ def main(argv=None) -> int:
     for key in rows[0]:
         if key in ("dof", "z"):
             continue
-        k = {"all": dof, "blocks apart": dof, "intrinsics": 4, "lens": 4, "mount": 6}[key]
+        k = {"all": dof, "blocks apart": dof, "intrinsics": 4, "lens": dof - 10, "mount": 6}[key]
         x = np.array([r[key] for r in rows])
         print(f"  {key:13s} {np.median(x):7.2f} ({np.mean(x):6.2f})  chi2_{k}: {chi2.median(k):5.2f} ({k})  "
               f"beyond its 95 %: {np.mean(x > chi2.ppf(0.95, k)):.0%}")

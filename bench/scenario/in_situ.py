@@ -202,10 +202,10 @@ class Pipeline(Section):
         "distortion is the largest error it leaves under water: docs/bounds.md)")] = True
     refine_k3: Annotated[bool, about(
         "with refine_distortion and the central camera model, the joint bundle also refines the lens's "
-        "sixth-order k3, which the lab's Heikkila fit holds at zero, under a wide prior "
-        "(bench.vision.joint_bundle.K3_PRIOR_SD; the lab's own sd with lab_k3): behind a flat port the best "
-        "central camera needs one (docs/bounds.md); the bound carries it too. Off by default: it lowers the "
-        "realistic underwater error and raises the ideal chain's (docs/bounds.md)")] = False
+        "sixth-order k3, which the lab's Heikkila fit holds at zero, under a wide independent prior "
+        "(bench.vision.joint_bundle.K3_PRIOR_SD) - with lab_k3 under the lab's own covariance of k1 k2 p1 p2 k3 "
+        "and its cross-covariances: behind a flat port the best central camera needs one (docs/bounds.md); the "
+        "bound carries it too. Off by default (docs/bounds.md)")] = False
     target_tolerance: Annotated[bool, about(
         "the lab calibrations' priors also carry what the rig's stated tolerances (target.yaml) leave in the "
         "intrinsics and the mount (bench.camera.target_tolerance; Monte Carlo of tolerance_draws draws)")] = True

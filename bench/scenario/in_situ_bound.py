@@ -334,8 +334,10 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
         measured by :func:`track_noise_on_surface`): each view's field a nuisance parameter under that prior, on top
         of the white ``sigma_px``. Omitted (or all zero): the keypoints' errors are white.
     k3_sd : float, optional
-        With ``cov_dist``: the lens's k3 is unknown to the estimator too, under that prior standard deviation (the
-        joint bundle refines it, :func:`bench.vision.joint_bundle.lab_prior`). Omitted: k3 is the camera's, exact.
+        With a (4, 4) ``cov_dist``: the lens's k3 is unknown to the estimator too, under that prior standard
+        deviation (the joint bundle refines it, :func:`bench.vision.joint_bundle.lab_prior`). Omitted: k3 is the
+        camera's, exact - unless ``cov_dist`` is (5, 5), the lab's covariance with k3 (and the cross-covariances
+        then 4 x 5 and 5 x 6).
 
     Returns
     -------
@@ -343,14 +345,14 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
         ``cov (6, 6)`` (rotation vector rad, then base origin m), ``pos_bound_m``, ``rot_bound_rad``,
         ``observations``.
     """
-    from bench.vision.joint_bundle import lab_prior
+    from bench.vision.joint_bundle import distortion_block_size, lab_prior
 
     with_K = cov_K is not None
     k3_sd = k3_sd if cov_dist is not None else None
     model = _Model(robot, np.asarray(eps_true, float), np.asarray(kept), mount, project, T_site_b2, views, X_site,
                    size, K=K if with_K else None, with_mount=cov_mount is not None, vis=vis,
                    dist=dist if cov_dist is not None else None, field=field is not None and np.any(field),
-                   k3=k3_sd is not None)
+                   k3=distortion_block_size(cov_dist, k3_sd) == 5)
     # the encoders observe the joints, the lab identification observed the arm errors, the lab calibrations the
     # intrinsics, the distortion and the mount (one joint prior over those given); the base pose is free
     priors = {"q": np.eye(6) / sigma_enc**2, "d_eps": np.linalg.inv(cov_eps_dot)}
@@ -479,7 +481,7 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
     :func:`crb_base_pose`; ``ins`` as :func:`mc_ideal_estimator`'s. Returns ``pos_rms_m``, ``rot_rms_rad``,
     ``trials``, ``failures``.
     """
-    from bench.vision.joint_bundle import joint_bundle, lab_prior
+    from bench.vision.joint_bundle import distortion_block_size, joint_bundle, lab_prior
 
     q_true = np.array([q for q, _ in views])
     is_loc = np.array([loc for _, loc in views], dtype=bool)
@@ -496,7 +498,7 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
     sigma = view_sigma(sigma_px, len(views))
     L_eps = np.linalg.cholesky(cov_eps_dot)
     k3_sd = k3_sd if cov_dist is not None else None
-    nd = 4 if k3_sd is None else 5  # the distortion's coefficients drawn and refined: k1 k2 p1 p2 [k3]
+    nd = distortion_block_size(cov_dist, k3_sd)  # the distortion's coefficients drawn and refined: k1 k2 p1 p2 [k3]
     lab = lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount, k3_sd)
     L_lab = None if lab is None else np.linalg.cholesky(lab)
     priors = dict(cov_K=cov_K, cov_mount=cov_mount, cov_K_mount=cov_K_mount, cov_dist=cov_dist,

@@ -127,16 +127,17 @@ def _calibrate_refractive(ds, cal, Xs, uvs, raise_on_failure=True, air=None):
 
 
 def _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5, mount_nominal, S,
-                          draws, refr=None, ds=None, air=None) -> tuple:
+                          draws, refr=None, ds=None, air=None, k3=False) -> tuple:
     """What the rig's stated tolerances leave in the lab results: the second moment (14, 14) of the deviations of
     ``fx, fy, cx, cy`` (px), ``k1, k2, p1, p2`` and the mount (right perturbation: rotation vector rad, translation
     m) over calibrations of the same detections against perturbed rigs
-    (:func:`bench.camera.target_tolerance.consider_covariance`), and the number of runs that succeeded."""
+    (:func:`bench.camera.target_tolerance.consider_covariance`), and the number of runs that succeeded. With
+    ``k3`` (a central calibration that fitted it) k3 follows ``p2``: (15, 15)."""
     from bench.camera.target_tolerance import consider_covariance
     from bench.geometry.quaternion import matrix_to_rotation_vector
 
     def lab_vector(c):  # a refractive calibration: its lens's distortion, as its virtual pinhole sees it
-        return np.r_[c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2], getattr(c, "dist_equivalent", c.dist[:4])]
+        return np.r_[c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2], getattr(c, "dist_equivalent", c.dist[:5 if k3 else 4])]
 
     v0, M_inv = lab_vector(cal if refr is None else _VirtualCalibration.of(refr)), invert(he.T_mount_cam)
 
@@ -167,28 +168,38 @@ def refines_k3(pipeline: dict) -> bool:
             and pipeline.get("camera_model", "central") == "central")
 
 
+def lab_k3_prior(cal, pipeline: dict) -> bool:
+    """Whether the priors carry the lab's own k3 in the distortion block (5 x 5, with its cross-covariances): the
+    joint bundle refines k3 (:func:`refines_k3`) and the lab's central calibration fitted it (``pipeline.lab_k3``,
+    without the rig's refinement, whose fit holds k3 at zero)."""
+    return refines_k3(pipeline) and "k3" in cal.parameter_names
+
+
 def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:
     """The lab calibrations' covariances for refine 'joints' (:func:`bench.vision.joint_bundle.read_priors`'s
     names): the camera calibration's own block of ``fx fy cx cy`` (and ``k1 k2 p1 p2`` with
-    ``pipeline.refine_distortion``, and k3's sd with ``pipeline.refine_k3``:
-    :data:`~bench.vision.joint_bundle.K3_PRIOR_SD`, or the lab's own when it fitted k3); the mount's from the AX = XB
-    residuals, rms^2 / n per axis (it gives no covariance); plus the rig tolerances' consider covariance (14, 14)
-    when given."""
-    names = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
-    idx = [cal.parameter_names.index(n) for n in names]
-    C = np.zeros((14, 14))
-    C[:8, :8] = cal.covariance[np.ix_(idx, idx)]
-    C[8:, 8:] = np.diag(np.r_[np.full(3, he.rms_rot_rad**2), np.full(3, he.rms_trans_m**2)] / n_views)
+    ``pipeline.refine_distortion``; with ``pipeline.refine_k3`` also k3: the lab's own k3 with its
+    cross-covariances when it fitted it, :func:`lab_k3_prior`, else an independent sd
+    :data:`~bench.vision.joint_bundle.K3_PRIOR_SD`); the mount's from the AX = XB residuals, rms^2 / n per axis (it
+    gives no covariance); plus the rig tolerances' consider covariance (14, 14 - 15, 15 with the lab's k3) when
+    given."""
+    k3 = cfg["pipeline"]["refine_distortion"] and lab_k3_prior(cal, cfg["pipeline"])
+    names = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2") + (("k3",) if k3 else ())
+    n = len(names)  # the camera's parameters, then the mount's six
+    idx = [cal.parameter_names.index(p) for p in names]
+    C = np.zeros((n + 6, n + 6))
+    C[:n, :n] = cal.covariance[np.ix_(idx, idx)]
+    C[n:, n:] = np.diag(np.r_[np.full(3, he.rms_rot_rad**2), np.full(3, he.rms_trans_m**2)] / n_views)
     tol = tolerance_cov is not None  # the noise covariances have no intrinsics-mount cross term
     if tol:
         C = C + tolerance_cov
-    out = {"cov_K": C[:4, :4], "cov_mount": C[8:, 8:], "cov_K_mount": C[:4, 8:] if tol else None}
+    out = {"cov_K": C[:4, :4], "cov_mount": C[n:, n:], "cov_K_mount": C[:4, n:] if tol else None}
     if cfg["pipeline"]["refine_distortion"]:
-        out.update(cov_dist=C[4:8, 4:8], cov_K_dist=C[:4, 4:8], cov_dist_mount=C[4:8, 8:] if tol else None)
-        if refines_k3(cfg["pipeline"]):  # the lab's own sd when it fitted k3 (its cross-covariances left out)
+        out.update(cov_dist=C[4:n, 4:n], cov_K_dist=C[:4, 4:n], cov_dist_mount=C[4:n, n:] if tol else None)
+        if refines_k3(cfg["pipeline"]) and not k3:  # the lab held k3 at zero: a wide independent prior
             from bench.vision.joint_bundle import K3_PRIOR_SD
 
-            out["k3_sd"] = cal.standard_errors.get("k3", K3_PRIOR_SD) if cfg["pipeline"]["lab_k3"] else K3_PRIOR_SD
+            out["k3_sd"] = K3_PRIOR_SD
     return out
 
 
@@ -240,8 +251,10 @@ def calibrate_lab(ds, robot, cfg, out):
     tol_cov, tol_draws = None, 0
     tolerance = load_target_tolerance(ds.root / "target.yaml")
     if tolerance is not None and tolerance.any and cfg["pipeline"]["target_tolerance"]:
-        tol_cov, tol_draws = _tolerance_covariance(geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5,
-                                                   mount_nominal, S, cfg["pipeline"]["tolerance_draws"], refr, ds, air)
+        tol_cov, tol_draws = _tolerance_covariance(
+            geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5, mount_nominal, S,
+            cfg["pipeline"]["tolerance_draws"], refr, ds, air,
+            k3=refr is None and cfg["pipeline"]["refine_distortion"] and lab_k3_prior(cal, cfg["pipeline"]))
         notes += (f"; plus the rig's stated tolerances (target.yaml) through the calibration and AX = XB, "
                   f"{tol_draws} Monte Carlo draws" + ("" if air is None else " (the lens from the air views held at "
                                                                           "the nominal rig's)"))

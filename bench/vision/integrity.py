@@ -225,8 +225,8 @@ def _view_jacobians(p_ref, T_ref_view):
 @dataclass(frozen=True)
 class LabPrior:
     """What the lab calibrations leave uncertain in test 2: the covariance ``cov`` of the intrinsics ``fx fy cx cy``
-    (px), the lens's ``k1 k2 p1 p2`` when their block is known, and the camera mount (a right perturbation ``[w, v]``
-    of ``T_link5_cam``: rad, then m) - (10, 10) or (14, 14), the joint bundle's prior
+    (px), the lens's ``k1 k2 p1 p2`` (and ``k3``) when their block is known, and the camera mount (a right
+    perturbation ``[w, v]`` of ``T_link5_cam``: rad, then m) - (10, 10), (14, 14) or (15, 15), the joint bundle's prior
     (:func:`bench.vision.joint_bundle.lab_prior` of ``calibration_priors.yaml``'s blocks, in its order) - with the
     calibrated intrinsics ``K`` (3, 3) and lens ``dist`` (5,) at which a change of them moves the normalized
     keypoints. A refractive camera's priors are written in its virtual pinhole's terms (``K``, no lens; the lens's
@@ -240,7 +240,7 @@ class LabPrior:
     refractive: RefractiveCamera | None = None
 
     def keypoint_jacobian(self, x_n) -> np.ndarray:
-        """``d x_n / d (fx fy cx cy [k1 k2 p1 p2])`` (N, 2, 4 or 8) of normalized undistorted keypoints ``x_n``
+        """``d x_n / d (fx fy cx cy [k1 k2 p1 p2 [k3]])`` (N, 2, 4, 8 or 9) of normalized undistorted keypoints ``x_n``
         (N, 2): the pixel ``u = K distort(x_n)`` held, ``x_d = (u - c) / f`` and ``distort(x_n) = x_d`` moved; for a
         ``refractive`` camera by central differences of :meth:`~bench.camera.refractive.RefractiveCamera.
         central_coordinates` at its working range."""
@@ -252,8 +252,10 @@ class LabPrior:
         dxd = np.zeros((len(x_n), 2, 4))  # d x_d / d (fx fy cx cy); the skew stays
         dxd[:, 0, 0], dxd[:, 1, 1] = -x_d[:, 0] / f[0], -x_d[:, 1] / f[1]
         dxd[:, 0, 2], dxd[:, 1, 3] = -1.0 / f[0], -1.0 / f[1]
-        if len(self.cov) == 14:
+        if len(self.cov) >= 14:  # the lens's k1 k2 p1 p2 (and k3 with the lab's own: 15)
             dxd = np.concatenate([dxd, -distortion_parameter_jacobian(x_n)], axis=2)
+        if len(self.cov) == 15:  # d distort / d k3 = x_n r^6
+            dxd = np.concatenate([dxd, -(x_n * np.sum(x_n**2, axis=1)[:, None] ** 3)[:, :, None]], axis=2)
         return np.linalg.solve(distortion_jacobian(x_n, self.dist), dxd)
 
     def _refractive_jacobian(self, x_n) -> np.ndarray:

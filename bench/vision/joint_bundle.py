@@ -236,13 +236,15 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     cov_K_mount : ndarray (4, 6), optional
         Their cross-covariance (with both): the prior is then the joint one over the ten (a rig's tolerances move
         the focal length and the mount along the optical axis together).
-    cov_dist : ndarray (4, 4), optional
-        The lab calibration's covariance of ``k1, k2, p1, p2``: given, the four are refined under it as a prior;
-        ``cov_K_dist`` (4, 4) and ``cov_dist_mount`` (4, 6) its cross-covariances with the intrinsics and the mount.
+    cov_dist : ndarray (4, 4) or (5, 5), optional
+        The lab calibration's covariance of ``k1, k2, p1, p2`` (and ``k3`` when the lab fitted it: (5, 5)): given,
+        those coefficients are refined under it as a prior; ``cov_K_dist`` (4, 4 or 5) and ``cov_dist_mount``
+        (4 or 5, 6) its cross-covariances with the intrinsics and the mount.
     k3_sd : float, optional
-        With ``cov_dist``: the lens's sixth-order ``k3`` is refined too, under a prior of this standard deviation
-        about its calibrated value, independent of the other blocks (the lab's Heikkila fit holds k3 fixed, so its
-        covariance has no k3; behind a flat port the best central camera needs one: docs/bounds.md).
+        With a (4, 4) ``cov_dist``: the lens's sixth-order ``k3`` is refined too, under a prior of this standard
+        deviation about its calibrated value, independent of the other blocks (the lab's Heikkila fit holds k3 fixed,
+        so its covariance has no k3; behind a flat port the best central camera needs one: docs/bounds.md). A
+        (5, 5) ``cov_dist`` carries k3 already, with its cross-covariances (the consistent prior).
     iterations, rounds : int
         Gauss-Newton iterations per round; rounds of re-estimating the pixel noise and the gate.
     gate : float or None
@@ -262,10 +264,9 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     counts = np.bincount(np.asarray(point, int), minlength=M)
     if np.any(counts < 2):
         raise ValueError(f"{int(np.sum(counts < 2))} points observed in fewer than two views")
-    if k3_sd is not None and not (cov_dist is not None and np.isfinite(k3_sd) and k3_sd > 0):
-        raise ValueError(f"k3_sd ({k3_sd}) needs the distortion's prior cov_dist and must be > 0")
+    nd = distortion_block_size(cov_dist, k3_sd)
     problem = _Problem(robot, eps, T_link5_cam, is_locate, view, point, uv, K, dist, cov_K is not None,
-                       cov_mount is not None, cov_dist is not None, k3_sd is not None)
+                       cov_mount is not None, cov_dist is not None, nd == 5)
     n = problem.n
     info0 = np.zeros((n, n))  # the priors' information (rad^-2, px^-2, m^-2)
     info0[6:6 + 6 * V, 6:6 + 6 * V] = np.eye(6 * V) / sigma_enc**2
@@ -289,12 +290,33 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     r = r[keep]
     rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1)) / 2))
     extra = ((", intrinsics" if cov_K is not None else "")
-             + (", distortion" + (" with k3" if k3_sd is not None else "") if cov_dist is not None else "")
+             + (", distortion" + (" with k3" if nd == 5 else "") if cov_dist is not None else "")
              + (", mount" if cov_mount is not None else ""))
     return JointBundleResult(True, f"ok; joint bundle of {M} points, {len(r)} of {len(keep)} observations kept, {V} "
                              f"views' joints{extra}, sigma {s_px:.3g} px", T, cov, q, s_px, rms,
                              len(r), sol.iterations, problem.intrinsics(d_K), problem.mounted(d_m),
                              problem.distortion(d_d))
+
+
+def distortion_block_size(cov_dist=None, k3_sd=None) -> int:
+    """How many lens coefficients the joint bundle (and the bound) refine: 0 without ``cov_dist``; 4 (``k1 k2 p1
+    p2``) with a (4, 4) one; 5 (``k3`` too) with a (5, 5) one - the lab fitted k3 and its covariance carries it - or
+    with a (4, 4) one and ``k3_sd``, k3's independent prior sd. ValueError for ``k3_sd`` without a (4, 4) block or
+    not > 0."""
+    if cov_dist is None:
+        if k3_sd is not None:
+            raise ValueError(f"k3_sd ({k3_sd}) needs the distortion's prior cov_dist")
+        return 0
+    n = len(cov_dist)
+    if n not in (4, 5):
+        raise ValueError(f"cov_dist must be 4 x 4 (k1 k2 p1 p2) or 5 x 5 (and k3), got {np.shape(cov_dist)}")
+    if k3_sd is None:
+        return n
+    if n == 5:
+        raise ValueError("k3_sd with a 5 x 5 cov_dist: its k3 has a prior already")
+    if not (np.isfinite(k3_sd) and k3_sd > 0):
+        raise ValueError(f"k3_sd ({k3_sd}) must be > 0")
+    return 5
 
 
 def lab_blocks(priors: dict) -> dict:
@@ -335,8 +357,11 @@ def lab_prior(cov_K=None, cov_dist=None, cov_mount=None, cov_K_dist=None, cov_K_
               k3_sd=None):
     """The joint covariance of the lab's blocks that are given, in the order intrinsics (4), distortion (4), mount
     (6) - the joint bundle's and the bound's parameter order; a cross-covariance not given (or whose blocks are not
-    both given) is zero. With ``k3_sd`` and the distortion block, ``k3`` follows ``k1 k2 p1 p2``, variance
-    ``k3_sd**2`` and no cross-covariance (the order when k3 is refined). None when no block is given."""
+    both given) is zero. The distortion block is ``k1 k2 p1 p2`` (4) or, when the lab fitted k3, ``k1 k2 p1 p2 k3``
+    (5, its cross-covariances 4 x 5 and 5 x 6). With ``k3_sd`` and a (4, 4) distortion block, ``k3`` follows ``k1
+    k2 p1 p2``, variance ``k3_sd**2`` and no cross-covariance (the order when k3 is refined). None when no block is
+    given."""
+    distortion_block_size(cov_dist, k3_sd if cov_dist is not None else None)
     blocks = [(n, C) for n, C in (("K", cov_K), ("dist", cov_dist), ("mount", cov_mount)) if C is not None]
     if not blocks:
         return None
@@ -366,10 +391,11 @@ def lab_prior(cov_K=None, cov_dist=None, cov_mount=None, cov_K_dist=None, cov_K_
 
 
 #: optional keys of calibration_priors.yaml: (key, name in read_priors' dict, shape)
+#: ("d": the distortion block's size, 4 - k1 k2 p1 p2 - or 5 with k3, set by distortion_covariance)
 _OPTIONAL_PRIORS = (("intrinsics_mount_covariance", "cov_K_mount", (4, 6)),
-                    ("distortion_covariance", "cov_dist", (4, 4)),
-                    ("intrinsics_distortion_covariance", "cov_K_dist", (4, 4)),
-                    ("distortion_mount_covariance", "cov_dist_mount", (4, 6)))
+                    ("distortion_covariance", "cov_dist", ("d", "d")),
+                    ("intrinsics_distortion_covariance", "cov_K_dist", (4, "d")),
+                    ("distortion_mount_covariance", "cov_dist_mount", ("d", 6)))
 
 
 def priors_yaml_text(cov_K, cov_mount, notes: str = "", cov_K_mount=None, cov_dist=None, cov_K_dist=None,
@@ -378,8 +404,10 @@ def priors_yaml_text(cov_K, cov_mount, notes: str = "", cov_K_mount=None, cov_di
     ``intrinsics_covariance_px2`` (4 x 4, fx fy cx cy), ``mount_covariance`` (6 x 6: rotation vector rad, then
     m, a right perturbation of the mount) and, when known, ``intrinsics_mount_covariance`` (4 x 6, their
     cross-covariance), ``distortion_covariance`` (4 x 4, k1 k2 p1 p2) and its cross-covariances
-    ``intrinsics_distortion_covariance`` (4 x 4) and ``distortion_mount_covariance`` (4 x 6); ``distortion_k3_sd``
-    (a number) when the lens's k3, which the lab's fit held fixed, is to be refined under that standard deviation.
+    ``intrinsics_distortion_covariance`` (4 x 4) and ``distortion_mount_covariance`` (4 x 6) - 5 x 5, 4 x 5 and
+    5 x 6 with ``k3`` when the lab fitted it and k3 is to be refined under its covariance; ``distortion_k3_sd`` (a
+    number, with the 4 x 4 block) when the lens's k3, which the lab's fit held fixed, is to be refined under that
+    standard deviation.
     """
     import yaml
 
@@ -419,17 +447,22 @@ def read_priors(path) -> dict:
         if np.linalg.eigvalsh(C).min() <= 0:
             raise ConfigError(path, key, "not positive definite")
         out[name] = C
-    for key, name, shape in _OPTIONAL_PRIORS:
+    nd = 4  # the distortion block's size: 5 when the lab fitted k3 (a 5 x 5 distortion_covariance)
+    for key, name, spec in _OPTIONAL_PRIORS:
         out[name] = None
         if data.get(key) is None:
             continue
+        shape = tuple(nd if n == "d" else n for n in spec)
+        wanted = "4 x 4 or 5 x 5 (k1 k2 p1 p2 [k3])" if name == "cov_dist" else f"{shape[0]} x {shape[1]}"
         try:
             C = np.array(data[key], dtype=float)
         except (TypeError, ValueError):
-            raise ConfigError(path, key, f"expected a {shape[0]} x {shape[1]} matrix of numbers") from None
+            raise ConfigError(path, key, f"expected a {wanted} matrix of numbers") from None
+        if name == "cov_dist" and C.shape in ((4, 4), (5, 5)):
+            shape = C.shape
+            nd = C.shape[0]
         if C.shape != shape or not np.all(np.isfinite(C)):
-            raise ConfigError(path, key, f"expected a {shape[0]} x {shape[1]} matrix of finite numbers, got shape "
-                                         f"{C.shape}")
+            raise ConfigError(path, key, f"expected a {wanted} matrix of finite numbers, got shape {C.shape}")
         out[name] = C
     if out["cov_dist"] is None and (out["cov_K_dist"] is not None or out["cov_dist_mount"] is not None):
         raise ConfigError(path, "distortion_covariance", "missing (a distortion cross-covariance is given)")
@@ -439,6 +472,8 @@ def read_priors(path) -> dict:
             raise ConfigError(path, "distortion_k3_sd", f"expected a positive number, got {k3!r}")
         if out["cov_dist"] is None:
             raise ConfigError(path, "distortion_k3_sd", "needs distortion_covariance (k3 is refined with k1 k2 p1 p2)")
+        if nd == 5:
+            raise ConfigError(path, "distortion_k3_sd", "distortion_covariance is 5 x 5: its k3 has a prior already")
     out["k3_sd"] = None if k3 is None else float(k3)
     if np.linalg.eigvalsh(lab_prior(**lab_blocks(out))).min() <= 0:
         bad = "distortion_covariance" if out["cov_dist"] is not None else "intrinsics_mount_covariance"

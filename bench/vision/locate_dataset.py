@@ -464,11 +464,12 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         from bench.vision.joint_bundle import K3_PRIOR_SD, lab_blocks, lab_prior, read_priors
 
         priors = read_priors(priors_path)
-        if refine_k3 and priors["k3_sd"] is None:  # the file's own sd, else a wide one
+        if refine_k3 and priors["k3_sd"] is None:  # the file's own sd or the lab's own k3 block, else a wide one
             if priors["cov_dist"] is None:
                 raise ConfigError(priors_path, "distortion_covariance", "missing: refining k3 needs the lens's "
                                                                         "k1 k2 p1 p2 block")
-            priors["k3_sd"] = K3_PRIOR_SD
+            if len(priors["cov_dist"]) == 4:
+                priors["k3_sd"] = K3_PRIOR_SD
     obs = {v.name: observe(v, camera, robot, eps, T_link5_cam, features_fn=features_fn)
            for _, roles in regions for r in roles.values() for v in r}
     t_detect = time.perf_counter() - t0

@@ -264,7 +264,8 @@ def test_intrinsics_and_mount_blocks(scene):
 
 def test_the_lens_k3_block(scene):
     """The distortion block with k3 (``k3_sd``): block Jacobian = column by column, and its k3 column the exact pixel
-    change of k3; a wide k3 prior only raises the bound, a very tight one gives back the bound with k3 exact."""
+    change of k3; a wide k3 prior only raises the bound, a very tight one gives back the bound with k3 exact; a 5 x 5
+    lens covariance (the lab's own k3) with k3 independent is the same bound."""
     robot, eps, cam, T_site_b2, X, views, kept, cov_eps = scene
     dist = np.r_[-0.2, 0.05, 0.001, -0.001, 0.3]
     model = _Model(robot, eps, kept, MOUNT, cam.project, T_site_b2, views, X, cam.size, K=cam.K, dist=dist, k3=True)
@@ -285,6 +286,9 @@ def test_the_lens_k3_block(scene):
     tight = crb_base_pose(*args, **lab, k3_sd=1e-9)
     assert wide["pos_bound_m"] > without["pos_bound_m"] and wide["rot_bound_rad"] > without["rot_bound_rad"]
     assert tight["pos_bound_m"] == pytest.approx(without["pos_bound_m"], rel=1e-6)
+    lab5 = {**lab, "cov_dist": np.diag(np.r_[np.diag(lab["cov_dist"]), 100.0])}  # the lab's k3 block, k3 apart
+    same = crb_base_pose(*args, **lab5)
+    assert np.allclose(same["cov"], wide["cov"], rtol=1e-9, atol=0)
     assert crb_base_pose(*args, k3_sd=10.0)["pos_bound_m"] == crb_base_pose(*args)["pos_bound_m"]  # no lens block
     with pytest.raises(ValueError, match="distortion"):
         _Model(robot, eps, kept, MOUNT, cam.project, T_site_b2, views, X, cam.size, K=cam.K, k3=True)

@@ -357,6 +357,11 @@ def test_refine_k3_on_a_rendered_dataset(rendered, tmp_path, capsys):
     tight, _ = locate_dataset(tmp / "ds", None, priors_path=own, refine_k3=True, **kw)
     assert "with k3" in tight.message
     assert np.allclose(tight.T_world_base, plain.T_world_base, rtol=0, atol=1e-7)  # k3 held: the bundle without
+    lab_k3 = tmp_path / "lab_k3.yaml"  # the lab's own k3 (a 5 x 5 lens block), held as tightly: the same pose
+    lab_k3.write_text(priors_yaml_text(cov_K, cov_mount, "test", cov_dist=np.diag(np.r_[np.diag(cov_dist), 1e-18])))
+    held, rep5 = locate_dataset(tmp / "ds", None, priors_path=lab_k3, refine_k3=True, **kw)
+    assert "with k3" in held.message and rep5["integrity"] != "refused", rep5["integrity_reasons"]
+    assert np.allclose(held.T_world_base, tight.T_world_base, rtol=0, atol=1e-9)
     no_lens = tmp_path / "no_lens.yaml"
     no_lens.write_text(priors_yaml_text(cov_K, cov_mount, "test"))
     with pytest.raises(ConfigError, match=r"no_lens\.yaml: distortion_covariance: missing: refining k3 needs"):

@@ -232,6 +232,55 @@ def test_k3_refined_in_situ_removes_a_lens_the_lab_fitted_without_it():
         joint_bundle(robot, eps, MOUNT, Q, LOC, np.eye(4), view, point, x, X, sigma_enc, 0.05, K, DIST, k3_sd=10.0)
 
 
+def test_the_lab_k3_covariance_is_the_distortion_block_with_its_cross_terms(tmp_path):
+    """A lab that fitted k3 writes a 5 x 5 distortion block (k1 k2 p1 p2 k3) with 4 x 5 and 5 x 6 cross-covariances:
+    it round-trips, orders as the 15-parameter prior, and the joint bundle under a block-diagonal one is the bundle
+    with ``k3_sd`` to 1e-9; mismatched shapes, a 5 x 5 block with ``distortion_k3_sd`` and a bad block size are
+    one-line errors."""
+    from bench.errors import ConfigError
+    from bench.vision.joint_bundle import distortion_block_size, lab_blocks, lab_prior, priors_yaml_text, read_priors
+
+    rng = np.random.default_rng(6)
+    A = rng.normal(size=(15, 15))
+    C = A @ A.T + 0.1 * np.eye(15)
+    blocks = dict(cov_K=C[:4, :4], cov_dist=C[4:9, 4:9], cov_mount=C[9:, 9:], cov_K_dist=C[:4, 4:9],
+                  cov_K_mount=C[:4, 9:], cov_dist_mount=C[4:9, 9:])
+    assert np.allclose(lab_prior(**blocks), C)
+    p = tmp_path / "calibration_priors.yaml"
+    p.write_text(priors_yaml_text(notes="lab k3", **blocks))
+    got = read_priors(p)
+    assert got["cov_dist"].shape == (5, 5) and np.allclose(lab_prior(**lab_blocks(got)), C, rtol=1e-12)
+    assert [distortion_block_size(got["cov_dist"]), distortion_block_size(C[4:8, 4:8], 10.0),
+            distortion_block_size(C[4:8, 4:8]), distortion_block_size()] == [5, 5, 4, 0]
+    for bad, key in (({**blocks, "cov_K_dist": C[:4, 4:8]}, "intrinsics_distortion_covariance"),
+                     ({**blocks, "cov_dist_mount": C[4:8, 9:]}, "distortion_mount_covariance"),
+                     ({**blocks, "cov_dist": C[4:10, 4:10], "cov_K_dist": None, "cov_dist_mount": None},
+                      "distortion_covariance")):
+        p.write_text(priors_yaml_text(notes="bad", **bad))
+        with pytest.raises(ConfigError, match=f"{key}: expected a"):
+            read_priors(p)
+    p.write_text(priors_yaml_text(notes="k3 twice", k3_sd=10.0, **blocks))
+    with pytest.raises(ConfigError, match="distortion_k3_sd: distortion_covariance is 5 x 5"):
+        read_priors(p)
+    with pytest.raises(ValueError, match="k3_sd with a 5 x 5"):
+        lab_prior(**blocks, k3_sd=10.0)
+    with pytest.raises(ValueError, match="4 x 4 .* or 5 x 5"):
+        distortion_block_size(np.eye(3))
+    # the 5 x 5 block with k3 apart is the same prior as the 4 x 4 one and k3_sd: the same bundle
+    rng = np.random.default_rng(85)
+    robot, eps, T_b2, X, view, point, _ = _scene(rng, 60)
+    truth = _Problem(robot, eps, MOUNT, LOC, view, point, np.zeros((len(view), 2)), K, DIST + np.r_[0, 0, 0, 0, 0.5])
+    x = -residuals(truth, np.r_[np.zeros(6), Q.ravel()], T_b2, X) + rng.normal(0, 0.1, (len(view), 2))
+    cov4 = np.diag([1e-4, 1e-4, 1e-8, 1e-8])
+    cov_K = np.diag([4.0, 4.0, 1.0, 1.0])
+    args = (robot, eps, MOUNT, Q, LOC, np.eye(4), view, point, x, X, np.deg2rad(0.002), 0.1, K, DIST)
+    a = joint_bundle(*args, cov_K=cov_K, cov_dist=cov4, k3_sd=3.0, gate=None)
+    b = joint_bundle(*args, cov_K=cov_K, cov_dist=np.diag(np.r_[np.diag(cov4), 9.0]), gate=None)
+    assert a.success and b.success and "with k3" in b.message
+    assert np.allclose(a.T_site_base, b.T_site_base, atol=1e-9) and np.allclose(a.dist, b.dist, atol=1e-9)
+    assert abs(b.dist[4] - DIST[4]) > 0.1  # k3 was refined
+
+
 def test_observations_of_every_map_point_or_the_located_ones():
     """observations_of: 'located' gives the points both locate views matched, in the reference, their survey views
     and the two locate views; 'all' then appends every other map point, renumbered after them, in the reference and

@@ -504,6 +504,32 @@ def test_lab_term_moves_refractive_keypoints_through_lens_and_port():
     assert lab.keypoint_jacobian(x_n[:0]).shape == (0, 2, 8)
 
 
+def test_lab_term_of_a_central_lens_with_the_labs_k3():
+    """A central camera's keypoint Jacobian with the lab's k3 in the prior (15 parameters: fx fy cx cy k1 k2 p1 p2 k3,
+    then the mount): each of its nine columns against central differences of the normalised keypoints with that
+    parameter moved; the first eight are the 14-parameter prior's."""
+    from bench.camera.model import undistort
+
+    K = np.array([[540.0, 0, 318.0], [0, 512.0, 236.0], [0, 0, 1]])
+    dist = np.array([-0.3, 0.12, 0.001, -0.002, 0.05])
+    uv = np.array([[600.0, 400.0], [40.0, 40.0], [620.0, 460.0], [30.0, 450.0], [480.0, 240.0]])
+
+    def normalised(theta):  # the pixels held, the camera's nine parameters moved
+        f, c = theta[:2], theta[2:4]
+        return undistort((uv - c) / f, theta[4:9])
+
+    theta0 = np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist]
+    x_n = normalised(theta0)
+    J = I.LabPrior(np.eye(15), K, dist).keypoint_jacobian(x_n)
+    assert J.shape == (5, 2, 9)
+    for i, h in enumerate([1e-3] * 4 + [1e-6] * 5):
+        e = np.zeros(9)
+        e[i] = h
+        d = (normalised(theta0 + e) - normalised(theta0 - e)) / (2 * h)
+        assert np.allclose(J[:, :, i], d, rtol=1e-5, atol=1e-9), i
+    assert np.allclose(I.LabPrior(np.eye(14), K, dist).keypoint_jacobian(x_n), J[:, :, :8], rtol=1e-12)
+
+
 def test_joint_offset_probe_names_a_missing_file(tmp_path, capsys):
     sys.path.insert(0, str(ROOT / "tools"))
     import joint_offset_probe as P
