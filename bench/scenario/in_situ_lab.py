@@ -170,8 +170,8 @@ def refines_k3(pipeline: dict) -> bool:
 
 def lab_k3_prior(cal, pipeline: dict) -> bool:
     """Whether the priors carry the lab's own k3 in the distortion block (5 x 5, with its cross-covariances): the
-    joint bundle refines k3 (:func:`refines_k3`) and the lab's central calibration fitted it (``pipeline.lab_k3``,
-    without the rig's refinement, whose fit holds k3 at zero)."""
+    joint bundle refines the distortion and k3 (:func:`refines_k3`) and the lab's central calibration fitted it
+    (``pipeline.lab_k3``, without the rig's refinement, whose fit holds k3 at zero)."""
     return refines_k3(pipeline) and "k3" in cal.parameter_names
 
 
@@ -183,7 +183,7 @@ def _lab_priors(cal, he, n_views, cfg, tolerance_cov=None) -> dict:
     :data:`~bench.vision.joint_bundle.K3_PRIOR_SD`); the mount's from the AX = XB residuals, rms^2 / n per axis (it
     gives no covariance); plus the rig tolerances' consider covariance (14, 14 - 15, 15 with the lab's k3) when
     given."""
-    k3 = cfg["pipeline"]["refine_distortion"] and lab_k3_prior(cal, cfg["pipeline"])
+    k3 = lab_k3_prior(cal, cfg["pipeline"])
     names = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2") + (("k3",) if k3 else ())
     n = len(names)  # the camera's parameters, then the mount's six
     idx = [cal.parameter_names.index(p) for p in names]
@@ -243,7 +243,7 @@ def calibrate_lab(ds, robot, cfg, out):
     out = Path(out)
     write_camera_yaml(out / "camera.yaml", cal.camera if refr is None else refr.camera)
     # the calibrations' covariances, refine 'joints' refines intrinsics, mount (and distortion) under them
-    notes = (f"camera calibration covariance (fx fy cx cy [k1 k2 p1 p2], px^2); mount: AX = XB residuals^2 / "
+    notes = (f"camera calibration covariance (fx fy cx cy [k1 k2 p1 p2 [k3]], px^2); mount: AX = XB residuals^2 / "
              f"{len(used)} views (rad^2, m^2)")
     if refr is not None:
         notes = (f"refractive camera: its virtual pinhole's fx fy cx cy [k1 k2 p1 p2] from the lens's calibration "
@@ -254,7 +254,7 @@ def calibrate_lab(ds, robot, cfg, out):
         tol_cov, tol_draws = _tolerance_covariance(
             geometry, tolerance, Xs, uvs, size, cal, he, T_base_l5, mount_nominal, S,
             cfg["pipeline"]["tolerance_draws"], refr, ds, air,
-            k3=refr is None and cfg["pipeline"]["refine_distortion"] and lab_k3_prior(cal, cfg["pipeline"]))
+            k3=refr is None and lab_k3_prior(cal, cfg["pipeline"]))
         notes += (f"; plus the rig's stated tolerances (target.yaml) through the calibration and AX = XB, "
                   f"{tol_draws} Monte Carlo draws" + ("" if air is None else " (the lens from the air views held at "
                                                                           "the nominal rig's)"))
