@@ -152,17 +152,24 @@ def test_joint_prior_information_over_adjacent_blocks():
         MultiViewModel.prior_information(m, {("xi", "d_K"): np.eye(10)})
 
 
+def _random_lab_prior(rng, nd: int) -> tuple:
+    """A random joint prior (10 + nd, 10 + nd) - intrinsics, a distortion block of ``nd`` (4 or 5), mount - and its
+    blocks as :func:`~bench.vision.joint_bundle.lab_prior` takes them."""
+    n = 10 + nd
+    A = rng.normal(size=(n, n))
+    C = A @ A.T + 0.1 * np.eye(n)
+    d = slice(4, 4 + nd)
+    return C, dict(cov_K=C[:4, :4], cov_dist=C[d, d], cov_mount=C[4 + nd:, 4 + nd:], cov_K_dist=C[:4, d],
+                   cov_K_mount=C[:4, 4 + nd:], cov_dist_mount=C[d, 4 + nd:])
+
+
 def test_lab_prior_orders_blocks_and_the_priors_file_carries_the_distortion(tmp_path):
     """lab_prior puts intrinsics, distortion, mount in the joint bundle's order with the cross-covariances given
     (zero otherwise); the priors file round-trips the distortion blocks and refuses a cross term without its block."""
     from bench.errors import ConfigError
     from bench.vision.joint_bundle import lab_blocks, lab_prior, priors_yaml_text, read_priors
 
-    rng = np.random.default_rng(5)
-    A = rng.normal(size=(14, 14))
-    C = A @ A.T + 0.1 * np.eye(14)
-    blocks = dict(cov_K=C[:4, :4], cov_dist=C[4:8, 4:8], cov_mount=C[8:, 8:], cov_K_dist=C[:4, 4:8],
-                  cov_K_mount=C[:4, 8:], cov_dist_mount=C[4:8, 8:])
+    C, blocks = _random_lab_prior(np.random.default_rng(5), 4)
     assert np.allclose(lab_prior(**blocks), C)
     no_cross = lab_prior(C[:4, :4], None, C[8:, 8:])
     assert no_cross.shape == (10, 10) and not no_cross[:4, 4:].any()
@@ -240,11 +247,7 @@ def test_the_lab_k3_covariance_is_the_distortion_block_with_its_cross_terms(tmp_
     from bench.errors import ConfigError
     from bench.vision.joint_bundle import distortion_block_size, lab_blocks, lab_prior, priors_yaml_text, read_priors
 
-    rng = np.random.default_rng(6)
-    A = rng.normal(size=(15, 15))
-    C = A @ A.T + 0.1 * np.eye(15)
-    blocks = dict(cov_K=C[:4, :4], cov_dist=C[4:9, 4:9], cov_mount=C[9:, 9:], cov_K_dist=C[:4, 4:9],
-                  cov_K_mount=C[:4, 9:], cov_dist_mount=C[4:9, 9:])
+    C, blocks = _random_lab_prior(np.random.default_rng(6), 5)
     assert np.allclose(lab_prior(**blocks), C)
     p = tmp_path / "calibration_priors.yaml"
     p.write_text(priors_yaml_text(notes="lab k3", **blocks))
