@@ -360,6 +360,13 @@ def validate(cfg) -> None:
         if on and not in_water:
             raise ConfigError(src, key, f"needs a camera behind a port in water, but camera.preset "
                                         f"{cfg['camera']['preset']!r} is in air")
+    if cfg["pipeline"]["refine_k3"]:  # asked for explicitly (off by default): a setting that cannot apply is refused
+        for key, bad, why in (("pipeline.refine_distortion", not cfg["pipeline"]["refine_distortion"],
+                               "must be true (k3 is refined with k1 k2 p1 p2)"),
+                              ("pipeline.camera_model", cfg["pipeline"]["camera_model"] != "central",
+                               "must be central (the refractive camera's lens is behind the port)")):
+            if bad:
+                raise ConfigError(src, key, f"{why} with pipeline.refine_k3")
     if cfg["pipeline"]["locate"] == "pnp" and cfg["bound"]["ml_trials"] > 0:
         raise ConfigError(src, "bound.ml_trials", "the Monte Carlo of refine 'joints' (two locate views); not "
                                                   "with pipeline.locate=pnp (its bound's own Monte Carlo is "

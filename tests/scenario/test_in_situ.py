@@ -283,6 +283,10 @@ def test_refractive_model_needs_a_port_and_a_known_value(tmp_path):
         validate(load_scenario(SCENARIO, overrides=["pipeline.camera_model=polynomial"]))
     with pytest.raises(ConfigError, match="lab.rig_in_air: needs a camera behind a port in water"):
         validate(load_scenario(SCENARIO, overrides=["camera.preset=air_webcam", "lab.rig_in_air=true"]))
+    with pytest.raises(ConfigError, match=r"pipeline.camera_model: must be central .* with pipeline.refine_k3"):
+        validate(load_scenario(SCENARIO, overrides=["pipeline.refine_k3=true", "pipeline.camera_model=refractive"]))
+    with pytest.raises(ConfigError, match=r"pipeline.refine_distortion: must be true .* with pipeline.refine_k3"):
+        validate(load_scenario(SCENARIO, overrides=["pipeline.refine_k3=true", "pipeline.refine_distortion=false"]))
     with pytest.raises(ConfigError, match=r"lab.rig_extra_distances_m: must be in \(0.2, 3\) m, got 5 \(item 2 of "):
         validate(load_scenario(SCENARIO, overrides=["lab.rig_extra_distances_m=[0.6, 5]"]))
     with pytest.raises(ConfigError, match="camera.housing_tolerance_mm: must be > 0"):
