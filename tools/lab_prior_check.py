@@ -48,9 +48,10 @@ def lab_error(truth: dict, K, dist, robot, eps_cal, T_mount_cal, n_params: int) 
 
 def squares(e, C) -> dict:
     """``e^T C^-1 e`` of the whole vector, of each block, and with the cross-covariances between blocks zeroed."""
-    nd = len(e) - 10
-    blocks = ({"intrinsics": slice(0, 4), "lens": slice(4, 4 + nd), "mount": slice(4 + nd, 10 + nd)} if nd
-              else {"intrinsics": slice(0, 4), "mount": slice(4, 10)})
+    nd = len(e) - 10  # the lens block's size: 0 (none), 4 or 5
+    blocks = {"intrinsics": slice(0, 4), "lens": slice(4, 4 + nd), "mount": slice(4 + nd, 10 + nd)}
+    if not nd:
+        del blocks["lens"]
     out = {"all": float(e @ np.linalg.solve(C, e))}
     diag = np.zeros_like(C)
     for name, s in blocks.items():
