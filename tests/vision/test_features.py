@@ -21,7 +21,8 @@ def _texture(rng, h=480, w=640):
         c = tuple(int(v) for v in rng.integers(0, [w, h]))
         cv2.circle(img, c, int(rng.integers(4, 25)), int(rng.integers(0, 256)), -1)
     for k in range(12):
-        cv2.putText(img, "ABCDEFGHJKLMNPRSTUWXYZ2345"[2 * k:2 * k + 2], tuple(int(v) for v in rng.integers(20, [w - 80, h - 10])),
+        tag = "ABCDEFGHJKLMNPRSTUWXYZ2345"[2 * k:2 * k + 2]
+        cv2.putText(img, tag, tuple(int(v) for v in rng.integers(20, [w - 80, h - 10])),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.8, int(rng.integers(0, 256)), 2)
     return img
 
