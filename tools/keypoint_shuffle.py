@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +50,7 @@ def residuals(cfg, run: Path) -> dict:
     from bench.geometry.transforms import invert, transform_points
     from bench.scenario.bounds import true_projector
     from bench.scenario.in_situ import _true_camera_poses, _true_optics, imaging
+    from bench.scenario.in_situ_bound import detected_pixels
 
     result = json.loads((run / "result.json").read_text())
     truth = yaml.safe_load((run / "dataset" / "truth" / "truth.yaml").read_text())
@@ -70,18 +70,13 @@ def residuals(cfg, run: Path) -> dict:
     V, M = len(order), len(kmap)
     uv = np.full((V, M, 2), np.nan)
 
-    def pixels(name, x):  # the detector's pixel of a normalised keypoint
-        o = obs[name]
-        d = np.linalg.norm(o.x_n[None] - np.asarray(x, float).reshape(-1, 1, 2), axis=2)
-        return o.features.uv[d.argmin(axis=1)]
-
     uv[0] = obs[ref].features.uv[np.asarray(kmap.ref_index)]
     for i, (views, xs) in enumerate(kmap.observations):
         for k, x in zip(np.asarray(views, int), np.asarray(xs, float).reshape(-1, 2), strict=True):
-            uv[1 + k, i] = pixels(sur[k], x)[0]
+            uv[1 + k, i] = detected_pixels(obs[sur[k]], x)[0]
     idx = np.asarray(res.used[0], int)
     for j in range(2):
-        uv[V - 2 + j, idx] = pixels(loc[j], res.used[1 + j])
+        uv[V - 2 + j, idx] = detected_pixels(obs[loc[j]], res.used[1 + j])
     T = np.stack([poses[n] for n in order])
     X = transform_points(np.array(truth["T_world_base_survey"]) @ kmap.T_world_ref, kmap.p_ref)
 
@@ -127,7 +122,9 @@ def variants(S: dict, rng) -> dict:
         u, v = (P[k, idx] - P[k, idx].mean(0)).T / 100.0
         B = np.stack([u**a * v**b for a in range(4) for b in range(4 - a)], axis=1)  # cubic: 10 terms
         fit = np.all(np.abs(r[k, idx]) < 1.0, axis=1)
-        coef = np.linalg.lstsq(B[fit], r[k, idx][fit], rcond=None)[0] if fit.sum() > 3 * B.shape[1] else 0 * B[:2].T
+        coef = np.zeros((B.shape[1], 2))  # too few to fit: no smooth part
+        if fit.sum() > 3 * B.shape[1]:
+            coef = np.linalg.lstsq(B[fit], r[k, idx][fit], rcond=None)[0]
         smooth = B @ coef
         rest = r[k, idx] - smooth
         rp[k, idx] = smooth + rest[rng.permutation(len(idx))]
@@ -136,42 +133,26 @@ def variants(S: dict, rng) -> dict:
 
 
 def _features_fn(S: dict, uvmap):
-    from bench.scenario.bounds import DESCRIPTOR_SEED
-    from bench.vision.features import Features
+    """``features_fn`` for the pipeline: in each view the points it observed, at the variant's pixels."""
+    from bench.scenario.bounds import point_features
 
-    M = S["uv"].shape[1]
-    desc = np.random.default_rng(DESCRIPTOR_SEED).normal(size=(M, 128)).astype(np.float32)
-    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
-    rows = {n: k for k, n in enumerate(S["order"])}
+    rows, M = {n: k for k, n in enumerate(S["order"])}, S["uv"].shape[1]
 
     def fn(view):
         k = rows.get(view.name)
         idx = np.flatnonzero(S["vis"][k]) if k is not None else np.zeros(0, int)
-        n = len(idx)
-        return Features(uvmap[k, idx] if n else np.zeros((0, 2)), np.zeros(n), np.full(n, 10.0), np.ones(n),
-                        desc[idx] * 512)
+        return point_features(uvmap[k, idx] if len(idx) else np.zeros((0, 2)), idx, M)
     return fn
 
 
 def locate_with(cfg, run: Path, S: dict, uvmap) -> list:
     """The pipeline on the given pixels: ``[pos mm, rot deg]`` of the pose as reported, then of the images' pose."""
-    from bench.geometry.transforms import invert
-    from bench.scenario.in_situ_lab import refines_k3
-    from bench.scenario.results import pose_errors
-    from bench.vision.insitu import MapConfig
-    from bench.vision.locate_dataset import locate_dataset
+    from relocate_sweep import locate_run
 
-    p, cal = cfg["pipeline"], run / "calibrated"
-    priors = cal / "calibration_priors.yaml"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res, rep = locate_dataset(
-            run / "dataset", None, method=p["method"], seed=S["result"]["seed"], config=MapConfig(), verbose=False,
-            camera_path=cal / "camera.yaml", robot_path=cal / "robot.yaml", refine=p["refine"],
-            ransac=dict(iterations=p["ransac_iterations"], d_r=p["d_r_mm"] * 1e-3, r_lim=p["r_lim"]),
-            priors_path=priors if priors.is_file() and p["refine"] == "joints" else None, guided=p["guided"],
-            loss=None if p["loss"] == "none" else p["loss"], map_points=p["map_points"], pnp=p["locate"] == "pnp",
-            ins_tilt=p["ins_tilt"], refine_k3=refines_k3(p), features_fn=_features_fn(S, uvmap))
+    from bench.geometry.transforms import invert
+    from bench.scenario.results import pose_errors
+
+    res, rep = locate_run(run, S["result"]["seed"], cfg["pipeline"], features_fn=_features_fn(S, uvmap))
     if not res.success:
         return [float("nan")] * 4
     tr = S["truth"]

@@ -48,9 +48,10 @@ def _runs(sweep: Path) -> list:
     return [(r["run_id"], int(r["seed"]), r["params"]) for r in read_runs(sweep)]
 
 
-def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None) -> tuple:
+def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None, features_fn=None) -> tuple:
     """:func:`bench.vision.locate_dataset.locate_dataset` on a run's ``dataset/`` with its ``calibrated/`` lab files
-    and the scenario's ``pipeline`` settings, as the ``in_situ`` kind passes them; ``(result, report)``."""
+    and the scenario's ``pipeline`` settings, as the ``in_situ`` kind passes them; ``(result, report)``.
+    ``features_fn`` replaces the SIFT detector (an evaluator's keypoints, as ``locate_dataset`` takes it)."""
     import warnings
 
     from bench.scenario.in_situ_lab import refines_k3
@@ -72,7 +73,7 @@ def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None) -> 
                               map_points=pipeline.get("map_points", "all"), keypoints=pipeline.get("keypoints", "sift"),
                               pnp=pipeline.get("locate", "two_view") == "pnp", details=details,
                               ins_tilt=pipeline.get("ins_tilt", "fuse"),
-                              refine_k3=refines_k3(pipeline))
+                              refine_k3=refines_k3(pipeline), features_fn=features_fn)
 
 
 def relocate(run_dir: str, seed: int, pipeline: dict, name: str) -> tuple:

@@ -137,13 +137,20 @@ def ideal_features(p_world, T_world_cam, project, size, noise_px: float = 0.0, r
     ok = np.all(np.isfinite(uv), axis=1)
     ok[ok] = (uv[ok, 0] > 0) & (uv[ok, 0] < w - 1) & (uv[ok, 1] > 0) & (uv[ok, 1] < h - 1)
     idx = np.flatnonzero(ok)
-    desc = np.random.default_rng(DESCRIPTOR_SEED).normal(size=(len(p_world), 128)).astype(np.float32)
-    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
     uv = uv[idx]
     if noise_px > 0:
         uv = uv + rng.normal(0.0, noise_px, uv.shape)
+    return point_features(uv, idx, len(p_world))
+
+
+def point_features(uv, idx, n_points: int) -> Features:
+    """Keypoints at pixels ``uv (N, 2)`` of points ``idx (N,)`` among ``n_points``: point ``j`` gets descriptor ``j``
+    (a fixed random unit vector, :data:`DESCRIPTOR_SEED`), orientation 0 and size 10 px (:func:`ideal_features`)."""
+    desc = np.random.default_rng(DESCRIPTOR_SEED).normal(size=(n_points, 128)).astype(np.float32)
+    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
     n = len(idx)
-    return Features(uv, np.zeros(n), np.full(n, 10.0), np.ones(n), desc[idx] * 512)
+    return Features(np.asarray(uv, float).reshape(n, 2), np.zeros(n), np.full(n, 10.0), np.ones(n),
+                    desc[np.asarray(idx, int)] * 512)
 
 
 # ------------------------------------------------------------------------------------------------ measured noise

@@ -273,15 +273,20 @@ def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_surve
             "field_offset_px": fld["offset_px"], "field_slope_px": fld["slope_px"], "field_views": fld["views"]}
 
 
+def detected_pixels(observation: ViewObservation, x_n) -> np.ndarray:
+    """The pixels (N, 2) the detector returned for normalized keypoints ``x_n (N, 2)`` of ``observation``: each
+    looked up among the view's own (``ViewObservation.x_n``, the nearest)."""
+    d = np.linalg.norm(observation.x_n[None] - np.asarray(x_n, float).reshape(-1, 1, 2), axis=2)
+    return observation.features.uv[d.argmin(axis=1)]
+
+
 def track_pixels(kmap, used, observations: dict, reference: str, survey: list, locate: list) -> tuple:
     """The detected pixels of the tracks the final solve used, for :func:`track_noise_on_surface`: ``(uv_ref (N, 2),
     [(survey view indices, uv (n_i, 2))] * N, uv_locate (N, L, 2))``. ``used`` is the result's ``(map indices, x_a,
     x_b)`` (PnP: ``x_b`` None, one locate view); each normalized keypoint is looked up among its view's
-    (``ViewObservation.x_n``) to give the pixel the detector returned."""
+    (``ViewObservation.x_n``) to give the pixel the detector returned (:func:`detected_pixels`)."""
     def pixels(name, x):
-        o = observations[name]
-        d = np.linalg.norm(o.x_n[None] - np.asarray(x, float).reshape(-1, 1, 2), axis=2)
-        return o.features.uv[d.argmin(axis=1)]
+        return detected_pixels(observations[name], x)
 
     idx = np.asarray(used[0], int)
     uv_ref = observations[reference].features.uv[np.asarray(kmap.ref_index)[idx]]
