@@ -26,6 +26,9 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--param", dest="params", action="append", default=[], metavar="KEY=V1,V2,...",
                     help="a swept scenario key and its values (repeatable: the grid is their product)")
     _add_grid_flags(sw, "seeds per grid point (seed, seed+1, ...; default 1)", 1, "sweep")
+    sw.add_argument("--render-cache", default=None, metavar="DIR",
+                    help="a render cache shared with other sweeps (e.g. an earlier sweep's OUT/runs/.render_cache): "
+                         "the same seeds' images are taken from it, not rendered again")
     bu = sub.add_parser("budget", help="error budget: re-run with one error source switched off at a time")
     bu.add_argument("scenario", help="scenario YAML file (a kind that declares its error sources)")
     _add_grid_flags(bu, "seeds per variant (default 10)", 10, "budget")
@@ -311,7 +314,7 @@ def _sweep(args) -> None:
     fixed = dict(parse_set(item) for item in args.overrides)
     out = args.out or str(Path("runs") / f"sweep-{Path(args.scenario).stem}")
     res = run_sweep(args.scenario, params, list(range(args.seed, args.seed + args.seeds)), out, args.backend,
-                    args.address, args.workers, fixed=fixed, force=args.force)
+                    args.address, args.workers, fixed=fixed, force=args.force, render_cache=args.render_cache)
     print(f"{res['rows']} finished runs in {res['store']}; summary {res['summary']}")
     for p in res["plots"]:
         print(f"plot {p}")

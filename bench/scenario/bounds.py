@@ -436,47 +436,83 @@ def view_sigma(sigma_px, n_views: int) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------------- the views' error field
-#: Pixels per unit of the field's slopes: a slope of 0.01 moves a keypoint 100 px off the image centre by 0.01 px.
+#: Pixels per unit of the field's image coordinates: a degree-d coefficient of 0.01 moves a keypoint 100 px off the
+#: image centre (along an axis) by 0.01 px.
 FIELD_UNIT_PX = 100.0
+#: The names of the field's degrees (the metrics ``keypoint_field_<name>_px``): offset, slope, then the quadratic and
+#: cubic terms.
+FIELD_DEGREES = ("offset", "slope", "quadratic", "cubic")
 
 
-def field_basis(uv, size) -> np.ndarray:
-    """``[1, (u - w/2) / 100, (v - h/2) / 100]`` (..., 3) of pixels ``uv (..., 2)`` in an image of ``size (w, h)``:
-    the affine field's basis (:data:`FIELD_UNIT_PX`)."""
-    uv = np.asarray(uv, float)
-    c = 0.5 * np.asarray(size, float)
-    return np.concatenate([np.ones(uv.shape[:-1] + (1,)), (uv - c) / FIELD_UNIT_PX], axis=-1)
+def field_terms(order: int) -> int:
+    """The number of monomials ``x^i y^j``, ``i + j <= order``, of a field of that order (1: 3, 2: 6, 3: 10)."""
+    if not 0 <= int(order) < len(FIELD_DEGREES) or int(order) != order:
+        raise ValueError(f"field order: expected an integer 0..{len(FIELD_DEGREES) - 1}, got {order}")
+    return (int(order) + 1) * (int(order) + 2) // 2
+
+
+def field_order(n_coefficients: int) -> int:
+    """The order of a field of ``n_coefficients`` (both axes': 6, 12, 20 for orders 1, 2, 3)."""
+    for order in range(len(FIELD_DEGREES)):
+        if 2 * field_terms(order) == n_coefficients:
+            return order
+    raise ValueError(f"a field's coefficients: expected 2, 6, 12 or 20 (orders 0-3, both axes), got {n_coefficients}")
+
+
+def field_degrees(order: int) -> np.ndarray:
+    """Each basis term's degree (:func:`field_terms` (order),): ``[0, 1, 1, 2, 2, 2, 3, ...]``."""
+    return np.concatenate([np.full(d + 1, d) for d in range(order + 1)])
+
+
+def field_basis(uv, size, order: int = 1) -> np.ndarray:
+    """The field's basis (..., :func:`field_terms` (order)) at pixels ``uv (..., 2)`` in an image of ``size (w, h)``:
+    the monomials of ``x = (u - w/2) / 100``, ``y = (v - h/2) / 100`` (:data:`FIELD_UNIT_PX`) by degree, each
+    degree from ``x^d`` to ``y^d``: ``[1, x, y, x^2, x y, y^2, x^3, x^2 y, x y^2, y^3]`` to order 3."""
+    field_terms(order)  # the order checked
+    xy = (np.asarray(uv, float) - 0.5 * np.asarray(size, float)) / FIELD_UNIT_PX
+    x, y = xy[..., 0], xy[..., 1]
+    terms = [x ** (d - j) * y ** j for d in range(int(order) + 1) for j in range(d + 1)]
+    return np.stack(terms, axis=-1)
 
 
 def field_displacement(uv, coefficients, size) -> np.ndarray:
-    """The displacement (..., 2) px of a view's affine error field ``coefficients (..., 6)`` = ``(a0, a1, a2, b0, b1,
-    b2)`` at pixels ``uv (..., 2)``: ``du = [a0 a1 a2] . basis``, ``dv = [b0 b1 b2] . basis``
-    (:func:`field_basis`)."""
-    X = field_basis(uv, size)
+    """The displacement (..., 2) px of a view's error field ``coefficients (..., 2 n)`` at pixels ``uv (..., 2)``:
+    ``du`` the first ``n`` coefficients (``a``) against :func:`field_basis`, ``dv`` the last ``n`` (``b``); the
+    field's order from ``2 n`` (:func:`field_order`; 6 coefficients ``(a0, a1, a2, b0, b1, b2)``: affine)."""
     c = np.asarray(coefficients, float)
-    return np.stack([np.sum(X * c[..., :3], axis=-1), np.sum(X * c[..., 3:], axis=-1)], axis=-1)
+    n = c.shape[-1] // 2
+    X = field_basis(uv, size, field_order(c.shape[-1]))
+    return np.stack([np.sum(X * c[..., :n], axis=-1), np.sum(X * c[..., n:], axis=-1)], axis=-1)
 
 
-def field_sd(offset_px: float, slope_px: float) -> np.ndarray:
-    """The six coefficients' standard deviations (6,) of a field with offsets ``offset_px`` (px) and slopes
-    ``slope_px`` (px per 100 px) on each axis."""
-    return np.array([offset_px, slope_px, slope_px] * 2, float)
+def field_sd(*degree_px: float) -> np.ndarray:
+    """The coefficients' standard deviations (2 :func:`field_terms`,) of a field with each degree's sd
+    ``degree_px`` (px at 100 px from the centre; offset, slope[, quadratic[, cubic]]) on each axis:
+    ``field_sd(0.3, 0.2)`` = ``[0.3, 0.2, 0.2] * 2``."""
+    sd = np.asarray(degree_px, float)[field_degrees(len(degree_px) - 1)]
+    return np.tile(sd, 2)
 
 
 def draw_fields(rng: np.random.Generator, sd, n_views: int) -> np.ndarray:
-    """Independent fields (n_views, 6), coefficients ``N(0, sd^2)`` (``sd`` (6,): :func:`field_sd`)."""
-    return rng.normal(size=(n_views, 6)) * np.asarray(sd, float)
+    """Independent fields (n_views, len(sd)), coefficients ``N(0, sd^2)`` (``sd``: :func:`field_sd`)."""
+    sd = np.asarray(sd, float)
+    return rng.normal(size=(n_views, len(sd))) * sd
 
 
-def measure_field(dev, uv, view, shrink, size, gate: float = 3.5, min_points: int = 20) -> dict:
+def measure_field(dev, uv, view, shrink, size, order: int = 1, gate: float = 3.5, min_points: int | None = None
+                  ) -> dict:
     """The keypoints' error field per view, measured on their errors: the part of the errors that moves a whole view's
-    keypoints together (an offset and a slope per axis), which the white pixel noise of the bound does not describe.
+    keypoints together (a polynomial of ``order`` over the image per axis: offset, slope, ...), which the white pixel
+    noise of the bound does not describe.
 
-    For every view with ``min_points`` or more errors inside ``gate`` robust sigmas, the least-squares affine field
-    (:func:`field_basis`) of its errors; each coefficient's square less the variance white noise of that view's
-    residual scatter gives it (``s^2 (X^T X)^-1``), divided by the view's mean ``shrink`` (what subtracting each
-    track's mean left of a field: ``1 - 1/n`` in the n views the mean is over, ``1 + 1/n`` in a view outside it).
-    Pooled over the views and the two axes: the offsets' variance and the slopes'.
+    For every view with ``min_points`` (default ``max(20, 3 n)``, ``n`` = :func:`field_terms`) or more errors inside
+    ``gate`` robust sigmas (of all the errors, then of the view's errors about a first fit of its field: the gross
+    mismatches out, the keypoints the field moves far in), the least-squares field (:func:`field_basis`) of its
+    errors; each coefficient's square
+    less the variance white noise of that view's residual scatter gives it (``s^2 (X^T X)^-1``), divided by the
+    view's mean ``shrink`` (what subtracting each track's mean left of a field: ``1 - 1/n`` in the n views the mean
+    is over, ``1 + 1/n`` in a view outside it). Pooled over the views, the two axes and the terms of one degree: each
+    degree's variance (the field's prior: every coefficient independent, :func:`field_sd`).
 
     Parameters
     ----------
@@ -489,36 +525,56 @@ def measure_field(dev, uv, view, shrink, size, gate: float = 3.5, min_points: in
     shrink : ndarray (N,)
         Each error's share of its view's field (above).
     size : (w, h)
+    order : int
+        The field's order (1 affine, 2 quadratic, 3 cubic).
 
     Rows whose error or pixel is not finite are left out.
 
     Returns
     -------
     dict
-        ``offset_px``, ``slope_px`` (px per 100 px; 0 when the coefficients scatter no more than white noise makes
-        them), ``views`` (the views measured; with none, both are NaN).
+        ``degree_px`` (order + 1,): each degree's sd (px at 100 px, :func:`field_sd`'s arguments; 0 when its
+        coefficients scatter no more than white noise makes them); the same as ``offset_px``, ``slope_px``,
+        ``quadratic_px``, ``cubic_px`` (to the order); ``views`` (the views measured; with none, the sds are NaN).
     """
+    n = field_terms(order)
+    min_points = max(20, 3 * n) if min_points is None else min_points
     dev, uv = np.asarray(dev, float).reshape(-1, 2), np.asarray(uv, float).reshape(-1, 2)
     view, shrink = np.asarray(view), np.asarray(shrink, float)
     ok = np.all(np.isfinite(dev), axis=1) & np.all(np.isfinite(uv), axis=1)  # an error or pixel that is not one
     dev, uv, view, shrink = dev[ok], uv[ok], view[ok], shrink[ok]
-    r = np.linalg.norm(dev, axis=1)
-    keep = r < gate * 1.4826 * np.median(np.abs(dev)) if len(dev) else np.zeros(0, bool)
+    keep = _gated(dev, gate)
     excess, factor = [], []
     for v in np.unique(view):
         m = keep & (view == v)
         if m.sum() < min_points:
             continue
-        X = field_basis(uv[m], size)
-        c, *_ = np.linalg.lstsq(X, dev[m], rcond=None)  # (3, 2): the u column, the v column
-        s2 = np.sum((dev[m] - X @ c) ** 2) / (2 * (m.sum() - 3))
-        excess.append(c ** 2 - s2 * np.diag(np.linalg.inv(X.T @ X))[:, None])
+        c, *_ = np.linalg.lstsq(field_basis(uv[m], size, order), dev[m], rcond=None)
+        m = np.flatnonzero(view == v)  # gated again, about the view's field
+        m = m[_gated(dev[m] - field_basis(uv[m], size, order) @ c, gate)]
+        if len(m) < min_points:
+            continue
+        X = field_basis(uv[m], size, order)
+        c, *_ = np.linalg.lstsq(X, dev[m], rcond=None)  # (n, 2): the u column, the v column
+        s2 = np.sum((dev[m] - X @ c) ** 2) / (2 * (len(m) - n))
+        excess.append(c ** 2 - s2 * np.diag(np.linalg.pinv(X.T @ X))[:, None])
         factor.append(float(np.mean(shrink[m])))
     if not excess:
-        return {"offset_px": float("nan"), "slope_px": float("nan"), "views": 0}
-    e = np.array(excess) / np.array(factor)[:, None, None]  # (views, 3, 2)
-    return {"offset_px": float(np.sqrt(max(np.mean(e[:, 0]), 0.0))),
-            "slope_px": float(np.sqrt(max(np.mean(e[:, 1:]), 0.0))), "views": len(e)}
+        sd = np.full(order + 1, np.nan)
+    else:
+        e = np.array(excess) / np.array(factor)[:, None, None]  # (views, n, 2)
+        deg = field_degrees(order)
+        sd = np.array([np.sqrt(max(np.mean(e[:, deg == d]), 0.0)) for d in range(order + 1)])
+    out = {"degree_px": sd, "views": len(excess)}
+    out.update({f"{name}_px": float(s) for name, s in zip(FIELD_DEGREES, sd, strict=False)})
+    return out
+
+
+def _gated(dev, gate: float) -> np.ndarray:
+    """The errors ``dev (N, 2)`` within ``gate`` robust sigmas (1.4826 MAD of both axes' values) of zero."""
+    if not len(dev):
+        return np.zeros(0, bool)
+    return np.linalg.norm(dev, axis=1) < gate * 1.4826 * np.median(np.abs(dev))
 
 
 def reduced_information(model: MultiViewModel, sigma_px, jacobians=None) -> tuple:

@@ -259,12 +259,14 @@ class Bound(Section):
     """The Cramér-Rao bound of the base pose and a Monte Carlo of the ideal estimator (in_situ_bound); ml_trials > 0:
     also a Monte Carlo of refine 'joints' under exactly the bound's model (base_*_crb_mc_*; ~2 s a trial), the check
     that the estimator reaches the bound. keypoint_field: the keypoints' errors also move each view's keypoints
-    together (an affine field per view, measured on the panel's true surfaces: keypoint_field_*); false: white."""
+    together (a polynomial field per view of keypoint_field_order: 1 affine, 3 cubic; measured on the panel's true
+    surfaces: keypoint_field_*); false: white."""
 
     enabled: bool = True
     mc_trials: NonNegInt = 30
     ml_trials: NonNegInt = 0
     keypoint_field: bool = True
+    keypoint_field_order: Annotated[int, Field(ge=1, le=3)] = 3
 
 
 class Outputs(Section):
@@ -937,6 +939,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
     floor's error ``(I - K H) e`` (a noise-free INS), each Monte Carlo draw's error with a draw of the INS;
     ``base_*_bound_vision_*`` is the limit without it."""
     from bench.scenario.in_situ_bound import (
+        FIELD_DEGREES,
         crb_base_pose,
         field_sd,
         keypoint_sigma_px,
@@ -968,19 +971,20 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
     # panel's true surfaces; without a pose (no tracks), the survey's. Both as the Fisher information of the measured
     # errors' density has them (fisher_factor: the tails take a little from the core the robust sigma describes)
     ratio = points = f_survey = f_locate = float("nan")
-    field = None  # the keypoints' error field per view (sd of its six coefficients), when measured
+    field = None  # the keypoints' error field per view (sd of its coefficients, field_sd), when measured
     if res.success and res.used is not None:
         from bench.scenario.scene_points import SceneRays
 
         surface = SceneRays(replay_panel(cfg), np.array(truth["T_world_panel"], float))
         tn = track_noise_on_surface(*track_pixels(kmap, res.used, obs, ref, surround, loc), poses[ref],
                                     np.stack([poses[n] for n in surround]), np.stack([poses[n] for n in loc]), lens,
-                                    port, project, surface)
+                                    port, project, surface, cfg["bound"]["keypoint_field_order"])
         ratio, points, f_survey, f_locate = tn["ratio"], float(tn["points"]), tn["survey_fisher"], tn["locate_fisher"]
-        out.update({"keypoint_field_offset_px": tn["field_offset_px"], "keypoint_field_slope_px": tn["field_slope_px"],
-                    "keypoint_field_views": float(tn["field_views"])})
+        degrees = FIELD_DEGREES[:len(tn["field_px"])]
+        out.update({f"keypoint_field_{name}_px": float(sd) for name, sd in zip(degrees, tn["field_px"], strict=True)})
+        out["keypoint_field_views"] = float(tn["field_views"])
         if cfg["bound"]["keypoint_field"] and tn["field_views"]:
-            field = field_sd(tn["field_offset_px"], tn["field_slope_px"])
+            field = field_sd(*tn["field_px"])
     sigma_bound = sigma_px * _or_one(f_survey)
     sigma_loc = sigma_px * _or_one(ratio) * _or_one(f_locate)
     out.update({"keypoint_sigma_bound_px": sigma_bound, "keypoint_sigma_locate_px": sigma_loc,

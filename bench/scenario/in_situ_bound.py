@@ -34,13 +34,16 @@ from bench.geometry.quaternion import matrix_to_rotation_vector, rotation_vector
 from bench.geometry.transforms import homogeneous, transform_points
 from bench.robot.orientation import link5_frame
 from bench.scenario.bounds import (  # noqa: F401 - the generic parts, re-exported for the in-situ scenario
+    FIELD_DEGREES,
     Block,
     MultiViewModel,
     best_central_camera,
     crb,
     draw_fields,
     field_displacement,
+    field_order,
     field_sd,
+    field_terms,
     ideal_features,
     keypoint_sigma_px,
     measure_field,
@@ -57,11 +60,11 @@ class _Model(MultiViewModel):
     (``dfx, dfy, dcx, dcy`` px: the intrinsics' error, applied to the pixels as ``c + dc + (f + df) / f (uv - c)``,
     exact for a lens whose distortion acts before K), ``d_dist`` (``dk1 dk2 dp1 dp2``, and ``dk3`` with ``k3``)
     and ``d_mount`` (the camera mount's error, a right perturbation
-    ``T_mount [[exp(w), v], [0, 1]]``, rad then m), optionally ``field`` (per view: the keypoints' affine error
-    field, :func:`~bench.scenario.bounds.field_displacement`, px), then the points."""
+    ``T_mount [[exp(w), v], [0, 1]]``, rad then m), optionally ``field`` (per view: the keypoints' error field of
+    order ``field``, :func:`~bench.scenario.bounds.field_displacement`, px), then the points."""
 
     def __init__(self, robot, eps_true, kept, mount, project, T_site_b2, views, X_site, size, K=None,
-                 with_mount=False, vis=None, dist=None, field=False, k3=False):
+                 with_mount=False, vis=None, dist=None, field: int | None = None, k3=False):
         self.robot, self.eps0, self.kept, self.mount = robot, eps_true, kept, mount
         self.T_b2 = T_site_b2
         self.q0 = np.array([q for q, _ in views])
@@ -85,10 +88,11 @@ class _Model(MultiViewModel):
         if self.with_mount:
             blocks.append(Block("d_mount", 6))
             values.append(np.zeros(6))
-        self.field, self.size = bool(field), size
+        self.field, self.size = field is not None, size
         if self.field:
-            blocks.append(Block("field", 6, per_view=True, step=1e-3))
-            values.append(np.zeros((len(self.q0), 6)))
+            n = 2 * field_terms(field)
+            blocks.append(Block("field", n, per_view=True, step=1e-3))
+            values.append(np.zeros((len(self.q0), n)))
         super().__init__(self._poses, blocks, values, X_site, project, size, vis=vis)
 
     def _split(self, values):
@@ -191,7 +195,7 @@ def fisher_factor(errors, components: int = 3, iterations: int = 200) -> float:
 
 
 def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_survey, T_world_locate, lens: CameraModel,
-                           port, project, surface) -> dict:
+                           port, project, surface, field_order: int = 1) -> dict:
     """The survey's and the locate views' own keypoint noise, measured on the scene's true surfaces (evaluator side).
 
     A locate view sees the panel from the other parking, so SIFT may place a keypoint differently there than in the
@@ -210,8 +214,9 @@ def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_surve
     * ``survey_fisher``, ``locate_fisher``: :func:`fisher_factor` of the survey's and the locate views' errors (within
       5 px, the gross mismatches left out), what the bound's robust sigmas take for the information lost to the
       tails;
-    * ``field_offset_px``, ``field_slope_px``, ``field_views``: the errors' field per view (every survey and locate
-      view, :func:`~bench.scenario.bounds.measure_field`): what moves a whole view's keypoints together.
+    * ``field_px`` (field_order + 1,), ``field_views``: the errors' field per view, of order ``field_order`` (every
+      survey and locate view, :func:`~bench.scenario.bounds.measure_field`'s ``degree_px``): what moves a whole
+      view's keypoints together.
 
     Parameters
     ----------
@@ -260,17 +265,17 @@ def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_surve
             field[3].append(np.full(len(d), s))
     if not n_views:
         return {"survey_px": float("nan"), "locate_px": float("nan"), "ratio": float("nan"), "points": 0,
-                "survey_fisher": float("nan"), "locate_fisher": float("nan"), "field_offset_px": float("nan"),
-                "field_slope_px": float("nan"), "field_views": 0}
+                "survey_fisher": float("nan"), "locate_fisher": float("nan"),
+                "field_px": np.full(field_order + 1, np.nan), "field_views": 0}
     n = float(np.mean(n_views))
     s_survey = _robust_sd(np.concatenate(dev_survey)) * np.sqrt(n / (n - 1))
     s_locate = float(np.sqrt(max(_robust_sd(dev_locate) ** 2 - s_survey**2 / n, 0.0)))
     dev_survey, dev_locate = np.concatenate(dev_survey), np.asarray(dev_locate, float)
     fisher = [fisher_factor(d[np.linalg.norm(d, axis=1) < 5.0]) for d in (dev_survey, dev_locate)]
-    fld = measure_field(*(np.concatenate(f) for f in field), lens.size)
+    fld = measure_field(*(np.concatenate(f) for f in field), lens.size, order=field_order)
     return {"survey_px": s_survey, "locate_px": s_locate, "ratio": s_locate / s_survey if s_survey > 0 else np.nan,
             "points": len(n_views), "survey_fisher": fisher[0], "locate_fisher": fisher[1],
-            "field_offset_px": fld["offset_px"], "field_slope_px": fld["slope_px"], "field_views": fld["views"]}
+            "field_px": fld["degree_px"], "field_views": fld["views"]}
 
 
 def detected_pixels(observation: ViewObservation, x_n) -> np.ndarray:
@@ -334,10 +339,11 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
         Covariance of the calibrated mount (right perturbation: rotation vector rad, then m). Omitted: exact.
     vis : ndarray (V, M) bool, optional
         The observation pattern (:func:`observation_pattern`); default every point in every view it projects into.
-    field : ndarray (6,), optional
-        Standard deviations of every view's affine keypoint error field (:func:`~bench.scenario.bounds.field_sd`,
-        measured by :func:`track_noise_on_surface`): each view's field a nuisance parameter under that prior, on top
-        of the white ``sigma_px``. Omitted (or all zero): the keypoints' errors are white.
+    field : ndarray (2 n,), optional
+        Standard deviations of the coefficients of every view's keypoint error field (affine: 6, to cubic order: 20;
+        :func:`~bench.scenario.bounds.field_sd`, measured by :func:`track_noise_on_surface`): each view's field a
+        nuisance parameter under that prior, on top of the white ``sigma_px``. Omitted (or all zero): the keypoints'
+        errors are white.
     k3_sd : float, optional
         With a (4, 4) ``cov_dist``: the lens's k3 is unknown to the estimator too, under that prior standard
         deviation (the joint bundle refines it, :func:`bench.vision.joint_bundle.lab_prior`). Omitted: k3 is the
@@ -356,7 +362,8 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
     k3_sd = k3_sd if cov_dist is not None else None
     model = _Model(robot, np.asarray(eps_true, float), np.asarray(kept), mount, project, T_site_b2, views, X_site,
                    size, K=K if with_K else None, with_mount=cov_mount is not None, vis=vis,
-                   dist=dist if cov_dist is not None else None, field=field is not None and np.any(field),
+                   dist=dist if cov_dist is not None else None,
+                   field=field_order(len(field)) if field is not None and np.any(field) else None,
                    k3=distortion_block_size(cov_dist, k3_sd) == 5)
     # the encoders observe the joints, the lab identification observed the arm errors, the lab calibrations the
     # intrinsics, the distortion and the mount (one joint prior over those given); the base pose is free
@@ -440,7 +447,7 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
     drawn by ``encoders`` (an :class:`~bench.sim.encoders.EncoderModel`), arm errors drawn from the identification
     covariance; intrinsics and mount exact. ``views`` as for :func:`crb_base_pose` (``names``: reference first, then
     the surrounding views, then the locate views: two for the two-view solve, one for PnP). ``ins``, a
-    :class:`~bench.vision.tilt.TiltUpdate`: each draw's error fused with a draw of the INS's tilt. ``field`` (6,), the
+    :class:`~bench.vision.tilt.TiltUpdate`: each draw's error fused with a draw of the INS's tilt. ``field`` (2 n,), the
     sd of every view's keypoint error field (:func:`crb_base_pose`): each draw adds a field drawn per view.
     """
     q_true = np.array([q for q, _ in views])

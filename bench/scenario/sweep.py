@@ -435,6 +435,8 @@ def run_sweep(scenario, params: list, seeds: list, out, backend: str = "local", 
     if backend not in ("local", "ray"):
         raise ConfigError("--backend", backend, "expected 'local' or 'ray'")
     check_seeds_and_workers(seeds, workers, backend, address)
+    if render_cache is not None and Path(render_cache).exists() and not Path(render_cache).is_dir():
+        raise ConfigError("--render-cache", str(render_cache), "is not a folder")
     from bench.fileio import check_output_dir, claim_output_dir, foreign_entries, record_output_entries
     from bench.scenario.runner import load_scenario
 

@@ -235,3 +235,19 @@ def test_a_resume_with_other_settings_is_refused(tmp_path):
         run_sweep(SCENARIO, [("noise.sigmas_mm", [[0.05]])], [0], out, workers=1, progress=False,
                   fixed={**fixed, "monte_carlo.trials": 4})
     assert len(_rows(out / "sweep.sqlite")) == 2
+
+
+def test_render_cache_flag_links_a_shared_cache_and_refuses_a_file(tmp_path):
+    """``bench sweep --render-cache DIR``: the sweep's runs take their renders from DIR (its ``runs/.render_cache``
+    a link to it); a file there is a one-line error before anything is written."""
+    from bench.cli import main
+
+    shared = tmp_path / "shared_cache"
+    assert main(["sweep", str(SCENARIO), "--seeds", "1", "--out", str(tmp_path / "sw"), "--render-cache",
+                 str(shared), *SMALL_ARGS]) == 0
+    link = tmp_path / "sw" / "runs" / ".render_cache"
+    assert link.is_symlink() and link.resolve() == shared.resolve() and shared.is_dir()
+    (tmp_path / "a_file").write_text("x")
+    with pytest.raises(ConfigError, match="--render-cache.*not a folder"):
+        run_sweep(SCENARIO, [], [0], tmp_path / "sw2", progress=False, render_cache=tmp_path / "a_file")
+    assert not (tmp_path / "sw2").exists()
