@@ -436,11 +436,10 @@ def view_sigma(sigma_px, n_views: int) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------------- the views' error field
-#: Pixels per unit of the field's image coordinates: a degree-d coefficient of 0.01 moves a keypoint 100 px off the
-#: image centre (along an axis) by 0.01 px.
+#: Pixels per unit of the field's image coordinates (the monomials' scale).
 FIELD_UNIT_PX = 100.0
 #: The names of the field's degrees (the metrics ``keypoint_field_<name>_px``): offset, slope, then the quadratic and
-#: cubic terms.
+#: cubic modes.
 FIELD_DEGREES = ("offset", "slope", "quadratic", "cubic")
 
 
@@ -477,26 +476,58 @@ def field_basis(uv, size, order: int = 1) -> np.ndarray:
 
 def field_displacement(uv, coefficients, size) -> np.ndarray:
     """The displacement (..., 2) px of a view's error field ``coefficients (..., 2 n)`` at pixels ``uv (..., 2)``:
-    ``du`` the first ``n`` coefficients (``a``) against :func:`field_basis`, ``dv`` the last ``n`` (``b``); the
-    field's order from ``2 n`` (:func:`field_order`; 6 coefficients ``(a0, a1, a2, b0, b1, b2)``: affine)."""
+    ``du`` the first ``n`` coefficients against :func:`field_basis`, ``dv`` the last ``n``; the field's order from
+    ``2 n`` (:func:`field_order`; 6 coefficients ``(a0, a1, a2, b0, b1, b2)``: affine)."""
     c = np.asarray(coefficients, float)
     n = c.shape[-1] // 2
     X = field_basis(uv, size, field_order(c.shape[-1]))
     return np.stack([np.sum(X * c[..., :n], axis=-1), np.sum(X * c[..., n:], axis=-1)], axis=-1)
 
 
-def field_sd(*degree_px: float) -> np.ndarray:
-    """The coefficients' standard deviations (2 :func:`field_terms`,) of a field with each degree's sd
-    ``degree_px`` (px at 100 px from the centre; offset, slope[, quadratic[, cubic]]) on each axis:
-    ``field_sd(0.3, 0.2)`` = ``[0.3, 0.2, 0.2] * 2``."""
-    sd = np.asarray(degree_px, float)[field_degrees(len(degree_px) - 1)]
-    return np.tile(sd, 2)
+def field_modes(uv, size, order: int) -> np.ndarray:
+    """The view's field modes at its keypoints ``uv (N, 2)``: the upper-triangular ``R`` (n, n) with ``X = Q R``,
+    ``X`` the monomials (:func:`field_basis`) at the keypoints and ``Q`` orthonormal in mean square over them
+    (``Q^T Q / N = I``: Gram-Schmidt of the monomials in degree order, ``R^T R = X^T X / N``). A field's mode
+    amplitudes are ``a = R c`` (px: each mode's RMS displacement over the keypoints) for monomial coefficients ``c``.
+    Raises ``ValueError`` when the keypoints do not resolve the modes (fewer than n, or on a curve of that order)."""
+    X = field_basis(np.asarray(uv, float).reshape(-1, 2), size, order)
+    n = X.shape[1]
+    if len(X) < n:
+        raise ValueError(f"field modes: {len(X)} keypoints cannot resolve the {n} modes of order {order}")
+    try:
+        return np.linalg.cholesky(X.T @ X / len(X)).T
+    except np.linalg.LinAlgError:
+        raise ValueError(f"field modes: the {len(X)} keypoints lie on a curve of order {order}") from None
 
 
-def draw_fields(rng: np.random.Generator, sd, n_views: int) -> np.ndarray:
-    """Independent fields (n_views, len(sd)), coefficients ``N(0, sd^2)`` (``sd``: :func:`field_sd`)."""
-    sd = np.asarray(sd, float)
-    return rng.normal(size=(n_views, len(sd))) * sd
+def mode_sd(degree_px, order: int | None = None) -> np.ndarray:
+    """Each mode's standard deviation (:func:`field_terms` (order),) from each degree's ``degree_px`` (order + 1,;
+    :func:`measure_field`): the modes of one degree alike."""
+    d = np.asarray(degree_px, float)
+    return d[field_degrees(len(d) - 1 if order is None else order)]
+
+
+def field_prior_information(uv, degree_px, size, floor_px: float = 1e-6) -> np.ndarray:
+    """The prior information (2 n, 2 n) of a view's monomial field coefficients (u's, then v's; :func:`field_basis`)
+    when its mode amplitudes ``a = R c`` (:func:`field_modes` at its keypoints ``uv``) are independent,
+    ``N(0, mode_sd^2)`` on each axis: ``R^T diag(1 / sd^2) R`` per axis. A degree measured at zero is known to be
+    zero (``floor_px``, numerically so)."""
+    sd = np.maximum(mode_sd(degree_px), floor_px)
+    R = field_modes(uv, size, len(np.asarray(degree_px)) - 1)
+    one = R.T @ np.diag(1.0 / sd**2) @ R
+    n = len(sd)
+    info = np.zeros((2 * n, 2 * n))
+    info[:n, :n] = info[n:, n:] = one
+    return info
+
+
+def draw_field(rng: np.random.Generator, uv, degree_px, size) -> np.ndarray:
+    """A view's field (2 n,: monomial coefficients, u's then v's) drawn for its keypoints ``uv (N, 2)``: each mode's
+    amplitude ``N(0, mode_sd^2)`` per axis, ``c = R^-1 a`` (:func:`field_modes`)."""
+    sd = mode_sd(degree_px)
+    R = field_modes(uv, size, len(np.asarray(degree_px)) - 1)
+    a = rng.normal(size=(2, len(sd))) * sd
+    return np.linalg.solve(R, a.T).T.reshape(-1)
 
 
 def measure_field(dev, uv, view, shrink, size, order: int = 1, gate: float = 3.5, min_points: int | None = None
@@ -507,12 +538,14 @@ def measure_field(dev, uv, view, shrink, size, order: int = 1, gate: float = 3.5
 
     For every view with ``min_points`` (default ``max(20, 3 n)``, ``n`` = :func:`field_terms`) or more errors inside
     ``gate`` robust sigmas (of all the errors, then of the view's errors about a first fit of its field: the gross
-    mismatches out, the keypoints the field moves far in), the least-squares field (:func:`field_basis`) of its
-    errors; each coefficient's square
-    less the variance white noise of that view's residual scatter gives it (``s^2 (X^T X)^-1``), divided by the
-    view's mean ``shrink`` (what subtracting each track's mean left of a field: ``1 - 1/n`` in the n views the mean
-    is over, ``1 + 1/n`` in a view outside it). Pooled over the views, the two axes and the terms of one degree: each
-    degree's variance (the field's prior: every coefficient independent, :func:`field_sd`).
+    mismatches out, the keypoints the field moves far in), the least-squares field of its errors in the view's own
+    orthonormal modes (:func:`field_modes`: ``a = R c``); each amplitude's square less the variance white noise of
+    the view's residual scatter gives it (``s^2 / N``), divided by the view's mean ``shrink`` (what subtracting each
+    track's mean left of a field: ``1 - 1/n`` in the n views the mean is over, ``1 + 1/n`` in a view outside it).
+    Pooled over the views, the two axes and the modes of one degree: each degree's variance - the field's prior
+    (:func:`field_prior_information`, :func:`draw_field`: every mode independent). Modes, not monomials: the
+    monomials of one view are far from orthogonal over its keypoints, and their coefficients' large, opposed
+    scatter is no field's.
 
     Parameters
     ----------
@@ -533,8 +566,8 @@ def measure_field(dev, uv, view, shrink, size, order: int = 1, gate: float = 3.5
     Returns
     -------
     dict
-        ``degree_px`` (order + 1,): each degree's sd (px at 100 px, :func:`field_sd`'s arguments; 0 when its
-        coefficients scatter no more than white noise makes them); the same as ``offset_px``, ``slope_px``,
+        ``degree_px`` (order + 1,): each degree's sd, px (a mode's RMS displacement over a view's keypoints; 0 when
+        the amplitudes scatter no more than white noise makes them); the same as ``offset_px``, ``slope_px``,
         ``quadratic_px``, ``cubic_px`` (to the order); ``views`` (the views measured; with none, the sds are NaN).
     """
     n = field_terms(order)
@@ -554,10 +587,14 @@ def measure_field(dev, uv, view, shrink, size, order: int = 1, gate: float = 3.5
         m = m[_gated(dev[m] - field_basis(uv[m], size, order) @ c, gate)]
         if len(m) < min_points:
             continue
-        X = field_basis(uv[m], size, order)
-        c, *_ = np.linalg.lstsq(X, dev[m], rcond=None)  # (n, 2): the u column, the v column
-        s2 = np.sum((dev[m] - X @ c) ** 2) / (2 * (len(m) - n))
-        excess.append(c ** 2 - s2 * np.diag(np.linalg.pinv(X.T @ X))[:, None])
+        try:
+            R = field_modes(uv[m], size, order)
+        except ValueError:  # keypoints that do not resolve the modes measure nothing
+            continue
+        c, *_ = np.linalg.lstsq(field_basis(uv[m], size, order), dev[m], rcond=None)  # (n, 2): u's, v's
+        a = R @ c  # the modes' amplitudes (px)
+        s2 = np.sum((dev[m] - field_basis(uv[m], size, order) @ c) ** 2) / (2 * (len(m) - n))
+        excess.append(a**2 - s2 / len(m))
         factor.append(float(np.mean(shrink[m])))
     if not excess:
         sd = np.full(order + 1, np.nan)

@@ -259,8 +259,8 @@ class Bound(Section):
     """The Cramér-Rao bound of the base pose and a Monte Carlo of the ideal estimator (in_situ_bound); ml_trials > 0:
     also a Monte Carlo of refine 'joints' under exactly the bound's model (base_*_crb_mc_*; ~2 s a trial), the check
     that the estimator reaches the bound. keypoint_field: the keypoints' errors also move each view's keypoints
-    together (a polynomial field per view of keypoint_field_order: 1 affine, 3 cubic; measured on the panel's true
-    surfaces: keypoint_field_*); false: white."""
+    together (a polynomial field per view of keypoint_field_order: 1 affine, 3 cubic; each view's modes independent,
+    each degree's sd measured on the panel's true surfaces: keypoint_field_*); false: white."""
 
     enabled: bool = True
     mc_trials: NonNegInt = 30
@@ -941,7 +941,6 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
     from bench.scenario.in_situ_bound import (
         FIELD_DEGREES,
         crb_base_pose,
-        field_sd,
         keypoint_sigma_px,
         mc_ideal_estimator,
         model_floor,
@@ -971,7 +970,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
     # panel's true surfaces; without a pose (no tracks), the survey's. Both as the Fisher information of the measured
     # errors' density has them (fisher_factor: the tails take a little from the core the robust sigma describes)
     ratio = points = f_survey = f_locate = float("nan")
-    field = None  # the keypoints' error field per view (sd of its coefficients, field_sd), when measured
+    field = None  # the keypoints' error field per view (each degree's sd, measure_field), when measured
     if res.success and res.used is not None:
         from bench.scenario.scene_points import SceneRays
 
@@ -984,7 +983,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
         out.update({f"keypoint_field_{name}_px": float(sd) for name, sd in zip(degrees, tn["field_px"], strict=True)})
         out["keypoint_field_views"] = float(tn["field_views"])
         if cfg["bound"]["keypoint_field"] and tn["field_views"]:
-            field = field_sd(*tn["field_px"])
+            field = np.asarray(tn["field_px"], float)
     sigma_bound = sigma_px * _or_one(f_survey)
     sigma_loc = sigma_px * _or_one(ratio) * _or_one(f_locate)
     out.update({"keypoint_sigma_bound_px": sigma_bound, "keypoint_sigma_locate_px": sigma_loc,

@@ -39,10 +39,9 @@ from bench.scenario.bounds import (  # noqa: F401 - the generic parts, re-export
     MultiViewModel,
     best_central_camera,
     crb,
-    draw_fields,
+    draw_field,
     field_displacement,
-    field_order,
-    field_sd,
+    field_prior_information,
     field_terms,
     ideal_features,
     keypoint_sigma_px,
@@ -339,11 +338,12 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
         Covariance of the calibrated mount (right perturbation: rotation vector rad, then m). Omitted: exact.
     vis : ndarray (V, M) bool, optional
         The observation pattern (:func:`observation_pattern`); default every point in every view it projects into.
-    field : ndarray (2 n,), optional
-        Standard deviations of the coefficients of every view's keypoint error field (affine: 6, to cubic order: 20;
-        :func:`~bench.scenario.bounds.field_sd`, measured by :func:`track_noise_on_surface`): each view's field a
-        nuisance parameter under that prior, on top of the white ``sigma_px``. Omitted (or all zero): the keypoints'
-        errors are white.
+    field : ndarray (order + 1,), optional
+        Each degree's sd (px) of every view's keypoint error field in the view's own modes (offset, slope, ... to
+        the order; :func:`~bench.scenario.bounds.measure_field`'s ``degree_px``, measured by
+        :func:`track_noise_on_surface`): each view's field a nuisance parameter under that prior
+        (:func:`~bench.scenario.bounds.field_prior_information` at the view's observed keypoints), on top of the
+        white ``sigma_px``. Omitted (or all zero): the keypoints' errors are white.
     k3_sd : float, optional
         With a (4, 4) ``cov_dist``: the lens's k3 is unknown to the estimator too, under that prior standard
         deviation (the joint bundle refines it, :func:`bench.vision.joint_bundle.lab_prior`). Omitted: k3 is the
@@ -363,7 +363,7 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
     model = _Model(robot, np.asarray(eps_true, float), np.asarray(kept), mount, project, T_site_b2, views, X_site,
                    size, K=K if with_K else None, with_mount=cov_mount is not None, vis=vis,
                    dist=dist if cov_dist is not None else None,
-                   field=field_order(len(field)) if field is not None and np.any(field) else None,
+                   field=len(field) - 1 if field is not None and np.any(field) else None,
                    k3=distortion_block_size(cov_dist, k3_sd) == 5)
     # the encoders observe the joints, the lab identification observed the arm errors, the lab calibrations the
     # intrinsics, the distortion and the mount (one joint prior over those given); the base pose is free
@@ -372,12 +372,32 @@ def crb_base_pose(robot, eps_true, kept, cov_eps_dot, mount, project, T_site_b2,
     if names:
         priors[names] = np.linalg.inv(lab_prior(cov_K, cov_dist, cov_mount, cov_K_dist, cov_K_mount, cov_dist_mount,
                                                 k3_sd))
-    if model.field:  # a coefficient measured at zero is known to be zero (1e-6 px: numerically so)
-        priors["field"] = np.diag(1.0 / np.maximum(np.asarray(field, float), 1e-6) ** 2)
+    if model.field:  # each view's modes at the keypoints it observes (of points seen twice: those that inform)
+        uv = model.pixels(*model.values0, model.X0)
+        inform = model.vis & (model.vis.sum(axis=0) >= 2)
+        priors["field"] = np.stack([_field_information(uv[v, inform[v]], field, size) for v in range(len(views))])
     res = crb(model, sigma_px, priors)
     cov = res["cov"][:6, :6]
     return {"cov": cov, "pos_bound_m": float(np.sqrt(np.trace(cov[3:, 3:]))),
             "rot_bound_rad": float(np.sqrt(np.trace(cov[:3, :3]))), "observations": res["observations"]}
+
+
+def _field_information(uv, field, size) -> np.ndarray:
+    """The prior information of a view's field at its keypoints ``uv`` (:func:`~bench.scenario.bounds.
+    field_prior_information`); a view whose keypoints do not resolve the field's modes has none (fixed at zero)."""
+    try:
+        return field_prior_information(uv, field, size)
+    except ValueError:
+        return np.eye(2 * field_terms(len(field) - 1)) * 1e12
+
+
+def _drawn_field(rng, uv, field, size) -> np.ndarray:
+    """The displacement (N, 2) px of a field drawn for a view's keypoints ``uv`` (:func:`~bench.scenario.bounds.
+    draw_field`); none where the keypoints do not resolve its modes."""
+    try:
+        return field_displacement(uv, draw_field(rng, uv, field, size), size)
+    except ValueError:
+        return np.zeros_like(np.asarray(uv, float))
 
 
 def _estimate(obs, is_loc, method, rng, refine, ransac, focal_px):
@@ -447,8 +467,9 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
     drawn by ``encoders`` (an :class:`~bench.sim.encoders.EncoderModel`), arm errors drawn from the identification
     covariance; intrinsics and mount exact. ``views`` as for :func:`crb_base_pose` (``names``: reference first, then
     the surrounding views, then the locate views: two for the two-view solve, one for PnP). ``ins``, a
-    :class:`~bench.vision.tilt.TiltUpdate`: each draw's error fused with a draw of the INS's tilt. ``field`` (2 n,), the
-    sd of every view's keypoint error field (:func:`crb_base_pose`): each draw adds a field drawn per view.
+    :class:`~bench.vision.tilt.TiltUpdate`: each draw's error fused with a draw of the INS's tilt. ``field``
+    (order + 1,), the keypoint error field's sd per degree (:func:`crb_base_pose`): each draw adds a field drawn
+    per view for its keypoints (:func:`~bench.scenario.bounds.draw_field`).
     """
     q_true = np.array([q for q, _ in views])
     is_loc = np.array([loc for _, loc in views], dtype=bool)
@@ -461,12 +482,11 @@ def mc_ideal_estimator(robot, eps_true, kept, cov_eps_dot, mount, camera: Camera
         eps = np.array(eps_true, float)
         eps[kept] += L @ rng.normal(size=len(kept))
         q_read = encoders.read(q_true, rng)
-        fields = None if field is None else draw_fields(rng, field, len(views))
         obs = []
         for k, name in enumerate(names):
             f = ideal_features(X_site, T_site_cam_true[k], camera.project, camera.size, sigma[k], rng)
-            if fields is not None:
-                f = dataclasses.replace(f, uv=f.uv + field_displacement(f.uv, fields[k], camera.size))
+            if field is not None:
+                f = dataclasses.replace(f, uv=f.uv + _drawn_field(rng, f.uv, field, camera.size))
             obs.append(ViewObservation(name, f, camera.undistort_pixels(f.uv), link5_frame(robot, q_read[k], eps)
                                        @ mount))
         res = _estimate(obs, is_loc, method, rng, refine, ransac, camera.fx)
@@ -534,7 +554,8 @@ def mc_joint_bundle(robot, eps_true, kept, cov_eps_dot, mount, camera: CameraMod
         q_read = q_true + rng.normal(0, sigma_enc, q_true.shape)
         uv = uv0 + rng.normal(0, 1.0, uv0.shape) * sigma[view][:, None]
         if field is not None:
-            uv = uv + field_displacement(uv0, draw_fields(rng, field, len(views))[view], camera.size)
+            uv = uv + np.concatenate([_drawn_field(rng, uv0[view == v], field, camera.size)
+                                      for v in range(len(views))])
         jb = joint_bundle(robot, eps, m, q_read, is_loc, T_site_b2, view, point, uv, X, sigma_enc,
                           float(sigma.min()), K, dist, gate=None, **priors)
         if not jb.success:

@@ -207,15 +207,13 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("keypoint_locate_fisher_factor", "1", "the same for the locate views' errors", BOUND_POSE),
         Metric("keypoint_field_offset_px", "px", "the keypoints' errors that move a whole view's keypoints together: "
                "the sd of each view's offset (per axis), measured on the panel's true surfaces over the survey and "
-               "locate views beyond what their white noise scatters (bench.scenario.bounds.measure_field; a "
-               "polynomial of bound.keypoint_field_order over the image)", BOUND_POSE),
-        Metric("keypoint_field_slope_px", "px", "the same field's slopes: sd of its change per 100 px across the "
-               "image, each axis in each direction", BOUND_POSE),
-        Metric("keypoint_field_quadratic_px", "px", "the same field's quadratic terms (bound.keypoint_field_order "
-               ">= 2): sd of each coefficient of x², x y, y², x and y the pixel's offset from the image centre in "
-               "units of 100 px", BOUND_POSE),
-        Metric("keypoint_field_cubic_px", "px", "its cubic terms (order 3): x³, x² y, x y², y³ likewise",
-               BOUND_POSE),
+               "locate views beyond what their white noise scatters (bench.scenario.bounds.measure_field: a "
+               "polynomial of bound.keypoint_field_order over the image, in each view's modes orthonormal over its "
+               "keypoints; a mode's sd is its RMS displacement over them)", BOUND_POSE),
+        Metric("keypoint_field_slope_px", "px", "the same field's slope modes (x, y): the sd of each", BOUND_POSE),
+        Metric("keypoint_field_quadratic_px", "px", "its quadratic modes (bound.keypoint_field_order >= 2; x², x y, "
+               "y² orthogonalised against the lower degrees)", BOUND_POSE),
+        Metric("keypoint_field_cubic_px", "px", "its cubic modes (order 3) likewise", BOUND_POSE),
         Metric("keypoint_field_views", "count", "views behind that field", BOUND_POSE),
         Metric("keypoint_twin_points", "count", "map points whose reference keypoint is another's second SIFT "
                "orientation (the same pixel): the pipeline weighs them, the bound counts each detection once "

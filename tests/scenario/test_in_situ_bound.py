@@ -361,28 +361,34 @@ def test_pnp_variant_bound_floor_and_monte_carlo(scene):
     assert mc["pos_rms_m"] > 0.8 * one["pos_bound_m"]
 
 
-@pytest.mark.parametrize("degree_sd", [(0.2, 0.1), (0.2, 0.1, 0.05, 0.02)], ids=["affine", "cubic"])
-def test_the_views_error_field_in_the_bound(scene, degree_sd):
-    """Every view's keypoint error field (affine, cubic) as a nuisance under its prior (``field``) is the bound of
-    pixels whose noise is correlated within a view: ``J^T (sigma^2 I + A P A^T)^-1 J`` + priors with ``A`` the
-    fields' pixel columns (Woodbury, 1e-5 relative); a vanishing field gives the white bound; a field raises it."""
-    from bench.scenario.bounds import field_basis, field_sd, field_terms
+@pytest.mark.parametrize("degree_px", [(0.2, 0.1), (0.2, 0.1, 0.05, 0.03)], ids=["affine", "cubic"])
+def test_the_views_error_field_in_the_bound(scene, degree_px):
+    """Every view's keypoint error field (affine, cubic) as a nuisance under its prior (``field``: independent modes
+    over the view's keypoints) is the bound of pixels whose noise is correlated within a view:
+    ``J^T (sigma^2 I + A P A^T)^-1 J`` + priors with ``A`` the fields' pixel columns and ``P`` each view's
+    ``R^-1 D R^-T`` (Woodbury, 1e-5 relative); a vanishing field gives the white bound; a field raises it."""
+    from scipy.linalg import block_diag
+
+    from bench.scenario.bounds import field_basis, field_modes, field_terms, mode_sd
 
     robot, eps, cam, T_site_b2, X, views, kept, cov_eps = scene
     sigma_px, sigma_enc = 0.2, 1e-4
-    sd = field_sd(*degree_sd)  # 25 points a view: a field as large as the white noise weighs
-    order = len(degree_sd) - 1
+    order = len(degree_px) - 1
     n = field_terms(order)
     model = _Model(robot, eps, kept, MOUNT, cam.project, T_site_b2, views, X, cam.size)
     V, M, P = len(views), len(X), len(kept)
     J = model.jacobian_columnwise(*model.values0, X)  # rows: view by view, point by point, u v
     uv = model.pixels(*model.values0, X)  # (V, M, 2)
     A = np.zeros((V, M, 2, V, 2 * n))
+    prior_cov = np.zeros((V, 2 * n, 2 * n))
     for v in range(V):
         B = field_basis(uv[v], cam.size, order)  # (M, n)
         A[v, :, 0, v, :n], A[v, :, 1, v, n:] = B, B
+        Ri = np.linalg.inv(field_modes(uv[v], cam.size, order))  # every point seen in every view here
+        prior_cov[v, :n, :n] = prior_cov[v, n:, n:] = Ri @ np.diag(mode_sd(degree_px) ** 2) @ Ri.T
     A = A.reshape(2 * V * M, 2 * n * V)
-    cov_px = sigma_px**2 * np.eye(2 * V * M) + A @ np.diag(np.tile(sd**2, V)) @ A.T
+    sd = np.asarray(degree_px)
+    cov_px = sigma_px**2 * np.eye(2 * V * M) + A @ block_diag(*prior_cov) @ A.T
     info = J.T @ np.linalg.solve(cov_px, J)
     info[6:6 + 6 * V, 6:6 + 6 * V] += np.eye(6 * V) / sigma_enc**2
     info[6 + 6 * V:6 + 6 * V + P, 6 + 6 * V:6 + 6 * V + P] += np.linalg.inv(cov_eps)
@@ -393,6 +399,6 @@ def test_the_views_error_field_in_the_bound(scene, degree_sd):
     white = crb_base_pose(*args)
     assert np.allclose(crb_base_pose(*args, field=sd * 1e-6)["cov"], white["cov"], rtol=1e-6,
                        atol=1e-6 * np.abs(white["cov"]).max())
-    assert np.allclose(crb_base_pose(*args, field=np.zeros(2 * n))["cov"], white["cov"], rtol=0, atol=0)
+    assert np.allclose(crb_base_pose(*args, field=np.zeros(order + 1))["cov"], white["cov"], rtol=0, atol=0)
     assert with_field["pos_bound_m"] > 1.05 * white["pos_bound_m"]
     assert with_field["rot_bound_rad"] > 1.05 * white["rot_bound_rad"]
