@@ -5,13 +5,13 @@ measured keypoint noise (:func:`keypoint_sigma_px`) and the bound's machinery - 
 
 * :func:`crb_base_pose` - the Cramér-Rao lower bound on the located base pose: Fisher information of every
   observation the ideal estimator would have (each map point in the reference, surrounding and locate views, pixel
-  noise sigma: the survey's, and the locate views' own, :func:`track_noise_on_surface`; optionally each view's affine
-  keypoint error field as a nuisance under its measured prior), with the joint angles of
-  every view as nuisance parameters observed by the encoders (sigma_enc), the identified arm errors (the 25 of
-  §2.5-2.7) with the identification's covariance as prior (tracker noise) and the 3D points as free nuisance
-  parameters (eliminated point by point), optionally the intrinsics and the mount
-  under the lab calibrations' covariances and the observation pattern the matching produced; the base's 6 x 6 block
-  of the inverse. In water the camera is the best central equivalent of lens + port (:func:`best_central_camera`);
+  noise sigma: the survey's, and the locate views' own, :func:`track_noise_on_surface`; optionally each view's
+  polynomial keypoint error field, to cubic order in the view's own modes, as a nuisance under its measured prior),
+  with the joint angles of every view as nuisance parameters observed by the encoders (sigma_enc), the identified
+  arm errors (the 25 of §2.5-2.7) with the identification's covariance as prior (tracker noise) and the 3D points
+  as free nuisance parameters (eliminated point by point), optionally the intrinsics and the mount under the lab
+  calibrations' covariances and the observation pattern the matching produced; the base's 6 x 6 block of the
+  inverse. In water the camera is the best central equivalent of lens + port (:func:`best_central_camera`);
   what no central model removes is the model floor (:func:`model_floor`), reported beside it (docs/bounds.md).
 * :func:`mc_joint_bundle` - refine 'joints' (:mod:`bench.vision.joint_bundle`) under exactly the bound's model: the
   check that the estimator reaches the bound.
