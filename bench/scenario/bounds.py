@@ -490,7 +490,11 @@ def field_modes(uv, size, order: int) -> np.ndarray:
     (``Q^T Q / N = I``: Gram-Schmidt of the monomials in degree order, ``R^T R = X^T X / N``). A field's mode
     amplitudes are ``a = R c`` (px: each mode's RMS displacement over the keypoints) for monomial coefficients ``c``.
     Raises ``ValueError`` when the keypoints do not resolve the modes (fewer than n, or on a curve of that order)."""
-    X = field_basis(np.asarray(uv, float).reshape(-1, 2), size, order)
+    return _modes(field_basis(np.asarray(uv, float).reshape(-1, 2), size, order), order)
+
+
+def _modes(X, order: int) -> np.ndarray:
+    """:func:`field_modes` of the monomials ``X (N, n)`` at the keypoints."""
     n = X.shape[1]
     if len(X) < n:
         raise ValueError(f"field modes: {len(X)} keypoints cannot resolve the {n} modes of order {order}")
@@ -500,11 +504,11 @@ def field_modes(uv, size, order: int) -> np.ndarray:
         raise ValueError(f"field modes: the {len(X)} keypoints lie on a curve of order {order}") from None
 
 
-def mode_sd(degree_px, order: int | None = None) -> np.ndarray:
+def mode_sd(degree_px) -> np.ndarray:
     """Each mode's standard deviation (:func:`field_terms` (order),) from each degree's ``degree_px`` (order + 1,;
     :func:`measure_field`): the modes of one degree alike."""
     d = np.asarray(degree_px, float)
-    return d[field_degrees(len(d) - 1 if order is None else order)]
+    return d[field_degrees(len(d) - 1)]
 
 
 def field_prior_information(uv, degree_px, size, floor_px: float = 1e-6) -> np.ndarray:
@@ -582,18 +586,20 @@ def measure_field(dev, uv, view, shrink, size, order: int = 1, gate: float = 3.5
         m = keep & (view == v)
         if m.sum() < min_points:
             continue
-        c, *_ = np.linalg.lstsq(field_basis(uv[m], size, order), dev[m], rcond=None)
-        m = np.flatnonzero(view == v)  # gated again, about the view's field
-        m = m[_gated(dev[m] - field_basis(uv[m], size, order) @ c, gate)]
+        X = field_basis(uv[view == v], size, order)
+        c, *_ = np.linalg.lstsq(X[m[view == v]], dev[m], rcond=None)
+        inside = _gated(dev[view == v] - X @ c, gate)  # gated again, about the view's field
+        m = np.flatnonzero(view == v)[inside]
+        X = X[inside]
         if len(m) < min_points:
             continue
         try:
-            R = field_modes(uv[m], size, order)
+            R = _modes(X, order)
         except ValueError:  # keypoints that do not resolve the modes measure nothing
             continue
-        c, *_ = np.linalg.lstsq(field_basis(uv[m], size, order), dev[m], rcond=None)  # (n, 2): u's, v's
+        c, *_ = np.linalg.lstsq(X, dev[m], rcond=None)  # (n, 2): u's, v's
         a = R @ c  # the modes' amplitudes (px)
-        s2 = np.sum((dev[m] - field_basis(uv[m], size, order) @ c) ** 2) / (2 * (len(m) - n))
+        s2 = np.sum((dev[m] - X @ c) ** 2) / (2 * (len(m) - n))
         excess.append(a**2 - s2 / len(m))
         factor.append(float(np.mean(shrink[m])))
     if not excess:

@@ -8,6 +8,7 @@ asks for OpenCV 5.1 or newer; a newer OpenCV, numpy or scipy that changes these 
 version, before a sweep silently measures other images.
 """
 
+import functools
 import hashlib
 
 import cv2
@@ -28,6 +29,7 @@ DIGESTS = {
 }
 
 
+@functools.cache
 def _images() -> dict:
     rng = np.random.default_rng(20261202)
     metal = tx.painted_metal(np.random.default_rng(3), (128, 192))
