@@ -72,6 +72,9 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--keypoints", choices=("sift", "aligned"), default="sift", help="SIFT's keypoints (the "
                      "thesis's) or aligned: each matched keypoint moved onto its reference keypoint's image patch "
                      "(bench.vision.patch_align)")
+    loc.add_argument("--covariance", choices=("white", "field"), default="white", help="with --refine joints: the "
+                     "pose's covariance of white pixel noise, or with each view's keypoint error field measured on "
+                     "the joint bundle's residuals (bench.vision.field_covariance)")
     loc.add_argument("--ins-tilt", choices=("fuse", "check"), default="fuse", help="with the dataset's vehicle.yaml "
                      "(the vehicle's INS): test 7, then the INS's tilt fused into the pose (fuse), or test 7 only "
                      "(check) (bench.vision.tilt)")
@@ -227,7 +230,8 @@ def _identity(args) -> str:
     return settings_identity({"dataset": args.dataset, "camera": args.camera, "robot": args.robot,
                               "priors": args.priors}, method=args.method, pnp=args.pnp, refine=args.refine,
                              guided=args.guided, loss=args.loss, map_points=args.map_points,
-                             keypoints=args.keypoints, ins_tilt=args.ins_tilt, seed=args.seed)
+                             keypoints=args.keypoints, ins_tilt=args.ins_tilt, seed=args.seed,
+                             **({} if args.covariance == "white" else {"covariance": args.covariance}))
 
 
 def _add_interchange_commands(sub) -> None:
@@ -375,7 +379,8 @@ def main(argv=None) -> int:
                                  "lab's covariance of them)")
             for flag, on in ((f"--priors {args.priors}", args.priors), ("--guided", args.guided),
                              (f"--loss {args.loss}", args.loss != "none"),
-                             (f"--map-points {args.map_points}", args.map_points != "all")):
+                             (f"--map-points {args.map_points}", args.map_points != "all"),
+                             (f"--covariance {args.covariance}", args.covariance != "white")):
                 if on and (args.refine != "joints" or args.pnp):
                     raise BenchError(f"{flag}: used only by --refine joints (two views), got --refine {args.refine}"
                                      f"{' --pnp' if args.pnp else ''}")
@@ -383,7 +388,8 @@ def main(argv=None) -> int:
                                       camera_path=args.camera, robot_path=args.robot, refine=args.refine,
                                       priors_path=args.priors, guided=args.guided,
                                       loss=None if args.loss == "none" else args.loss, map_points=args.map_points,
-                                      keypoints=args.keypoints, ins_tilt=args.ins_tilt, refine_k3=args.refine_k3)
+                                      keypoints=args.keypoints, ins_tilt=args.ins_tilt, refine_k3=args.refine_k3,
+                                      covariance=args.covariance)
             return 0 if res.success and rep["integrity"] != "refused" else 1  # refused: do not use the pose
         elif args.command == "faults":
             from bench.scenario.faults import run_faults

@@ -73,7 +73,8 @@ def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None, fea
                               map_points=pipeline.get("map_points", "all"), keypoints=pipeline.get("keypoints", "sift"),
                               pnp=pipeline.get("locate", "two_view") == "pnp", details=details,
                               ins_tilt=pipeline.get("ins_tilt", "fuse"),
-                              refine_k3=refines_k3(pipeline), features_fn=features_fn)
+                              refine_k3=refines_k3(pipeline), features_fn=features_fn,
+                              covariance=pipeline.get("covariance", "white"))
 
 
 def relocate(run_dir: str, seed: int, pipeline: dict, name: str) -> tuple:

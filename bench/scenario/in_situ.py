@@ -232,14 +232,18 @@ class Pipeline(Section):
         "the keypoints the localisation uses: SIFT's (the thesis's) or aligned - every keypoint matched to its "
         "region's reference keypoint moved onto the reference's image patch (bench.vision.patch_align; "
         "docs/integrity.md measures it)")] = "sift"
+    covariance: Annotated[Literal["white", "field"], about(
+        "refine joints: the pose's covariance of white pixel noise, or with each view's keypoint error field (to "
+        "cubic order) measured on the joint bundle's residuals (bench.vision.field_covariance; docs/integrity.md "
+        "measures it)")] = "white"
 
     @model_validator(mode="after")
     def _needs_joints(self):
         if self.locate == "pnp" and self.refine != "none":
             raise KeyProblem("locate", f"pnp refines its own pose (LM on its inliers): set pipeline.refine=none, got "
                                        f"refine {self.refine!r}")
-        for key, on in (("guided", self.guided), ("loss", self.loss != "none"), ("map_points",
-                                                                               self.map_points != "all")):
+        for key, on in (("guided", self.guided), ("loss", self.loss != "none"),
+                        ("map_points", self.map_points != "all"), ("covariance", self.covariance != "white")):
             if on and self.refine != "joints":
                 raise KeyProblem(key, f"used only by refine 'joints', got refine {self.refine!r}")
         return self
@@ -1172,7 +1176,8 @@ def run(cfg, out_dir, verbose=True):
                                  robot_path=robot_path, refine=p["refine"], ransac=ransac, details=details,
                                  features_fn=features_fn, priors_path=priors_path, guided=p["guided"],
                                  loss=None if p["loss"] == "none" else p["loss"], map_points=p["map_points"],
-                                 pnp=p["locate"] == "pnp", keypoints=p["keypoints"], ins_tilt=p["ins_tilt"])
+                                 pnp=p["locate"] == "pnp", keypoints=p["keypoints"], ins_tilt=p["ins_tilt"],
+                                 covariance=p["covariance"])
 
     # --- score (the evaluator reads the truth) ----------------------------------------------------------------------
     T_b1_b2 = invert(np.array(truth["T_world_base_survey"])) @ np.array(truth["T_world_base_locate"])

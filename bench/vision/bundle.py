@@ -63,26 +63,65 @@ def normal_equations(point, r, J, J_pt, M: int, prior_info, prior_res, keep=None
     """The reduced system (points eliminated): ``S (n, n)``, gradient ``g (n,)`` and the points' back-substitution.
     Observations outside ``keep`` (N,) bool weigh nothing; a point left with fewer than two is held where it is.
     ``keep`` may be float: each observation's residual and Jacobian are scaled by it (the square root of a weight)."""
-    N, n = J.shape[0], J.shape[2]
-    if keep is not None:
-        w = keep.astype(float)
-        r, J, J_pt = r * w[:, None], J * w[:, None, None], J_pt * w[:, None, None]
-    Jf = J.reshape(2 * N, n)
-    A = Jf.T @ Jf + prior_info
-    g_c = Jf.T @ r.reshape(2 * N) + prior_res
-    by_point = csr_matrix((np.ones(N), (point, np.arange(N))), shape=(M, N))  # sums over each point's observations
-    B = (by_point @ (np.swapaxes(J, 1, 2) @ J_pt).reshape(N, 3 * n)).reshape(M, n, 3)
-    C = (by_point @ (np.swapaxes(J_pt, 1, 2) @ J_pt).reshape(N, 9)).reshape(M, 3, 3)
-    g_m = by_point @ np.einsum("nki,nk->ni", J_pt, r)
-    Cinv = np.linalg.inv(C + 1e-9 * np.eye(3))  # regularised: a point gated down to one view (B = 0) stays put
-    BCinv = B @ Cinv
-    S = A - np.einsum("mik,mjk->ij", BCinv, B)
-    g = g_c - np.einsum("mik,mk->i", BCinv, g_m)
+    el = Elimination(point, J, J_pt, M, prior_info, keep)
+    g_c, g_m = el.gradients(r[..., None])
+    g = el.reduced(g_c, g_m)[:, 0] + prior_res
 
     def points_step(dc):
-        return -np.einsum("mkl,ml->mk", Cinv, g_m + np.einsum("mik,i->mk", B, dc))
+        return el.points_step(g_m, dc[:, None])[..., 0]
 
-    return 0.5 * (S + S.T), g, points_step
+    return el.S, g, points_step
+
+
+class Elimination:
+    """The points of a bundle eliminated point by point (Schur complement) at one linearisation: ``J (N, 2, n)``,
+    ``J_pt (N, 2, 3)``, observations weighted by ``keep`` (N,) (bool, or float: the square root of a weight), the
+    priors' information ``prior_info (n, n)`` in pixel units. ``S`` (n, n) is the reduced normal matrix; the methods
+    act on stacks of right-hand sides ``(..., c)`` at once."""
+
+    def __init__(self, point, J, J_pt, M: int, prior_info, keep=None):
+        N, n = J.shape[0], J.shape[2]
+        self.w = np.ones(N) if keep is None else np.asarray(keep).astype(float)
+        self.point, self.M = np.asarray(point, int), M
+        self.J, self.J_pt = J * self.w[:, None, None], J_pt * self.w[:, None, None]
+        self.by_point = csr_matrix((np.ones(N), (self.point, np.arange(N))), shape=(M, N))  # sums over each point
+        B = (self.by_point @ (np.swapaxes(self.J, 1, 2) @ self.J_pt).reshape(N, 3 * n)).reshape(M, n, 3)
+        C = (self.by_point @ (np.swapaxes(self.J_pt, 1, 2) @ self.J_pt).reshape(N, 9)).reshape(M, 3, 3)
+        self.B = B
+        self.Cinv = np.linalg.inv(C + 1e-9 * np.eye(3))  # regularised: a point gated down to one view stays put
+        self.BCinv = B @ self.Cinv
+        Jf = self.J.reshape(2 * N, n)
+        S = Jf.T @ Jf + prior_info - np.einsum("mik,mjk->ij", self.BCinv, B)
+        self.S = 0.5 * (S + S.T)
+
+    def gradients(self, r):
+        """The parameters' and the points' gradients ``(n, c)``, ``(M, 3, c)`` of residuals ``r (N, 2, c)``
+        (weighted as the observations are)."""
+        N, n, c = self.J.shape[0], self.J.shape[2], r.shape[-1]
+        rw = r * self.w[:, None, None]
+        g_c = self.J.reshape(2 * N, n).T @ rw.reshape(2 * N, c)
+        g_m = (self.by_point @ np.einsum("nki,nkc->nic", self.J_pt, rw).reshape(N, 3 * c)).reshape(self.M, 3, c)
+        return g_c, g_m
+
+    def reduced(self, g_c, g_m):
+        """The reduced gradient ``(n, c)``: the points' part carried onto the parameters."""
+        return g_c - np.einsum("mik,mkc->ic", self.BCinv, g_m)
+
+    def points_step(self, g_m, dc):
+        """The points' step ``(M, 3, c)`` that goes with a parameter step ``dc (n, c)``."""
+        return -np.einsum("mkl,mlc->mkc", self.Cinv, g_m + np.einsum("mik,ic->mkc", self.B, dc))
+
+    def response(self, b):
+        """The linear response of the estimate to pixel errors ``b (N, 2, c)`` added to the measurements: the
+        parameters' change ``(n, c)`` and the residuals' ``(N, 2, c)`` (``b`` less what the fit absorbs; weighted,
+        zero where an observation weighs nothing). With ``R`` the residual-maker of the weighted fit (symmetric),
+        the second is ``R b``."""
+        g_c, g_m = self.gradients(b)
+        d_theta = -np.linalg.solve(self.S, self.reduced(g_c, g_m))
+        dX = self.points_step(g_m, d_theta)
+        res = (b * self.w[:, None, None] + np.einsum("nki,ic->nkc", self.J, d_theta)
+               + np.einsum("nkl,nlc->nkc", self.J_pt, dX[self.point]))
+        return d_theta, res
 
 
 def seen_twice(point, keep, M: int) -> np.ndarray:

@@ -324,6 +324,9 @@ class LocateResult:
         When the joint bundle refined the pose (``locate_dataset``, refine ``joints``): the condition of the pose it
         solved, where its points are (:func:`bench.vision.integrity.pose_condition`); NaN otherwise. ``condition``
         then stays the thesis estimate's that started it.
+    field : dict or None
+        With the covariance ``field`` (``locate_dataset``): the keypoint error field behind the covariance
+        (:meth:`bench.vision.field_covariance.FieldCovariance.report`: the white noise and each degree's sd, px).
     """
 
     success: bool
@@ -343,6 +346,7 @@ class LocateResult:
     #: view a, ``x_b`` None
     used: tuple | None = None
     pose_condition: float = float("nan")
+    field: dict | None = None
 
 
 def baseline_check(baseline_m: float, depth_m: float, focal_px: float, resolution_m: float) -> tuple:

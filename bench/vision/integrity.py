@@ -635,14 +635,18 @@ def smallest_eigenvalue(covariance) -> float:
     return float(np.linalg.eigvalsh(0.5 * (cov + cov.T)).min()) if np.all(np.isfinite(cov)) else float("nan")
 
 
-def kappa_of(refine: str, pnp: bool = False, regions: int = 1, keypoints: str = "sift") -> float:
+def kappa_of(refine: str, pnp: bool = False, regions: int = 1, keypoints: str = "sift", covariance: str = "white"
+             ) -> float:
     """The measured covariance optimism :data:`KAPPA` of an estimator (``refine`` mode; PnP: unmeasured); the joint
     bundle over more than one region of the scene (``regions`` solved together) has its own, and so has each on
-    ``keypoints`` ``"aligned"`` (:mod:`bench.vision.patch_align`; the key's suffix ``_aligned``)."""
+    ``keypoints`` ``"aligned"`` (:mod:`bench.vision.patch_align`; the key's suffix ``_aligned``) and with the
+    ``covariance`` ``"field"`` (:mod:`bench.vision.field_covariance`; the suffix ``_field``)."""
     if pnp:
         return KAPPA_UNMEASURED
     key = "joints_regions" if str(refine) == "joints" and int(regions) > 1 else str(refine)
-    return KAPPA.get(key if keypoints == "sift" else f"{key}_{keypoints}", KAPPA_UNMEASURED)
+    key += "" if keypoints == "sift" else f"_{keypoints}"
+    key += "" if covariance == "white" else f"_{covariance}"
+    return KAPPA.get(key, KAPPA_UNMEASURED)
 
 
 def assess(kmap: KeypointMap, surround: list, view_a: ViewObservation, view_b: ViewObservation, result,

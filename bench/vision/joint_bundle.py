@@ -36,6 +36,7 @@ from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous
 from bench.robot.orientation import link5_frame
 from bench.vision.bundle import solve
+from bench.vision.field_covariance import FieldCovariance, field_covariance
 from bench.vision.insitu import _proj_jac
 
 #: the prior sd of the lens's k3 that a Heikkila calibration (k1 k2 p1 p2) does not estimate, when the joint bundle
@@ -53,7 +54,9 @@ class JointBundleResult:
     covariance (rotation vector rad in the site frame, then the base origin m: the meaning of
     :attr:`~bench.vision.insitu.LocateResult.covariance`); ``q`` (V, 6) the refined joint angles (rad); ``K`` (3, 3)
     and ``T_link5_cam`` (4, 4) the intrinsics and mount (refined when their priors were given); ``sigma_px`` the
-    pixel noise the residuals gave; ``rms_px`` the final residual RMS; ``observations`` those kept by the gate.
+    pixel noise the residuals gave; ``rms_px`` the final residual RMS; ``observations`` those kept by the gate;
+    ``field`` the keypoint error field behind ``covariance`` (:class:`~bench.vision.field_covariance.FieldCovariance`,
+    with ``field_order``; None: white pixel noise).
     """
 
     success: bool
@@ -68,6 +71,7 @@ class JointBundleResult:
     K: np.ndarray | None = None
     T_link5_cam: np.ndarray | None = None
     dist: np.ndarray | None = None
+    field: FieldCovariance | None = None
 
 
 class _Problem:
@@ -205,7 +209,8 @@ class _Bound:
 def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, point, uv, X, sigma_enc: float,
                  sigma_px: float, K, dist=None, cov_K=None, cov_mount=None, iterations: int = 10, rounds: int = 3,
                  gate: float | None = 3.5, cov_K_mount=None, cov_dist=None, cov_K_dist=None,
-                 cov_dist_mount=None, loss: str | None = None, k3_sd: float | None = None) -> JointBundleResult:
+                 cov_dist_mount=None, loss: str | None = None, k3_sd: float | None = None,
+                 field_order: int | None = None, image_size=None) -> JointBundleResult:
     """Base pose, joints of every view, map points (and the intrinsics and mount under their lab priors) by maximum
     likelihood (see the module docstring).
 
@@ -254,7 +259,13 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     loss : {None, "huber"}
         None: least squares on the observations the gate keeps; ``"huber"``: Huber's M-estimate by iteratively
         re-weighted least squares (:func:`bench.vision.bundle.solve`): the tail below the gate weighs less.
+    field_order : int, optional
+        Given (0-3, with ``image_size (w, h)``): the covariance is the estimate's with each view's keypoint error
+        field of that order, measured on the residuals (:func:`bench.vision.field_covariance.field_covariance`;
+        ``field`` of the result); None: the first-order covariance of white pixel noise.
     """
+    if field_order is not None and image_size is None:
+        raise ValueError("field_order needs the image_size (w, h)")
     q_read = np.asarray(q_read, float)
     X = np.array(X, dtype=float)
     V, M = len(q_read), len(X)
@@ -281,7 +292,11 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
         return JointBundleResult(False, sol.message, T_site_b2, nan6, q_read, sol.sigma_px, np.nan, len(problem.view),
                                  sol.iterations)
     theta, keep, s_px = sol.theta, sol.keep, sol.sigma_px
-    cov = sol.covariance()[:6, :6]
+    cov, field = sol.covariance()[:6, :6], None
+    if field_order is not None:
+        field = field_covariance(_Bound(problem, T_site_b2), sol, info0, problem.view, problem.uv, image_size,
+                                 field_order)
+        cov = field.covariance[:6, :6]
     r = residuals(problem, theta, T_site_b2, sol.X)
     xi, q, d_K, d_d, d_m = problem.split(theta)
     T = np.array(T_site_b2, dtype=float)
@@ -291,11 +306,12 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
     rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1)) / 2))
     extra = ((", intrinsics" if cov_K is not None else "")
              + (", distortion" + (" with k3" if nd == 5 else "") if cov_dist is not None else "")
-             + (", mount" if cov_mount is not None else ""))
+             + (", mount" if cov_mount is not None else "")
+             + ("" if field is None else f"; covariance with the keypoints' {field.message}"))
     return JointBundleResult(True, f"ok; joint bundle of {M} points, {len(r)} of {len(keep)} observations kept, {V} "
                              f"views' joints{extra}, sigma {s_px:.3g} px", T, cov, q, s_px, rms,
                              len(r), sol.iterations, problem.intrinsics(d_K), problem.mounted(d_m),
-                             problem.distortion(d_d))
+                             problem.distortion(d_d), field)
 
 
 def distortion_block_size(cov_dist=None, k3_sd=None) -> int:

@@ -93,6 +93,8 @@ SETTLED_FRACTION = 1e-3
 SAME_POINT_PX = 1.5
 #: otherwise the median depth of this many nearest map points in the image
 DEPTH_NEIGHBOURS = 5
+#: the keypoint error field's order of ``covariance: field`` (cubic: the bound's, docs/bounds.md)
+FIELD_ORDER = 3
 
 
 def keypoint_depths(x_n, p_cam, focal_px) -> np.ndarray:
@@ -247,7 +249,7 @@ def _align_keypoints(obs, regions, camera, config) -> tuple:
 
 
 def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None, guided: bool = False,
-                   loss: str | None = None, map_points: str = "all"):
+                   loss: str | None = None, map_points: str = "all", field_order: int | None = None):
     """The thesis estimator's pose refined by :func:`~bench.vision.joint_bundle.joint_bundle` (joints under the
     encoder prior); on failure the thesis estimate is kept and the message says why.
 
@@ -257,7 +259,9 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
     estimate to start from. With ``guided`` each region's map is then searched again in its locate views at the
     refined poses and camera (:mod:`bench.vision.guided`) and the joint bundle re-run on the grown sets; ``loss``:
     the joint bundle's (``joint_bundle``); ``map_points``: which map points it weighs
-    (:func:`~bench.vision.joint_bundle.observations_of`). Returns ``(result, refined, used)``: ``refined`` False
+    (:func:`~bench.vision.joint_bundle.observations_of`); ``field_order``: the covariance with each view's keypoint
+    error field of that order (:mod:`bench.vision.field_covariance`), None: white. Returns ``(result, refined,
+    used)``: ``refined`` False
     when the thesis's estimate (and covariance) is what comes back; ``used`` the points of every region the returned
     estimate used (the result's own ``used`` is the first region's)."""
     from bench.camera.model import distort, to_pixels
@@ -284,7 +288,8 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
         X = np.concatenate(X)
         return joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, T_start, np.concatenate(view),
                             np.concatenate(point), np.concatenate(uv), X, sigma_enc, 0.1, camera.K, camera.dist,
-                            **(priors or {}), loss=loss), X  # 0.1 px: a start
+                            **(priors or {}), loss=loss, field_order=field_order,
+                            image_size=camera.size), X  # 0.1 px: a start
 
     try:
         jb, X = bundle(useds, res.T_world_base)
@@ -329,7 +334,8 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
     # test 6 then weighs the geometry of the pose the joint bundle solved, not the condition of the start's system
     cond = pose_condition(jb.covariance, jb.T_site_base, X)
     return replace(res, message=f"{res.message}; {jb.message[4:]}{note}", T_world_base=jb.T_site_base,
-                   T_ref_cam=T_ref_a, covariance=jb.covariance, pose_condition=cond, used=useds[0]), True, useds
+                   T_ref_cam=T_ref_a, covariance=jb.covariance, pose_condition=cond, used=useds[0],
+                   field=None if jb.field is None else jb.field.report()), True, useds
 
 
 def _regions(ds, pnp: bool, refine: str) -> list:
@@ -364,7 +370,7 @@ def _regions(ds, pnp: bool, refine: str) -> list:
 
 
 def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, camera, sigma_enc, priors, guided,
-             loss, map_points) -> tuple:
+             loss, map_points, field_order=None) -> tuple:
     """The estimate of the regions ``include`` (indices) from their thesis estimates ``per``: with one region its
     own, refined by the joint bundle with refine 'joints'; with several the joint bundle over all of them together,
     started from the region with the most inliers (which then comes first in ``include``; regions whose thesis
@@ -376,7 +382,7 @@ def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, 
         if sigma_enc is None or not res.success:  # refine 'joints' and two views: sigma_enc is given
             return [0], res, False, None, [res.used]
         out, refined, used = _refine_joints(res, [(maps[0], regions[0][1], res.used)], obs, robot, eps, T_link5_cam,
-                                            camera, sigma_enc, priors, guided, loss, map_points)
+                                            camera, sigma_enc, priors, guided, loss, map_points, field_order)
         return [0], out, refined, res, used
     # a region with fewer inliers than test 5 accepts has too little to add (not a fault: left out like a failure)
     include = [i for i in include if per[i].success and per[i].used is not None and len(per[i].used[0]) >= 3
@@ -393,7 +399,8 @@ def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, 
                   n_matches=sum(per[i].n_matches for i in include), n_inliers=sum(per[i].n_inliers for i in include),
                   timings_s=dict(per[start].timings_s))
     out, refined, used = _refine_joints(res, [(maps[i], regions[i][1], per[i].used) for i in include], obs, robot,
-                                        eps, T_link5_cam, camera, sigma_enc, priors, guided, loss, map_points)
+                                        eps, T_link5_cam, camera, sigma_enc, priors, guided, loss, map_points,
+                                        field_order)
     return include, out, refined, per[start], used
 
 
@@ -413,7 +420,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
                    seed: int = 0, verbose: bool = True, camera_path=None, robot_path=None, refine="bundle",
                    ransac: dict | None = None, details: dict | None = None, features_fn=None, priors_path=None,
                    guided: bool = False, loss: str | None = None, map_points: str = "all", keypoints: str = "sift",
-                   ins_tilt: str = "fuse", refine_k3: bool = False):
+                   ins_tilt: str = "fuse", refine_k3: bool = False, covariance: str = "white"):
     """Build the map from the survey views and locate the base from the two ``locate`` views.
 
     ``camera_path`` / ``robot_path`` replace the dataset's own files (e.g. the results of an earlier calibration);
@@ -434,7 +441,9 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     ``ins_tilt`` (a dataset with the vehicle's ``vehicle.yaml``): ``"fuse"`` (test 7 on the images' pose, then the
     INS's tilt fused into the pose and its covariance, and the protection levels again: :func:`bench.vision.tilt.fuse`)
     or ``"check"`` (test 7 only; the images' pose is returned). The report keeps the images' pose beside the fused
-    one (``T_world_base_vision``).
+    one (``T_world_base_vision``). ``covariance`` (``refine: joints``): ``"white"`` (the joint bundle's
+    first-order covariance of independent pixel noise) or ``"field"`` (the estimate's covariance with each view's
+    keypoint error field to cubic order, measured on the bundle's residuals: :mod:`bench.vision.field_covariance`).
     Returns ``(LocateResult, report dict)``; writes ``out/locate.json`` when ``out`` is given.
     """
     t0 = time.perf_counter()
@@ -442,6 +451,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         raise ConfigError("locate_dataset", "map_points", f"expected 'all' or 'located', got {map_points!r}")
     if keypoints not in ("sift", "aligned"):
         raise ConfigError("locate_dataset", "keypoints", f"expected 'sift' or 'aligned', got {keypoints!r}")
+    if covariance not in ("white", "field"):
+        raise ConfigError("locate_dataset", "covariance", f"expected 'white' or 'field', got {covariance!r}")
     if ins_tilt not in ("fuse", "check"):
         raise ConfigError("locate_dataset", "ins_tilt", f"expected 'fuse' or 'check', got {ins_tilt!r}")
     ds = load_dataset(root)
@@ -487,7 +498,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     def combine(per, maps, obs, include):
         """:func:`_combine` of the regions ``include`` with this call's robot, camera and settings."""
         return _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, pixels_camera, sigma_enc,
-                        priors, guided, loss, map_points)
+                        priors, guided, loss, map_points, FIELD_ORDER if covariance == "field" else None)
 
     def solve(obs):
         """Every region's map and thesis estimate, then their estimate together (:func:`_combine`: the joint
@@ -535,7 +546,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         it is unmeasured), over one region and over several (``n_regions`` solved together), on SIFT's keypoints or
         aligned ones. Returns ``(result, kappa)``."""
         used = ("joints" if refined else "bundle") if refine == "joints" else refine
-        kappa = (kappa_of(used, pnp, n_regions, "aligned" if aligned else "sift")
+        kappa = (kappa_of(used, pnp, n_regions, "aligned" if aligned else "sift",
+                          covariance if used == "joints" else "white")
                  if used != "joints" or priors is not None else KAPPA_UNMEASURED)
         return (replace(res, covariance=kappa**2 * np.asarray(res.covariance, float)) if res.success else res), kappa
 
@@ -592,7 +604,9 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     report = {"dataset": str(ds.root), "success": res.success, "message": res.message,
               "map_points": sum(len(m) for m in maps), "map_stats": kmap.stats, "n_matches": res.n_matches,
               "inliers": res.n_inliers, "condition": res.condition, "method": "pnp" if pnp else method,
-              "covariance_kappa": kappa, **align_stats, **integ.report(),
+              "covariance_kappa": kappa, "covariance_model": covariance if refined else "white",
+              **({} if res.field is None else {"covariance_field": res.field}), **align_stats,
+              **integ.report(),
               "timings_s": res.timings_s, "tasks": {}}  # no task is offered without a pose
     if len(regions) > 1:
         report["regions"] = {name: {"map_points": len(m), "matches": r.n_matches, "inliers": r.n_inliers,
