@@ -125,9 +125,11 @@ REFUSE_CONDITION = 1e8
 #: the largest measured value. On aligned keypoints (``pipeline.keypoints: aligned``,
 #: :mod:`bench.vision.patch_align`) the joint bundle's pixel noise halves but its error does not, so the same
 #: estimators have their own (docs/integrity.md, "Aligned keypoints"): ``joints_aligned`` on the same 20 seeds,
-#: ``joints_regions_aligned`` on the same 40 runs.
+#: ``joints_regions_aligned`` on the same 40 runs. With the covariance of each view's keypoint error field
+#: (``pipeline.covariance: field``, :mod:`bench.vision.field_covariance`): ``joints_field`` on the same 20 seeds
+#: (localised again at kappa 1; docs/integrity.md, "The covariance with each view's keypoint field").
 KAPPA = {"joints": 1.32, "joints_regions": 1.66, "bundle": 2.89, "joints_aligned": 1.81,
-         "joints_regions_aligned": 2.14}
+         "joints_regions_aligned": 2.14, "joints_field": 1.19}
 KAPPA_UNMEASURED = max(KAPPA.values())
 #: Model floor of the protection levels (the residual kinematic calibration error, see the module docstring).
 FLOOR_MM = 0.5

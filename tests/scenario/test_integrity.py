@@ -371,6 +371,45 @@ def test_refine_k3_on_a_rendered_dataset(rendered, tmp_path, capsys):
     assert err.count("\n") == 0 and "--refine-k3: needs --priors" in err, err
 
 
+def test_field_covariance_on_a_rendered_dataset(rendered, capsys, tmp_path):
+    """pipeline.covariance: field - the joint bundle's covariance with each view's keypoint error field, measured on
+    its residuals. On a rendered dataset the images' pose is the white covariance's (the covariance differs, and with
+    it the INS's fused pose), the field's figures are in locate.json, the pose lies inside its radius; a duplicated
+    frame is still refused through bench locate --covariance field; asked of an estimator without the joint bundle,
+    or with an unknown value, refused in one line."""
+    from bench.errors import BenchError
+
+    tmp, camera, robot, T_true, kw = _joints_setup(rendered)
+    white, rep_w = locate_dataset(tmp / "ds", None, **kw)
+    field, rep_f = locate_dataset(tmp / "ds", None, covariance="field", **kw)
+    assert white.success and field.success and rep_f["covariance_model"] == "field"
+    assert "covariance_field" not in rep_w and rep_w["covariance_model"] == "white"
+    f = rep_f["covariance_field"]
+    assert f["success"] and f["views"] >= 5 and 0 < f["sigma_white_px"] <= float(
+        re.search(r"sigma ([\d.e-]+) px", field.message).group(1)) + 1e-12
+    assert all(f[f"{d}_px"] >= 0 for d in ("offset", "slope", "quadratic", "cubic"))
+    assert "covariance with the keypoints' field of order 3" in field.message
+    vision = [np.array(r.get("T_world_base_vision", res.T_world_base)) for r, res in ((rep_w, white), (rep_f, field))]
+    assert np.allclose(vision[0], vision[1], rtol=0, atol=1e-12)
+    assert not np.allclose(field.covariance, white.covariance)
+    assert rep_f["integrity"] != "refused", rep_f["integrity_reasons"]
+    assert np.linalg.norm(field.T_world_base[:3, 3] - T_true[:3, 3]) * 1e3 <= rep_f["protection_radius_mm"]
+    with pytest.raises(ConfigError, match="covariance: expected 'white' or 'field'"):
+        locate_dataset(tmp / "ds", None, covariance="sandwich", **kw)
+    ds = tmp / "dup"
+    if not ds.exists():
+        shutil.copytree(tmp / "ds", ds)
+        F.duplicate_frame(ds, F._site_views(load_dataset(ds)), {}, np.random.default_rng(0))
+    rc = main(["locate", str(ds), "--camera", str(camera), "--robot", str(robot), "--refine", "joints",
+               "--covariance", "field", "--out", str(tmp_path / "loc")])
+    assert rc == 1 and "integrity: REFUSED" in capsys.readouterr().out
+    assert main(["locate", str(tmp / "ds"), "--covariance", "field", "--out", str(tmp_path / "l2")]) == 2
+    assert "--covariance field: used only by --refine joints" in capsys.readouterr().err
+    scenario = Path(__file__).resolve().parents[2] / "scenarios" / "ta40_in_situ_manifold.yaml"
+    with pytest.raises(BenchError, match=r"pipeline\.covariance: used only by refine 'joints'"):
+        load_scenario(scenario, overrides=["pipeline.covariance=field", "pipeline.refine=bundle"])
+
+
 def test_aligned_keypoints_on_a_rendered_dataset(rendered, capsys, tmp_path):
     """pipeline.keypoints: aligned - the survey's and locate views' keypoints moved onto the reference's patches. On
     a rendered dataset most matched keypoints align, by a fraction of a pixel; the joint bundle's residuals shrink
