@@ -82,12 +82,18 @@ def test_confident_wrong_datasets_are_refused(fault_rows, fault):
     assert r["protection_radius_mm"] == float("inf")
 
 
-def test_bench_locate_exits_nonzero_on_refusal_and_offers_no_task(rendered, fault_rows, capsys, tmp_path):
-    tmp, camera, robot = rendered
+def _duplicated_frame(tmp):
+    """The rendered dataset with ``locate1`` a copy of ``locate0`` (made once, beside it)."""
     ds = tmp / "dup"
     if not ds.exists():
         shutil.copytree(tmp / "ds", ds)
         F.duplicate_frame(ds, F._site_views(load_dataset(ds)), {}, np.random.default_rng(0))
+    return ds
+
+
+def test_bench_locate_exits_nonzero_on_refusal_and_offers_no_task(rendered, fault_rows, capsys, tmp_path):
+    tmp, camera, robot = rendered
+    ds = _duplicated_frame(tmp)
     rc = main(["locate", str(ds), "--camera", str(camera), "--robot", str(robot), "--out", str(tmp_path / "loc")])
     out = capsys.readouterr().out
     assert rc == 1 and "integrity: REFUSED" in out and "consensus" in out
@@ -371,6 +377,17 @@ def test_refine_k3_on_a_rendered_dataset(rendered, tmp_path, capsys):
     assert err.count("\n") == 0 and "--refine-k3: needs --priors" in err, err
 
 
+def _holds_and_refuses_a_duplicate(rendered, res, rep, flags, tmp_path, capsys):
+    """A ``refine: joints`` variant's localisation ``res, rep`` of the rendered dataset is not refused and lies inside
+    its protection radius, and ``bench locate --refine joints FLAGS`` refuses the duplicated frame (exit 1)."""
+    tmp, camera, robot, T_true, _ = _joints_setup(rendered)
+    assert rep["integrity"] != "refused", rep["integrity_reasons"]
+    assert np.linalg.norm(res.T_world_base[:3, 3] - T_true[:3, 3]) * 1e3 <= rep["protection_radius_mm"]
+    rc = main(["locate", str(_duplicated_frame(tmp)), "--camera", str(camera), "--robot", str(robot), "--refine",
+               "joints", *flags, "--out", str(tmp_path / "loc")])
+    assert rc == 1 and "integrity: REFUSED" in capsys.readouterr().out
+
+
 def test_field_covariance_on_a_rendered_dataset(rendered, capsys, tmp_path):
     """pipeline.covariance: field - the joint bundle's covariance with each view's keypoint error field, measured on
     its residuals. On a rendered dataset the images' pose is the white covariance's (the covariance differs, and with
@@ -392,17 +409,9 @@ def test_field_covariance_on_a_rendered_dataset(rendered, capsys, tmp_path):
     vision = [np.array(r.get("T_world_base_vision", res.T_world_base)) for r, res in ((rep_w, white), (rep_f, field))]
     assert np.allclose(vision[0], vision[1], rtol=0, atol=1e-12)
     assert not np.allclose(field.covariance, white.covariance)
-    assert rep_f["integrity"] != "refused", rep_f["integrity_reasons"]
-    assert np.linalg.norm(field.T_world_base[:3, 3] - T_true[:3, 3]) * 1e3 <= rep_f["protection_radius_mm"]
+    _holds_and_refuses_a_duplicate(rendered, field, rep_f, ["--covariance", "field"], tmp_path, capsys)
     with pytest.raises(ConfigError, match="covariance: expected 'white' or 'field'"):
         locate_dataset(tmp / "ds", None, covariance="sandwich", **kw)
-    ds = tmp / "dup"
-    if not ds.exists():
-        shutil.copytree(tmp / "ds", ds)
-        F.duplicate_frame(ds, F._site_views(load_dataset(ds)), {}, np.random.default_rng(0))
-    rc = main(["locate", str(ds), "--camera", str(camera), "--robot", str(robot), "--refine", "joints",
-               "--covariance", "field", "--out", str(tmp_path / "loc")])
-    assert rc == 1 and "integrity: REFUSED" in capsys.readouterr().out
     assert main(["locate", str(tmp / "ds"), "--covariance", "field", "--out", str(tmp_path / "l2")]) == 2
     assert "--covariance field: used only by --refine joints" in capsys.readouterr().err
     scenario = Path(__file__).resolve().parents[2] / "scenarios" / "ta40_in_situ_manifold.yaml"
@@ -427,17 +436,9 @@ def test_aligned_keypoints_on_a_rendered_dataset(rendered, capsys, tmp_path):
     sigma = [float(re.search(r"sigma ([\d.e-]+) px", r.message).group(1)) for r in (sift, aligned)]
     assert sigma[1] < sigma[0]
     assert not np.allclose(aligned.T_world_base, sift.T_world_base, rtol=0, atol=1e-9)
-    assert rep_a["integrity"] != "refused", rep_a["integrity_reasons"]
-    assert np.linalg.norm(aligned.T_world_base[:3, 3] - T_true[:3, 3]) * 1e3 <= rep_a["protection_radius_mm"]
+    _holds_and_refuses_a_duplicate(rendered, aligned, rep_a, ["--keypoints", "aligned"], tmp_path, capsys)
     with pytest.raises(ConfigError, match="keypoints: expected 'sift' or 'aligned'"):
         locate_dataset(tmp / "ds", None, keypoints="orb", **kw)
-    ds = tmp / "dup"
-    if not ds.exists():
-        shutil.copytree(tmp / "ds", ds)
-        F.duplicate_frame(ds, F._site_views(load_dataset(ds)), {}, np.random.default_rng(0))
-    rc = main(["locate", str(ds), "--camera", str(camera), "--robot", str(robot), "--refine", "joints",
-               "--keypoints", "aligned", "--out", str(tmp_path / "loc")])
-    assert rc == 1 and "integrity: REFUSED" in capsys.readouterr().out
     rows = {r["fault"]: r for r in F.run_faults(tmp / "ds", tmp_path / "faults", faults=["clean", "swap_images"],
                                                 seed=0, camera=camera, robot=robot, verbose=False,
                                                 keypoints="aligned")}
