@@ -184,6 +184,8 @@ def field_covariance(problem, sol, info0, view, uv, size, order: int = 3, min_po
     # E|r|^2 = s_w^2 tr(R^2) + s^2 (T1 - T2), tr(R^2) = 2 N_kept - (n + 3 M) + T2 (the points free, the rest held by
     # their priors as much as T2 says)
     tr_R2 = 2 * int(keep.sum()) - (n + 3 * kept_points) + T2
+    if tr_R2 < 1.0:  # as many parameters as pixels: no residual to measure a noise on
+        return FieldCovariance(False, f"{tr_R2:.3g} residual degrees of freedom: white", white, white, s, nan, views)
     # the moments: a row per degree (pooled over views, axes and modes), then the residuals' total power; per mode
     # first (E[a_c^2] = per_mode @ [s_w^2, delta_0, ...] + prior_a2), to weigh each row by its scatter
     per_mode = np.zeros((c_all, order + 2))
