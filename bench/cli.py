@@ -95,6 +95,8 @@ def _parser() -> argparse.ArgumentParser:
                     "the one calibrated from the dataset; none when --camera / --robot are given without it)")
     fa.add_argument("--keypoints", choices=("sift", "aligned"), default="sift",
                     help="the keypoints (as bench locate --keypoints)")
+    fa.add_argument("--covariance", choices=("white", "field"), default="white",
+                    help="with --refine joints: the pose's covariance (as bench locate --covariance)")
     fa.add_argument("--force", action="store_true", help="replace an earlier output of bench faults in --out")
     cc = sub.add_parser("calibrate-camera", help="corners + calibration (+ OpenCV reference) on a rig dataset or a "
                                                  "plain folder of photos")
@@ -394,9 +396,12 @@ def main(argv=None) -> int:
         elif args.command == "faults":
             from bench.scenario.faults import run_faults
 
+            if args.covariance != "white" and args.refine != "joints":
+                raise BenchError(f"--covariance {args.covariance}: used only by --refine joints, got --refine "
+                                 f"{args.refine}")
             rows = run_faults(args.dataset, args.out, faults=args.fault, seed=args.seed, camera=args.camera,
                               robot=args.robot, force=args.force, refine=args.refine, priors=args.priors,
-                              keypoints=args.keypoints)
+                              keypoints=args.keypoints, covariance=args.covariance)
             return 1 if any(r["silent"] for r in rows) else 0
         elif args.command in _INTERCHANGE:
             return _interchange(args)

@@ -315,14 +315,16 @@ def is_silent(row) -> bool:
 
 
 def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None, force: bool = False,
-               verbose: bool = True, refine: str = "joints", priors=None, keypoints: str = "sift") -> list:
+               verbose: bool = True, refine: str = "joints", priors=None, keypoints: str = "sift",
+               covariance: str = "white") -> list:
     """Inject each fault into a copy of ``dataset``, localise, score; writes ``out/faults.csv`` and ``faults.json``.
 
     Returns the rows (dicts). ``camera`` / ``robot``: the lab calibration's files (default: calibrated here from the
     dataset's rig views and tracker points, with their ``calibration_priors.yaml``). ``refine`` is the estimator
     (:func:`~bench.vision.locate_dataset.locate_dataset`; default ``joints``, the in-situ kind's, under ``priors``:
     the lab's priors file, default the one calibrated here; none when the lab files are given without it);
-    ``keypoints`` SIFT's or aligned ones (as :func:`~bench.vision.locate_dataset.locate_dataset`'s).
+    ``keypoints`` SIFT's or aligned ones, ``covariance`` the white or the field one (refine ``joints``; both as
+    :func:`~bench.vision.locate_dataset.locate_dataset`'s).
     ``out`` is claimed as ``bench faults``' output
     (:func:`bench.fileio.claimed_output_dir`): a foreign folder is refused; ``force`` replaces only an earlier output
     of ``bench faults``.
@@ -347,9 +349,11 @@ def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None
     # with the same dataset and settings writes into it again (the faults asked for replace their rows, the others'
     # stay); other settings are refused without force.
     identity = settings_identity({"dataset": dataset, "camera": camera, "robot": robot, "priors": priors}, seed=seed,
-                                 refine=refine, keypoints=keypoints)
+                                 refine=refine, keypoints=keypoints,
+                                 **({} if covariance == "white" else {"covariance": covariance}))
     with claimed_output_dir(out, "faults", force=force, identity=identity) as out:
-        rows = _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors, keypoints)
+        rows = _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors, keypoints,
+                           covariance)
     return rows
 
 
@@ -371,7 +375,8 @@ def _with_earlier_rows(out: Path, rows: list) -> list:
     return sorted(rows + kept, key=lambda r: order.index(r["fault"]))
 
 
-def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors, keypoints) -> list:
+def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors, keypoints,
+                covariance="white") -> list:
     from bench.vision.locate_dataset import locate_dataset
 
     if camera is None or robot is None:
@@ -390,7 +395,8 @@ def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine
         try:
             res, report = locate_dataset(work / "dataset", work, verbose=False, camera_path=cal["camera"],
                                          robot_path=cal["robot"], seed=seed, refine=refine,
-                                         priors_path=priors if refine == "joints" else None, keypoints=keypoints)
+                                         priors_path=priors if refine == "joints" else None, keypoints=keypoints,
+                                         covariance=covariance)
             T = res.T_world_base
         except ConfigError as exc:  # a fault the dataset loader catches is a refusal with its reason
             report = {"integrity": "refused", "integrity_reasons": [str(exc)], "protection_radius_mm": None,

@@ -410,6 +410,10 @@ def test_field_covariance_on_a_rendered_dataset(rendered, capsys, tmp_path):
     assert np.allclose(vision[0], vision[1], rtol=0, atol=1e-12)
     assert not np.allclose(field.covariance, white.covariance)
     _holds_and_refuses_a_duplicate(rendered, field, rep_f, ["--covariance", "field"], tmp_path, capsys)
+    rows = {r["fault"]: r for r in F.run_faults(tmp / "ds", tmp_path / "faults", faults=["clean", "swap_images"],
+                                                seed=0, camera=camera, robot=robot, verbose=False,
+                                                covariance="field")}
+    assert rows["swap_images"]["integrity"] == "refused" and not any(r["silent"] for r in rows.values())
     with pytest.raises(ConfigError, match="covariance: expected 'white' or 'field'"):
         locate_dataset(tmp / "ds", None, covariance="sandwich", **kw)
     assert main(["locate", str(tmp / "ds"), "--covariance", "field", "--out", str(tmp_path / "l2")]) == 2
