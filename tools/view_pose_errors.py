@@ -25,6 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 def view_errors(run: Path) -> list:
     """``[(view, role, rotation vector (3,) rad, translation (3,) m, focal px)]`` of a run's site views."""
+    from bench.geometry.quaternion import matrix_to_rotation_vector
     from bench.robot.calibration_file import load_calibrated_robot
     from bench.robot.orientation import link5_frame
 
@@ -45,8 +46,6 @@ def view_errors(run: Path) -> list:
         T_b = np.array(views[k]["T_world_base"])
         return (T_b @ link5_frame(robot, np.array(views[k]["q_true"]), eps_t) @ mount_t,
                 T_b @ link5_frame(robot, q_read[k], eps_c) @ mount_c)
-
-    from bench.geometry.quaternion import matrix_to_rotation_vector
 
     Tt0, Tp0 = poses(ref)
     out = []
