@@ -155,6 +155,9 @@ def decompose(scenario: Path, run: Path, overrides: list) -> dict:
     b, good = _true_errors(cfg, truth, det, names, view, point, uv)
     keep = np.asarray(sol.keep, bool)
     ok = keep & good
+    if ok.sum() < 0.5 * keep.sum():
+        return {"run": run.name, "error": f"only {int(ok.sum())} of {int(keep.sum())} observations meet the true panel "
+                                          f"within {TRUTH_GATE_PX:g} px: is {scenario} (with --set) the run's?"}
     s = float(sol.sigma_px)
     _, J, J_pt, _ = problem.linearise(sol.theta, sol.X)
     el = Elimination(problem.point, J, J_pt, len(sol.X), info0 * s**2, keep)
