@@ -44,17 +44,17 @@ sys.path.insert(0, str(ROOT / "tools"))
 Q95_CHI2_3 = 7.815
 #: a measured error beyond this (px) is the ray-cast's, not the keypoint's: the point is left out
 TRUTH_GATE_PX = 1.0
-PARTS = ("tot", "kp", "rest", "track", "offset", "dev", "dev_sandwich")
 
 
 class _Spy:
-    """Keeps the last joint bundle's solve: ``problem, info0, sol``, and its call's observations."""
+    """Within ``with``: keeps the last joint bundle's solve (``problem, info0, sol``) and its call's observations;
+    the module's functions are restored on leaving."""
 
-    def __init__(self):
+    def __enter__(self):
         import bench.vision.joint_bundle as jb_module
 
-        self.last, self.calls = {}, {}
-        solve, joint_bundle = jb_module.solve, jb_module.joint_bundle
+        self.last, self.calls, self.module = {}, {}, jb_module
+        self.saved = solve, joint_bundle = jb_module.solve, jb_module.joint_bundle
 
         def spy_solve(problem, theta0, mean, info0, X, *a, **k):
             sol = solve(problem, theta0, mean, info0, X, *a, **k)
@@ -68,14 +68,18 @@ class _Spy:
             return out
 
         jb_module.solve, jb_module.joint_bundle = spy_solve, spy_bundle
+        return self
+
+    def __exit__(self, *exc):
+        self.module.solve, self.module.joint_bundle = self.saved
 
 
 def _true_errors(cfg, truth, det, names, view, point, uv) -> tuple:
     """Each observation's keypoint error (N, 2) px on the true surface and whether it was measured (N,) bool."""
-    from bench.camera.flatport import trace_rays
     from bench.geometry.transforms import invert, transform_points
     from bench.scenario.bounds import true_projector
     from bench.scenario.in_situ import _true_camera_poses, _true_optics, imaging, replay_panel
+    from bench.scenario.in_situ_bound import surface_points
     from bench.scenario.scene_points import SceneRays
 
     lens, port, _ = _true_optics(truth)
@@ -84,12 +88,7 @@ def _true_errors(cfg, truth, det, names, view, point, uv) -> tuple:
     surface = SceneRays(replay_panel(cfg), np.array(truth["T_world_panel"], float))
     ref = np.full(point.max() + 1, -1)
     ref[point[view == 0]] = np.where(view == 0)[0]  # every point is observed in the reference (view 0)
-    dirs = lens.unproject(uv[ref])
-    origins = np.zeros_like(dirs)
-    if port is not None:
-        origins, dirs, _ = trace_rays(dirs, port)
-    T = poses[names[0]]
-    P = surface.first_hits(origins @ T[:3, :3].T + T[:3, 3], dirs @ T[:3, :3].T)
+    P = surface_points(uv[ref], poses[names[0]], lens, port, surface)
     b, good = np.zeros((len(view), 2)), np.zeros(len(view), bool)
     for k, n in enumerate(names):
         sel = view == k
@@ -138,8 +137,8 @@ def decompose(scenario: Path, run: Path, overrides: list) -> dict:
     result = json.loads((run / "result.json").read_text())
     cfg = load_scenario(scenario, result["seed"], ["outputs.rerun=false", *overrides])
     truth = yaml.safe_load((run / "dataset" / "truth" / "truth.yaml").read_text())
-    spy, det = _Spy(), {}
-    with warnings.catch_warnings():
+    det = {}
+    with _Spy() as spy, warnings.catch_warnings():
         warnings.simplefilter("ignore")
         locate_run(run, result["seed"], cfg["pipeline"], details=det)
     if not spy.last or not spy.calls["out"].success:
@@ -173,7 +172,8 @@ def decompose(scenario: Path, run: Path, overrides: list) -> dict:
     T_est = spy.calls["out"].T_site_base
     d_tot = np.r_[matrix_to_rotation_vector(T_est[:3, :3] @ T_true[:3, :3].T), T_est[:3, 3] - T_true[:3, 3]]
     M = int(point.max()) + 1
-    track = _group_mean(b, point, ok, M)[point]
+    track_means = _group_mean(b, point, ok, M)
+    track = track_means[point]
     offset = _group_mean(b, view, ok, len(names))[view]
     dev = b - track
     d_kp, d_dev = pose_of(b), pose_of(dev)
@@ -184,8 +184,7 @@ def decompose(scenario: Path, run: Path, overrides: list) -> dict:
     C_sw = np.einsum("inj,knj->ik", G * sig[None, :, None], G * sig[None, :, None])
     return {"run": run.name, "seed": result["seed"], "observations": int(keep.sum()), "sigma_px": s,
             "true_px_robust": float(1.4826 * np.median(np.abs(b[ok]))),
-            "track_rms_px": float(np.sqrt(np.mean(_group_mean(b, point, ok, M)[np.bincount(point[ok], minlength=M) > 0]
-                                                  ** 2))),
+            "track_rms_px": float(np.sqrt(np.mean(track_means[np.bincount(point[ok], minlength=M) > 0] ** 2))),
             "dev_locate_rms_px": rms["locate"], "dev_survey_rms_px": rms["survey"],
             "err_mm": 1e3 * float(np.linalg.norm(d_tot[3:])), "kp_mm": 1e3 * float(np.linalg.norm(d_kp[3:])),
             "rest_mm": 1e3 * float(np.linalg.norm(d_tot[3:] - d_kp[3:])),

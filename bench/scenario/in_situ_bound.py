@@ -193,6 +193,20 @@ def fisher_factor(errors, components: int = 3, iterations: int = 200) -> float:
     return float(1.0 / np.sqrt(information) / s_rob)
 
 
+def surface_points(uv_ref, T_world_ref, lens: CameraModel, port, surface) -> np.ndarray:
+    """Where the rays of pixels ``uv_ref (N, 2)`` of a camera at ``T_world_ref`` (the true ``lens``, behind the flat
+    ``port`` if any) first meet ``surface`` (``first_hits``): world points (N, 3), NaN where a ray misses (evaluator
+    side: the true surface point of a detected keypoint)."""
+    from bench.camera.flatport import trace_rays
+
+    dirs = lens.unproject(np.asarray(uv_ref, float))
+    origins = np.zeros_like(dirs)
+    if port is not None:
+        origins, dirs, _ = trace_rays(dirs, port)
+    R, t = np.asarray(T_world_ref, float)[:3, :3], np.asarray(T_world_ref, float)[:3, 3]
+    return surface.first_hits(origins @ R.T + t, dirs @ R.T)
+
+
 def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_survey, T_world_locate, lens: CameraModel,
                            port, project, surface, field_order: int = 1) -> dict:
     """The survey's and the locate views' own keypoint noise, measured on the scene's true surfaces (evaluator side).
@@ -228,16 +242,9 @@ def track_noise_on_surface(uv_ref, survey, uv_locate, T_world_ref, T_world_surve
     T_world_ref, T_world_survey, T_world_locate : ndarray (4, 4), (K, 4, 4), (L, 4, 4)
         The true camera poses.
     """
-    from bench.camera.flatport import trace_rays
     from bench.geometry.transforms import invert
 
-    uv_ref = np.asarray(uv_ref, float)
-    dirs = lens.unproject(uv_ref)
-    origins = np.zeros_like(dirs)
-    if port is not None:
-        origins, dirs, _ = trace_rays(dirs, port)
-    R, t = np.asarray(T_world_ref, float)[:3, :3], np.asarray(T_world_ref, float)[:3, 3]
-    P = surface.first_hits(origins @ R.T + t, dirs @ R.T)
+    P = surface_points(uv_ref, T_world_ref, lens, port, surface)
 
     def error(T_world_cam, uv, point):
         return np.asarray(uv, float) - project(transform_points(invert(T_world_cam), point[None]))[0]
