@@ -72,6 +72,9 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--keypoints", choices=("sift", "aligned"), default="sift", help="SIFT's keypoints (the "
                      "thesis's) or aligned: each matched keypoint moved onto its reference keypoint's image patch "
                      "(bench.vision.patch_align)")
+    loc.add_argument("--twin-keypoints", choices=("once", "both"), default="once", help="SIFT's twin keypoints (a "
+                     "second orientation at the same pixel): one map point per detection, or both copies (the "
+                     "thesis's map, which counts such a point twice in the covariance)")
     loc.add_argument("--covariance", choices=("white", "field"), default="white", help="with --refine joints: the "
                      "pose's covariance of white pixel noise, or with each view's keypoint error field measured on "
                      "the joint bundle's residuals (bench.vision.field_covariance)")
@@ -374,6 +377,7 @@ def main(argv=None) -> int:
                                        target=_target_from_flags(args), k3=args.k3, robot=args.robot)
             return 0 if res.success else 1
         elif args.command == "locate":
+            from bench.vision.insitu import TWIN_PX, MapConfig
             from bench.vision.locate_dataset import locate_dataset
 
             if args.refine_k3 and not args.priors:
@@ -391,7 +395,8 @@ def main(argv=None) -> int:
                                       priors_path=args.priors, guided=args.guided,
                                       loss=None if args.loss == "none" else args.loss, map_points=args.map_points,
                                       keypoints=args.keypoints, ins_tilt=args.ins_tilt, refine_k3=args.refine_k3,
-                                      covariance=args.covariance)
+                                      covariance=args.covariance,
+                                      config=MapConfig(duplicate_px=TWIN_PX if args.twin_keypoints == "once" else 0.0))
             return 0 if res.success and rep["integrity"] != "refused" else 1  # refused: do not use the pose
         elif args.command == "faults":
             from bench.scenario.faults import run_faults

@@ -125,8 +125,8 @@ def _pose_response_matrix(el, keep) -> np.ndarray:
     return G
 
 
-def decompose(scenario: Path, run: Path, overrides: list) -> dict:
-    """One run's decomposition (module docstring)."""
+def decompose(scenario: Path, run: Path, overrides: list, arrays: dict | None = None) -> dict:
+    """One run's decomposition (module docstring); ``arrays``, if given, receives the per-observation arrays."""
     from relocate_sweep import locate_run
 
     from bench.geometry.quaternion import matrix_to_rotation_vector
@@ -182,6 +182,9 @@ def decompose(scenario: Path, run: Path, overrides: list) -> dict:
     G = _pose_response_matrix(el, keep)[3:]
     sig = np.where(is_loc, rms["locate"], rms["survey"])
     C_sw = np.einsum("inj,knj->ik", G * sig[None, :, None], G * sig[None, :, None])
+    if arrays is not None:
+        arrays.update(b=b, ok=ok, view=view, point=point, is_loc=is_loc, G=G, C=C, names=names, el=el, d_tot=d_tot,
+                      pose_of=pose_of, nees=nees, sigma=s, truth=truth, det=det, cfg=cfg, uv=uv)
     return {"run": run.name, "seed": result["seed"], "observations": int(keep.sum()), "sigma_px": s,
             "true_px_robust": float(1.4826 * np.median(np.abs(b[ok]))),
             "track_rms_px": float(np.sqrt(np.mean(track_means[np.bincount(point[ok], minlength=M) > 0] ** 2))),

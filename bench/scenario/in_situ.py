@@ -232,6 +232,11 @@ class Pipeline(Section):
         "the keypoints the localisation uses: SIFT's (the thesis's) or aligned - every keypoint matched to its "
         "region's reference keypoint moved onto the reference's image patch (bench.vision.patch_align; "
         "docs/integrity.md measures it)")] = "sift"
+    twin_keypoints: Annotated[Literal["once", "both"], about(
+        "SIFT's twin keypoints (a second orientation at the same pixel, matched with nearly the same error in every "
+        "view): the map keeps one point per detection (once), or both copies as the thesis's map does (both), which "
+        "counts such a point twice in the covariance (bench.vision.insitu.MapConfig.duplicate_px; docs/integrity.md "
+        "measures it)")] = "once"
     covariance: Annotated[Literal["white", "field"], about(
         "refine joints: the pose's covariance of white pixel noise, or with each view's keypoint error field (to "
         "cubic order) measured on the joint bundle's residuals (bench.vision.field_covariance; docs/integrity.md "
@@ -339,6 +344,11 @@ def site_optics(cfg):
         raise ConfigError(src, "site.water", f"{water!r} needs a camera in water (camera.preset: underwater_in_water"
                                              f"), but camera.preset {cfg['camera']['preset']!r} is in air")
     return optics_preset(cfg["camera"]["preset"], overrides={"water": {"preset": water}})
+
+
+def map_config(pipeline: dict) -> MapConfig:
+    """The map's settings from the scenario's ``pipeline`` keys (``twin_keypoints``)."""
+    return MapConfig() if pipeline.get("twin_keypoints", "once") == "once" else MapConfig(duplicate_px=0.0)
 
 
 def validate(cfg) -> None:
@@ -998,7 +1008,8 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
     # the features the pipeline found (linearisation), each detection once: SIFT's twin keypoints (two orientations at
     # one pixel) are one measurement, which the pipeline's map holds twice
     one, merge = one_per_detection(kmap)
-    out["keypoint_twin_points"] = float(len(kmap) - len(one))
+    # the copies the map left out (pipeline.twin_keypoints once) or holds (both)
+    out["keypoint_twin_points"] = float(kmap.stats.get("duplicate_detections", 0) + len(kmap) - len(one))
     X_site = transform_points(kmap.T_world_ref, kmap.p_ref[one])
     names = [ref, *surround, *loc]
     views = [(np.array(truth["views"][n]["q_true"]), n in loc) for n in names]
@@ -1166,13 +1177,13 @@ def run(cfg, out_dir, verbose=True):
     features_fn = None
     if cfg["sources"]["features"] == "perfect":  # the real run's points and pattern (paired), exactly projected
         sift = {}
-        res0, _ = locate_dataset(ds_dir, None, method=p["method"], seed=cfg["seed"], config=MapConfig(),
+        res0, _ = locate_dataset(ds_dir, None, method=p["method"], seed=cfg["seed"], config=map_config(p),
                                  verbose=False, camera_path=camera_path, robot_path=robot_path, refine="pose",
                                  ransac=ransac, details=sift)
         features_fn = _perfect_features(cfg, robot, truth, sift, res0)
     details = {}
     res, report = locate_dataset(ds_dir, out_dir, method=p["method"], seed=cfg["seed"],
-                                 config=MapConfig(), verbose=False, camera_path=camera_path,
+                                 config=map_config(p), verbose=False, camera_path=camera_path,
                                  robot_path=robot_path, refine=p["refine"], ransac=ransac, details=details,
                                  features_fn=features_fn, priors_path=priors_path, guided=p["guided"],
                                  loss=None if p["loss"] == "none" else p["loss"], map_points=p["map_points"],
