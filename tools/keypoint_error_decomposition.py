@@ -17,7 +17,10 @@ base pose, and the base-pose error (before the INS tilt) splits into
   camera's calibration errors, the refraction, the linearisation);
 * the keypoint part again split: ``track`` - each map point's mean error over its views (what a point's views
   share: the point absorbs most of it), ``offset`` - each view's mean error, ``dev`` - each observation's deviation
-  from its track's mean.
+  from its track's mean;
+* ``twin_pairs`` / ``twin_error_corr``: SIFT's twin keypoints among the points (a second orientation at the same
+  pixel; the map keeps one per detection unless ``--set pipeline.twin_keypoints=both``) and how their true errors
+  correlate in the other views.
 
 Each part's position NEES is against the bundle's own first-order covariance (white pixel noise at its robust
 ``sigma_px``, kappa 1); ``nees_dev_sandwich`` against the covariance those deviations would give if they were
@@ -110,6 +113,30 @@ def _group_mean(values, groups, mask, size) -> np.ndarray:
     return out / np.maximum(np.bincount(groups[mask], minlength=size), 1)[:, None]
 
 
+def _twin_error_correlation(b, ok, view, point, uv) -> dict:
+    """SIFT's twins among the bundle's points (reference keypoints within ``TWIN_PX`` of each other: ``twin_pairs``)
+    and the correlation of their true errors in the other views (``twin_error_corr``: sum of the pairs' products over
+    the mean of their squares, pooled over the views and axes; NaN without twins)."""
+    from scipy.spatial import cKDTree
+
+    from bench.vision.insitu import TWIN_PX
+
+    ref = view == 0
+    uv0 = np.full((int(point.max()) + 1, 2), np.inf)
+    uv0[point[ref]] = uv[ref]
+    finite = np.flatnonzero(np.isfinite(uv0[:, 0]))
+    pairs = finite[cKDTree(uv0[finite]).query_pairs(TWIN_PX, output_type="ndarray")] if len(finite) > 1 else []
+    at = {(int(v), int(p)): i for i, (v, p) in enumerate(zip(view, point, strict=True)) if ok[i] and v > 0}
+    num = den = 0.0
+    for p, q in pairs:
+        for v in range(1, int(view.max()) + 1):
+            i, j = at.get((v, int(p))), at.get((v, int(q)))
+            if i is not None and j is not None:
+                num += float(b[i] @ b[j])
+                den += 0.5 * float(b[i] @ b[i] + b[j] @ b[j])
+    return {"twin_pairs": len(pairs), "twin_error_corr": num / den if den else float("nan")}
+
+
 def _pose_response_matrix(el, keep) -> np.ndarray:
     """The base pose's response (6, N, 2) to a unit pixel error of each kept observation."""
     N = el.J.shape[0]
@@ -125,8 +152,8 @@ def _pose_response_matrix(el, keep) -> np.ndarray:
     return G
 
 
-def decompose(scenario: Path, run: Path, overrides: list, arrays: dict | None = None) -> dict:
-    """One run's decomposition (module docstring); ``arrays``, if given, receives the per-observation arrays."""
+def decompose(scenario: Path, run: Path, overrides: list) -> dict:
+    """One run's decomposition (module docstring)."""
     from relocate_sweep import locate_run
 
     from bench.geometry.quaternion import matrix_to_rotation_vector
@@ -182,9 +209,7 @@ def decompose(scenario: Path, run: Path, overrides: list, arrays: dict | None = 
     G = _pose_response_matrix(el, keep)[3:]
     sig = np.where(is_loc, rms["locate"], rms["survey"])
     C_sw = np.einsum("inj,knj->ik", G * sig[None, :, None], G * sig[None, :, None])
-    if arrays is not None:
-        arrays.update(b=b, ok=ok, view=view, point=point, is_loc=is_loc, G=G, C=C, names=names, el=el, d_tot=d_tot,
-                      pose_of=pose_of, nees=nees, sigma=s, truth=truth, det=det, cfg=cfg, uv=uv)
+    twins = _twin_error_correlation(b, ok, view, point, uv)
     return {"run": run.name, "seed": result["seed"], "observations": int(keep.sum()), "sigma_px": s,
             "true_px_robust": float(1.4826 * np.median(np.abs(b[ok]))),
             "track_rms_px": float(np.sqrt(np.mean(track_means[np.bincount(point[ok], minlength=M) > 0] ** 2))),
@@ -193,7 +218,7 @@ def decompose(scenario: Path, run: Path, overrides: list, arrays: dict | None = 
             "rest_mm": 1e3 * float(np.linalg.norm(d_tot[3:] - d_kp[3:])),
             "nees_tot": nees(d_tot), "nees_kp": nees(d_kp), "nees_rest": nees(d_tot - d_kp),
             "nees_track": nees(pose_of(track)), "nees_offset": nees(pose_of(offset)), "nees_dev": nees(d_dev),
-            "nees_dev_sandwich": nees(d_dev, C_sw), "trace_ratio": float(np.trace(C_sw) / np.trace(C))}
+            "nees_dev_sandwich": nees(d_dev, C_sw), "trace_ratio": float(np.trace(C_sw) / np.trace(C)), **twins}
 
 
 def summary(rows: list) -> str:
