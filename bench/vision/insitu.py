@@ -92,8 +92,9 @@ class MapConfig:
     neighbour_m: float = 0.01  # d_n of section 3.9
     cross_check_m: float = 0.005  # |1p - 1p*| (Eq. 163 vs Eq. 164)
     min_views: int = 2  # keep keypoints matched in at least this many surrounding views
-    #: Reference keypoints closer than this (px) are one detection, of which the map keeps one (the one seen in most
-    #: surrounding views; the default, TWIN_PX); 0 keeps them all (the thesis's map). SIFT gives a second keypoint,
+    #: Reference keypoints closer than this (px) are one detection, of which the map keeps one (the copy matched in most
+    #: views, observed wherever any copy was matched: :func:`_merge_twins`; the default, TWIN_PX); 0 keeps them all
+    #: (the thesis's map). SIFT gives a second keypoint,
     #: with its own orientation and descriptor, at the same position and scale wherever the orientation histogram has
     #: a second peak (Lowe 2004, section 5); each matches its twin in every view, with nearly the same error (correlated
     #: 0.93-1.0 in every view, measured on the true surface), so the thesis's map holds such a scene point twice and
@@ -191,10 +192,12 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
     if matches is not None and len(matches) != len(surrounding):
         raise ValueError(f"matches: {len(matches)} match sets for {len(surrounding)} surrounding views")
     T_ref_views = np.array([invert(T_world_ref) @ np.asarray(v.T_base_cam, float) for v in surrounding])
+    matches = [view_matches(reference.features, v.features, cfg) for v in surrounding] if matches is None else matches
+    matches, stats["duplicate_detections"] = _merge_twins(reference.features.uv, matches, cfg.duplicate_px)
     # every estimate of a reference keypoint: (its index, p on the reference ray, p on the other ray, view, keypoint)
     ests = [(np.empty(0, int), np.empty((0, 3)), np.empty((0, 3)), np.empty(0, int), np.empty((0, 2)))]
     for k, view in enumerate(surrounding):
-        m = view_matches(reference.features, view.features, cfg) if matches is None else matches[k]
+        m = matches[k]
         stats["matches"] += len(m)
         if len(m) == 0:
             continue
@@ -231,10 +234,6 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
     kept = (count >= cfg.min_views) & (n_good >= cfg.min_views)
     kept[kept] = np.linalg.norm(mean[kept] - mean_star[kept], axis=1) <= cfg.cross_check_m
     spread_sq = np.where(good, np.sum((P - mean[:, None]) ** 2, axis=2), 0.0).sum(axis=1)
-    n_kept = int(kept.sum())
-    kept[np.flatnonzero(kept)] = _one_per_detection(reference.features.uv[keys[kept].astype(int)], n_good[kept],
-                                                    spread_sq[kept], cfg.duplicate_px)
-    stats["duplicate_detections"] = n_kept - int(kept.sum())
     idx = keys[kept].astype(int)
     spread = np.sqrt(spread_sq[kept] / np.maximum(n_good[kept], 1))
     observations = [(k_all[first[g]:first[g] + count[g]][good[g, :count[g]]],
@@ -246,6 +245,34 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
     stats["median_depth_m"] = float(np.median(mean[kept, 2])) if len(idx) else float("nan")
     return KeypointMap(mean[kept], mean_star[kept], reference.features.subset(idx), n_good[kept].astype(int), spread,
                        T_world_ref, stats, reference.x_n[idx], T_ref_views, observations, idx)
+
+
+def _merge_twins(uv, matches: list, tol_px: float) -> tuple:
+    """The reference keypoints within ``tol_px`` of each other (SIFT's twins: one detection) made one: every match of
+    a copy becomes a match of the group's representative - the copy matched in most views, then the first - so the
+    map point is observed wherever any copy was matched; where several copies matched in one view, the
+    representative's own match is kept (else the first). ``(matches, copies merged)``; ``tol_px`` 0 leaves them."""
+    rep = _twin_representatives(uv, np.zeros(len(uv)), np.zeros(len(uv)), tol_px)
+    if np.all(rep == np.arange(len(uv))):
+        return list(matches), 0
+    n_matched = np.zeros(len(uv), int)
+    for m in matches:
+        np.add.at(n_matched, m.i1, 1)
+    _, label = np.unique(rep, return_inverse=True)
+    order = np.lexsort((np.arange(len(uv)), -n_matched))  # best first
+    _, at = np.unique(label[order], return_index=True)
+    rep = order[at][label]
+    merged = []
+    for m in matches:
+        own = rep[m.i1] == m.i1
+        pick = np.lexsort((np.arange(len(m)), ~own, rep[m.i1]))  # by representative, its own match first
+        _, first = np.unique(rep[m.i1][pick], return_index=True)
+        keep = np.sort(pick[first])
+        merged.append(Matches(rep[m.i1][keep], m.i2[keep], m.distance[keep], m.ratio[keep]))
+    copies = np.zeros(len(uv), bool)
+    for m in matches:
+        copies[m.i1[rep[m.i1] != m.i1]] = True
+    return merged, int(copies.sum())
 
 
 def one_per_detection(kmap: KeypointMap, tol_px: float = TWIN_PX) -> tuple:
@@ -263,13 +290,6 @@ def one_per_detection(kmap: KeypointMap, tol_px: float = TWIN_PX) -> tuple:
     rep = _twin_representatives(kmap.features.uv, kmap.n_views, kmap.spread_m**2, tol_px)
     one = np.flatnonzero(rep == np.arange(len(rep)))
     return one, rep[:, None] == one[None]
-
-
-def _one_per_detection(uv, n_views, spread_sq, tol_px: float) -> np.ndarray:
-    """Which of the points to keep so that no two keypoints lie within ``tol_px`` of each other: ``(M,) bool``, the
-    representatives of :func:`_twin_representatives`."""
-    rep = _twin_representatives(uv, n_views, spread_sq, tol_px)
-    return rep == np.arange(len(rep))
 
 
 def _twin_representatives(uv, n_views, spread_sq, tol_px: float) -> np.ndarray:

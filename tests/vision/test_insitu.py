@@ -351,19 +351,37 @@ def test_one_map_point_per_detection(ta40, monkeypatch):
 
 
 def test_the_kept_twin_is_the_one_seen_in_most_views():
-    from bench.vision.insitu import _one_per_detection, _twin_representatives
+    from bench.vision.insitu import _twin_representatives
 
     uv = np.array([[10.0, 10.0], [10.0, 10.0], [10.004, 10.0], [50.0, 50.0], [80.0, 80.0], [80.0, 80.0]])
     n_views = np.array([2, 5, 3, 4, 3, 3])
     spread_sq = np.array([0.0, 1.0, 0.0, 0.0, 2.0, 1.0])
-    assert _one_per_detection(uv, n_views, spread_sq, 0.01).tolist() == [False, True, False, True, False, True]
-    assert _one_per_detection(uv, n_views, spread_sq, 0.0).all()
-    assert _one_per_detection(uv[:1], n_views[:1], spread_sq[:1], 0.01).tolist() == [True]
+    assert _twin_representatives(uv, n_views, spread_sq, 0.01).tolist() == [1, 1, 1, 3, 5, 5]
+    assert _twin_representatives(uv, n_views, spread_sq, 0.0).tolist() == list(range(6))
+    assert _twin_representatives(uv[:1], n_views[:1], spread_sq[:1], 0.01).tolist() == [0]
     for bad in (float("nan"), -1.0, float("inf"), 5.0):  # a tolerance that would merge distinct keypoints, or none
         with pytest.raises(ValueError, match="duplicate_px"):
-            _one_per_detection(uv, n_views, spread_sq, bad)
+            _twin_representatives(uv, n_views, spread_sq, bad)
     # a chain of twins (each within the tolerance of the next, the ends not) is one group; its copies belong to its
     # kept point even where another group's kept point lies nearer (0.012 px from the chain's end, 0.016 from its best)
     chain = np.array([[0.0, 0.0], [0.008, 0.0], [0.016, 0.0], [0.028, 0.0]])
     rep = _twin_representatives(chain, np.array([5, 2, 2, 3]), np.zeros(4), 0.01)
     assert rep.tolist() == [0, 0, 0, 3]
+
+
+def test_twins_are_merged_into_one_point_observed_wherever_a_copy_matched():
+    """The map keeps one point per detection, observed in every view where either twin was matched: a view where
+    only the copy matched keeps the detection (the copy's match becomes the kept point's), a view where both matched
+    counts it once."""
+    from bench.vision.features import Matches
+    from bench.vision.insitu import _merge_twins
+
+    uv = np.array([[10.0, 10.0], [10.0, 10.0], [50.0, 50.0]])  # 0 and 1 are twins
+    m = lambda i1, i2: Matches(np.array(i1), np.array(i2), np.zeros(len(i1)), np.zeros(len(i1)))  # noqa: E731
+    views = [m([0, 1, 2], [7, 8, 9]), m([1], [4]), m([1, 2], [5, 6]), m([0], [3])]
+    merged, copies = _merge_twins(uv, views, 0.01)
+    assert copies == 1  # keypoint 0, matched in 2 views against 1's 3: merged into 1
+    assert [v.i1.tolist() for v in merged] == [[1, 2], [1], [1, 2], [1]]
+    assert [v.i2.tolist() for v in merged] == [[8, 9], [4], [5, 6], [3]]  # where both matched, 1's own match
+    same, none = _merge_twins(uv, views, 0.0)
+    assert none == 0 and all(np.array_equal(a.i1, b.i1) for a, b in zip(same, views, strict=True))
