@@ -72,9 +72,9 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--keypoints", choices=("sift", "aligned"), default="sift", help="SIFT's keypoints (the "
                      "thesis's) or aligned: each matched keypoint moved onto its reference keypoint's image patch "
                      "(bench.vision.patch_align)")
-    loc.add_argument("--twin-keypoints", choices=("once", "both"), default="once", help="SIFT's twin keypoints (a "
-                     "second orientation at the same pixel): one map point per detection, or both copies (the "
-                     "thesis's map, which counts such a point twice in the covariance)")
+    loc.add_argument("--twin-keypoints", choices=("once", "both"), default="both", help="SIFT's twin keypoints (a "
+                     "second orientation at the same pixel): both copies (the thesis's map, which counts such a point "
+                     "twice in the covariance), or one map point per detection")
     loc.add_argument("--covariance", choices=("white", "field"), default="white", help="with --refine joints: the "
                      "pose's covariance of white pixel noise, or with each view's keypoint error field measured on "
                      "the joint bundle's residuals (bench.vision.field_covariance)")

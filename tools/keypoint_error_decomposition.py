@@ -19,8 +19,8 @@ base pose, and the base-pose error (before the INS tilt) splits into
   share: the point absorbs most of it), ``offset`` - each view's mean error, ``dev`` - each observation's deviation
   from its track's mean;
 * ``twin_pairs`` / ``twin_error_corr``: SIFT's twin keypoints among the points (a second orientation at the same
-  pixel; the map keeps one per detection unless ``--set pipeline.twin_keypoints=both``) and how their true errors
-  correlate in the other views.
+  pixel, which the thesis's map, the default, keeps; ``--set pipeline.twin_keypoints=once`` merges them) and how
+  their true errors correlate in the other views.
 
 Each part's position NEES is against the bundle's own first-order covariance (white pixel noise at its robust
 ``sigma_px``, kappa 1); ``nees_dev_sandwich`` against the covariance those deviations would give if they were

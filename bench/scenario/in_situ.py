@@ -78,7 +78,7 @@ from bench.sim.imaging import draw_true_lens, profile_from_config, rig_errors, r
 from bench.sim.ins import vehicle_yaml_text
 from bench.sim.optics_presets import optics_preset
 from bench.vision.handeye import hand_eye_axxb
-from bench.vision.insitu import MapConfig
+from bench.vision.insitu import TWIN_PX, MapConfig
 from bench.vision.locate_dataset import locate_dataset
 from bench.vision.tilt import VEHICLE_FILE
 from bench.vision.triangulation import required_baseline
@@ -234,9 +234,9 @@ class Pipeline(Section):
         "docs/integrity.md measures it)")] = "sift"
     twin_keypoints: Annotated[Literal["once", "both"], about(
         "SIFT's twin keypoints (a second orientation at the same pixel, matched with nearly the same error in every "
-        "view): the map keeps one point per detection (once), or both copies as the thesis's map does (both), which "
-        "counts such a point twice in the covariance (bench.vision.insitu.MapConfig.duplicate_px; docs/integrity.md "
-        "measures it)")] = "once"
+        "view): both copies as the thesis's map keeps them (both), which counts such a point twice in the covariance, "
+        "or one point per detection observed wherever a copy was matched (once; bench.vision.insitu.MapConfig."
+        "duplicate_px; docs/integrity.md measures it)")] = "both"
     covariance: Annotated[Literal["white", "field"], about(
         "refine joints: the pose's covariance of white pixel noise, or with each view's keypoint error field (to "
         "cubic order) measured on the joint bundle's residuals (bench.vision.field_covariance; docs/integrity.md "
@@ -348,7 +348,7 @@ def site_optics(cfg):
 
 def map_config(pipeline: dict) -> MapConfig:
     """The map's settings from the scenario's ``pipeline`` keys (``twin_keypoints``)."""
-    return MapConfig() if pipeline.get("twin_keypoints", "once") == "once" else MapConfig(duplicate_px=0.0)
+    return MapConfig(duplicate_px=TWIN_PX) if pipeline.get("twin_keypoints", "both") == "once" else MapConfig()
 
 
 def validate(cfg) -> None:

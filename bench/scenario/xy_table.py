@@ -938,8 +938,7 @@ def run(cfg, out_dir, verbose=True):
     t1 = time.perf_counter()
     views = table_views(ds)
     names = [v.name for v in views]
-    # the thesis's map, twins kept (duplicate_px 0): the x-y tables are the thesis's estimators (Tables 5-15)
-    map_cfg = MapConfig(orientation_tol_deg=p["orientation_tol_deg"], gap_max_m=p["gap_mm"] * 1e-3, duplicate_px=0.0)
+    map_cfg = MapConfig(orientation_tol_deg=p["orientation_tol_deg"], gap_max_m=p["gap_mm"] * 1e-3)
     if p["features"] == "true_projection":
         injected.append("features")
         reference = replay_reference_object(cfg, truth) if s["reference_object"] == "robot" else None

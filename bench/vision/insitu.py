@@ -93,16 +93,14 @@ class MapConfig:
     cross_check_m: float = 0.005  # |1p - 1p*| (Eq. 163 vs Eq. 164)
     min_views: int = 2  # keep keypoints matched in at least this many surrounding views
     #: Reference keypoints closer than this (px) are one detection, of which the map keeps one (the copy matched in most
-    #: views, observed wherever any copy was matched: :func:`_merge_twins`; the default, TWIN_PX); 0 keeps them all
-    #: (the thesis's map). SIFT gives a second keypoint,
-    #: with its own orientation and descriptor, at the same position and scale wherever the orientation histogram has
-    #: a second peak (Lowe 2004, section 5); each matches its twin in every view, with nearly the same error (correlated
-    #: 0.93-1.0 in every view, measured on the true surface), so the thesis's map holds such a scene point twice and
-    #: its covariance counts it as two measurements: a quarter to a third of the points, and the joint bundle's
-    #: covariance optimistic by that much (docs/integrity.md, "Twin keypoints in the covariance"). The estimate is as
-    #: accurate either way (docs/bounds.md, "Twin keypoints"); the bound counts each detection once too
-    #: (:func:`one_per_detection`).
-    duplicate_px: float = TWIN_PX
+    #: views, observed wherever any copy was matched: :func:`_merge_twins`); 0 (the default, the thesis's map) keeps
+    #: them all. SIFT gives a second keypoint, with its own orientation and descriptor, at the same position and scale
+    #: wherever the orientation histogram has a second peak (Lowe 2004, section 5); each matches its twin in every
+    #: view, so the thesis's map holds such a scene point twice and its covariance counts it as two measurements. Under
+    #: water the copies' errors are one error (correlated 1.00 on the true surface) and merging makes the covariance
+    #: honest; in air they are partly independent and merging costs accuracy (docs/integrity.md, "Twin keypoints in
+    #: the covariance"); the bound counts each detection once (:func:`one_per_detection`).
+    duplicate_px: float = 0.0
 
 
 @dataclass

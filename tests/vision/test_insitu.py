@@ -311,8 +311,8 @@ def test_observe_drops_keypoints_the_calibrated_distortion_cannot_invert(ta40):
 
 def test_one_map_point_per_detection(ta40, monkeypatch):
     """SIFT's second orientation at a keypoint is a second keypoint at the same pixel with its own descriptor; it
-    matches its twin in every view, so the thesis's map (``duplicate_px`` 0) holds the scene point twice. The bound
-    counts it once (``one_per_detection``), and so does the default map (``duplicate_px`` = ``TWIN_PX``)."""
+    matches its twin in every view, so the thesis's map (the default, ``duplicate_px`` 0) holds the scene point twice.
+    The bound counts it once (``one_per_detection``); ``duplicate_px`` = ``TWIN_PX`` makes the map keep one."""
     n_dup = 40
     scene = _scene
 
@@ -325,7 +325,7 @@ def test_one_map_point_per_detection(ta40, monkeypatch):
     rng = np.random.default_rng(45)
     eps = random_errors(rng)
     views, loc, p_world, T_true = _campaign(ta40, rng, eps)
-    thesis = build_map(views[0], views[1:], MapConfig(duplicate_px=0.0))
+    thesis = build_map(views[0], views[1:])
     assert len(thesis) == 250 + n_dup and thesis.stats["duplicate_detections"] == 0
     one, merge = one_per_detection(thesis)
     assert len(one) == 250 and np.all(np.diff(one) > 0)
@@ -341,8 +341,8 @@ def test_one_map_point_per_detection(ta40, monkeypatch):
     assert all((tuple(u) in twin_uv) == f for u, f in zip(thesis.features.uv[one], seen, strict=True))
     uv = thesis.features.uv[one]
     assert np.linalg.norm(uv[:, None] - uv[None] + np.diag(np.full(len(uv), np.inf))[..., None], axis=2).min() > 1
-    kmap = build_map(views[0], views[1:])
-    assert MapConfig().duplicate_px == TWIN_PX and len(kmap) == 250 and kmap.stats["duplicate_detections"] == n_dup
+    kmap = build_map(views[0], views[1:], MapConfig(duplicate_px=TWIN_PX))
+    assert MapConfig().duplicate_px == 0.0 and len(kmap) == 250 and kmap.stats["duplicate_detections"] == n_dup
     assert np.array_equal(kmap.features.uv, uv) and len(one_per_detection(kmap)[0]) == 250
     for m, n_points in ((thesis, 290), (kmap, 250)):
         res = locate(m, loc[0], loc[1], rng=1, refine="bundle")
