@@ -1008,7 +1008,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
     # the features the pipeline found (linearisation), each detection once: SIFT's twin keypoints (two orientations at
     # one pixel) are one measurement, which the pipeline's map holds twice
     one, merge = one_per_detection(kmap)
-    # the copies the map left out (pipeline.twin_keypoints once) or holds (both)
+    # the copies the map merged (pipeline.twin_keypoints once) or holds (both)
     out["keypoint_twin_points"] = float(kmap.stats.get("duplicate_detections", 0) + len(kmap) - len(one))
     X_site = transform_points(kmap.T_world_ref, kmap.p_ref[one])
     names = [ref, *surround, *loc]
