@@ -377,7 +377,7 @@ def main(argv=None) -> int:
                                        target=_target_from_flags(args), k3=args.k3, robot=args.robot)
             return 0 if res.success else 1
         elif args.command == "locate":
-            from bench.vision.insitu import TWIN_PX, MapConfig
+            from bench.vision.insitu import twin_map_config
             from bench.vision.locate_dataset import locate_dataset
 
             if args.refine_k3 and not args.priors:
@@ -396,7 +396,7 @@ def main(argv=None) -> int:
                                       loss=None if args.loss == "none" else args.loss, map_points=args.map_points,
                                       keypoints=args.keypoints, ins_tilt=args.ins_tilt, refine_k3=args.refine_k3,
                                       covariance=args.covariance,
-                                      config=MapConfig(duplicate_px=TWIN_PX if args.twin_keypoints == "once" else 0.0))
+                                      config=twin_map_config(args.twin_keypoints))
             return 0 if res.success and rep["integrity"] != "refused" else 1  # refused: do not use the pose
         elif args.command == "faults":
             from bench.scenario.faults import run_faults

@@ -54,15 +54,16 @@ def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None, fea
     ``features_fn`` replaces the SIFT detector (an evaluator's keypoints, as ``locate_dataset`` takes it)."""
     import warnings
 
-    from bench.scenario.in_situ import map_config
     from bench.scenario.in_situ_lab import refines_k3
+    from bench.vision.insitu import twin_map_config
     from bench.vision.locate_dataset import locate_dataset
 
     cal = run / "calibrated"
     priors = cal / "calibration_priors.yaml"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return locate_dataset(run / "dataset", out, method=pipeline["method"], seed=seed, config=map_config(pipeline),
+        return locate_dataset(run / "dataset", out, method=pipeline["method"], seed=seed,
+                              config=twin_map_config(pipeline.get("twin_keypoints", "both")),
                               verbose=False, camera_path=cal / "camera.yaml", robot_path=cal / "robot.yaml",
                               refine=pipeline["refine"], ransac=dict(iterations=pipeline["ransac_iterations"],
                                                                      d_r=pipeline["d_r_mm"] * 1e-3,

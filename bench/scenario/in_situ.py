@@ -78,7 +78,7 @@ from bench.sim.imaging import draw_true_lens, profile_from_config, rig_errors, r
 from bench.sim.ins import vehicle_yaml_text
 from bench.sim.optics_presets import optics_preset
 from bench.vision.handeye import hand_eye_axxb
-from bench.vision.insitu import TWIN_PX, MapConfig
+from bench.vision.insitu import twin_map_config
 from bench.vision.locate_dataset import locate_dataset
 from bench.vision.tilt import VEHICLE_FILE
 from bench.vision.triangulation import required_baseline
@@ -344,11 +344,6 @@ def site_optics(cfg):
         raise ConfigError(src, "site.water", f"{water!r} needs a camera in water (camera.preset: underwater_in_water"
                                              f"), but camera.preset {cfg['camera']['preset']!r} is in air")
     return optics_preset(cfg["camera"]["preset"], overrides={"water": {"preset": water}})
-
-
-def map_config(pipeline: dict) -> MapConfig:
-    """The map's settings from the scenario's ``pipeline`` keys (``twin_keypoints``)."""
-    return MapConfig(duplicate_px=TWIN_PX) if pipeline.get("twin_keypoints", "both") == "once" else MapConfig()
 
 
 def validate(cfg) -> None:
@@ -1175,15 +1170,16 @@ def run(cfg, out_dir, verbose=True):
     truth = yaml.safe_load((ds_dir / "truth" / "truth.yaml").read_text())  # the evaluator's
     ransac = dict(iterations=p["ransac_iterations"], d_r=p["d_r_mm"] * 1e-3, r_lim=p["r_lim"])
     features_fn = None
+    map_cfg = twin_map_config(p["twin_keypoints"])
     if cfg["sources"]["features"] == "perfect":  # the real run's points and pattern (paired), exactly projected
         sift = {}
-        res0, _ = locate_dataset(ds_dir, None, method=p["method"], seed=cfg["seed"], config=map_config(p),
+        res0, _ = locate_dataset(ds_dir, None, method=p["method"], seed=cfg["seed"], config=map_cfg,
                                  verbose=False, camera_path=camera_path, robot_path=robot_path, refine="pose",
                                  ransac=ransac, details=sift)
         features_fn = _perfect_features(cfg, robot, truth, sift, res0)
     details = {}
     res, report = locate_dataset(ds_dir, out_dir, method=p["method"], seed=cfg["seed"],
-                                 config=map_config(p), verbose=False, camera_path=camera_path,
+                                 config=map_cfg, verbose=False, camera_path=camera_path,
                                  robot_path=robot_path, refine=p["refine"], ransac=ransac, details=details,
                                  features_fn=features_fn, priors_path=priors_path, guided=p["guided"],
                                  loss=None if p["loss"] == "none" else p["loss"], map_points=p["map_points"],

@@ -245,21 +245,26 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
                        T_world_ref, stats, reference.x_n[idx], T_ref_views, observations, idx)
 
 
+def twin_map_config(twin_keypoints: str = "both") -> MapConfig:
+    """The map's settings for SIFT's twin keypoints: ``"both"`` copies (the thesis's map) or one point per detection
+    (``"once"``: :attr:`MapConfig.duplicate_px` = :data:`TWIN_PX`)."""
+    if twin_keypoints not in ("both", "once"):
+        raise ValueError(f"twin_keypoints: expected 'both' or 'once', got {twin_keypoints!r}")
+    return MapConfig(duplicate_px=TWIN_PX if twin_keypoints == "once" else 0.0)
+
+
 def _merge_twins(uv, matches: list, tol_px: float) -> tuple:
     """The reference keypoints within ``tol_px`` of each other (SIFT's twins: one detection) made one: every match of
     a copy becomes a match of the group's representative - the copy matched in most views, then the first - so the
     map point is observed wherever any copy was matched; where several copies matched in one view, the
     representative's own match is kept (else the first). ``(matches, copies merged)``; ``tol_px`` 0 leaves them."""
-    rep = _twin_representatives(uv, np.zeros(len(uv)), np.zeros(len(uv)), tol_px)
-    if np.all(rep == np.arange(len(uv))):
-        return list(matches), 0
     n_matched = np.zeros(len(uv), int)
     for m in matches:
         np.add.at(n_matched, m.i1, 1)
-    _, label = np.unique(rep, return_inverse=True)
-    order = np.lexsort((np.arange(len(uv)), -n_matched))  # best first
-    _, at = np.unique(label[order], return_index=True)
-    rep = order[at][label]
+    rep = _twin_representatives(uv, n_matched, np.zeros(len(uv)), tol_px)
+    copies = (rep != np.arange(len(uv))) & (n_matched > 0)
+    if not copies.any():
+        return list(matches), 0
     merged = []
     for m in matches:
         own = rep[m.i1] == m.i1
@@ -267,9 +272,6 @@ def _merge_twins(uv, matches: list, tol_px: float) -> tuple:
         _, first = np.unique(rep[m.i1][pick], return_index=True)
         keep = np.sort(pick[first])
         merged.append(Matches(rep[m.i1][keep], m.i2[keep], m.distance[keep], m.ratio[keep]))
-    copies = np.zeros(len(uv), bool)
-    for m in matches:
-        copies[m.i1[rep[m.i1] != m.i1]] = True
     return merged, int(copies.sum())
 
 
