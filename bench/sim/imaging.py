@@ -73,6 +73,14 @@ sensor and a webcam's image processing):
   are crisper than a perfect pixel-integrating camera's (erf sigma 0.46 px against 0.51 px) and dip 37 DN below the
   black level 1-3 px beside the edge; amount 1.97 and sigma 1.66 px are fitted to their median edge profile, coring
   0.7 DN to their black squares' noise (1.47 DN);
+* ``frame_grabber`` - an analog video camera's frame grabber (only a camera whose optics preset gives a
+  ``sensor.digitiser_px``): the thesis's underwater camera, the analog MCH-3000P, "converted to digital format using
+  a Pinnacle PCTV video card [with] a resolution of 240 x 320 pixels" and "interpolated using a cubic spline function
+  in Matlab" to 480 x 640 (section 5.3). Modelled as: the camera's frame averaged over the card's sample cells
+  (``cv2.INTER_AREA``: vertically the two rows of a CCD's field integration, horizontally the video low-pass and
+  the sampling aperture), 8-bit samples, then interpolated back to the camera's size by ``upsample``:
+  ``cubic_spline`` (the interpolating cubic B-spline, ``scipy.ndimage.zoom(order=3)``, pixel centres aligned as
+  Matlab's ``imresize``), ``bicubic`` (OpenCV's cubic convolution) or ``bilinear`` (:func:`frame_grab`);
 * ``jpeg`` - the camera's JPEG at ``quality`` (``cv2.imencode``; the real photos' quantisation tables are IJG
   quality 90 exactly).
 
@@ -92,7 +100,8 @@ from bench.errors import ConfigError
 
 #: the stages of the realistic profile, in the order they are applied (each can be switched off alone)
 STAGES = ("print_lines", "print_scale", "toner", "flatness", "cockle", "handling", "fold", "distortion", "chromatic",
-          "defocus", "motion", "rolling_shutter", "vignetting", "bayer", "prnu_dsnu", "tone", "sharpen", "jpeg")
+          "defocus", "motion", "rolling_shutter", "vignetting", "bayer", "prnu_dsnu", "tone", "sharpen",
+          "frame_grabber", "jpeg")
 IMAGING_NAMES = ("realistic", "ideal")
 #: version of this module's algorithms, part of the render cache key of realistic images (bump when a code change
 #: alters them): 2 = bilinear warp (was bicubic); 3 = the lens Gaussian once after the defocus levels; 4 = a sheet
@@ -130,6 +139,8 @@ REALISTIC = {
     "prnu_dsnu": {"prnu_pct": 0.8, "dsnu_e": 3.0, "pattern_seed": 12},
     "tone": {"adc_bits": 10, "exposure_scale": 1.12},
     "sharpen": {"amount": 1.97, "sigma_px": 1.66, "coring_dn": 0.7},
+    # an analog camera's frame grabber (only where the optics preset gives sensor.digitiser_px): section 5.3
+    "frame_grabber": {"upsample": "cubic_spline"},
     "jpeg": {"quality": 90},
 }
 
@@ -143,7 +154,7 @@ _KEYS = {"print_lines": ("feed_rms_mm", "scan_rms_mm"), "print_scale": ("scale_r
          "motion": ("angular_rate_rms_deg_per_s", "exposure_s"), "rolling_shutter": ("readout_s",),
          "vignetting": ("falloff_at_corner",), "bayer": ("pattern", "demosaic"),
          "prnu_dsnu": ("prnu_pct", "dsnu_e", "pattern_seed"), "tone": ("adc_bits", "exposure_scale"),
-         "sharpen": ("amount", "sigma_px", "coring_dn"),
+         "sharpen": ("amount", "sigma_px", "coring_dn"), "frame_grabber": ("upsample",),
          "jpeg": ("quality",)}
 _BOUNDS = {"feed_rms_mm": (0, 5), "scan_rms_mm": (0, 5), "scale_rms_pct": (0, 5), "bow_sagitta_mm": (0, 20),
            "rms_mm": (0, 10), "length_along_rows_mm": (1, 1000), "length_across_rows_mm": (1, 1000),
@@ -153,6 +164,7 @@ _BOUNDS = {"feed_rms_mm": (0, 5), "scan_rms_mm": (0, 5), "scale_rms_pct": (0, 5)
            "falloff_at_corner": (0, 0.9), "prnu_pct": (0, 20), "dsnu_e": (0, 1e3), "adc_bits": (8, 16),
            "exposure_scale": (0.01, 100), "black_reflectance": (0, 0.5), "amount": (0, 10), "sigma_px": (0.1, 10),
            "coring_dn": (0, 50)}
+UPSAMPLE = ("cubic_spline", "bicubic", "bilinear")
 _DEMOSAIC = {"bilinear": cv2.COLOR_BayerBG2RGB, "edge_aware": cv2.COLOR_BayerBG2RGB_EA,
              "vng": cv2.COLOR_BayerBG2RGB_VNG}
 
@@ -219,6 +231,9 @@ def imaging_profile(name: str = "realistic", off=(), source: str = "imaging", fi
     q = stages["jpeg"]["quality"]
     if isinstance(q, bool) or not isinstance(q, int) or not 1 <= q <= 100:
         raise ConfigError(source, f"{field}_params.jpeg.quality", f"expected an integer in 1..100, got {q!r}")
+    if stages["frame_grabber"]["upsample"] not in UPSAMPLE:
+        raise ConfigError(source, f"{field}_params.frame_grabber.upsample",
+                          f"expected one of {', '.join(UPSAMPLE)}, got {stages['frame_grabber']['upsample']!r}")
     if stages["bayer"]["demosaic"] not in _DEMOSAIC or stages["bayer"]["pattern"] != "RGGB":
         raise ConfigError(source, f"{field}_params.bayer",
                           f"expected pattern RGGB and demosaic one of {', '.join(_DEMOSAIC)}")
@@ -456,6 +471,37 @@ def demosaic(raw_u8, method: str = "edge_aware") -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(raw_u8), _DEMOSAIC[method])
 
 
+def frame_grab(rgb_u8, capture_px, upsample: str = "cubic_spline") -> np.ndarray:
+    """An analog camera's frame ``rgb_u8 (H, W, 3)`` uint8 through a frame grabber sampling ``capture_px = (w, h)``
+    and interpolated back to ``(W, H)`` (section 5.3; the ``frame_grabber`` stage). Returns uint8 ``(H, W, 3)``.
+
+    The grabber's samples are the frame's means over their cells (``cv2.INTER_AREA``), rounded to 8 bits. Pixel
+    centres are aligned as Matlab's ``imresize`` and OpenCV's ``resize`` align them: output pixel ``i`` lies at
+    sample coordinate ``(i + 0.5) w / W - 0.5``. ``cubic_spline`` is the interpolating cubic B-spline through the
+    samples (``scipy.ndimage.zoom``, ``order=3``, ``grid_mode=True``, mirrored at the border), ``bicubic`` OpenCV's
+    cubic convolution (``INTER_CUBIC``), ``bilinear`` ``INTER_LINEAR``.
+    """
+    from scipy.ndimage import zoom
+
+    img = np.asarray(rgb_u8)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"frame_grab: expected an RGB uint8 image (H, W, 3), got {img.dtype} {img.shape}")
+    H, W = img.shape[:2]
+    w, h = (int(v) for v in capture_px)
+    if not (1 <= w <= W and 1 <= h <= H):
+        raise ValueError(f"frame_grab: capture {w} x {h} px must not exceed the frame's {W} x {H}")
+    if upsample not in UPSAMPLE:
+        raise ValueError(f"frame_grab: upsample: expected one of {', '.join(UPSAMPLE)}, got {upsample!r}")
+    samples = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)  # uint8: the grabber's 8-bit samples
+    if upsample != "cubic_spline":
+        return cv2.resize(samples, (W, H), interpolation=cv2.INTER_CUBIC if upsample == "bicubic" else cv2.INTER_LINEAR)
+    out = np.empty((H, W, 3), np.float32)
+    for c in range(3):
+        out[..., c] = zoom(samples[..., c].astype(np.float32), (H / h, W / w), order=3, mode="grid-mirror",
+                           grid_mode=True)
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
 # ------------------------------------------------------------------------------------------------ the image chain
 
 
@@ -576,8 +622,8 @@ class ImagingChain:
 
     def sensor(self, img, rng: np.random.Generator, spec) -> np.ndarray:
         """Colour-filter-array sensor and the camera's processing: mosaic, electrons (PRNU), shot + read noise and
-        DSNU, gain, ADC, demosaicing, tone curve, sharpening, JPEG. ``spec`` is the preset's
-        :class:`bench.sim.medium.Sensor` (None: noise-free)."""
+        DSNU, gain, ADC, demosaicing, tone curve, sharpening, an analog camera's frame grabber, JPEG. ``spec`` is the
+        preset's :class:`bench.sim.medium.Sensor` (None: noise-free)."""
         from bench.sim.medium import SHOT_NOISE_NORMAL_ABOVE_E, jpeg
 
         bayer, tone = self.profile.on("bayer"), self.profile.on("tone")
@@ -616,6 +662,8 @@ class ImagingChain:
             rgb = unsharp_luma(rgb, sh["amount"], sh["sigma_px"], sh["coring_dn"])
         if rgb.dtype != np.uint8:
             rgb = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+        if self.profile.on("frame_grabber") and spec is not None and spec.digitiser_px is not None:
+            rgb = frame_grab(rgb, spec.digitiser_px, self.profile["frame_grabber"]["upsample"])
         q = self.profile["jpeg"]["quality"] if self.profile.on("jpeg") else 0
         if spec is not None and spec.jpeg_quality and not q:
             q = spec.jpeg_quality

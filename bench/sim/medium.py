@@ -184,6 +184,12 @@ class Sensor:
     auto_exposure_max : float
         Longest exposure the automatic exposure may choose (in units of ``exposure = 1``; the limit a moving ROV
         camera has against motion blur).
+    digitiser_px : tuple of int or None
+        None (default): a digital camera, its output at the camera's resolution. ``(w, h)``: an analog video camera
+        whose signal a frame grabber samples at ``w x h`` pixels, the frames then interpolated to the camera's
+        resolution (the thesis's MCH-3000P through a Pinnacle PCTV card at 320 x 240, cubic-spline interpolated to
+        640 x 480 in Matlab, section 5.3). Applied by the realistic imaging profile's ``frame_grabber`` stage
+        (:func:`bench.sim.imaging.frame_grab`); the ideal chain leaves it out.
     """
 
     full_well_e: float = 10000.0
@@ -193,6 +199,7 @@ class Sensor:
     jpeg_quality: int = 0
     auto_exposure_target: float = 0.0
     auto_exposure_max: float = 16.0
+    digitiser_px: tuple | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "full_well_e", _scalar("sensor", "full_well_e", self.full_well_e, 1.0, 1e8))
@@ -208,6 +215,13 @@ class Sensor:
                            _scalar("sensor", "auto_exposure_target", self.auto_exposure_target, 0.0, 1.0))
         object.__setattr__(self, "auto_exposure_max",
                            _scalar("sensor", "auto_exposure_max", self.auto_exposure_max, 0.0, 1e6, True))
+        d = self.digitiser_px
+        if d is not None:
+            if (isinstance(d, (str, bytes)) or not hasattr(d, "__len__") or len(d) != 2
+                    or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 8 <= v <= 100000
+                               for v in d)):
+                raise ValueError(f"sensor: digitiser_px: expected two whole pixel counts (w, h) >= 8, got {d!r}")
+            object.__setattr__(self, "digitiser_px", (int(d[0]), int(d[1])))
 
     def exposure_for(self, image, target: float | None = None) -> float:
         """The exposure used for linear radiance ``image (H, W, 3)``: ``exposure``, or the automatic exposure that

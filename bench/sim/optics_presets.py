@@ -5,10 +5,14 @@ the lens:
 
 * ``air_webcam`` - Table 3 webcam, no port, no water; sensor noise only;
 * ``underwater_in_air`` - the underwater camera's housing in air (§5.3, Table 9): the glass slab only
-  (``n_water = n_air``, it shifts rays laterally), sensor noise;
+  (``n_water = n_air``, it shifts rays laterally), sensor noise, and the lab's frame grabber: the analog camera's
+  signal sampled at 320 x 240 px by a Pinnacle PCTV card and interpolated to 640 x 480 (``sensor.digitiser_px``,
+  applied by the realistic profile's ``frame_grabber`` stage);
 * ``underwater_in_water`` - the same housing submerged (§5.5, Table 15): flat port into sea water, ``coastal`` water,
   a co-located lamp, sensor noise, automatic exposure (the lamp and the water make the scene's brightness depend on
-  the range; a camera on an ROV exposes for the scene, see :class:`bench.sim.medium.Sensor`).
+  the range; a camera on an ROV exposes for the scene, see :class:`bench.sim.medium.Sensor`). Its output is
+  digital at 640 x 480 (the TA-40's camera on a dive, not the 2008 lab's frame grabber: ``sensor.digitiser_px``
+  puts one in front of it).
 
 ``lens_camera`` is the camera *inside* the housing (used by :class:`bench.sim.flatport.FlatPortStage` as its lens,
 its distortion applied in ray space before the port); ``nominal_camera`` is the specification the pipeline is given
@@ -60,7 +64,8 @@ PRESET_CONFIGS = {
     "air_webcam": {"nominal_camera": "air_webcam", "lens_camera": "air_webcam", "port": None, "water": None,
                    "light": None, "sensor": _SENSOR},
     "underwater_in_air": {"nominal_camera": "underwater_in_air", "lens_camera": "underwater_in_air",
-                          "port": {**_HOUSING, "n_water": N_AIR}, "water": None, "light": None, "sensor": _SENSOR},
+                          "port": {**_HOUSING, "n_water": N_AIR}, "water": None, "light": None,
+                          "sensor": {**_SENSOR, "digitiser_px": [320, 240]}},
     "underwater_in_water": {"nominal_camera": "underwater_in_water", "lens_camera": "underwater_in_air",
                             "port": {**_HOUSING, "n_water": N_SEAWATER}, "water": {"preset": "coastal"},
                             "light": {"ref_range_m": 1.0, "beam_exponent": 2.0, "ambient": 0.15,
@@ -199,6 +204,8 @@ class _Sensor(Section):
     jpeg_quality: Annotated[int, Field(ge=0, le=100)] = 0  # 0 = off
     auto_exposure_target: Annotated[float, Field(ge=0, le=1)] | None = None  # optional: manual exposure without them
     auto_exposure_max: Annotated[float, Field(gt=0, le=1e6)] | None = None
+    digitiser_px: Annotated[list[Annotated[int, Field(ge=8, le=100000)]], Field(min_length=2, max_length=2)] | None \
+        = None  # an analog camera's frame grabber (w, h); None: a digital camera
 
 
 class _Optics(Section):

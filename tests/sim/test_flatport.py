@@ -526,6 +526,10 @@ def test_optics_preset_configs_in_file_units_and_overrides():
                                               "water": {"preset": "turbid_harbour"}, "sensor": {"jpeg_quality": 40}})
     assert p.port.t == 0.008 and p.port.d0 == 0.02 and p.chain.medium.name == "turbid_harbour"
     assert p.chain.light is None and p.chain.sensor.jpeg_quality == 40 and p.chain.sensor.read_noise_e == 5.0
+    # the lab's frame grabber (section 5.3) belongs to the in-air lab camera; the dive camera is digital
+    assert optics_preset("underwater_in_air").chain.sensor.digitiser_px == (320, 240)
+    assert optics_preset("underwater_in_water").chain.sensor.digitiser_px is None
+    assert optics_preset("air_webcam").chain.sensor.digitiser_px is None
     custom = optics_preset("underwater_in_water", {"water": None})
     assert custom.chain.medium is None and custom.port.n_water == 1.34
     water = {"beta_D_per_m": [0.4, 0.1, 0.05], "beta_B_per_m": [0.3, 0.1, 0.05], "B_inf": [0.0, 0.1, 0.2],
@@ -556,6 +560,8 @@ def test_optics_preset_configs_in_file_units_and_overrides():
     ("underwater_in_water", {"sensor": {"jpeg_quality": 101}}, "sensor.jpeg_quality"),
     ("underwater_in_water", {"sensor": {"full_well_e": float("nan")}}, "sensor.full_well_e"),
     ("underwater_in_water", {"lens": {}}, "lens"),
+    ("underwater_in_air", {"sensor": {"digitiser_px": [320]}}, "sensor.digitiser_px"),
+    ("underwater_in_air", {"sensor": {"digitiser_px": [320.5, 240]}}, "sensor.digitiser_px"),
 ])
 def test_impossible_optics_are_one_line_config_errors(preset, overrides, field):
     from bench.sim.optics_presets import optics_preset

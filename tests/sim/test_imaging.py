@@ -87,6 +87,54 @@ def test_jpeg_stage_is_opencv_encoder_at_that_quality():
     assert np.array_equal(out, ref)
 
 
+def test_frame_grabber_samples_cell_means_and_the_spline_passes_through_them():
+    rng = np.random.default_rng(7)
+    frame = cv2.GaussianBlur(rng.uniform(0, 255, (60, 90, 3)).astype(np.float32), (0, 0), 1.5)
+    frame = np.clip(np.rint(frame), 0, 255).astype(np.uint8)
+    out = im.frame_grab(frame, (30, 20), "cubic_spline")  # a 3x grabber: output pixel 3k+1 lies on sample k
+    cells = np.rint(frame.astype(float).reshape(20, 3, 30, 3, 3).mean(axis=(1, 3)))  # the grabber's 8-bit samples
+    assert out.shape == frame.shape and out.dtype == np.uint8
+    assert np.array_equal(out[1::3, 1::3], cells)  # an interpolating spline reproduces its samples
+    # between the samples it is the cubic B-spline's, not OpenCV's cubic convolution (the test can tell them apart)
+    assert not np.array_equal(out, im.frame_grab(frame, (30, 20), "bicubic"))
+    ref = cv2.resize(cells.astype(np.uint8), (90, 60), interpolation=cv2.INTER_CUBIC)
+    assert np.array_equal(im.frame_grab(frame, (30, 20), "bicubic"), ref)
+    with pytest.raises(ValueError, match="must not exceed"):
+        im.frame_grab(frame, (100, 20))
+    with pytest.raises(ValueError, match="upsample"):
+        im.frame_grab(frame, (30, 20), "lanczos")
+
+
+@pytest.mark.parametrize("method", im.UPSAMPLE)
+def test_frame_grabber_keeps_a_spot_where_it_was_and_halves_the_resolution(method):
+    v, u = np.mgrid[0:480, 0:640].astype(float)
+    cx, cy = 321.3, 240.7
+    spot = 40 + 180 * np.exp(-((u - cx) ** 2 + (v - cy) ** 2) / (2 * 12.0 ** 2))
+    frame = np.repeat(np.rint(spot)[..., None], 3, -1).astype(np.uint8)
+    f = im.frame_grab(frame, (320, 240), method)[..., 1].astype(float) - 40
+    assert abs((f * u).sum() / f.sum() - cx) < 0.01 and abs((f * v).sum() / f.sum() - cy) < 0.01
+    # a one-pixel checkerboard (above the grabber's Nyquist frequency) is averaged away to its mean
+    board = np.where((u + v) % 2 == 0, 200, 50)[..., None].repeat(3, -1).astype(np.uint8)
+    assert np.abs(im.frame_grab(board, (320, 240), method).astype(int) - 125).max() <= 1
+
+
+def test_frame_grabber_stage_needs_an_analog_camera_and_can_be_switched_off():
+    rng = np.random.default_rng(3)
+    img = cv2.GaussianBlur(rng.uniform(0.1, 0.9, (SIZE[1], SIZE[0], 3)).astype(np.float32), (0, 0), 1.0)
+    analog, digital = Sensor(digitiser_px=(320, 240)), Sensor()
+    on = im.ImagingChain(only("frame_grabber"), K, SIZE)
+    off = im.ImagingChain(only(), K, SIZE)
+    grabbed = on.sensor(img, np.random.default_rng(1), analog)
+    plain = off.sensor(img, np.random.default_rng(1), analog)
+    assert np.array_equal(on.sensor(img, np.random.default_rng(1), digital), plain)  # a digital camera: no grabber
+    assert np.array_equal(grabbed, im.frame_grab(plain, (320, 240)))
+    assert np.std(grabbed.astype(float) - plain) > 1.0
+    with pytest.raises(ValueError, match="digitiser_px"):
+        Sensor(digitiser_px=(320, 2.5))
+    with pytest.raises(ConfigError, match="imaging_params.frame_grabber.upsample"):
+        im.imaging_profile("realistic", overrides={"frame_grabber": {"upsample": "nearest"}})
+
+
 def test_bayer_mosaic_and_round_trip():
     rgb = np.zeros((8, 10, 3), np.uint8)
     rgb[..., 0], rgb[..., 1], rgb[..., 2] = 200, 120, 40

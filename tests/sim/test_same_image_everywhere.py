@@ -26,6 +26,7 @@ DIGESTS = {
     "fractal_noise": "6ad1adf3ddf003b3",
     "demosaic_edge_aware": "ca41bbce9f4b9f79",
     "unsharp_luma": "ad4b29caf1897d8c",
+    "frame_grab_cubic_spline": "8ffc6d6e34e66e00",  # and scipy 1.17.1
 }
 
 
@@ -42,6 +43,7 @@ def _images() -> dict:
         "fractal_noise": tx.fractal_noise(np.random.default_rng(4), (96, 128)),
         "demosaic_edge_aware": imaging.demosaic(imaging.mosaic(rgb), "edge_aware"),
         "unsharp_luma": imaging.unsharp_luma(rgb.astype(np.float32) / 255, 0.6, 1.2),
+        "frame_grab_cubic_spline": imaging.frame_grab(rgb, (48, 32)),
     }
 
 
