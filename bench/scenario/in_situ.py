@@ -176,6 +176,10 @@ class Task(Section):
 
 class Locate(Section):
     baseline_mm: PositiveFloat = 150.0
+    baseline_direction_deg: Annotated[float, Field(ge=-180, le=180), about(
+        "direction of the two locate eyes' baseline in the reference view's image plane, from the image's x (0, "
+        "across the panel) towards image-up (90): the two views then differ by a turn about the axis perpendicular "
+        "to it, and a camera knocked on its mount about any other axis makes them disagree (docs/integrity.md)")] = 0.0
     motion_m: NonNegFloat = 0.15
     motion_deg: NonNegFloat = 5.0
 
@@ -561,6 +565,14 @@ def _rig_views(robot, rig_centre, distance, n, prefix, mount_nominal, role="rig"
 
 
 @memoized
+def locate_offsets(baseline_m: float, direction_deg: float = 0.0) -> np.ndarray:
+    """The two locate eyes ``(2, 3)`` in the reference view's look frame (OpenCV: x right, y down; m): ``baseline_m``
+    apart about its centre, along the image's x turned by ``direction_deg`` towards image-up (``-y``)."""
+    a = np.deg2rad(direction_deg)
+    half = 0.5 * baseline_m * np.array([np.cos(a), -np.sin(a), 0.0])
+    return np.array([-half, half])
+
+
 def _plan(robot, T_world_base, eye_w, target_w, mount, q_seed):
     from bench.sim.views import look_at_configuration
 
@@ -640,7 +652,7 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
     T_ref_look = look_at(eye_ref, centre)
     survey_eyes = [eye_ref] + list(transform_points(T_ref_look, _survey_offsets(cfg, nominal_cam)))
     base_l = cfg["locate"]["baseline_mm"] * 1e-3
-    locate_eyes = list(transform_points(T_ref_look, np.array([[-base_l / 2, 0, 0], [base_l / 2, 0, 0]])))
+    locate_eyes = list(transform_points(T_ref_look, locate_offsets(base_l, cfg["locate"]["baseline_direction_deg"])))
     # regions after the first: the same pattern of eyes moved in the panel's plane to aim at another part of it
     regions = [(R_wp @ np.array([x, y, 0.0]), f"r{k}") for k, (x, y) in enumerate(site["regions_m"])]
     shift0 = regions[0][0]

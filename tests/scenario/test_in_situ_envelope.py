@@ -94,3 +94,20 @@ def test_placement_and_radius_limit_are_checked():
     np.testing.assert_allclose(r, 0.2)
     cfg = load_scenario(SCENARIO, seed=1, overrides=["site.standoff_m=0.5", "survey.radius_limit_mm=200"])
     assert np.all(np.linalg.norm(IN_SITU._survey_offsets(cfg, load_preset("underwater_in_water")), axis=1) < 0.2)
+
+
+def test_locate_baseline_direction_turns_the_pair_in_the_image_plane():
+    """``locate.baseline_direction_deg``: 0 is the thesis's pair across the panel (the exact offsets of before), 90
+    puts the second eye above the first (image-up is the look frame's -y), the baseline's length kept."""
+    np.testing.assert_array_equal(IN_SITU.locate_offsets(0.3), [[-0.15, 0, 0], [0.15, 0, 0]])
+    up = IN_SITU.locate_offsets(0.3, 90.0)
+    np.testing.assert_allclose(up, [[0, 0.15, 0], [0, -0.15, 0]], atol=1e-15)
+    for a in (-135.0, 30.0, 180.0):
+        off = IN_SITU.locate_offsets(0.3, a)
+        assert abs(np.linalg.norm(off[1] - off[0]) - 0.3) < 1e-15 and np.all(off[:, 2] == 0)
+    with pytest.raises(ConfigError, match=r"locate\.baseline_direction_deg"):
+        load_scenario(SCENARIO, seed=1, overrides=["locate.baseline_direction_deg=270"])
+
+
+def test_a_vertical_locate_pair_is_reachable(plan_only):
+    plan_only(["locate.baseline_direction_deg=90"])
