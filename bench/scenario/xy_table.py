@@ -133,7 +133,9 @@ class Sim(Section):
     focal_error_pct: Annotated[NonNegFloat, about("true intrinsics vs the nominal camera file (uniform +-)")] = 1.5
     principal_error_px: NonNegFloat = 4.0
     distortion_error_pct: NonNegFloat = 5.0
-    calibration_views: Annotated[PositiveInt, about("rig views for the camera calibration (thesis: 7)")] = 7
+    calibration_views: Annotated[PositiveInt, about(
+        "rig views for the camera calibration (thesis: the webcam's K the mean of seven single-view calibrations, "
+        "section 5.2.1; the underwater camera's from one view, section 5.3)")] = 7
     calibration_distance_mm: PositiveFloat = 800.0
     true_projection_points: Annotated[PositiveInt, about(
         "points on the reference for pipeline.features = true_projection")] = 800
@@ -543,7 +545,9 @@ def calibrate_from_rig_views(ds, model: str, tolerance_draws: int = 48, extracto
     from bench.camera.target_tolerance import calibration_with_tolerance
 
     geometry = load_target(ds.root / "target.yaml")
-    Xs, uvs, _, size = rig_corners(ds, geometry, extractor, "calibration", need=2)
+    # one view of the two-plane rig determines the camera (section 5.3 calibrated the underwater camera from one); a
+    # planar target's single view is calibrate_camera's one-line failure
+    Xs, uvs, _, size = rig_corners(ds, geometry, extractor, "calibration", need=1)
     cal = calibrate_camera(Xs, uvs, size, model=model)
     if not cal.success:
         raise ConfigError(ds.root, "calibration views", f"camera calibration failed: {cal.message}")

@@ -283,6 +283,17 @@ def test_table_readout_exact(tmp_path):
     assert np.abs(read["exact"] - read["steps"]).max() > 1e-6
 
 
+def test_one_view_of_the_two_plane_rig_calibrates_the_underwater_camera(tmp_path):
+    """Section 5.3 calibrated the underwater camera from one photo of the rig: one calibration view is enough for the
+    pipeline (the rig is not planar), and the calibration it gives is Heikkila's of that view."""
+    cfg = load_scenario(UNDERWATER, seed=3, overrides=SMOKE + ["sim.positions=[9, 11]", "sim.calibration_views=1"])
+    xy_table.render(cfg, tmp_path / "ds", verbose=False)
+    cal, n_views, cov_K = xy_table.calibrate_from_rig_views(load_dataset(tmp_path / "ds"), "heikkila",
+                                                            tolerance_draws=0, extractor="thesis_printed")
+    assert cal.success and n_views == 1 and cal.rms_px < 0.5
+    assert cov_K.shape == (4, 4) and np.all(np.linalg.eigvalsh(cov_K) > 0)
+
+
 @pytest.mark.parametrize("scenario", [WEBCAM, UNDERWATER])
 def test_budget_sources_are_valid_switches(scenario):
     """Every error source of the budget is a valid set of overrides of both scenarios; the primary metric ends in its
