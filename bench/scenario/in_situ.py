@@ -564,7 +564,6 @@ def _rig_views(robot, rig_centre, distance, n, prefix, mount_nominal, role="rig"
     return views, unreachable
 
 
-@memoized
 def locate_offsets(baseline_m: float, direction_deg: float = 0.0) -> np.ndarray:
     """The two locate eyes ``(2, 3)`` in the reference view's look frame (OpenCV: x right, y down; m): ``baseline_m``
     apart about its centre, along the image's x turned by ``direction_deg`` towards image-up (``-y``)."""
@@ -573,6 +572,7 @@ def locate_offsets(baseline_m: float, direction_deg: float = 0.0) -> np.ndarray:
     return np.array([-half, half])
 
 
+@memoized
 def _plan(robot, T_world_base, eye_w, target_w, mount, q_seed):
     from bench.sim.views import look_at_configuration
 
