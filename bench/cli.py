@@ -72,9 +72,10 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--keypoints", choices=("sift", "aligned"), default="sift", help="SIFT's keypoints (the "
                      "thesis's) or aligned: each matched keypoint moved onto its reference keypoint's image patch "
                      "(bench.vision.patch_align)")
-    loc.add_argument("--twin-keypoints", choices=("once", "both"), default="both", help="SIFT's twin keypoints (a "
-                     "second orientation at the same pixel): both copies (the thesis's map, which counts such a point "
-                     "twice in the covariance), or one map point per detection")
+    loc.add_argument("--twin-keypoints", choices=("both", "once", "weighted"), default="both", help="SIFT's twin "
+                     "keypoints (a second orientation at the same pixel): both copies (the thesis's map, which counts "
+                     "such a point twice in the covariance), one map point per detection, or both copies with each "
+                     "view's keypoint weighed as one measurement in the joint bundle")
     loc.add_argument("--covariance", choices=("white", "field"), default="white", help="with --refine joints: the "
                      "pose's covariance of white pixel noise, or with each view's keypoint error field measured on "
                      "the joint bundle's residuals (bench.vision.field_covariance)")
@@ -100,6 +101,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="the keypoints (as bench locate --keypoints)")
     fa.add_argument("--covariance", choices=("white", "field"), default="white",
                     help="with --refine joints: the pose's covariance (as bench locate --covariance)")
+    fa.add_argument("--twin-keypoints", choices=("both", "once", "weighted"), default="both",
+                    help="SIFT's twin keypoints (as bench locate --twin-keypoints)")
     fa.add_argument("--force", action="store_true", help="replace an earlier output of bench faults in --out")
     cc = sub.add_parser("calibrate-camera", help="corners + calibration (+ OpenCV reference) on a rig dataset or a "
                                                  "plain folder of photos")
@@ -406,7 +409,8 @@ def main(argv=None) -> int:
                                  f"{args.refine}")
             rows = run_faults(args.dataset, args.out, faults=args.fault, seed=args.seed, camera=args.camera,
                               robot=args.robot, force=args.force, refine=args.refine, priors=args.priors,
-                              keypoints=args.keypoints, covariance=args.covariance)
+                              keypoints=args.keypoints, covariance=args.covariance,
+                              twin_keypoints=args.twin_keypoints)
             return 1 if any(r["silent"] for r in rows) else 0
         elif args.command in _INTERCHANGE:
             return _interchange(args)

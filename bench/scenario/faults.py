@@ -52,6 +52,7 @@ from bench.fileio import atomic_write_text, claimed_output_dir, settings_identit
 from bench.geometry.quaternion import rotation_vector_to_matrix
 from bench.geometry.transforms import homogeneous, invert
 from bench.scenario.results import pose_errors
+from bench.vision.insitu import twin_map_config
 
 #: A position error above this is a failure whatever the protection radius (the alert limit of the issue, mm).
 SILENT_MM = 3.0
@@ -316,7 +317,7 @@ def is_silent(row) -> bool:
 
 def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None, force: bool = False,
                verbose: bool = True, refine: str = "joints", priors=None, keypoints: str = "sift",
-               covariance: str = "white") -> list:
+               covariance: str = "white", twin_keypoints: str = "both") -> list:
     """Inject each fault into a copy of ``dataset``, localise, score; writes ``out/faults.csv`` and ``faults.json``.
 
     Returns the rows (dicts). ``camera`` / ``robot``: the lab calibration's files (default: calibrated here from the
@@ -324,7 +325,8 @@ def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None
     (:func:`~bench.vision.locate_dataset.locate_dataset`; default ``joints``, the in-situ kind's, under ``priors``:
     the lab's priors file, default the one calibrated here; none when the lab files are given without it);
     ``keypoints`` SIFT's or aligned ones, ``covariance`` the white or the field one (refine ``joints``; both as
-    :func:`~bench.vision.locate_dataset.locate_dataset`'s).
+    :func:`~bench.vision.locate_dataset.locate_dataset`'s), ``twin_keypoints`` the map's twins
+    (:func:`~bench.vision.insitu.twin_map_config`).
     ``out`` is claimed as ``bench faults``' output
     (:func:`bench.fileio.claimed_output_dir`): a foreign folder is refused; ``force`` replaces only an earlier output
     of ``bench faults``.
@@ -350,10 +352,11 @@ def run_faults(dataset, out, faults=None, seed: int = 0, camera=None, robot=None
     # stay); other settings are refused without force.
     identity = settings_identity({"dataset": dataset, "camera": camera, "robot": robot, "priors": priors}, seed=seed,
                                  refine=refine, keypoints=keypoints,
-                                 **({} if covariance == "white" else {"covariance": covariance}))
+                                 **({} if covariance == "white" else {"covariance": covariance}),
+                                 **({} if twin_keypoints == "both" else {"twin_keypoints": twin_keypoints}))
     with claimed_output_dir(out, "faults", force=force, identity=identity) as out:
         rows = _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors, keypoints,
-                           covariance)
+                           covariance, twin_map_config(twin_keypoints))
     return rows
 
 
@@ -376,7 +379,7 @@ def _with_earlier_rows(out: Path, rows: list) -> list:
 
 
 def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine, priors, keypoints,
-                covariance="white") -> list:
+                covariance="white", config=None) -> list:
     from bench.vision.locate_dataset import locate_dataset
 
     if camera is None or robot is None:
@@ -396,7 +399,7 @@ def _run_faults(dataset, out, names, roles, seed, camera, robot, verbose, refine
             res, report = locate_dataset(work / "dataset", work, verbose=False, camera_path=cal["camera"],
                                          robot_path=cal["robot"], seed=seed, refine=refine,
                                          priors_path=priors if refine == "joints" else None, keypoints=keypoints,
-                                         covariance=covariance)
+                                         covariance=covariance, config=config)
             T = res.T_world_base
         except ConfigError as exc:  # a fault the dataset loader catches is a refusal with its reason
             report = {"integrity": "refused", "integrity_reasons": [str(exc)], "protection_radius_mm": None,

@@ -236,11 +236,12 @@ class Pipeline(Section):
         "the keypoints the localisation uses: SIFT's (the thesis's) or aligned - every keypoint matched to its "
         "region's reference keypoint moved onto the reference's image patch (bench.vision.patch_align; "
         "docs/integrity.md measures it)")] = "sift"
-    twin_keypoints: Annotated[Literal["once", "both"], about(
+    twin_keypoints: Annotated[Literal["both", "once", "weighted"], about(
         "SIFT's twin keypoints (a second orientation at the same pixel, matched with nearly the same error in every "
-        "view): both copies as the thesis's map keeps them (both), which counts such a point twice in the covariance, "
-        "or one point per detection observed wherever a copy was matched (once; bench.vision.insitu.MapConfig."
-        "duplicate_px; docs/integrity.md measures it)")] = "both"
+        "view): both copies as the thesis's map keeps them (both), which counts such a point twice in the covariance; "
+        "one point per detection observed wherever a copy was matched (once; bench.vision.insitu.MapConfig."
+        "duplicate_px); or both copies with each view's keypoint weighed as one measurement in the joint bundle "
+        "(weighted; MapConfig.one_keypoint_px; docs/integrity.md measures them)")] = "both"
     covariance: Annotated[Literal["white", "field"], about(
         "refine joints: the pose's covariance of white pixel noise, or with each view's keypoint error field (to "
         "cubic order) measured on the joint bundle's residuals (bench.vision.field_covariance; docs/integrity.md "
@@ -1015,7 +1016,7 @@ def _bound(cfg, robot, truth, lab, details, ransac, res, ins: bool = False) -> d
     # the features the pipeline found (linearisation), each detection once: SIFT's twin keypoints (two orientations at
     # one pixel) are one measurement, which the pipeline's map holds twice
     one, merge = one_per_detection(kmap)
-    # the copies the map merged (pipeline.twin_keypoints once) or holds (both)
+    # the copies the map merged (pipeline.twin_keypoints once) or holds (both, weighted)
     out["keypoint_twin_points"] = float(kmap.stats.get("duplicate_detections", 0) + len(kmap) - len(one))
     X_site = transform_points(kmap.T_world_ref, kmap.p_ref[one])
     names = [ref, *surround, *loc]

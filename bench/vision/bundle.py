@@ -173,6 +173,16 @@ def robust_weights(e, s_px: float, loss: str | None, c: float = LOSS_SCALE) -> n
     return np.where(u <= c, 1.0, c / np.maximum(u, 1e-300))
 
 
+def _dof(point, keep, wt, M: int, dof_offset: int) -> float:
+    """The noise estimate's degrees of freedom: 2 per kept observation and -3 per point observed, each counted by
+    its share ``wt`` (a point by the mean share of its kept observations: two points that are one keypoint in every
+    view count as one), less ``dof_offset``; at least 1. With every share 1: ``2 N - 3 M - dof_offset``."""
+    n_obs = np.bincount(point[keep], minlength=M)
+    share = np.bincount(point[keep], weights=wt[keep], minlength=M)
+    seen = n_obs > 0
+    return max(2 * float(wt[keep].sum()) - 3 * float(np.sum(share[seen] / n_obs[seen])) - dof_offset, 1.0)
+
+
 def _cost(problem, theta, X, keep, prior_info, mean, w=None) -> float:
     """Sum of the kept observations' squared pixel residuals (weighted by ``w`` (N,), IRLS) plus the priors' (in
     the same units)."""
@@ -185,7 +195,7 @@ def _cost(problem, theta, X, keep, prior_info, mean, w=None) -> float:
 
 def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10, rounds: int = 3,
           gate: float | None = 3.5, dof_offset: int = 0, gate_groups=None, groups_in_rounds: bool = True,
-          step_tol: float | None = None, loss: str | None = None) -> BundleSolution:
+          step_tol: float | None = None, loss: str | None = None, weights=None) -> BundleSolution:
     """Maximum-likelihood ``theta`` and points (module docstring).
 
     Parameters
@@ -228,9 +238,18 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
         None: least squares on the kept observations. ``"huber"``: Huber's M-estimate by iteratively re-weighted least
         squares (:func:`robust_weights`, scale :data:`LOSS_SCALE` x the robust pixel noise, median / 1.1774 of the
         kept residuals, at every linearisation): keypoint errors have heavy tails below the gate too.
+    weights : ndarray (N,), optional
+        Each observation's share of a measurement (0 < w <= 1): its squared residual, its information and its part
+        of the noise estimate's sums and degrees of freedom are multiplied by it - e.g. ``1 / k`` for each of ``k``
+        observations that are one keypoint (:func:`bench.vision.joint_bundle.detection_weights`). None: 1 each (the
+        gate's robust sigma is the residuals' median either way).
     """
     theta, mean, X = np.array(theta0, float), np.asarray(mean, float), np.array(X, float)
     point = np.asarray(problem.point, int)
+    wt = np.ones(len(point)) if weights is None else np.asarray(weights, float)
+    if wt.shape != (len(point),) or not np.all((wt > 0) & (wt <= 1)):
+        raise ValueError(f"weights: expected ({len(point)},) values in (0, 1], got shape {wt.shape}")
+    sw = np.sqrt(wt)
     n, M = len(theta), len(X)
     nan = np.full((n, n), np.nan)
     it_total, s_px = 0, float(sigma_px)
@@ -253,10 +272,10 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
             r, J, J_pt, z_min = problem.linearise(theta, X)
             if z_min <= 0:
                 return failed("points behind a camera")
-            w = None  # IRLS weights of the robust loss, at this linearisation
+            w = None if weights is None else wt  # the shares, times the robust loss's IRLS weights at this point
             if loss is not None:
                 e = np.linalg.norm(r, axis=1)
-                w = robust_weights(e, robust_sigma(e[keep]), loss)
+                w = wt * robust_weights(e, robust_sigma(e[keep]), loss)
             S, g, points_step = normal_equations(point, r, J, J_pt, M, prior_info, prior_info @ (theta - mean),
                                                  keep if w is None else keep * np.sqrt(w))
             diag = np.diag(S)
@@ -286,10 +305,10 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
         e = np.linalg.norm(problem.residuals(theta, X), axis=1)
         if gate:
             keep = _gated(e, keep, point, M, gate, gate_groups if groups_in_rounds else None)
-        dof = max(2 * int(keep.sum()) - 3 * int(np.unique(point[keep]).size) - dof_offset, 1)
-        s_px = float(np.sqrt(np.sum(e[keep] ** 2) / dof))
+        s_px = float(np.sqrt(np.sum(wt[keep] * e[keep] ** 2) / _dof(point, keep, wt, M, dof_offset)))
     r, J, J_pt, _ = problem.linearise(theta, X)
-    S, _, _ = normal_equations(point, r, J, J_pt, M, info0 * max(s_px, SIGMA_FLOOR_PX) ** 2, np.zeros(n), keep)
+    mask = keep if weights is None else keep * sw
+    S, _, _ = normal_equations(point, r, J, J_pt, M, info0 * max(s_px, SIGMA_FLOOR_PX) ** 2, np.zeros(n), mask)
     d = np.sqrt(np.abs(np.diag(S)))
     if not (np.all(d > 0) and np.linalg.eigvalsh(S / np.outer(d, d)).min() > RCOND):
         # a parameter neither the pixels nor a prior hold (a degenerate view set): no covariance to report
@@ -298,7 +317,7 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
     if not converged:  # out of iterations: converged all the same if the step left is a tiny part of each sigma
         # the Gauss-Newton step left on the last round's objective, in units where a sigma is ~ s_px
         _, step = _scaled_step(*normal_equations(point, r, J, J_pt, M, prior_info, prior_info @ (theta - mean),
-                                                 keep)[:2])
+                                                 mask)[:2])
         converged = bool(np.abs(step).max() < 1e-3 * s_px) or s_px < SIGMA_FLOOR_PX  # below it: an exact fit
     return BundleSolution(True, "ok" if converged else f"ok; the last round stopped at its {iterations} iterations",
                           theta, X, keep, s_px, S, it_total, converged)

@@ -57,6 +57,8 @@ BASELINE_FAIL_RATIO = 1.0
 #: of a keypoint sits at the very same position and size (measured: every such pair within 1e-6 px; the next nearest
 #: keypoints of a map lie 0.1-2 px apart).
 TWIN_PX = 0.01
+#: ``pipeline.twin_keypoints``'s choices (:func:`twin_map_config`)
+TWIN_CHOICES = ("both", "once", "weighted")
 #: Condition number of the final pose problem above which the message carries a WARNING (both locate variants).
 WARN_CONDITION = 1e4
 
@@ -101,6 +103,10 @@ class MapConfig:
     #: honest; in air they are partly independent and merging costs accuracy (docs/integrity.md, "Twin keypoints in
     #: the covariance"); the bound counts each detection once (:func:`one_per_detection`).
     duplicate_px: float = 0.0
+    #: Observations of one view whose keypoints lie closer than this (px) are one keypoint (SIFT's twins: both map
+    #: points kept, as the thesis's map has them), weighed as one measurement in the joint bundle
+    #: (:func:`bench.vision.joint_bundle.detection_weights`); 0 (the default) weighs every observation as one.
+    one_keypoint_px: float = 0.0
 
 
 @dataclass
@@ -246,11 +252,13 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
 
 
 def twin_map_config(twin_keypoints: str = "both") -> MapConfig:
-    """The map's settings for SIFT's twin keypoints: ``"both"`` copies (the thesis's map) or one point per detection
-    (``"once"``: :attr:`MapConfig.duplicate_px` = :data:`TWIN_PX`)."""
-    if twin_keypoints not in ("both", "once"):
-        raise ValueError(f"twin_keypoints: expected 'both' or 'once', got {twin_keypoints!r}")
-    return MapConfig(duplicate_px=TWIN_PX if twin_keypoints == "once" else 0.0)
+    """The map's settings for SIFT's twin keypoints: ``"both"`` copies (the thesis's map), one point per detection
+    (``"once"``: :attr:`MapConfig.duplicate_px` = :data:`TWIN_PX`), or both copies with each view's keypoint weighed
+    as one measurement in the joint bundle (``"weighted"``: :attr:`MapConfig.one_keypoint_px` = :data:`TWIN_PX`)."""
+    if twin_keypoints not in TWIN_CHOICES:
+        raise ValueError(f"twin_keypoints: expected one of {', '.join(TWIN_CHOICES)}, got {twin_keypoints!r}")
+    return MapConfig(duplicate_px=TWIN_PX if twin_keypoints == "once" else 0.0,
+                     one_keypoint_px=TWIN_PX if twin_keypoints == "weighted" else 0.0)
 
 
 def _merge_twins(uv, matches: list, tol_px: float) -> tuple:

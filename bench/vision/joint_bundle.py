@@ -30,6 +30,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from bench.camera.model import check_dist, distort, distortion_jacobian, distortion_parameter_jacobian, to_pixels
 from bench.geometry.quaternion import rotation_vector_to_matrix
@@ -210,7 +213,7 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
                  sigma_px: float, K, dist=None, cov_K=None, cov_mount=None, iterations: int = 10, rounds: int = 3,
                  gate: float | None = 3.5, cov_K_mount=None, cov_dist=None, cov_K_dist=None,
                  cov_dist_mount=None, loss: str | None = None, k3_sd: float | None = None,
-                 field_order: int | None = None, image_size=None) -> JointBundleResult:
+                 field_order: int | None = None, image_size=None, weights=None) -> JointBundleResult:
     """Base pose, joints of every view, map points (and the intrinsics and mount under their lab priors) by maximum
     likelihood (see the module docstring).
 
@@ -263,9 +266,14 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
         Given (0-3, with ``image_size (w, h)``): the covariance is the estimate's with each view's keypoint error
         field of that order, measured on the residuals (:func:`bench.vision.field_covariance.field_covariance`;
         ``field`` of the result); None: the first-order covariance of white pixel noise.
+    weights : ndarray (N,), optional
+        Each observation's share of a measurement (:func:`detection_weights`: ``1 / k`` for each of ``k``
+        observations of one view at the same pixel - one keypoint); None: each observation is one measurement.
     """
     if field_order is not None and image_size is None:
         raise ValueError("field_order needs the image_size (w, h)")
+    if field_order is not None and weights is not None:
+        raise ValueError("the keypoint-field covariance weighs every observation as one measurement: no weights")
     q_read = np.asarray(q_read, float)
     X = np.array(X, dtype=float)
     V, M = len(q_read), len(X)
@@ -287,7 +295,7 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
         info0[k:, k:] = np.linalg.inv(lab)
     mean = np.r_[np.zeros(6), q_read.ravel(), np.zeros(n - 6 - 6 * V)]
     sol = solve(_Bound(problem, T_site_b2), mean, mean, info0, X, sigma_px, iterations, rounds, gate, dof_offset=6,
-                loss=loss)
+                loss=loss, weights=weights)
     if not sol.success:
         return JointBundleResult(False, sol.message, T_site_b2, nan6, q_read, sol.sigma_px, np.nan, len(problem.view),
                                  sol.iterations)
@@ -312,6 +320,43 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
                              f"views' joints{extra}, sigma {s_px:.3g} px", T, cov, q, s_px, rms,
                              len(r), sol.iterations, problem.intrinsics(d_K), problem.mounted(d_m),
                              problem.distortion(d_d), field)
+
+
+def detection_weights(view, uv, tol_px: float) -> np.ndarray:
+    """Each observation's share of a measurement: ``1 / k`` for each of the ``k`` observations of one view whose
+    keypoints lie within ``tol_px`` of each other (linked pairwise; one keypoint assigned to several map points -
+    SIFT's twins, a second orientation at the same pixel, Lowe 2004 section 5 - is one measurement), 1 for the
+    others.
+
+    Parameters
+    ----------
+    view : ndarray (N,) int
+        Each observation's view.
+    uv : ndarray (N, 2)
+        Its keypoint (px).
+    tol_px : float
+        Keypoints closer than this (px) are one (> 0).
+
+    Returns
+    -------
+    ndarray (N,)
+        Shares in (0, 1]; they sum to the number of distinct keypoints in each view.
+    """
+    view, uv = np.asarray(view, int), np.asarray(uv, float)
+    if not tol_px > 0:
+        raise ValueError(f"tol_px: expected > 0, got {tol_px}")
+    if uv.shape != (len(view), 2) or not np.all(np.isfinite(uv)):
+        raise ValueError(f"uv: expected ({len(view)}, 2) finite pixels, got shape {uv.shape}")
+    w = np.ones(len(view))
+    for v in np.unique(view):
+        idx = np.flatnonzero(view == v)
+        pairs = cKDTree(uv[idx]).query_pairs(tol_px, output_type="ndarray")
+        if len(pairs) == 0:
+            continue
+        graph = csr_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(idx), len(idx)))
+        _, label = connected_components(graph, directed=False)
+        w[idx] = 1.0 / np.bincount(label)[label]
+    return w
 
 
 def distortion_block_size(cov_dist=None, k3_sd=None) -> int:

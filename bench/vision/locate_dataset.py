@@ -249,7 +249,8 @@ def _align_keypoints(obs, regions, camera, config) -> tuple:
 
 
 def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, priors=None, guided: bool = False,
-                   loss: str | None = None, map_points: str = "all", field_order: int | None = None):
+                   loss: str | None = None, map_points: str = "all", field_order: int | None = None,
+                   one_keypoint_px: float = 0.0):
     """The thesis estimator's pose refined by :func:`~bench.vision.joint_bundle.joint_bundle` (joints under the
     encoder prior); on failure the thesis estimate is kept and the message says why.
 
@@ -259,14 +260,16 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
     estimate to start from. With ``guided`` each region's map is then searched again in its locate views at the
     refined poses and camera (:mod:`bench.vision.guided`) and the joint bundle re-run on the grown sets; ``loss``:
     the joint bundle's (``joint_bundle``); ``map_points``: which map points it weighs
-    (:func:`~bench.vision.joint_bundle.observations_of`); ``field_order``: the covariance with each view's keypoint
+    (:func:`~bench.vision.joint_bundle.observations_of`); ``one_keypoint_px`` > 0: a view's observations within it
+    of each other are one keypoint, weighed as one measurement (:func:`~bench.vision.joint_bundle.detection_weights`;
+    0: each observation one); ``field_order``: the covariance with each view's keypoint
     error field of that order (:mod:`bench.vision.field_covariance`), None: white. Returns ``(result, refined,
     used)``: ``refined`` False
     when the thesis's estimate (and covariance) is what comes back; ``used`` the points of every region the returned
     estimate used (the result's own ``used`` is the first region's)."""
     from bench.camera.model import distort, to_pixels
     from bench.vision.integrity import pose_condition
-    from bench.vision.joint_bundle import joint_bundle, observations_of
+    from bench.vision.joint_bundle import detection_weights, joint_bundle, observations_of
 
     useds = [u for _, _, u in parts]
     if any(u is None or len(u[0]) < 3 for u in useds):
@@ -285,11 +288,11 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
             point.append(pt + sum(len(p) for p in X))
             uv.append(to_pixels(distort(x, camera.dist), camera.K))  # the keypoints as detected (x: undistorted)
             X.append(transform_points(kmap.T_world_ref, kmap.p_ref[idx]))
-        X = np.concatenate(X)
-        return joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, T_start, np.concatenate(view),
-                            np.concatenate(point), np.concatenate(uv), X, sigma_enc, 0.1, camera.K, camera.dist,
-                            **(priors or {}), loss=loss, field_order=field_order,
-                            image_size=camera.size), X  # 0.1 px: a start
+        X, view, uv = np.concatenate(X), np.concatenate(view), np.concatenate(uv)
+        w = detection_weights(view, uv, one_keypoint_px) if one_keypoint_px > 0 else None
+        return joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, T_start, view, np.concatenate(point), uv, X,
+                            sigma_enc, 0.1, camera.K, camera.dist, **(priors or {}), loss=loss,
+                            field_order=field_order, image_size=camera.size, weights=w), X  # 0.1 px: a start
 
     try:
         jb, X = bundle(useds, res.T_world_base)
@@ -370,7 +373,7 @@ def _regions(ds, pnp: bool, refine: str) -> list:
 
 
 def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, camera, sigma_enc, priors, guided,
-             loss, map_points, field_order=None) -> tuple:
+             loss, map_points, field_order=None, one_keypoint_px: float = 0.0) -> tuple:
     """The estimate of the regions ``include`` (indices) from their thesis estimates ``per``: with one region its
     own, refined by the joint bundle with refine 'joints'; with several the joint bundle over all of them together,
     started from the region with the most inliers (which then comes first in ``include``; regions whose thesis
@@ -382,7 +385,8 @@ def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, 
         if sigma_enc is None or not res.success:  # refine 'joints' and two views: sigma_enc is given
             return [0], res, False, None, [res.used]
         out, refined, used = _refine_joints(res, [(maps[0], regions[0][1], res.used)], obs, robot, eps, T_link5_cam,
-                                            camera, sigma_enc, priors, guided, loss, map_points, field_order)
+                                            camera, sigma_enc, priors, guided, loss, map_points, field_order,
+                                            one_keypoint_px)
         return [0], out, refined, res, used
     # a region with fewer inliers than test 5 accepts has too little to add (not a fault: left out like a failure)
     include = [i for i in include if per[i].success and per[i].used is not None and len(per[i].used[0]) >= 3
@@ -400,7 +404,7 @@ def _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, 
                   timings_s=dict(per[start].timings_s))
     out, refined, used = _refine_joints(res, [(maps[i], regions[i][1], per[i].used) for i in include], obs, robot,
                                         eps, T_link5_cam, camera, sigma_enc, priors, guided, loss, map_points,
-                                        field_order)
+                                        field_order, one_keypoint_px)
     return include, out, refined, per[start], used
 
 
@@ -453,6 +457,9 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         raise ConfigError("locate_dataset", "keypoints", f"expected 'sift' or 'aligned', got {keypoints!r}")
     if covariance not in ("white", "field"):
         raise ConfigError("locate_dataset", "covariance", f"expected 'white' or 'field', got {covariance!r}")
+    if covariance == "field" and config is not None and config.one_keypoint_px > 0:
+        raise ConfigError("locate_dataset", "covariance", "the keypoint-field covariance weighs every observation as "
+                          "one measurement: not with twin keypoints 'weighted'")
     if ins_tilt not in ("fuse", "check"):
         raise ConfigError("locate_dataset", "ins_tilt", f"expected 'fuse' or 'check', got {ins_tilt!r}")
     ds = load_dataset(root)
@@ -498,7 +505,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
     def combine(per, maps, obs, include):
         """:func:`_combine` of the regions ``include`` with this call's robot, camera and settings."""
         return _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, pixels_camera, sigma_enc,
-                        priors, guided, loss, map_points, FIELD_ORDER if covariance == "field" else None)
+                        priors, guided, loss, map_points, FIELD_ORDER if covariance == "field" else None,
+                        (config or MapConfig()).one_keypoint_px)
 
     def solve(obs):
         """Every region's map and thesis estimate, then their estimate together (:func:`_combine`: the joint

@@ -508,3 +508,28 @@ def test_the_ins_tilt_is_fused_into_a_clean_pose(rendered, tmp_path):
     assert json.loads((tmp_path / "locate.json").read_text())["ins_tilt"] == "checked"
     with pytest.raises(ConfigError, match="ins_tilt"):
         locate_dataset(tmp / "ds", camera_path=camera, robot_path=robot, verbose=False, ins_tilt="yes")
+
+
+def test_twin_keypoints_weighted_on_a_rendered_dataset(rendered, capsys, tmp_path):
+    """pipeline.twin_keypoints: weighted - SIFT's twins kept as the thesis's map has them, each view's keypoint
+    weighed as one measurement in the joint bundle. On a rendered dataset (which has twins): the covariance grows
+    against the thesis's map (its twins no longer counted twice), the pose lies inside its radius, a duplicated frame
+    is still refused through bench locate --twin-keypoints weighted and bench faults; with the field covariance,
+    refused in one line."""
+    from bench.vision.insitu import twin_map_config
+
+    tmp, camera, robot, T_true, kw = _joints_setup(rendered)
+    both, rep_b = locate_dataset(tmp / "ds", None, **kw)
+    weighted, rep_w = locate_dataset(tmp / "ds", None, config=twin_map_config("weighted"), **kw)
+    assert both.success and weighted.success
+    assert rep_w["map_points"] == rep_b["map_points"]  # the same map: only the weights differ
+    assert np.trace(weighted.covariance[3:, 3:]) > 1.05 * np.trace(both.covariance[3:, 3:])
+    _holds_and_refuses_a_duplicate(rendered, weighted, rep_w, ["--twin-keypoints", "weighted"], tmp_path, capsys)
+    rows = {r["fault"]: r for r in F.run_faults(tmp / "ds", tmp_path / "faults", faults=["clean", "swap_images"],
+                                                seed=0, camera=camera, robot=robot, verbose=False,
+                                                twin_keypoints="weighted")}
+    assert rows["swap_images"]["integrity"] == "refused" and not any(r["silent"] for r in rows.values())
+    with pytest.raises(ConfigError, match="not with twin keypoints 'weighted'"):
+        locate_dataset(tmp / "ds", None, covariance="field", config=twin_map_config("weighted"), **kw)
+    with pytest.raises(ValueError, match="twin_keypoints: expected one of both, once, weighted"):
+        twin_map_config("half")

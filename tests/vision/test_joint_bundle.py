@@ -333,3 +333,62 @@ def test_survey_only_points_tighten_the_base_through_the_shared_camera():
     assert np.trace(many.covariance[3:, 3:]) < 0.95 * np.trace(few.covariance[3:, 3:])
     e = many.T_site_base[:3, 3] - T_b2[:3, 3]
     assert e @ np.linalg.solve(many.covariance[3:, 3:], e) < 16.3  # chi2_3(0.999)
+
+
+def test_a_keypoint_weighed_once_is_the_bundle_without_its_twin():
+    """SIFT's twins: a second map point whose keypoint is the first's in every view. Weighed as one measurement
+    (``detection_weights``: 1/2 each), the bundle is the one without the copies - the pose to 1e-9 m, the pixel
+    noise to 1e-9, the covariance to 1e-7 of its size - while unweighted it counts them twice and its covariance
+    shrinks."""
+    from bench.vision.joint_bundle import detection_weights
+
+    rng = np.random.default_rng(85)
+    robot, eps, T_b2, X, view, point, x = _scene(rng)
+    sigma_enc = np.deg2rad(0.002)
+    xn = x + rng.normal(0, 0.1, x.shape)
+    twin = point < 20  # points 0-19 get a copy: the same keypoint in every view
+    view2, point2, xn2 = np.r_[view, view[twin]], np.r_[point, point[twin] + len(X)], np.r_[xn, xn[twin]]
+    X2 = np.r_[X, X[:20]]
+    w = detection_weights(view2, xn2, 0.01)
+    assert np.allclose(w, np.r_[np.where(twin, 0.5, 1.0), np.full(twin.sum(), 0.5)])
+    one = joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view, point, xn, X, sigma_enc, 0.3, K, gate=None)
+    weighed = joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view2, point2, xn2, X2, sigma_enc, 0.3, K, gate=None,
+                           weights=w)
+    twice = joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view2, point2, xn2, X2, sigma_enc, 0.3, K, gate=None)
+    assert one.success and weighed.success and twice.success
+    assert np.abs(weighed.T_site_base - one.T_site_base).max() < 1e-9
+    assert weighed.sigma_px == pytest.approx(one.sigma_px, rel=1e-9)
+    # (the two solves stop at rounding level on different sums: the covariances agree to ~1e-9 of their size)
+    assert np.abs(weighed.covariance - one.covariance).max() < 1e-7 * np.abs(one.covariance).max()
+    assert np.trace(twice.covariance[3:, 3:]) < 0.95 * np.trace(one.covariance[3:, 3:])
+    # with the gate on, the weighed bundle keeps what the one without copies keeps (its median sees the copies)
+    gated = joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view2, point2, xn2, X2, sigma_enc, 0.3, K, weights=w)
+    ref = joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view, point, xn, X, sigma_enc, 0.3, K)
+    assert np.linalg.norm(gated.T_site_base[:3, 3] - ref.T_site_base[:3, 3]) < 0.05 * np.sqrt(
+        np.trace(ref.covariance[3:, 3:]))
+    with pytest.raises(ValueError, match="weights"):
+        joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view, point, xn, X, sigma_enc, 0.3, K, weights=np.zeros(len(xn)))
+    with pytest.raises(ValueError, match="weights"):
+        joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view, point, xn, X, sigma_enc, 0.3, K, weights=w)  # wrong length
+    with pytest.raises(ValueError, match="no weights"):
+        joint_bundle(robot, eps, MOUNT, Q, LOC, T_b2, view2, point2, xn2, X2, sigma_enc, 0.3, K, weights=w,
+                     field_order=1, image_size=(640, 480))
+
+
+def test_detection_weights_share_a_keypoint_between_its_observations():
+    from bench.vision.joint_bundle import detection_weights
+
+    view = np.array([0, 0, 0, 0, 1, 1, 1])
+    uv = np.array([[10, 10], [10, 10], [10.006, 10], [30, 30], [10, 10], [10.5, 10], [30, 30]], float)
+    w = detection_weights(view, uv, 0.01)
+    assert w.tolist() == pytest.approx([1 / 3, 1 / 3, 1 / 3, 1, 1, 1, 1])  # one view's copies only, chained
+    assert np.bincount(view, weights=w).tolist() == pytest.approx([2, 3])  # the distinct keypoints of each view
+    chain = np.array([[0, 0], [0.008, 0], [0.016, 0]], float)  # each within 0.01 px of the next, the ends not
+    assert detection_weights(np.zeros(3, int), chain, 0.01) == pytest.approx(np.full(3, 1 / 3))
+    assert detection_weights(np.zeros(0, int), np.zeros((0, 2)), 0.01).shape == (0,)
+    with pytest.raises(ValueError, match="tol_px"):
+        detection_weights(view, uv, 0.0)
+    with pytest.raises(ValueError, match="uv"):
+        detection_weights(view, uv[:3], 0.01)
+    with pytest.raises(ValueError, match="uv"):
+        detection_weights(view, np.where(uv == 30, np.nan, uv), 0.01)
