@@ -75,7 +75,8 @@ def _parser() -> argparse.ArgumentParser:
     loc.add_argument("--twin-keypoints", choices=("both", "once", "weighted"), default="both", help="SIFT's twin "
                      "keypoints (a second orientation at the same pixel): both copies (the thesis's map, which counts "
                      "such a point twice in the covariance), one map point per detection, or both copies with each "
-                     "view's keypoint weighed as one measurement in the joint bundle")
+                     "view's shared keypoint weighed as what it is worth (bench.vision.insitu.TWIN_WORTH) in the joint "
+                     "bundle")
     loc.add_argument("--covariance", choices=("white", "field"), default="white", help="with --refine joints: the "
                      "pose's covariance of white pixel noise, or with each view's keypoint error field measured on "
                      "the joint bundle's residuals (bench.vision.field_covariance)")

@@ -20,7 +20,8 @@ base pose, and the base-pose error (before the INS tilt) splits into
   from its track's mean;
 * ``twin_pairs`` / ``twin_error_corr``: SIFT's twin keypoints among the points (a second orientation at the same
   pixel, which the thesis's map, the default, keeps; ``--set pipeline.twin_keypoints=once`` merges them) and how
-  their true errors correlate in the other views.
+  their true errors correlate in the other views; ``twin_error_rms_px`` / ``single_error_rms_px`` the true error's
+  RMS (per axis) in the other views of the twins' and of the other points' observations.
 
 Each part's position NEES is against the bundle's own first-order covariance (white pixel noise at its robust
 ``sigma_px``, kappa 1); ``nees_dev_sandwich`` against the covariance those deviations would give if they were
@@ -134,7 +135,14 @@ def _twin_error_correlation(b, ok, view, point, uv) -> dict:
             if i is not None and j is not None:
                 num += float(b[i] @ b[j])
                 den += 0.5 * float(b[i] @ b[i] + b[j] @ b[j])
-    return {"twin_pairs": len(pairs), "twin_error_corr": num / den if den else float("nan")}
+    twin = np.isin(point, np.asarray(pairs, int).ravel()) & ok & (view > 0)
+    single = ~np.isin(point, np.asarray(pairs, int).ravel()) & ok & (view > 0)
+
+    def rms(m):
+        return float(np.sqrt(np.mean(b[m] ** 2))) if m.any() else float("nan")
+
+    return {"twin_pairs": len(pairs), "twin_error_corr": num / den if den else float("nan"),
+            "twin_error_rms_px": rms(twin), "single_error_rms_px": rms(single)}
 
 
 def _pose_response_matrix(el, keep) -> np.ndarray:

@@ -240,8 +240,8 @@ class Pipeline(Section):
         "SIFT's twin keypoints (a second orientation at the same pixel, matched with nearly the same error in every "
         "view): both copies as the thesis's map keeps them (both), which counts such a point twice in the covariance; "
         "one point per detection observed wherever a copy was matched (once; bench.vision.insitu.MapConfig."
-        "duplicate_px); or both copies with each view's keypoint weighed as one measurement in the joint bundle "
-        "(weighted; MapConfig.one_keypoint_px; docs/integrity.md measures them)")] = "both"
+        "duplicate_px); or both copies with each view's shared keypoint weighed as what it is worth in the joint "
+        "bundle, bench.vision.insitu.TWIN_WORTH measurements (weighted; docs/integrity.md measures them)")] = "both"
     covariance: Annotated[Literal["white", "field"], about(
         "refine joints: the pose's covariance of white pixel noise, or with each view's keypoint error field (to "
         "cubic order) measured on the joint bundle's residuals (bench.vision.field_covariance; docs/integrity.md "

@@ -217,7 +217,7 @@ METRICS: dict[str, tuple[Metric, ...]] = {
         Metric("keypoint_field_views", "count", "views behind that field", BOUND_POSE),
         Metric("keypoint_twin_points", "count", "map keypoints that are another's second SIFT orientation (the "
                "same pixel): the map merges them (pipeline.twin_keypoints once), holds both (both, the default) or "
-               "holds both at one measurement's weight (weighted); "
+               "holds both at the shared keypoint's worth (weighted); "
                "the bound counts each detection once (bench.vision.insitu.one_per_detection)", BOUND),
         Metric("keypoint_locate_ratio", "1", "the locate views' keypoint noise over the survey's, on the same "
                "tracks, measured on the panel's true surfaces (robust σ)", BOUND_POSE),

@@ -57,6 +57,14 @@ BASELINE_FAIL_RATIO = 1.0
 #: of a keypoint sits at the very same position and size (measured: every such pair within 1e-6 px; the next nearest
 #: keypoints of a map lie 0.1-2 px apart).
 TWIN_PX = 0.01
+#: What a keypoint that SIFT's twins share is worth in the joint bundle, in measurements of a keypoint of its own
+#: (``pipeline.twin_keypoints: weighted``): the twins' copies err as one (their true errors correlated 1.00 in every
+#: other view, in air as under water), and a twin detection errs 0.80-0.83 x a single keypoint (RMS against the
+#: panel's true surface, six runs each of the default scenario under water and in air, `tools/keypoint_error_
+#: decomposition.py`'s ``twin_error_rms_px`` / ``single_error_rms_px``): worth (1 / 0.815)^2 = 1.5 (docs/integrity.md,
+#: "Twin keypoints weighed as what they are worth"). A constant of the estimator fitted on the simulation's truth, as
+#: :data:`bench.vision.integrity.KAPPA` is; nothing is read from the truth at run time.
+TWIN_WORTH = 1.5
 #: ``pipeline.twin_keypoints``'s choices (:func:`twin_map_config`)
 TWIN_CHOICES = ("both", "once", "weighted")
 #: Condition number of the final pose problem above which the message carries a WARNING (both locate variants).
@@ -104,7 +112,7 @@ class MapConfig:
     #: the covariance"); the bound counts each detection once (:func:`one_per_detection`).
     duplicate_px: float = 0.0
     #: Observations of one view whose keypoints lie closer than this (px) are one keypoint (SIFT's twins: both map
-    #: points kept, as the thesis's map has them), weighed as one measurement in the joint bundle
+    #: points kept, as the thesis's map has them), weighed as :data:`TWIN_WORTH` measurements in the joint bundle
     #: (:func:`bench.vision.joint_bundle.detection_weights`); 0 (the default) weighs every observation as one.
     one_keypoint_px: float = 0.0
 
@@ -253,8 +261,9 @@ def build_map(reference: ViewObservation, surrounding: list, config: MapConfig |
 
 def twin_map_config(twin_keypoints: str = "both") -> MapConfig:
     """The map's settings for SIFT's twin keypoints: ``"both"`` copies (the thesis's map), one point per detection
-    (``"once"``: :attr:`MapConfig.duplicate_px` = :data:`TWIN_PX`), or both copies with each view's keypoint weighed
-    as one measurement in the joint bundle (``"weighted"``: :attr:`MapConfig.one_keypoint_px` = :data:`TWIN_PX`)."""
+    (``"once"``: :attr:`MapConfig.duplicate_px` = :data:`TWIN_PX`), or both copies with each view's shared keypoint
+    weighed as what it is worth in the joint bundle (``"weighted"``: :attr:`MapConfig.one_keypoint_px` =
+    :data:`TWIN_PX`, :data:`TWIN_WORTH` measurements)."""
     if twin_keypoints not in TWIN_CHOICES:
         raise ValueError(f"twin_keypoints: expected one of {', '.join(TWIN_CHOICES)}, got {twin_keypoints!r}")
     return MapConfig(duplicate_px=TWIN_PX if twin_keypoints == "once" else 0.0,

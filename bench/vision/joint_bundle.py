@@ -322,11 +322,11 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
                              problem.distortion(d_d), field)
 
 
-def detection_weights(view, uv, tol_px: float) -> np.ndarray:
-    """Each observation's share of a measurement: ``1 / k`` for each of the ``k`` observations of one view whose
-    keypoints lie within ``tol_px`` of each other (linked pairwise; one keypoint assigned to several map points -
-    SIFT's twins, a second orientation at the same pixel, Lowe 2004 section 5 - is one measurement), 1 for the
-    others.
+def detection_weights(view, uv, tol_px: float, worth: float = 1.0) -> np.ndarray:
+    """Each observation's share of a measurement: the ``k`` observations of one view whose keypoints lie within
+    ``tol_px`` of each other (linked pairwise: one keypoint assigned to several map points - SIFT's twins, a second
+    orientation at the same pixel, Lowe 2004 section 5) share ``worth`` measurements, ``worth / k`` each; the others
+    are one each.
 
     Parameters
     ----------
@@ -336,15 +336,21 @@ def detection_weights(view, uv, tol_px: float) -> np.ndarray:
         Its keypoint (px).
     tol_px : float
         Keypoints closer than this (px) are one (> 0).
+    worth : float
+        What such a shared keypoint is worth, in measurements of a keypoint of its own (1: one measurement; more
+        for a class of keypoints that errs less - :data:`bench.vision.insitu.TWIN_WORTH`); in (0, 2], and no share
+        above 1.
 
     Returns
     -------
     ndarray (N,)
-        Shares in (0, 1]; they sum to the number of distinct keypoints in each view.
+        Shares in (0, 1]; with ``worth`` 1 they sum to the number of distinct keypoints in each view.
     """
     view, uv = np.asarray(view, int), np.asarray(uv, float)
     if not tol_px > 0:
         raise ValueError(f"tol_px: expected > 0, got {tol_px}")
+    if not 0 < worth <= 2:
+        raise ValueError(f"worth: expected a keypoint's worth in (0, 2] measurements, got {worth}")
     if uv.shape != (len(view), 2) or not np.all(np.isfinite(uv)):
         raise ValueError(f"uv: expected ({len(view)}, 2) finite pixels, got shape {uv.shape}")
     w = np.ones(len(view))
@@ -355,7 +361,8 @@ def detection_weights(view, uv, tol_px: float) -> np.ndarray:
             continue
         graph = csr_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(idx), len(idx)))
         _, label = connected_components(graph, directed=False)
-        w[idx] = 1.0 / np.bincount(label)[label]
+        k = np.bincount(label)[label]
+        w[idx] = np.where(k > 1, np.minimum(worth / k, 1.0), 1.0)
     return w
 
 

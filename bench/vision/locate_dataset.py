@@ -41,7 +41,7 @@ from bench.robot.calibration_file import load_calibrated_robot
 from bench.robot.orientation import link5_frame
 from bench.robot.task import retarget_taught_pose, taught_pose
 from bench.vision.features import detect_sift
-from bench.vision.insitu import LocateResult, MapConfig, ViewObservation, build_map, locate, locate_pnp
+from bench.vision.insitu import TWIN_WORTH, LocateResult, MapConfig, ViewObservation, build_map, locate, locate_pnp
 from bench.vision.integrity import (
     KAPPA_UNMEASURED,
     MIN_INLIERS,
@@ -261,12 +261,12 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
     refined poses and camera (:mod:`bench.vision.guided`) and the joint bundle re-run on the grown sets; ``loss``:
     the joint bundle's (``joint_bundle``); ``map_points``: which map points it weighs
     (:func:`~bench.vision.joint_bundle.observations_of`); ``one_keypoint_px`` > 0: a view's observations within it
-    of each other are one keypoint, weighed as one measurement (:func:`~bench.vision.joint_bundle.detection_weights`;
-    0: each observation one); ``field_order``: the covariance with each view's keypoint
-    error field of that order (:mod:`bench.vision.field_covariance`), None: white. Returns ``(result, refined,
-    used)``: ``refined`` False
-    when the thesis's estimate (and covariance) is what comes back; ``used`` the points of every region the returned
-    estimate used (the result's own ``used`` is the first region's)."""
+    of each other are one keypoint, weighed as :data:`~bench.vision.insitu.TWIN_WORTH` measurements
+    (:func:`~bench.vision.joint_bundle.detection_weights`; 0: each observation one); ``field_order``: the
+    covariance with each view's keypoint error field of that order (:mod:`bench.vision.field_covariance`), None:
+    white. Returns ``(result, refined, used)``: ``refined`` False when the thesis's estimate (and covariance) is what
+    comes back; ``used`` the points of every region the returned estimate used (the result's own ``used`` is the
+    first region's)."""
     from bench.camera.model import distort, to_pixels
     from bench.vision.integrity import pose_condition
     from bench.vision.joint_bundle import detection_weights, joint_bundle, observations_of
@@ -289,7 +289,7 @@ def _refine_joints(res, parts, obs, robot, eps, T_link5_cam, camera, sigma_enc, 
             uv.append(to_pixels(distort(x, camera.dist), camera.K))  # the keypoints as detected (x: undistorted)
             X.append(transform_points(kmap.T_world_ref, kmap.p_ref[idx]))
         X, view, uv = np.concatenate(X), np.concatenate(view), np.concatenate(uv)
-        w = detection_weights(view, uv, one_keypoint_px) if one_keypoint_px > 0 else None
+        w = detection_weights(view, uv, one_keypoint_px, TWIN_WORTH) if one_keypoint_px > 0 else None
         return joint_bundle(robot, eps, T_link5_cam, q_read, is_loc, T_start, view, np.concatenate(point), uv, X,
                             sigma_enc, 0.1, camera.K, camera.dist, **(priors or {}), loss=loss,
                             field_order=field_order, image_size=camera.size, weights=w), X  # 0.1 px: a start

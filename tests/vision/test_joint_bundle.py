@@ -386,6 +386,13 @@ def test_detection_weights_share_a_keypoint_between_its_observations():
     chain = np.array([[0, 0], [0.008, 0], [0.016, 0]], float)  # each within 0.01 px of the next, the ends not
     assert detection_weights(np.zeros(3, int), chain, 0.01) == pytest.approx(np.full(3, 1 / 3))
     assert detection_weights(np.zeros(0, int), np.zeros((0, 2)), 0.01).shape == (0,)
+    # a shared keypoint worth 1.5 measurements: 0.75 for each of two, 0.5 for each of three, never above 1
+    assert detection_weights(view, uv, 0.01, worth=1.5).tolist() == pytest.approx([0.5, 0.5, 0.5, 1, 1, 1, 1])
+    assert detection_weights(view[:2], uv[:2], 0.01, worth=1.5).tolist() == pytest.approx([0.75, 0.75])
+    assert detection_weights(view[:2], uv[:2], 0.01, worth=2.0).tolist() == pytest.approx([1.0, 1.0])
+    for bad in (0.0, 2.5, np.nan):
+        with pytest.raises(ValueError, match="worth"):
+            detection_weights(view, uv, 0.01, worth=bad)
     with pytest.raises(ValueError, match="tol_px"):
         detection_weights(view, uv, 0.0)
     with pytest.raises(ValueError, match="uv"):
