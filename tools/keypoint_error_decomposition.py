@@ -21,7 +21,8 @@ base pose, and the base-pose error (before the INS tilt) splits into
 * ``twin_pairs`` / ``twin_error_corr``: SIFT's twin keypoints among the points (a second orientation at the same
   pixel, which the thesis's map, the default, keeps; ``--set pipeline.twin_keypoints=once`` merges them) and how
   their true errors correlate in the other views; ``twin_error_rms_px`` / ``single_error_rms_px`` the true error's
-  RMS (per axis) in the other views of the twins' and of the other points' observations.
+  RMS (per axis) in the other views of the twins' and of the other points' observations, ``twin_dev_rms_px`` /
+  ``single_dev_rms_px`` that of their deviations from their point's mean (the part the point does not absorb).
 
 Each part's position NEES is against the bundle's own first-order covariance (white pixel noise at its robust
 ``sigma_px``, kappa 1); ``nees_dev_sandwich`` against the covariance those deviations would give if they were
@@ -141,8 +142,14 @@ def _twin_error_correlation(b, ok, view, point, uv) -> dict:
     def rms(m):
         return float(np.sqrt(np.mean(b[m] ** 2))) if m.any() else float("nan")
 
+    track = _group_mean(b, point, ok, len(uv0))[point]  # each point's mean error: what the point absorbs
+
+    def dev_rms(m):
+        return float(np.sqrt(np.mean((b - track)[m] ** 2))) if m.any() else float("nan")
+
     return {"twin_pairs": len(pairs), "twin_error_corr": num / den if den else float("nan"),
-            "twin_error_rms_px": rms(twin), "single_error_rms_px": rms(single)}
+            "twin_error_rms_px": rms(twin), "single_error_rms_px": rms(single),
+            "twin_dev_rms_px": dev_rms(twin), "single_dev_rms_px": dev_rms(single)}
 
 
 def _pose_response_matrix(el, keep) -> np.ndarray:
