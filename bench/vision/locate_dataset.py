@@ -552,10 +552,11 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         (:data:`~bench.vision.integrity.KAPPA`) - of the estimate returned: 'joints' falls back to the thesis's
         'bundle' when the joint bundle fails or is skipped; 'joints' was measured with the lab priors (without them
         it is unmeasured), over one region and over several (``n_regions`` solved together), on SIFT's keypoints or
-        aligned ones. Returns ``(result, kappa)``."""
+        aligned ones, with SIFT's twins weighed or not. Returns ``(result, kappa)``."""
         used = ("joints" if refined else "bundle") if refine == "joints" else refine
+        twins = "weighted" if used == "joints" and (config or MapConfig()).one_keypoint_px > 0 else "both"
         kappa = (kappa_of(used, pnp, n_regions, "aligned" if aligned else "sift",
-                          covariance if used == "joints" else "white")
+                          covariance if used == "joints" else "white", twins)
                  if used != "joints" or priors is not None else KAPPA_UNMEASURED)
         return (replace(res, covariance=kappa**2 * np.asarray(res.covariance, float)) if res.success else res), kappa
 

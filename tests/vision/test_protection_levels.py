@@ -193,6 +193,10 @@ def test_kappa_of_the_estimators():
     assert I.kappa_of("joints", keypoints="aligned") == I.KAPPA["joints_aligned"]
     assert I.kappa_of("joints", regions=4, keypoints="aligned") == I.KAPPA["joints_regions_aligned"]
     assert I.kappa_of("bundle", keypoints="aligned") == I.KAPPA_UNMEASURED
+    # SIFT's twins weighed as what they are worth: measured for one region's joint bundle; unmeasured otherwise
+    assert I.kappa_of("joints", twins="weighted") == I.KAPPA["joints_weighted"]
+    assert I.kappa_of("joints", regions=4, twins="weighted") == I.KAPPA_UNMEASURED
+    assert I.kappa_of("joints", keypoints="aligned", twins="weighted") == I.KAPPA_UNMEASURED
 
 
 def _fake_sweep(tmp_path, rng, n=40, optimism=3.0):
