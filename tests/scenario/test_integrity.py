@@ -388,6 +388,15 @@ def _holds_and_refuses_a_duplicate(rendered, res, rep, flags, tmp_path, capsys):
     assert rc == 1 and "integrity: REFUSED" in capsys.readouterr().out
 
 
+def _swapped_images_refused(rendered, tmp_path, **options):
+    """``bench faults`` with a variant's ``options`` refuses the swapped images, and neither it nor the clean copy is
+    silent."""
+    tmp, camera, robot = rendered
+    rows = {r["fault"]: r for r in F.run_faults(tmp / "ds", tmp_path / "faults", faults=["clean", "swap_images"],
+                                                seed=0, camera=camera, robot=robot, verbose=False, **options)}
+    assert rows["swap_images"]["integrity"] == "refused" and not any(r["silent"] for r in rows.values())
+
+
 def test_field_covariance_on_a_rendered_dataset(rendered, capsys, tmp_path):
     """pipeline.covariance: field - the joint bundle's covariance with each view's keypoint error field, measured on
     its residuals. On a rendered dataset the images' pose is the white covariance's (the covariance differs, and with
@@ -410,10 +419,7 @@ def test_field_covariance_on_a_rendered_dataset(rendered, capsys, tmp_path):
     assert np.allclose(vision[0], vision[1], rtol=0, atol=1e-12)
     assert not np.allclose(field.covariance, white.covariance)
     _holds_and_refuses_a_duplicate(rendered, field, rep_f, ["--covariance", "field"], tmp_path, capsys)
-    rows = {r["fault"]: r for r in F.run_faults(tmp / "ds", tmp_path / "faults", faults=["clean", "swap_images"],
-                                                seed=0, camera=camera, robot=robot, verbose=False,
-                                                covariance="field")}
-    assert rows["swap_images"]["integrity"] == "refused" and not any(r["silent"] for r in rows.values())
+    _swapped_images_refused(rendered, tmp_path, covariance="field")
     with pytest.raises(ConfigError, match="covariance: expected 'white' or 'field'"):
         locate_dataset(tmp / "ds", None, covariance="sandwich", **kw)
     assert main(["locate", str(tmp / "ds"), "--covariance", "field", "--out", str(tmp_path / "l2")]) == 2
@@ -525,10 +531,7 @@ def test_twin_keypoints_weighted_on_a_rendered_dataset(rendered, capsys, tmp_pat
     assert rep_w["map_points"] == rep_b["map_points"]  # the same map: only the weights differ
     assert np.trace(weighted.covariance[3:, 3:]) > 1.05 * np.trace(both.covariance[3:, 3:])
     _holds_and_refuses_a_duplicate(rendered, weighted, rep_w, ["--twin-keypoints", "weighted"], tmp_path, capsys)
-    rows = {r["fault"]: r for r in F.run_faults(tmp / "ds", tmp_path / "faults", faults=["clean", "swap_images"],
-                                                seed=0, camera=camera, robot=robot, verbose=False,
-                                                twin_keypoints="weighted")}
-    assert rows["swap_images"]["integrity"] == "refused" and not any(r["silent"] for r in rows.values())
+    _swapped_images_refused(rendered, tmp_path, twin_keypoints="weighted")
     with pytest.raises(ConfigError, match="not with twin keypoints 'weighted'"):
         locate_dataset(tmp / "ds", None, covariance="field", config=twin_map_config("weighted"), **kw)
     with pytest.raises(ValueError, match="twin_keypoints: expected one of both, once, weighted"):
