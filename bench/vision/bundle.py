@@ -240,7 +240,7 @@ def solve(problem, theta0, mean, info0, X, sigma_px: float, iterations: int = 10
         kept residuals, at every linearisation): keypoint errors have heavy tails below the gate too.
     weights : ndarray (N,), optional
         Each observation's share of a measurement (0 < w <= 1): its squared residual, its information and its part
-        of the noise estimate's sums and degrees of freedom are multiplied by it - e.g. ``1 / k`` for each of ``k``
+        of the noise estimate's sums and degrees of freedom are multiplied by it - e.g. ``worth / k`` for each of ``k``
         observations that are one keypoint (:func:`bench.vision.joint_bundle.detection_weights`). None: 1 each (the
         gate's robust sigma is the residuals' median either way).
     """

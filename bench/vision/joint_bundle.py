@@ -267,8 +267,8 @@ def joint_bundle(robot, eps, T_link5_cam, q_read, is_locate, T_site_b2, view, po
         field of that order, measured on the residuals (:func:`bench.vision.field_covariance.field_covariance`;
         ``field`` of the result); None: the first-order covariance of white pixel noise.
     weights : ndarray (N,), optional
-        Each observation's share of a measurement (:func:`detection_weights`: ``1 / k`` for each of ``k``
-        observations of one view at the same pixel - one keypoint); None: each observation is one measurement.
+        Each observation's share of a measurement (:func:`detection_weights`: ``worth / k`` for each of the ``k``
+        observations of one view at one pixel - one keypoint); None: each observation is one measurement.
     """
     if field_order is not None and image_size is None:
         raise ValueError("field_order needs the image_size (w, h)")
