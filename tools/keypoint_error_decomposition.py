@@ -115,10 +115,11 @@ def _group_mean(values, groups, mask, size) -> np.ndarray:
     return out / np.maximum(np.bincount(groups[mask], minlength=size), 1)[:, None]
 
 
-def _twin_error_correlation(b, ok, view, point, uv) -> dict:
+def _twin_error_correlation(b, dev, ok, view, point, uv) -> dict:
     """SIFT's twins among the bundle's points (reference keypoints within ``TWIN_PX`` of each other: ``twin_pairs``)
     and the correlation of their true errors in the other views (``twin_error_corr``: sum of the pairs' products over
-    the mean of their squares, pooled over the views and axes; NaN without twins)."""
+    the mean of their squares, pooled over the views and axes; NaN without twins); the RMS in the other views of the
+    true errors ``b`` and of their deviations ``dev`` from each point's mean, for the twins and for the other points."""
     from scipy.spatial import cKDTree
 
     from bench.vision.insitu import TWIN_PX
@@ -136,20 +137,15 @@ def _twin_error_correlation(b, ok, view, point, uv) -> dict:
             if i is not None and j is not None:
                 num += float(b[i] @ b[j])
                 den += 0.5 * float(b[i] @ b[i] + b[j] @ b[j])
-    twin = np.isin(point, np.asarray(pairs, int).ravel()) & ok & (view > 0)
-    single = ~np.isin(point, np.asarray(pairs, int).ravel()) & ok & (view > 0)
+    in_pair = np.isin(point, np.asarray(pairs, int).ravel())
+    twin, single = (m & ok & (view > 0) for m in (in_pair, ~in_pair))
 
-    def rms(m):
-        return float(np.sqrt(np.mean(b[m] ** 2))) if m.any() else float("nan")
-
-    track = _group_mean(b, point, ok, len(uv0))[point]  # each point's mean error: what the point absorbs
-
-    def dev_rms(m):
-        return float(np.sqrt(np.mean((b - track)[m] ** 2))) if m.any() else float("nan")
+    def rms(e, m):
+        return float(np.sqrt(np.mean(e[m] ** 2))) if m.any() else float("nan")
 
     return {"twin_pairs": len(pairs), "twin_error_corr": num / den if den else float("nan"),
-            "twin_error_rms_px": rms(twin), "single_error_rms_px": rms(single),
-            "twin_dev_rms_px": dev_rms(twin), "single_dev_rms_px": dev_rms(single)}
+            "twin_error_rms_px": rms(b, twin), "single_error_rms_px": rms(b, single),
+            "twin_dev_rms_px": rms(dev, twin), "single_dev_rms_px": rms(dev, single)}
 
 
 def _pose_response_matrix(el, keep) -> np.ndarray:
@@ -224,7 +220,7 @@ def decompose(scenario: Path, run: Path, overrides: list) -> dict:
     G = _pose_response_matrix(el, keep)[3:]
     sig = np.where(is_loc, rms["locate"], rms["survey"])
     C_sw = np.einsum("inj,knj->ik", G * sig[None, :, None], G * sig[None, :, None])
-    twins = _twin_error_correlation(b, ok, view, point, uv)
+    twins = _twin_error_correlation(b, dev, ok, view, point, uv)
     return {"run": run.name, "seed": result["seed"], "observations": int(keep.sum()), "sigma_px": s,
             "true_px_robust": float(1.4826 * np.median(np.abs(b[ok]))),
             "track_rms_px": float(np.sqrt(np.mean(track_means[np.bincount(point[ok], minlength=M) > 0] ** 2))),

@@ -28,13 +28,13 @@ sys.path.insert(0, str(ROOT))
 
 def errors(run: Path, method: str) -> dict:
     """``{d_mm: (rms in table axes (3,), rms in camera axes (3,))}`` of one run's combinations of ``method``."""
-    from bench.geometry.transforms import rot_x, rot_y, rot_z
+    from bench.vision.handeye import mount_rotation
 
     m = json.loads((run / "result.json").read_text())["metrics"]
     if "theta_y0_deg" not in m:
         raise SystemExit(f"{run}: no searched mount rotation in result.json (pipeline.mount_bias was not 'estimated')")
     deg = np.pi / 180
-    R0 = rot_y(m["theta_y0_deg"] * deg) @ rot_x(m["theta_x0_deg"] * deg) @ rot_z(m["theta_z0_deg"] * deg)  # Eq. 197
+    R0 = mount_rotation(*(m[f"theta_{a}0_deg"] * deg for a in "xyz"))  # Eq. 197
     per: dict = {}
     with open(run / "combinations.csv", newline="") as f:
         for row in csv.DictReader(f):

@@ -457,7 +457,8 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         raise ConfigError("locate_dataset", "keypoints", f"expected 'sift' or 'aligned', got {keypoints!r}")
     if covariance not in ("white", "field"):
         raise ConfigError("locate_dataset", "covariance", f"expected 'white' or 'field', got {covariance!r}")
-    if covariance == "field" and config is not None and config.one_keypoint_px > 0:
+    one_keypoint_px = (config or MapConfig()).one_keypoint_px  # SIFT's twins weighed (pipeline.twin_keypoints)
+    if covariance == "field" and one_keypoint_px > 0:
         raise ConfigError("locate_dataset", "covariance", "the keypoint-field covariance weighs every observation as "
                           "one measurement: not with twin keypoints 'weighted'")
     if ins_tilt not in ("fuse", "check"):
@@ -506,7 +507,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         """:func:`_combine` of the regions ``include`` with this call's robot, camera and settings."""
         return _combine(per, include, maps, regions, obs, refine, robot, eps, T_link5_cam, pixels_camera, sigma_enc,
                         priors, guided, loss, map_points, FIELD_ORDER if covariance == "field" else None,
-                        (config or MapConfig()).one_keypoint_px)
+                        one_keypoint_px)
 
     def solve(obs):
         """Every region's map and thesis estimate, then their estimate together (:func:`_combine`: the joint
@@ -554,7 +555,7 @@ def locate_dataset(root, out=None, method: str = "svd", pnp: bool = False, confi
         it is unmeasured), over one region and over several (``n_regions`` solved together), on SIFT's keypoints or
         aligned ones, with SIFT's twins weighed or not. Returns ``(result, kappa)``."""
         used = ("joints" if refined else "bundle") if refine == "joints" else refine
-        twins = "weighted" if used == "joints" and (config or MapConfig()).one_keypoint_px > 0 else "both"
+        twins = "weighted" if used == "joints" and one_keypoint_px > 0 else "both"
         kappa = (kappa_of(used, pnp, n_regions, "aligned" if aligned else "sift",
                           covariance if used == "joints" else "white", twins)
                  if used != "joints" or priors is not None else KAPPA_UNMEASURED)
