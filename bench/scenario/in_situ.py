@@ -149,6 +149,10 @@ class Site(Section):
         "[x, y] of each region's aim point from the panel centre in the panel's plane (x to the right as the arm "
         "sees it, y up): each region has its own reference, surrounding and locate views (regions after the "
         "first: views rK_ref, rK_surveyNN, rK_locateN), solved together by pipeline.refine=joints")] = [[0.0, 0.0]]
+    region_views: Annotated[Literal["shifted", "aimed"], about(
+        "how a region after the first is viewed: shifted, the first region's eyes moved in the panel's plane by the "
+        "aim points' offset; aimed, the same eyes as the first region's, turned to the region's aim point (wider "
+        "aim points within the arm's reach, oblique views)")] = "shifted"
 
 
 class Vehicle(Section):
@@ -509,10 +513,11 @@ def _teach(robot, eps, T_wb1, T_wb2, valves, q_seed, rolls: int = 12):
     return None
 
 
-def _why_unreachable(robot, eps, cfg, eyes, centre, valves, mount) -> str:
-    """The reason, in numbers, that no parking reached the views and valve: the first view the nominal parking (no
-    ROV offset) cannot reach, with the wrist's reach (:func:`bench.sim.views.reach_diagnosis`); else the valve's
-    distance against the tool's reach; else the parking perturbation."""
+def _why_unreachable(robot, eps, cfg, looks, valves, mount) -> str:
+    """The reason, in numbers, that no parking reached the views (``looks``: ``(eye, aim point)`` of each, world)
+    and valve: the first view the nominal parking (no ROV offset) cannot reach, with the wrist's reach
+    (:func:`bench.sim.views.reach_diagnosis`); else the valve's distance against the tool's reach; else the parking
+    perturbation."""
     from bench.sim.views import reach_diagnosis, wrist_reach
 
     site = cfg["site"]
@@ -520,10 +525,10 @@ def _why_unreachable(robot, eps, cfg, eyes, centre, valves, mount) -> str:
         f"site.panel_centre_m {site['panel_centre_m']}"
     where = f"site.standoff_m {site['standoff_m']:g} m, {placed}"
     q_seed = None
-    for eye in eyes:
-        sol = _plan(robot, np.eye(4), eye, centre, mount, q_seed)
+    for eye, aim in looks:
+        sol = _plan(robot, np.eye(4), eye, aim, mount, q_seed)
         if not sol.success:
-            d = reach_diagnosis(robot, eye, centre, mount)
+            d = reach_diagnosis(robot, eye, aim, mount)
             return f"{where}: even at the nominal parking, {d['message']}"
         q_seed = sol.q if q_seed is None else q_seed
     if cfg["task"]["teach"] and valves:
@@ -683,9 +688,10 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         region_views = []  # the other regions' views: rendered last (no draw of the first region's views moves)
         for shift, name in regions[1:] if ok else []:
             d = shift - shift0
+            move = d if site["region_views"] == "shifted" else np.zeros(3)  # aimed: the first region's eyes
             plan = ([(f"{name}_ref" if i == 0 else f"{name}_survey{i:02d}", "reference" if i == 0 else "surround",
-                      T_wb1, e + d) for i, e in enumerate(survey_eyes)]
-                    + [(f"{name}_locate{i}", "locate", T_wb2, e + d) for i, e in enumerate(locate_eyes)])
+                      T_wb1, e + move) for i, e in enumerate(survey_eyes)]
+                    + [(f"{name}_locate{i}", "locate", T_wb2, e + move) for i, e in enumerate(locate_eyes)])
             for view, role, T_wb, eye in plan:
                 sol = _plan(robot, T_wb, eye, centre_aim + d, mount_nominal, site_views[0][3])
                 if not sol.success:
@@ -698,10 +704,11 @@ def render(cfg, out_dataset, verbose=True, cache_dir=None) -> dict:
         if ok and cfg["task"]["teach"] and task is None:
             ok = False  # no valve within reach at both parkings: the pilot parks again
     if not ok:
-        eyes = [e + shift - shift0 for shift, _ in regions for e in survey_eyes + locate_eyes]
+        shifted = site["region_views"] == "shifted"
+        looks = [(e + (shift - shift0 if shifted else 0.0), centre + shift) for shift, _ in regions
+                 for e in survey_eyes + locate_eyes]
         raise ConfigError(cfg["_file"], "site", f"no reachable set of views (and valve) in {parkings} random parkings: "
-                                                + _why_unreachable(robot, eps, cfg, eyes, centre, valves,
-                                                                   mount_nominal))
+                                                + _why_unreachable(robot, eps, cfg, looks, valves, mount_nominal))
     views += site_views
     n_paired = len(views)  # the views every variant renders: the ones after read their own encoder stream
     # rig_in_air: before the tank is flooded, closer by the port's magnification so that the rig covers the image as

@@ -13,7 +13,7 @@ pytest.importorskip("mujoco")
 from bench.dataset import load_dataset  # noqa: E402
 from bench.errors import ConfigError  # noqa: E402
 from bench.geometry.transforms import rotation_angle  # noqa: E402
-from bench.scenario.runner import load_scenario  # noqa: E402
+from bench.scenario.runner import kind_module, load_scenario  # noqa: E402
 from bench.vision.locate_dataset import locate_dataset  # noqa: E402
 from tests.scenario.test_integrity import SCENARIO, SMALL, render_with_oracle  # noqa: E402
 
@@ -193,3 +193,39 @@ def test_the_covariance_of_several_regions_has_its_own_kappa(two_regions, tmp_pa
     res2, rep2 = locate_dataset(ds, None, **kw)
     assert rep2["regions"]["r1"]["solved"] is False and "7 views' joints" in res2.message
     assert rep2["covariance_kappa"] == I.KAPPA["joints"]
+
+
+def test_aimed_regions_keep_the_first_regions_eyes_and_turn_to_their_aim_points(tmp_path):
+    """``site.region_views: aimed``: region r1's views sit where region r0's do (the same planned eyes; the true arm
+    and mount move both alike, to within a few mm) and look at r1's aim point, 0.3 m to the side - where ``shifted``
+    would move them 0.3 m."""
+    from bench.robot.orientation import link5_frame
+
+    ds_dir = tmp_path / "ds"
+    cfg = load_scenario(SCENARIO, seed=3, overrides=[*SMALL, "site.regions_m=[[0, 0], [0.3, 0]]",
+                                                     "site.region_views=aimed", "bound.enabled=false",
+                                                     "task.teach=false"])
+    kind_module("in_situ", SCENARIO).render(cfg, ds_dir, verbose=False)
+    truth = yaml.safe_load((ds_dir / "truth" / "truth.yaml").read_text())
+    robot, eps = load_dataset(ds_dir).robot(), np.array(truth["errors"])
+    T_l5_cam = np.array(truth["T_link5_cam"])
+
+    def camera(name):
+        v = truth["views"][name]
+        return np.array(v["T_world_base"]) @ link5_frame(robot, np.array(v["q_true"]), eps) @ T_l5_cam
+
+    T_wp = np.array(truth["T_world_panel"])
+    aim = T_wp[:3, 3] + T_wp[:3, :3] @ np.array([0.3, 0.0, 0.0])
+    def angle(u, v):
+        return np.degrees(np.arccos(np.clip(u @ v / np.linalg.norm(u) / np.linalg.norm(v), -1, 1)))
+
+    for name in ("ref", "survey01", "survey03", "locate0", "locate1"):
+        T0, T1 = camera(name), camera(f"r1_{name}")
+        c0, c1 = T0[:3, 3], T1[:3, 3]
+        assert np.linalg.norm(c1 - c0) < 0.01, name  # the same eye (shifted: 0.3 m apart)
+        # each looks at its own aim point but for the true arm's and mount's errors (planned on the nominal ones:
+        # 3-5 deg here, alike in both), and the two optical axes part by the angle between the aim points
+        assert angle(T1[:3, 2], aim - c1) < 6 and angle(T1[:3, 2], T_wp[:3, 3] - c1) > 15, name
+        assert abs(angle(T0[:3, 2], T1[:3, 2]) - angle(T_wp[:3, 3] - c0, aim - c1)) < 1.5, name
+    with pytest.raises(ConfigError, match="site.region_views"):
+        load_scenario(SCENARIO, seed=3, overrides=[*TWO, "site.region_views=tilted"])
