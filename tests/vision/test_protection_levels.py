@@ -310,11 +310,11 @@ def test_relocate_sweep_refuses_what_it_cannot_redo(tmp_path, capsys):
         (run / "result.json").write_text(json.dumps({"scenario": "ta40_in_situ_manifold"}))
     with pytest.raises(SystemExit, match="a run of scenario 'ta40_in_situ_manifold'"):
         R.main([str(sweep), envelope])
-    set_params({"pipeline.refine": "bundle"})  # redone with --set giving it the run's value: past that check
+    set_params({"pipeline.method": "horn"})  # redone with --set giving it the run's value: past that check
     with pytest.raises(SystemExit, match="a run of scenario 'ta40_in_situ_manifold'"):
-        R.main([str(sweep), envelope, "--set", "pipeline.refine=bundle"])
-    with pytest.raises(SystemExit, match="pipeline.refine='bundle'"):
-        R.main([str(sweep), envelope, "--set", "pipeline.refine=none"])
+        R.main([str(sweep), envelope, "--set", "pipeline.method=horn"])
+    with pytest.raises(SystemExit, match="pipeline.method='horn'"):
+        R.main([str(sweep), envelope, "--set", "pipeline.method=svd"])
 
 
 def _panel_map(rng, n=150, spread_m=0.0):
