@@ -21,7 +21,9 @@ reported them (the constants of :mod:`bench.vision.integrity` at the time of the
 * a Stanford-style plot: position error against protection radius for every run, coloured by integrity.
 
 ``--locate`` reads each run's localisation from another file of its folder (``tools/relocate_sweep.py`` writes
-``relocated/locate.json``: the same datasets localised by a later version). With ``--doc``, the markdown goes
+``relocated/locate.json``: the same datasets localised by a later version). ``--against`` pairs every run with
+another localisation of the same dataset (e.g. ``regions_r0/locate.json``: ``tools/relocate_sweep.py --regions r0``,
+the survey's first region alone) and tabulates both, per standoff. With ``--doc``, the markdown goes
 between ``<!-- envelope:begin -->`` and ``<!-- envelope:end -->`` of that file.
 """
 
@@ -262,6 +264,37 @@ def report(runs, figure: Path | None, locate: str = "locate.json") -> str:
     return "\n".join(lines) + "\n"
 
 
+def paired(runs, other, label: str) -> str:
+    """Markdown: ``runs`` against ``other`` (the same runs' datasets localised otherwise, by run id), per standoff:
+    the integrity counts both ways, and over the runs with a pose both ways the median position / rotation errors
+    and how many ``runs`` localised more precisely."""
+    by_id = {r["run_id"]: r for r in other}
+    pairs = [(by_id[r["run_id"]], r) for r in runs if r["run_id"] in by_id]
+    lines = [f"Paired with `{label}` ({len(pairs)} runs; the same datasets and lab calibrations):", "",
+             "| standoff | runs | ok / warning / refused: other | this | runs with a pose both ways | "
+             "position error medians other / this (mm) | rotation error medians other / this (deg) | "
+             "this more precise |", "|---|---|---|---|---|---|---|---|"]
+
+    def counts(rs):
+        return " / ".join(str(sum(r.get("integrity") == lv for r in rs)) for lv in ("ok", "warning", "refused"))
+
+    for s in [None, *sorted({b["standoff_m"] for _, b in pairs})]:
+        cell = [(a, b) for a, b in pairs if s is None or b["standoff_m"] == s]
+        both = [(a, b) for a, b in cell if all(x.get("success") and x.get("integrity") != "refused"
+                                               for x in (a, b))]
+        row = f"| {'all' if s is None else f'{s:g} m'} | {len(cell)} | {counts([a for a, _ in cell])} | " \
+              f"{counts([b for _, b in cell])} | {len(both)} | "
+        if both:
+            e = np.array([[a["err_mm"], b["err_mm"]] for a, b in both])
+            d = np.array([[a["err_deg"], b["err_deg"]] for a, b in both])
+            row += (f"{np.median(e[:, 0]):.2f} / {np.median(e[:, 1]):.2f} | {np.median(d[:, 0]):.3f} / "
+                    f"{np.median(d[:, 1]):.3f} | {int(np.sum(e[:, 1] < e[:, 0]))} of {len(both)} |")
+        else:
+            row += "- | - | - |"
+        lines.append(row)
+    return "\n".join(lines) + "\n"
+
+
 def plot(runs, path: Path) -> None:
     from bench.fileio import atomic_save_figure, headless_pyplot
 
@@ -296,6 +329,8 @@ def main(argv=None) -> int:
     ap.add_argument("--figure", type=Path, help="Stanford plot (PNG)")
     ap.add_argument("--locate", default="locate.json",
                     help="each run's localisation file, relative to its folder (default locate.json)")
+    ap.add_argument("--against", metavar="LOCATE",
+                    help="pair every run with this other localisation file of its folder (e.g. regions_r0/locate.json)")
     ap.add_argument("--seeds", help="only the runs of these seeds, e.g. 1,2 (a sweep resumed with fewer seeds keeps "
                                     "the rows of the others)")
     args = ap.parse_args(argv)
@@ -305,7 +340,7 @@ def main(argv=None) -> int:
         print(f"integrity_summary: --seeds {args.seeds!r}: expected whole numbers separated by commas",
               file=sys.stderr)
         return 2
-    runs = []
+    runs, others = [], []
     for sweep in args.sweep:
         if not (sweep / "sweep.sqlite").is_file():
             print(f"integrity_summary: {sweep}: no sweep.sqlite (not a bench sweep folder)", file=sys.stderr)
@@ -316,7 +351,15 @@ def main(argv=None) -> int:
                   "kind than in_situ, or not localised again under that name)", file=sys.stderr)
             return 2
         runs += [r for r in found if seeds is None or r["seed"] in seeds]
+        if args.against:
+            other = load_runs(sweep, args.against)
+            if other and not any((sweep / "runs" / r["run_id"] / args.against).is_file() for r in other):
+                print(f"integrity_summary: {sweep}: none of its runs has {args.against} (--against)", file=sys.stderr)
+                return 2
+            others += other
     text = report(runs, args.figure, args.locate)
+    if args.against:
+        text += "\n" + paired(runs, others, args.against)
     print(text)
     if args.doc:
         doc = args.doc.read_text()

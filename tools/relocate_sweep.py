@@ -1,7 +1,7 @@
 """Re-localise every finished run of an in-situ sweep with this version of the pipeline, without re-rendering.
 
     python tools/relocate_sweep.py SWEEP_DIR SCENARIO [--name relocated] [--workers 1] [--force]
-        [--set pipeline.KEY=VALUE ...]
+        [--set pipeline.KEY=VALUE ...] [--regions r0[,r1...]]
 
 Each run of a ``bench sweep`` of an ``in_situ`` scenario keeps its dataset (``runs/<id>/dataset``) and the lab's
 calibration of it (``runs/<id>/calibrated``: camera, arm + mount, and the calibration priors). This tool runs
@@ -13,7 +13,14 @@ is redone only when ``--set`` gives the key the run's value, else the sweep is r
 tests or the estimator changed after a long sweep whose renders and lab calibrations did not (``git diff`` of
 ``bench/sim`` and of the calibrations is empty): the re-localised runs are then what a new sweep would give, at ~3 s
 per run instead of ~25 s.
-``tools/integrity_summary.py --locate <name>/locate.json`` summarises them. A run already re-localised is skipped
+``tools/integrity_summary.py --locate <name>/locate.json`` summarises them.
+
+``--regions r0`` localises each run from the views of the named regions of its survey only (the manifest's
+``region``; a view without one, such as a taught task pose, is kept): the dataset is cut to them in
+``runs/<id>/<name>/dataset`` (manifest, joint log, the images hard-linked; no ``truth/``) and localised from
+there, so that a survey over several regions and the same survey's first region alone are compared on the same
+renders (``tools/integrity_summary.py --against <name>/locate.json``); the default name is then
+``regions_<names>``. A run already re-localised is skipped
 (``--force`` redoes it, removing the old file first); a run that fails is reported and the others go on. The
 workers end with this process, whatever ends it (:func:`bench.scenario.sweep._end_with_parent`).
 """
@@ -48,10 +55,11 @@ def _runs(sweep: Path) -> list:
     return [(r["run_id"], int(r["seed"]), r["params"]) for r in read_runs(sweep)]
 
 
-def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None, features_fn=None) -> tuple:
-    """:func:`bench.vision.locate_dataset.locate_dataset` on a run's ``dataset/`` with its ``calibrated/`` lab files
-    and the scenario's ``pipeline`` settings, as the ``in_situ`` kind passes them; ``(result, report)``.
-    ``features_fn`` replaces the SIFT detector (an evaluator's keypoints, as ``locate_dataset`` takes it)."""
+def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None, features_fn=None, dataset=None) -> tuple:
+    """:func:`bench.vision.locate_dataset.locate_dataset` on a run's ``dataset/`` (or ``dataset``) with its
+    ``calibrated/`` lab files and the scenario's ``pipeline`` settings, as the ``in_situ`` kind passes them;
+    ``(result, report)``. ``features_fn`` replaces the SIFT detector (an evaluator's keypoints, as ``locate_dataset``
+    takes it)."""
     import warnings
 
     from bench.scenario.in_situ_lab import refines_k3
@@ -62,7 +70,8 @@ def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None, fea
     priors = cal / "calibration_priors.yaml"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return locate_dataset(run / "dataset", out, method=pipeline["method"], seed=seed,
+        return locate_dataset(run / "dataset" if dataset is None else dataset, out, method=pipeline["method"],
+                              seed=seed,
                               config=twin_map_config(pipeline.get("twin_keypoints", "both")),
                               verbose=False, camera_path=cal / "camera.yaml", robot_path=cal / "robot.yaml",
                               refine=pipeline["refine"], ransac=dict(iterations=pipeline["ransac_iterations"],
@@ -78,15 +87,76 @@ def locate_run(run: Path, seed: int, pipeline: dict, out=None, details=None, fea
                               covariance=pipeline.get("covariance", "white"))
 
 
-def relocate(run_dir: str, seed: int, pipeline: dict, name: str) -> tuple:
-    """One run: ``(run_id, integrity or the error, seconds)``."""
+#: The marker's command of a cut dataset (:func:`cut_regions`).
+CUT = "relocate_sweep --regions"
+
+
+def cut_regions(dataset: Path, regions: list, out: Path) -> Path:
+    """A copy of ``dataset`` at ``out`` with only the views of ``regions`` (and the views without a region): the
+    manifest's views and the joint log's rows cut to them, their images hard-linked (copied across file systems),
+    the other files copied, ``truth/`` left out. A region the dataset does not have is a one-line error naming
+    the manifest."""
+    import csv
+    import io
+    import shutil
+
+    import yaml
+
+    from bench.errors import ConfigError
+    from bench.fileio import OUTPUT_MARKER, check_output_dir, check_replaceable, mark_output_dir, record_output_entries
+
+    man_path = dataset / "manifest.yaml"
+    man = yaml.safe_load(man_path.read_text())
+    views = man.get("views") or []
+    have = list(dict.fromkeys(v.get("region") for v in views if v.get("region")))
+    missing = [r for r in regions if r not in have]
+    if missing:
+        raise ConfigError(man_path, "views[].region", f"no region {missing[0]!r} (the survey's regions: "
+                                                      f"{', '.join(have) or 'none'})")
+    keep = [v for v in views if not v.get("region") or v["region"] in regions]
+    # an earlier cut is replaced; a folder of anyone else's is refused (a one-line error naming it), never removed
+    if check_output_dir(out, CUT, force=True, option="the cut dataset") in ("own", "replace"):
+        check_replaceable(out, "the cut dataset")
+        shutil.rmtree(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for f in dataset.iterdir():
+        if f.is_file() and f.name not in ("manifest.yaml", "joints.csv", OUTPUT_MARKER):
+            shutil.copy2(f, out / f.name)
+    for v in keep:
+        if v.get("image"):
+            dst = out / v["image"]
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.link(dataset / v["image"], dst)
+            except OSError:
+                shutil.copy2(dataset / v["image"], dst)
+    (out / "manifest.yaml").write_text(yaml.safe_dump({**man, "views": keep}, sort_keys=False))
+    if (dataset / "joints.csv").is_file():
+        names = {v["name"] for v in keep}
+        lines = [ln for ln in (dataset / "joints.csv").read_text().splitlines() if ln.strip()]
+        rows = list(csv.reader(lines))
+        buf = io.StringIO()
+        csv.writer(buf, lineterminator="\n").writerows([rows[0], *(r for r in rows[1:] if r and r[0] in names)])
+        (out / "joints.csv").write_text(buf.getvalue())
+    mark_output_dir(out, CUT)
+    record_output_entries(out)
+    return out
+
+
+def relocate(run_dir: str, seed: int, pipeline: dict, name: str, regions=None) -> tuple:
+    """One run: ``(run_id, integrity or the error, seconds)``; ``regions``: localised from those regions' views
+    only (:func:`cut_regions`)."""
     from bench.errors import BenchError
 
     run = Path(run_dir)
     (run / name / "locate.json").unlink(missing_ok=True)  # never a stale result beside a failed run
     t0 = time.perf_counter()
     try:
-        _, rep = locate_run(run, seed, pipeline, out=run / name)
+        if regions:
+            _, rep = locate_run(run, seed, pipeline, out=run / name,
+                                dataset=cut_regions(run / "dataset", regions, run / name / "dataset"))
+        else:
+            _, rep = locate_run(run, seed, pipeline, out=run / name)
     except BenchError as exc:
         return run.name, f"error: {exc}", time.perf_counter() - t0
     except Exception as exc:  # noqa: BLE001 - one run's failure is reported; the others go on
@@ -98,12 +168,19 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sweep", type=Path)
     ap.add_argument("scenario", type=Path, help="the sweep's scenario file (its pipeline settings)")
-    ap.add_argument("--name", default="relocated", help="sub-folder of each run for the new locate.json")
+    ap.add_argument("--name", help="sub-folder of each run for the new locate.json (default relocated, or "
+                                   "regions_<names> with --regions)")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--force", action="store_true", help="re-localise runs already done")
     ap.add_argument("--set", action="append", default=[], metavar="pipeline.KEY=VALUE",
                     help="override a pipeline key of the scenario (e.g. pipeline.guided=true); repeatable")
+    ap.add_argument("--regions", help="localise from these regions' views only, e.g. r0 (comma-separated)")
     args = ap.parse_args(argv)
+    regions = [r.strip() for r in args.regions.split(",") if r.strip()] if args.regions is not None else None
+    if regions is not None and not regions:
+        raise SystemExit(f"--regions {args.regions!r}: expected region names separated by commas, e.g. r0")
+    if args.name is None:
+        args.name = "regions_" + "_".join(regions) if regions else "relocated"
     if args.workers < 1:
         raise SystemExit(f"--workers: expected >= 1, got {args.workers}")
     if not args.name or "/" in args.name or args.name.startswith(".") or args.name in ("dataset", "calibrated"):
@@ -138,19 +215,23 @@ def main(argv=None) -> int:
             raise SystemExit(f"{run}: a run of scenario {name!r}, not of {args.scenario} ({cfg.get('name')!r})")
         if (run / args.name / "locate.json").is_file() and not args.force:
             continue
-        todo.append((str(run), seed, cfg["pipeline"]))
+        todo.append((str(run), seed, cfg["pipeline"], args.name, regions))
     print(f"{len(todo)} runs to re-localise", file=sys.stderr)
     from bench.scenario.sweep import _end_with_parent, stop_pool
 
     counts, futs = {}, []
     pool = ProcessPoolExecutor(args.workers, initializer=_end_with_parent, initargs=(os.getpid(),))
     try:
-        futs = [pool.submit(relocate, r, s, p, args.name) for r, s, p in todo]
+        futs = [pool.submit(relocate, *job) for job in todo]
         for i, f in enumerate(as_completed(futs), 1):
             rid, integrity, dt = f.result()
             key = integrity if not integrity.startswith("error") else "error"
             counts[key] = counts.get(key, 0) + 1
-            print(f"\r[{i}/{len(todo)}] {rid}: {integrity[:60]} ({dt:.1f} s)" + " " * 10, end="", file=sys.stderr)
+            if key == "error":  # in full, on its own line: the reason names the file or field
+                print(f"\r[{i}/{len(todo)}] {rid}: {integrity}", file=sys.stderr)
+            else:
+                print(f"\r[{i}/{len(todo)}] {rid}: {integrity[:60]} ({dt:.1f} s)" + " " * 10, end="",
+                      file=sys.stderr)
     except KeyboardInterrupt:
         print(f"\ninterrupted after {sum(counts.values())} runs {counts}: the next start does the rest",
               file=sys.stderr)

@@ -317,6 +317,73 @@ def test_relocate_sweep_refuses_what_it_cannot_redo(tmp_path, capsys):
         R.main([str(sweep), envelope, "--set", "pipeline.method=svd"])
 
 
+def test_relocate_cuts_a_survey_to_the_named_regions(tmp_path):
+    """--regions: the manifest's views and the joint log's rows of the named regions (and the views without a
+    region) only, their images the same files, no truth; a region the survey lacks, or a folder that is not an
+    earlier cut, is a one-line error and nothing of it is removed."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import relocate_sweep as R
+
+    from bench.dataset import DatasetWriter, load_dataset
+    from bench.errors import BenchError, ConfigError
+
+    rng = np.random.default_rng(5)
+    src = tmp_path / "dataset"
+    with DatasetWriter(src, kind="in_situ") as w:
+        for region in ("r0", "r1", "r2"):
+            for role, name in (("reference", "ref"), ("surround", "s0"), ("locate", "l0"), ("locate", "l1")):
+                w.add_view(f"{region}_{name}", rng.integers(0, 255, (8, 8), dtype=np.uint8),
+                           q=rng.uniform(-1, 1, 6), role=role, region=region)
+        w.add_view("task", None, q=rng.uniform(-1, 1, 6), role="task")
+        w.write_text("truth/truth.yaml", "secret: 1\n")
+        w.write_text("vehicle.yaml", "tilt_sigma_deg: 0.01\n")
+    cut = R.cut_regions(src, ["r0", "r2"], tmp_path / "cut" / "dataset")
+    ds, full = load_dataset(cut), load_dataset(src)
+    assert [v.name for v in ds.views] == [v.name for v in full.views if v.region in ("r0", "r2", "")]
+    assert len(ds.views) == 9 and not (cut / "truth").exists() and (cut / "vehicle.yaml").is_file()
+    for v in ds.views:  # the same images and readings
+        np.testing.assert_array_equal(v.q, full.view(v.name).q)
+        if v.image_path is not None:
+            assert v.image_path.read_bytes() == full.view(v.name).image_path.read_bytes()
+    assert R.cut_regions(src, ["r1"], cut) == cut  # an earlier cut is replaced
+    assert {v.region for v in load_dataset(cut).views} == {"r1", ""}
+    with pytest.raises(ConfigError, match=r"manifest.yaml: views\[\].region: no region 'r7' \(the survey's regions: "
+                                          r"r0, r1, r2\)"):
+        R.cut_regions(src, ["r7"], tmp_path / "other")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    with pytest.raises(BenchError, match="non-empty folder that bench did not write"):
+        R.cut_regions(src, ["r0"], mine)
+    assert (mine / "notes.txt").read_text() == "keep me"
+
+
+def test_summary_pairs_two_localisations_of_the_same_runs(tmp_path):
+    """--against: the runs paired by id with another localisation of their datasets; one 2 mm worse everywhere is
+    the less precise in every run, and a pairing with itself is precise to the same digit."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import integrity_summary as S
+
+    sweep = _fake_sweep(tmp_path, np.random.default_rng(3), n=12, optimism=1.0)
+    for run in (sweep / "runs").iterdir():
+        rep = json.loads((run / "locate.json").read_text())
+        T = np.array(rep["T_world_base"])
+        T[:3, 3] += [0.002, 0.0, 0.0]  # 2 mm off in x: further from the truth than a sub-mm error is
+        (run / "worse").mkdir()
+        (run / "worse" / "locate.json").write_text(json.dumps({**rep, "T_world_base": T.tolist(), "integrity":
+                                                               "warning"}))
+    runs, worse = S.load_runs(sweep), S.load_runs(sweep, "worse/locate.json")
+    text = S.paired(runs, worse, "worse/locate.json")
+    row = next(ln for ln in text.splitlines() if ln.startswith("| all |"))
+    assert row.endswith("| 12 of 12 |") and "| 0 / 12 / 0 |" in row
+    assert "| 0.5 m | 6 |" in text and "| 1 m | 6 |" in text
+    same = next(ln for ln in S.paired(runs, runs, "x").splitlines() if ln.startswith("| all |"))
+    med = np.median([r["err_mm"] for r in runs])
+    assert same.endswith("| 0 of 12 |") and f"| {med:.2f} / {med:.2f} |" in same
+    assert S.main([str(sweep), "--against", "worse/locate.json"]) == 0
+    assert S.main([str(sweep), "--against", "nosuch/locate.json"]) == 2
+
+
 def _panel_map(rng, n=150, spread_m=0.0):
     from bench.vision.insitu import KeypointMap
 
